@@ -1,1 +1,23 @@
+//! The rig's simulated world. It is the source of truth for the host's tests, so it shares no
+//! geometry or image code with the host: only `firmware-protocol` and general crates.
+//!
+//! - [`stage`]: the physical X/Y stage (trapezoidal motion, steps, backlash, noise, drift,
+//!   limit switches, homing) on a virtual clock;
+//! - [`native`] and [`grbl`]: controller firmware for the two dialects;
+//! - [`faults`]: fault injection on the line and on moves;
+//! - [`pty`]: the real pseudo-terminal the host opens;
+//! - [`server`]: the loop that ties them together; [`truth`]: the truth file.
 
+pub mod cli;
+pub mod faults;
+pub mod grbl;
+pub mod native;
+pub mod profile;
+pub mod pty;
+pub mod rng;
+pub mod server;
+pub mod stage;
+pub mod truth;
+
+pub use faults::FaultSpec;
+pub use server::{serve, Dialect, EmbeddedSim, SimConfig};

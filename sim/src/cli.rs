@@ -1,0 +1,66 @@
+//! The `rig-sim` command line, shared by the `rig-sim` binary and `rig sim`.
+
+use crate::{serve, Dialect, FaultSpec, SimConfig};
+use std::path::PathBuf;
+use std::sync::atomic::AtomicBool;
+use std::sync::Arc;
+
+/// Run the simulated stage controller on a pseudo-terminal until SIGTERM or Ctrl-C.
+///
+/// Prints the pseudo-terminal's path on the first line of standard output (and links it at
+/// --stage-link), then serves the chosen dialect there. Open that path with `rig stage
+/// --stage PATH --dialect ...` exactly as you would a real controller.
+#[derive(Debug, clap::Args)]
+pub struct SimArgs {
+    /// Controller dialect to speak.
+    #[arg(long, value_enum, default_value = "native")]
+    pub dialect: Dialect,
+    /// Make a symlink to the pseudo-terminal here (replaced if it is an old symlink).
+    #[arg(long, value_name = "PATH")]
+    pub stage_link: Option<PathBuf>,
+    /// Wall-clock seconds per simulated second: 1 = real time, 0 = never wait.
+    #[arg(long, default_value_t = 1.0, value_name = "S")]
+    pub time_scale: f64,
+    /// Seed for every random draw (noise, drift, faults): the same seed replays the same run.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Faults to inject, e.g. `drop=0.001,corrupt=0.001,reset=0.1`. Kinds: drop=P, corrupt=P,
+    /// dup=P, delay=P:MS, stall=[x|y:]P, limit=P, reset=P, estop=P, disconnect=P (byte faults
+    /// per byte, the others per move).
+    #[arg(long, value_name = "SPEC", value_parser = parse_faults, default_value = "")]
+    pub faults: FaultSpec,
+    /// Write the truth (actual carriage position, faults injected) to this JSON file.
+    #[arg(long, value_name = "PATH")]
+    pub truth: Option<PathBuf>,
+    /// Start as if already homed.
+    #[arg(long)]
+    pub start_homed: bool,
+}
+
+fn parse_faults(s: &str) -> Result<FaultSpec, String> {
+    FaultSpec::parse(s).map_err(|e| e.to_string())
+}
+
+/// Runs until SIGTERM/SIGINT; the truth file is complete when this returns.
+pub fn run(args: SimArgs) -> std::io::Result<()> {
+    if !(args.time_scale >= 0.0 && args.time_scale.is_finite()) {
+        return Err(std::io::Error::other(format!("--time-scale {} must be 0 or more", args.time_scale)));
+    }
+    let stop = Arc::new(AtomicBool::new(false));
+    signal_hook::flag::register(signal_hook::consts::SIGTERM, stop.clone())?;
+    signal_hook::flag::register(signal_hook::consts::SIGINT, stop.clone())?;
+    let cfg = SimConfig {
+        dialect: args.dialect,
+        time_scale: args.time_scale,
+        seed: args.seed,
+        faults: args.faults,
+        truth: args.truth,
+        stage_link: args.stage_link,
+        start_homed: args.start_homed,
+    };
+    serve(&cfg, &stop, |p| {
+        use std::io::Write;
+        println!("{}", p.display());
+        let _ = std::io::stdout().flush();
+    })
+}

@@ -1,0 +1,598 @@
+//! A GRBL 1.1 controller (the documented interface: `ok`/`error:N`, `ALARM:N`, `<…>` status
+//! reports, the real-time bytes `?` `!` `~` 0x18 0x85, `$H`, `$J=`, `$X`, `$$`, the banner),
+//! on the simulated stage. GRBL reports machine coordinates (MPos) in mm; with homing toward
+//! the + switches, as GRBL does by default, they run from -max travel to 0 after homing.
+
+use crate::stage::{MotionKind, Stage, StageEvent, StopCause};
+use std::collections::{BTreeMap, VecDeque};
+
+const RX_BUFFER: usize = 128;
+const PLANNER_BLOCKS: usize = 15;
+pub const BANNER: &str = "\r\nGrbl 1.1h ['$' for help]\r\n";
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Block {
+    Move { target: [f64; 2], speed: f64 },
+    Jog { target: [f64; 2], speed: f64 },
+    Dwell { seconds: f64 },
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Mode {
+    Idle,
+    Run,
+    Hold,
+    Jog,
+    Home,
+    Alarm,
+}
+
+/// What holds the parser until the machine catches up (GRBL blocks its main loop for these).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Sync {
+    /// `G4`: wait for the planner to empty, dwell, then `ok`.
+    Dwell,
+    /// `$H`: `ok` when homing is done.
+    Home,
+}
+
+pub struct GrblFirmware {
+    rx: VecDeque<u8>,
+    planner: VecDeque<Block>,
+    current: Option<Block>,
+    sync: Option<(Sync, Option<f64>)>,
+    mode: Mode,
+    /// Critical alarm (hard limit): only a reset is accepted.
+    critical: bool,
+    absolute: bool,
+    inches: bool,
+    feed_mm_min: Option<f64>,
+    pub settings: BTreeMap<u32, f64>,
+    pub rx_overflow: u64,
+}
+
+fn fmt_setting(v: f64) -> String {
+    if v.fract() == 0.0 && v.abs() < 1e9 {
+        format!("{}", v as i64)
+    } else {
+        format!("{v:.3}")
+    }
+}
+
+impl GrblFirmware {
+    pub fn new(stage: &Stage, out: &mut Vec<u8>) -> Self {
+        let c = &stage.cfg;
+        let steps_per_mm = 1000.0 / c.step_um;
+        let settings: BTreeMap<u32, f64> = [
+            (0, 10.0), (1, 25.0), (2, 0.0), (3, 0.0), (4, 0.0), (5, 0.0), (6, 0.0),
+            (10, 1.0), (11, 0.010), (12, 0.002), (13, 0.0),
+            (20, 1.0), (21, 1.0), (22, 1.0), (23, 0.0), (24, 25.0), (25, c.home_speed_um_s * 0.06),
+            (26, 250.0), (27, c.pulloff_um / 1000.0), (30, 1000.0), (31, 0.0), (32, 0.0),
+            (100, steps_per_mm), (101, steps_per_mm), (102, 250.0),
+            (110, c.max_speed_um_s * 0.06), (111, c.max_speed_um_s * 0.06), (112, 500.0),
+            (120, c.accel_um_s2 / 1000.0), (121, c.accel_um_s2 / 1000.0), (122, 10.0),
+            (130, c.travel_um[0] / 1000.0), (131, c.travel_um[1] / 1000.0), (132, 100.0),
+        ]
+        .into_iter()
+        .collect();
+        let mut g = GrblFirmware {
+            rx: VecDeque::new(),
+            planner: VecDeque::new(),
+            current: None,
+            sync: None,
+            mode: Mode::Idle,
+            critical: false,
+            absolute: true,
+            inches: false,
+            feed_mm_min: None,
+            settings,
+            rx_overflow: 0,
+        };
+        g.boot(stage, out);
+        g
+    }
+
+    /// Start-up: banner; with homing enabled and no valid position, the alarm lock.
+    fn boot(&mut self, stage: &Stage, out: &mut Vec<u8>) {
+        self.rx.clear();
+        self.planner.clear();
+        self.current = None;
+        self.sync = None;
+        self.critical = false;
+        self.absolute = true;
+        self.inches = false;
+        self.feed_mm_min = None;
+        out.extend_from_slice(BANNER.as_bytes());
+        if self.settings[&22] != 0.0 && !stage.homed {
+            self.mode = Mode::Alarm;
+            out.extend_from_slice(b"[MSG:'$H'|'$X' to unlock]\r\n");
+        } else {
+            self.mode = Mode::Idle;
+        }
+    }
+
+    fn mode_name(&self, stage: &Stage) -> &'static str {
+        match self.mode {
+            Mode::Idle => "Idle",
+            Mode::Run => "Run",
+            Mode::Hold => {
+                if stage.is_busy() {
+                    "Hold:1"
+                } else {
+                    "Hold:0"
+                }
+            }
+            Mode::Jog => "Jog",
+            Mode::Home => "Home",
+            Mode::Alarm => "Alarm",
+        }
+    }
+
+    pub fn state_name(&self, stage: &Stage) -> String {
+        self.mode_name(stage).to_string()
+    }
+
+    fn status_report(&self, stage: &Stage) -> String {
+        let mut s = format!(
+            "<{}|MPos:{:.3},{:.3},0.000|FS:{},0",
+            self.mode_name(stage),
+            mm3(stage.logical(0)),
+            mm3(stage.logical(1)),
+            if stage.is_busy() { self.feed_mm_min.unwrap_or(0.0).round() as i64 } else { 0 }
+        );
+        let sw = stage.switches();
+        if sw != 0 {
+            s.push_str("|Pn:");
+            if sw & 0b0110 != 0 {
+                s.push('X');
+            }
+            if sw & 0b1_1000 != 0 {
+                s.push('Y');
+            }
+        }
+        s.push_str(">\r\n");
+        s
+    }
+
+    fn alarm(&mut self, stage: &mut Stage, code: u32, out: &mut Vec<u8>) {
+        stage.halt();
+        self.planner.clear();
+        self.current = None;
+        self.sync = None;
+        self.mode = Mode::Alarm;
+        out.extend_from_slice(format!("ALARM:{code}\r\n").as_bytes());
+    }
+
+    /// Bytes from the host: real-time commands act at once, the rest fills the RX buffer.
+    pub fn on_bytes(&mut self, bytes: &[u8], stage: &mut Stage, out: &mut Vec<u8>) {
+        for &b in bytes {
+            match b {
+                b'?' => out.extend_from_slice(self.status_report(stage).as_bytes()),
+                b'!' => {
+                    if matches!(self.mode, Mode::Run | Mode::Jog) {
+                        stage.stop();
+                        self.mode = Mode::Hold;
+                    }
+                }
+                b'~' => {
+                    if self.mode == Mode::Hold && !stage.is_busy() {
+                        self.mode = Mode::Run;
+                        self.resume_current(stage);
+                    }
+                }
+                0x18 => self.soft_reset(stage, out),
+                0x85 => {
+                    if self.mode == Mode::Jog {
+                        stage.stop();
+                        self.planner.retain(|b| !matches!(b, Block::Jog { .. }));
+                        self.current = None;
+                    }
+                }
+                0x80..=0xFF => {} // other real-time overrides: accepted, not modelled
+                _ => {
+                    if self.rx.len() < RX_BUFFER - 1 {
+                        self.rx.push_back(b);
+                    } else {
+                        self.rx_overflow += 1;
+                    }
+                }
+            }
+        }
+        self.pump(stage, out);
+    }
+
+    fn soft_reset(&mut self, stage: &mut Stage, out: &mut Vec<u8>) {
+        let moving = stage.is_busy() && !matches!(stage.motion_kind(), Some(MotionKind::Dwell));
+        stage.halt();
+        if moving {
+            // Reset while in motion: steps may be lost, so GRBL drops its position.
+            stage.lose_reference();
+            out.extend_from_slice(b"ALARM:3\r\n");
+        }
+        self.boot(stage, out);
+    }
+
+    fn resume_current(&mut self, stage: &mut Stage) {
+        match self.current {
+            Some(Block::Move { target, speed }) | Some(Block::Jog { target, speed }) => stage.start_move(target, speed),
+            _ => {}
+        }
+    }
+
+    /// Parses lines while nothing holds the parser and the planner has room; feeds blocks to
+    /// the stage.
+    fn pump(&mut self, stage: &mut Stage, out: &mut Vec<u8>) {
+        loop {
+            self.execute(stage);
+            if self.critical {
+                // Only a reset (and status reports) are heard after a critical alarm.
+                self.rx.clear();
+                return;
+            }
+            if self.sync.is_some() || self.planner.len() >= PLANNER_BLOCKS {
+                return;
+            }
+            let Some(nl) = self.rx.iter().position(|&b| b == b'\n' || b == b'\r') else { return };
+            let line: Vec<u8> = self.rx.drain(..=nl).collect();
+            let line = String::from_utf8_lossy(&line[..nl]).to_string();
+            if line.trim().is_empty() {
+                continue;
+            }
+            match self.line(&line, stage, out) {
+                Ok(true) => out.extend_from_slice(b"ok\r\n"),
+                Ok(false) => {} // ok deferred (sync)
+                Err(code) => out.extend_from_slice(format!("error:{code}\r\n").as_bytes()),
+            }
+        }
+    }
+
+    /// Starts the next planner block when the stage is free.
+    fn execute(&mut self, stage: &mut Stage) {
+        if stage.is_busy() || matches!(self.mode, Mode::Hold | Mode::Alarm | Mode::Home) {
+            return;
+        }
+        self.current = None;
+        match self.planner.pop_front() {
+            Some(b) => {
+                self.current = Some(b);
+                match b {
+                    Block::Move { target, speed } => {
+                        self.mode = Mode::Run;
+                        stage.start_move(target, speed);
+                    }
+                    Block::Jog { target, speed } => {
+                        self.mode = Mode::Jog;
+                        stage.start_move(target, speed);
+                    }
+                    Block::Dwell { seconds } => {
+                        self.mode = Mode::Run;
+                        stage.start_dwell(seconds);
+                    }
+                }
+            }
+            None => {
+                if let Some((Sync::Dwell, Some(s))) = self.sync {
+                    self.sync = Some((Sync::Dwell, None));
+                    self.current = Some(Block::Dwell { seconds: s });
+                    stage.start_dwell(s);
+                    self.mode = Mode::Run;
+                } else if matches!(self.mode, Mode::Run | Mode::Jog) {
+                    self.mode = Mode::Idle;
+                }
+            }
+        }
+    }
+
+    fn soft_ok(&self, t: [f64; 2]) -> bool {
+        if self.settings[&20] == 0.0 {
+            return true;
+        }
+        (0..2).all(|k| t[k] <= 0.0 && t[k] >= -self.settings[&(130 + k as u32)] * 1000.0)
+    }
+
+    /// One line. `Ok(true)`: answer `ok` now; `Ok(false)`: `ok` comes later; `Err(n)`:
+    /// `error:n`.
+    fn line(&mut self, raw: &str, stage: &mut Stage, out: &mut Vec<u8>) -> Result<bool, u32> {
+        let line: String = strip_comments(raw).chars().filter(|c| !c.is_whitespace()).collect::<String>().to_uppercase();
+        if line.is_empty() {
+            return Ok(true);
+        }
+        if let Some(rest) = line.strip_prefix('$') {
+            return self.dollar(rest, stage, out);
+        }
+        if self.mode == Mode::Alarm || self.mode == Mode::Jog {
+            return Err(9);
+        }
+        let words = parse_words(&line)?;
+        self.gcode(&words, stage, false, out).map(|deferred| !deferred)
+    }
+
+    /// G-code words (already validated as letter + number). Returns whether `ok` is deferred.
+    fn gcode(&mut self, words: &[(char, f64)], stage: &mut Stage, jog: bool, out: &mut Vec<u8>) -> Result<bool, u32> {
+        let mut motion: Option<u32> = None;
+        let mut dwell = false;
+        let (mut absolute, mut inches) = (self.absolute, self.inches);
+        let (mut x, mut y, mut f, mut p) = (None, None, None, None);
+        for &(l, v) in words {
+            match l {
+                'G' => {
+                    let g = (v * 10.0).round() as u32;
+                    match g {
+                        0 | 10 => motion = Some(g / 10),
+                        40 => dwell = true,
+                        200 => inches = true,
+                        210 => inches = false,
+                        900 => absolute = true,
+                        910 => absolute = false,
+                        170 | 940 | 540 => {}
+                        _ => return Err(20),
+                    }
+                }
+                'M' => match v as u32 {
+                    0 | 1 | 2 | 5 | 9 | 30 => {}
+                    _ => return Err(20),
+                },
+                'X' => x = Some(v),
+                'Y' => y = Some(v),
+                'Z' => {} // no Z axis on this stage: accepted, nothing moves
+                'F' => f = Some(v),
+                'P' => p = Some(v),
+                'N' | 'S' | 'T' => {}
+                _ => return Err(20),
+            }
+        }
+        if jog && (dwell || motion.is_some()) {
+            return Err(16);
+        }
+        let unit = if inches { 25_400.0 } else { 1000.0 };
+        if !jog {
+            self.absolute = absolute;
+            self.inches = inches;
+        }
+        if let Some(f) = f {
+            if f <= 0.0 {
+                return Err(4);
+            }
+            if !jog {
+                self.feed_mm_min = Some(f * unit / 1000.0);
+            }
+        }
+        if dwell {
+            let s = p.ok_or(28u32)?;
+            if s < 0.0 {
+                return Err(4);
+            }
+            self.sync = Some((Sync::Dwell, Some(s)));
+            return Ok(true); // deferred: `ok` after the dwell
+        }
+        let is_motion = jog || (motion.is_some() && (x.is_some() || y.is_some()));
+        if !is_motion {
+            return Ok(false);
+        }
+        // (deferred = false: `ok` as soon as the block is planned, as GRBL does)
+        // Target from the end of the queued path, in logical µm.
+        let base = self.planned_end(stage);
+        let mut t = base;
+        for (k, v) in [(0, x), (1, y)] {
+            if let Some(v) = v {
+                t[k] = if absolute { v * unit } else { base[k] + v * unit };
+            }
+        }
+        let max_rate = self.settings[&110].min(self.settings[&111]) * 1000.0 / 60.0;
+        let speed = if jog {
+            f.ok_or(16u32)? * unit / 1000.0 * 1000.0 / 60.0
+        } else if motion == Some(0) {
+            max_rate
+        } else {
+            self.feed_mm_min.ok_or(22u32)? * 1000.0 / 60.0
+        }
+        .min(max_rate);
+        if !self.soft_ok(t) {
+            if jog {
+                return Err(15);
+            }
+            // GRBL 1.1: a soft-limit violation is a critical alarm (nothing moved, so the
+            // position is kept); the line gets no `ok`, only a reset continues.
+            self.alarm(stage, 2, out);
+            self.critical = true;
+            out.extend_from_slice(b"[MSG:Reset to continue]\r\n");
+            return Ok(true);
+        }
+        self.planner.push_back(if jog { Block::Jog { target: t, speed } } else { Block::Move { target: t, speed } });
+        if jog {
+            self.mode = Mode::Jog;
+        }
+        self.execute(stage);
+        Ok(false) // not deferred
+    }
+
+    fn planned_end(&self, stage: &Stage) -> [f64; 2] {
+        for b in self.planner.iter().rev().chain(self.current.iter()) {
+            if let Block::Move { target, .. } | Block::Jog { target, .. } = b {
+                return *target;
+            }
+        }
+        [stage.logical(0), stage.logical(1)]
+    }
+
+    fn dollar(&mut self, rest: &str, stage: &mut Stage, out: &mut Vec<u8>) -> Result<bool, u32> {
+        let idle_or_alarm = matches!(self.mode, Mode::Idle | Mode::Alarm) && !stage.is_busy();
+        match rest {
+            "" => {
+                out.extend_from_slice(b"[HLP:$$ $# $G $I $N $x=val $Nx=line $J=line $SLP $C $X $H ~ ! ? ctrl-x]\r\n");
+                Ok(true)
+            }
+            "$" => {
+                if !idle_or_alarm {
+                    return Err(8);
+                }
+                for (k, v) in &self.settings {
+                    out.extend_from_slice(format!("${k}={}\r\n", fmt_setting(*v)).as_bytes());
+                }
+                Ok(true)
+            }
+            "I" => {
+                out.extend_from_slice(b"[VER:1.1h.20190830:rig-sim]\r\n[OPT:V,15,128]\r\n");
+                Ok(true)
+            }
+            "G" => {
+                let g = format!(
+                    "[GC:G0 G54 G17 {} {} G94 M5 M9 T0 F{} S0]\r\n",
+                    if self.inches { "G20" } else { "G21" },
+                    if self.absolute { "G90" } else { "G91" },
+                    fmt_setting(self.feed_mm_min.unwrap_or(0.0))
+                );
+                out.extend_from_slice(g.as_bytes());
+                Ok(true)
+            }
+            "#" => {
+                out.extend_from_slice(b"[G54:0.000,0.000,0.000]\r\n[G28:0.000,0.000,0.000]\r\n[G30:0.000,0.000,0.000]\r\n[G92:0.000,0.000,0.000]\r\n[TLO:0.000]\r\n[PRB:0.000,0.000,0.000:0]\r\n");
+                Ok(true)
+            }
+            "X" => {
+                if self.mode == Mode::Alarm {
+                    self.mode = Mode::Idle;
+                    out.extend_from_slice(b"[MSG:Caution: Unlocked]\r\n");
+                }
+                Ok(true)
+            }
+            "H" => {
+                if self.settings[&22] == 0.0 {
+                    return Err(5);
+                }
+                if !idle_or_alarm {
+                    return Err(8);
+                }
+                self.mode = Mode::Home;
+                self.sync = Some((Sync::Home, None));
+                stage.start_home();
+                Ok(false)
+            }
+            _ => {
+                if let Some(j) = rest.strip_prefix("J=") {
+                    if !matches!(self.mode, Mode::Idle | Mode::Jog) {
+                        return Err(8);
+                    }
+                    let words = parse_words(j).map_err(|_| 16u32)?;
+                    return self.gcode(&words, stage, true, out).map(|deferred| !deferred);
+                }
+                if let Some((k, v)) = rest.split_once('=') {
+                    let k: u32 = k.parse().map_err(|_| 3u32)?;
+                    let v: f64 = v.parse().map_err(|_| 2u32)?;
+                    if !self.settings.contains_key(&k) {
+                        return Err(3);
+                    }
+                    if !idle_or_alarm {
+                        return Err(8);
+                    }
+                    if v < 0.0 {
+                        return Err(4);
+                    }
+                    if k == 20 && v != 0.0 && self.settings[&22] == 0.0 {
+                        return Err(10);
+                    }
+                    self.settings.insert(k, v);
+                    return Ok(true);
+                }
+                Err(3)
+            }
+        }
+    }
+
+    pub fn next_event_time(&self) -> Option<f64> {
+        None
+    }
+
+    pub fn on_event(&mut self, ev: StageEvent, stage: &mut Stage, out: &mut Vec<u8>) {
+        match ev {
+            StageEvent::MotionDone(kind) => {
+                if kind == MotionKind::HomeSeek {
+                    // Homing cut short (a stop during the seek): GRBL's homing failure.
+                    self.alarm(stage, 9, out);
+                    return;
+                }
+                if kind == MotionKind::Dwell {
+                    if let Some((Sync::Dwell, None)) = self.sync {
+                        self.sync = None;
+                        self.current = None;
+                        out.extend_from_slice(b"ok\r\n");
+                    }
+                }
+                if self.mode == Mode::Hold {
+                    return; // Hold:0 until `~` or a reset
+                }
+                self.execute(stage);
+                self.pump(stage, out);
+            }
+            StageEvent::Homed => {
+                self.mode = Mode::Idle;
+                if let Some((Sync::Home, _)) = self.sync {
+                    self.sync = None;
+                    out.extend_from_slice(b"ok\r\n");
+                }
+                self.pump(stage, out);
+            }
+            StageEvent::Faulted(StopCause::Limit { .. }) | StageEvent::Faulted(StopCause::Stall { .. }) => {
+                // Hard limit (a stalled driver reports through the limit pin, as sensorless
+                // set-ups do): position lost, reset required.
+                stage.lose_reference();
+                self.alarm(stage, 1, out);
+                self.critical = true;
+                out.extend_from_slice(b"[MSG:Reset to continue]\r\n");
+            }
+            StageEvent::Faulted(StopCause::EStop) => {
+                // The e-stop is wired to the reset pin.
+                stage.lose_reference();
+                out.extend_from_slice(b"ALARM:3\r\n");
+                self.boot(stage, out);
+            }
+            StageEvent::Reset => {
+                stage.power_on_reference();
+                self.boot(stage, out);
+            }
+            StageEvent::Disconnect => {}
+        }
+    }
+}
+
+/// µm → mm rounded to GRBL's three decimals, without a "-0.000".
+fn mm3(um: f64) -> f64 {
+    (um / 1000.0 * 1000.0).round() / 1000.0 + 0.0
+}
+
+fn strip_comments(s: &str) -> String {
+    let mut out = String::new();
+    let mut paren = false;
+    for c in s.chars() {
+        match c {
+            '(' => paren = true,
+            ')' => paren = false,
+            ';' if !paren => break,
+            _ if !paren => out.push(c),
+            _ => {}
+        }
+    }
+    out
+}
+
+/// Splits `G1X10.5Y-3F600` into letter/number words: error 1 for a non-letter where a letter
+/// belongs, error 2 for a bad number.
+fn parse_words(line: &str) -> Result<Vec<(char, f64)>, u32> {
+    let b = line.as_bytes();
+    let mut i = 0;
+    let mut words = Vec::new();
+    while i < b.len() {
+        let l = b[i] as char;
+        if !l.is_ascii_alphabetic() {
+            return Err(1);
+        }
+        i += 1;
+        let start = i;
+        while i < b.len() && (b[i].is_ascii_digit() || b[i] == b'.' || b[i] == b'-' || b[i] == b'+') {
+            i += 1;
+        }
+        let v: f64 = line[start..i].parse().map_err(|_| 2u32)?;
+        words.push((l, v));
+    }
+    Ok(words)
+}

@@ -1,0 +1,252 @@
+//! The simulator's main loop: the pty, the line faults, the firmware dialect and the stage
+//! on a virtual clock, and the truth file.
+
+use crate::faults::{FaultSpec, LineFilter};
+use crate::grbl::GrblFirmware;
+use crate::native::NativeFirmware;
+use crate::pty::Pty;
+use crate::rng::Rng;
+use crate::stage::{Stage, StageConfig, StageEvent};
+use crate::truth::{write_atomic, StageTruth};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Dialect {
+    /// The rig's own binary protocol (firmware-protocol/PROTOCOL.md).
+    Native,
+    /// GRBL 1.1 G-code and real-time commands.
+    Grbl,
+}
+
+impl Dialect {
+    pub fn name(self) -> &'static str {
+        match self {
+            Dialect::Native => "native",
+            Dialect::Grbl => "grbl",
+        }
+    }
+}
+
+#[derive(Debug, Clone)]
+pub struct SimConfig {
+    pub dialect: Dialect,
+    /// Wall seconds per simulated second; 0 = never wait.
+    pub time_scale: f64,
+    pub seed: u64,
+    pub faults: FaultSpec,
+    pub truth: Option<PathBuf>,
+    pub stage_link: Option<PathBuf>,
+    /// Start as if homed before (for one-shot commands against an embedded simulator).
+    pub start_homed: bool,
+}
+
+impl Default for SimConfig {
+    fn default() -> Self {
+        SimConfig {
+            dialect: Dialect::Native,
+            time_scale: 1.0,
+            seed: 1,
+            faults: FaultSpec::default(),
+            truth: None,
+            stage_link: None,
+            start_homed: false,
+        }
+    }
+}
+
+enum Firmware {
+    Native(NativeFirmware),
+    Grbl(GrblFirmware),
+}
+
+impl Firmware {
+    fn on_bytes(&mut self, b: &[u8], s: &mut Stage, out: &mut Vec<u8>) {
+        match self {
+            Firmware::Native(f) => f.on_bytes(b, s, out),
+            Firmware::Grbl(f) => f.on_bytes(b, s, out),
+        }
+    }
+    fn on_event(&mut self, e: StageEvent, s: &mut Stage, out: &mut Vec<u8>) {
+        match self {
+            Firmware::Native(f) => f.on_event(e, s, out),
+            Firmware::Grbl(f) => f.on_event(e, s, out),
+        }
+    }
+    fn next_event_time(&self) -> Option<f64> {
+        match self {
+            Firmware::Native(f) => f.next_event_time(),
+            Firmware::Grbl(f) => f.next_event_time(),
+        }
+    }
+    fn on_time(&mut self, s: &Stage, out: &mut Vec<u8>) {
+        if let Firmware::Native(f) = self {
+            f.on_time(s, out)
+        }
+    }
+    fn state_name(&self, s: &Stage) -> String {
+        match self {
+            Firmware::Native(f) => f.state_name(s),
+            Firmware::Grbl(f) => f.state_name(s),
+        }
+    }
+}
+
+/// A simulator running on a thread of this process (what `rig --sim` uses).
+pub struct EmbeddedSim {
+    stop: Arc<AtomicBool>,
+    thread: Option<std::thread::JoinHandle<std::io::Result<()>>>,
+    pub port: PathBuf,
+}
+
+impl EmbeddedSim {
+    pub fn start(cfg: SimConfig) -> std::io::Result<EmbeddedSim> {
+        let stop = Arc::new(AtomicBool::new(false));
+        let (tx, rx) = std::sync::mpsc::channel();
+        let s2 = stop.clone();
+        let thread = std::thread::Builder::new().name("rig-sim".into()).spawn(move || {
+            serve(&cfg, &s2, |p| {
+                let _ = tx.send(p.to_path_buf());
+            })
+        })?;
+        match rx.recv_timeout(Duration::from_secs(5)) {
+            Ok(port) => Ok(EmbeddedSim { stop, thread: Some(thread), port }),
+            Err(_) => {
+                stop.store(true, Ordering::SeqCst);
+                let err = thread.join().ok().and_then(|r| r.err());
+                Err(err.unwrap_or_else(|| std::io::Error::other("simulator did not start")))
+            }
+        }
+    }
+
+    /// Stops the simulator and writes its final truth.
+    pub fn shutdown(mut self) -> std::io::Result<()> {
+        self.stop_inner()
+    }
+
+    fn stop_inner(&mut self) -> std::io::Result<()> {
+        self.stop.store(true, Ordering::SeqCst);
+        match self.thread.take() {
+            Some(t) => t.join().map_err(|_| std::io::Error::other("simulator thread panicked"))?,
+            None => Ok(()),
+        }
+    }
+}
+
+impl Drop for EmbeddedSim {
+    fn drop(&mut self) {
+        let _ = self.stop_inner();
+    }
+}
+
+/// Runs the simulator until `stop` is set. `ready` gets the slave path once it can be opened.
+pub fn serve(cfg: &SimConfig, stop: &AtomicBool, ready: impl FnOnce(&Path)) -> std::io::Result<()> {
+    let mut rng = Rng::new(cfg.seed);
+    let home_dir = if cfg.dialect == Dialect::Grbl { 1.0 } else { -1.0 };
+    let stage_cfg = StageConfig::new(&mut rng, home_dir);
+    let mut stage = Stage::new(stage_cfg, cfg.faults.clone(), cfg.seed, cfg.start_homed);
+    let mut line = LineFilter::new(cfg.faults.clone(), cfg.seed);
+    let mut pty = Some(Pty::open(cfg.stage_link.as_deref())?);
+    let mut out = Vec::new();
+    let mut fw = match cfg.dialect {
+        Dialect::Native => Firmware::Native(NativeFirmware::new(&stage, (cfg.seed as u32) ^ 0x5151)),
+        Dialect::Grbl => Firmware::Grbl(GrblFirmware::new(&stage, &mut out)),
+    };
+    ready(&pty.as_ref().unwrap().slave_path);
+
+    let write_truth = |stage: &Stage, fw: &Firmware, line: &LineFilter, disconnected: bool| -> std::io::Result<()> {
+        if let Some(p) = &cfg.truth {
+            let t = StageTruth::from_stage(
+                stage,
+                cfg.dialect.name(),
+                cfg.seed,
+                cfg.time_scale,
+                fw.state_name(stage),
+                &line.counts,
+                disconnected,
+            );
+            write_atomic(p, &t)?;
+        }
+        Ok(())
+    };
+    write_truth(&stage, &fw, &line, false)?;
+
+    let wall0 = Instant::now();
+    let mut last_truth = Instant::now();
+    let mut dirty = false;
+    let mut disconnected = false;
+    let mut buf = [0u8; 4096];
+    let mut events = Vec::new();
+    while !stop.load(Ordering::SeqCst) {
+        // Output first, so replies leave before the clock jumps.
+        if !out.is_empty() {
+            line.outgoing(&out);
+            out.clear();
+        }
+        if let Some(p) = &pty {
+            let ready_bytes = line.ready(Instant::now());
+            if !ready_bytes.is_empty() {
+                let n = p.write(&ready_bytes)?;
+                line.unwrite(&ready_bytes[n..]);
+            }
+        }
+        let next_t = match (stage.next_event_time(), fw.next_event_time()) {
+            (Some(a), Some(b)) => Some(a.min(b)),
+            (a, b) => a.or(b),
+        };
+        let wait_ms = if line.has_pending() || (next_t.is_some() && cfg.time_scale == 0.0) {
+            0
+        } else if next_t.is_some() {
+            1
+        } else {
+            20
+        };
+        let mut got_input = false;
+        if let Some(p) = &pty {
+            if p.wait_readable(wait_ms) {
+                let n = p.read(&mut buf)?;
+                if n > 0 {
+                    got_input = true;
+                    let bytes = line.incoming(&buf[..n]);
+                    fw.on_bytes(&bytes, &mut stage, &mut out);
+                    dirty = true;
+                }
+            }
+        } else {
+            std::thread::sleep(Duration::from_millis(wait_ms.max(1) as u64));
+        }
+        // Advance the virtual clock.
+        let target_t = if cfg.time_scale > 0.0 {
+            wall0.elapsed().as_secs_f64() / cfg.time_scale
+        } else if got_input || !out.is_empty() {
+            stage.t
+        } else {
+            next_t.unwrap_or(stage.t).max(stage.t)
+        };
+        let fw_t = fw.next_event_time();
+        stage.advance(fw_t.map_or(target_t, |f| f.min(target_t).max(stage.t)), &mut events);
+        if fw_t.is_some_and(|f| f <= target_t) {
+            fw.on_time(&stage, &mut out);
+            stage.advance(target_t, &mut events);
+        }
+        for e in events.drain(..) {
+            dirty = true;
+            if e == StageEvent::Disconnect {
+                // The line goes dead: the host's next read fails.
+                pty = None;
+                disconnected = true;
+                continue;
+            }
+            fw.on_event(e, &mut stage, &mut out);
+        }
+        if dirty && (!stage.is_busy() || last_truth.elapsed() > Duration::from_millis(200)) {
+            write_truth(&stage, &fw, &line, disconnected)?;
+            last_truth = Instant::now();
+            dirty = false;
+        }
+    }
+    write_truth(&stage, &fw, &line, disconnected)
+}

@@ -1,0 +1,504 @@
+//! The physical X/Y stage: motors, backlash, carriage, limit switches, repeatability noise and
+//! drift, moving on a virtual clock. The firmware dialects drive it; the truth file reads it.
+//!
+//! Coordinates: *physical* micrometres, where 0..travel is the carriage range a correctly homed
+//! controller reports as 0..travel. The controller's *logical* position is `motor + reference`,
+//! the reference being set by homing (arbitrary at power-on).
+
+use crate::faults::{FaultSpec, MoveFault};
+use crate::profile::Profile;
+use crate::rng::Rng;
+use serde::Serialize;
+
+#[derive(Debug, Clone, Serialize)]
+pub struct StageConfig {
+    pub travel_um: [f64; 2],
+    pub step_um: f64,
+    pub backlash_um: [f64; 2],
+    /// σ of where the carriage settles after a move, per axis.
+    pub repeat_sigma_um: f64,
+    /// Slow drift of the carriage with respect to the motors and encoders.
+    pub drift_um_per_h: [f64; 2],
+    pub max_speed_um_s: f64,
+    pub accel_um_s2: f64,
+    pub home_speed_um_s: f64,
+    /// Physical positions of the min and max limit switches per axis.
+    pub switch_um: [[f64; 2]; 2],
+    /// Homing direction: -1 toward the min switch, +1 toward the max switch.
+    pub home_dir: f64,
+    /// Distance moved back off the switch after homing.
+    pub pulloff_um: f64,
+    /// σ of the switch's trip point.
+    pub switch_sigma_um: f64,
+    /// Following error beyond which a stalled axis is detected.
+    pub following_tol_um: f64,
+}
+
+impl StageConfig {
+    pub fn new(rng: &mut Rng, home_dir: f64) -> Self {
+        let travel = [250_000.0, 200_000.0];
+        let max_sw = |t: f64| if home_dir > 0.0 { t } else { t + 500.0 };
+        StageConfig {
+            travel_um: travel,
+            step_um: 0.25,
+            backlash_um: [3.0, 2.5],
+            repeat_sigma_um: 0.15,
+            drift_um_per_h: [(rng.uniform() - 0.5) * 4.0, (rng.uniform() - 0.5) * 4.0],
+            max_speed_um_s: 20_000.0,
+            accel_um_s2: 100_000.0,
+            home_speed_um_s: 10_000.0,
+            switch_um: [[-500.0, max_sw(travel[0])], [-500.0, max_sw(travel[1])]],
+            home_dir,
+            pulloff_um: if home_dir > 0.0 { 1000.0 } else { 500.0 },
+            switch_sigma_um: 0.2,
+            following_tol_um: 20.0,
+        }
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum MotionKind {
+    Move,
+    Jog,
+    HomeSeek,
+    HomePulloff,
+    Dwell,
+}
+
+#[derive(Debug, Clone)]
+struct Motion {
+    kind: MotionKind,
+    start_m: [f64; 2],
+    dir: [f64; 2],
+    profile: Profile,
+    t0: f64,
+    /// Exact motor end (step grid) for moves.
+    end_m: Option<[f64; 2]>,
+    fault: Option<(f64, MoveFault)>,
+    /// Jog dead-man time.
+    deadline: Option<f64>,
+}
+
+/// What happened while the clock advanced.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum StageEvent {
+    MotionDone(MotionKind),
+    Homed,
+    /// Motion stopped at once by a fault.
+    Faulted(StopCause),
+    Reset,
+    Disconnect,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum StopCause {
+    /// Following error on this axis (a stall).
+    Stall { axis: usize },
+    /// A limit switch closed: bits as in the protocol's status flags.
+    Limit { switches: u8 },
+    EStop,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct InjectedFault {
+    pub t_s: f64,
+    pub fault: MoveFault,
+    pub during: MotionKind,
+    pub carriage_um: [f64; 2],
+}
+
+pub struct Stage {
+    pub cfg: StageConfig,
+    rng: Rng,
+    /// Virtual time in seconds.
+    pub t: f64,
+    motor: [f64; 2],
+    /// Backlash play taken up: carriage = motor + play + settle (0 ≤ play ≤ backlash).
+    play: [f64; 2],
+    settle: [f64; 2],
+    /// Carriage of a stalled axis, frozen.
+    stalled: [Option<f64>; 2],
+    reference: [f64; 2],
+    pub homed: bool,
+    motion: Option<Motion>,
+    home_next: Option<MotionKind>,
+    pub faults: FaultSpec,
+    pub injected: Vec<InjectedFault>,
+    /// Every target the controller accepted, in logical µm.
+    pub accepted_targets: Vec<[f64; 2]>,
+    /// Extremes of the carriage since the last homing, physical µm.
+    pub excursion: Option<[[f64; 2]; 2]>,
+    pub moves_done: u64,
+    pub last_dir: [f64; 2],
+}
+
+impl Stage {
+    pub fn new(cfg: StageConfig, faults: FaultSpec, seed: u64, start_homed: bool) -> Stage {
+        let mut rng = Rng::new(seed ^ 0x57a9e);
+        // Power-on somewhere inside the travel, away from the switches.
+        let mut motor = [0.0; 2];
+        for k in 0..2 {
+            motor[k] = (0.2 + 0.6 * rng.uniform()) * cfg.travel_um[k];
+        }
+        let mut s = Stage {
+            cfg,
+            rng,
+            t: 0.0,
+            motor,
+            play: [0.0; 2],
+            settle: [0.0; 2],
+            stalled: [None; 2],
+            reference: [-motor[0], -motor[1]],
+            homed: false,
+            motion: None,
+            home_next: None,
+            faults,
+            injected: Vec::new(),
+            accepted_targets: Vec::new(),
+            excursion: None,
+            moves_done: 0,
+            last_dir: [1.0, 1.0],
+        };
+        if start_homed {
+            // As if homed before this run (an absolute encoder, or a controller that kept its
+            // reference): logical = motor, carriage taken up in + direction.
+            s.reference = [0.0; 2];
+            s.homed = true;
+            for k in 0..2 {
+                s.motor[k] = s.snap(s.motor[k]);
+            }
+            s.excursion = Some([[s.carriage(0); 2], [s.carriage(1); 2]]);
+        }
+        s
+    }
+
+    fn snap(&self, v: f64) -> f64 {
+        (v / self.cfg.step_um).round() * self.cfg.step_um
+    }
+
+    /// Mechanical carriage position (what a linear encoder sees), physical µm.
+    pub fn carriage(&self, k: usize) -> f64 {
+        self.stalled[k].unwrap_or(self.motor[k] + self.play[k] + self.settle[k])
+    }
+
+    /// The carriage where it really is, drift included: the truth.
+    pub fn carriage_true(&self, k: usize) -> f64 {
+        self.carriage(k) + self.cfg.drift_um_per_h[k] * self.t / 3600.0
+    }
+
+    /// Controller's logical position (its step count), µm.
+    pub fn logical(&self, k: usize) -> f64 {
+        self.motor[k] + self.reference[k]
+    }
+
+    /// Offset from a homed controller's logical frame to carriage coordinates: 0 for a
+    /// controller that homes to the min switch, the max switch's position for GRBL.
+    pub fn logical_to_carriage(&self, k: usize) -> f64 {
+        if self.cfg.home_dir > 0.0 {
+            self.cfg.switch_um[k][1]
+        } else {
+            0.0
+        }
+    }
+
+    pub fn motor(&self, k: usize) -> f64 {
+        self.motor[k]
+    }
+
+    pub fn is_busy(&self) -> bool {
+        self.motion.is_some()
+    }
+
+    pub fn motion_kind(&self) -> Option<MotionKind> {
+        self.motion.as_ref().map(|m| m.kind)
+    }
+
+    /// Closed limit switches, as protocol status flag bits.
+    pub fn switches(&self) -> u8 {
+        let mut f = 0;
+        for k in 0..2 {
+            let c = self.carriage(k);
+            if c <= self.cfg.switch_um[k][0] {
+                f |= 1 << (1 + 2 * k);
+            }
+            if c >= self.cfg.switch_um[k][1] {
+                f |= 1 << (2 + 2 * k);
+            }
+        }
+        f
+    }
+
+    /// When the next thing happens on its own (end of motion, a scheduled fault, a jog
+    /// deadline), for a clock that jumps instead of waiting.
+    pub fn next_event_time(&self) -> Option<f64> {
+        let m = self.motion.as_ref()?;
+        let mut t = m.t0 + m.profile.duration;
+        if let Some((tf, _)) = m.fault {
+            t = t.min(tf);
+        }
+        if let Some(d) = m.deadline {
+            t = t.min(d);
+        }
+        Some(t)
+    }
+
+    fn begin(&mut self, kind: MotionKind, delta: [f64; 2], speed: f64, end_m: Option<[f64; 2]>) {
+        let len = (delta[0] * delta[0] + delta[1] * delta[1]).sqrt();
+        let dir = if len > 0.0 { [delta[0] / len, delta[1] / len] } else { [0.0, 0.0] };
+        for k in 0..2 {
+            if dir[k] != 0.0 {
+                self.last_dir[k] = dir[k].signum();
+            }
+        }
+        let profile = Profile::new(len, 0.0, speed.min(self.cfg.max_speed_um_s).max(1.0), self.cfg.accel_um_s2);
+        let fault = if matches!(kind, MotionKind::Move | MotionKind::Jog) && len > 0.0 {
+            self.faults.draw_move_fault(&mut self.rng).map(|f| {
+                let frac = 0.1 + 0.8 * self.rng.uniform();
+                (self.t + frac * profile.duration, f)
+            })
+        } else {
+            None
+        };
+        self.motion = Some(Motion { kind, start_m: self.motor, dir, profile, t0: self.t, end_m, fault, deadline: None });
+    }
+
+    /// Starts a straight move to a logical target (already checked against soft limits).
+    pub fn start_move(&mut self, target_logical: [f64; 2], speed: f64) {
+        self.accepted_targets.push(target_logical);
+        let mut end = [0.0; 2];
+        for k in 0..2 {
+            end[k] = self.snap(target_logical[k]) - self.reference[k];
+        }
+        let delta = [end[0] - self.motor[0], end[1] - self.motor[1]];
+        self.begin(MotionKind::Move, delta, speed, Some(end));
+    }
+
+    /// Starts a jog at the given velocity, bounded by the logical box `bounds` and a dead-man
+    /// time.
+    pub fn start_jog(&mut self, v: [f64; 2], bounds: [[f64; 2]; 2], max_s: f64) {
+        let speed = (v[0] * v[0] + v[1] * v[1]).sqrt();
+        if speed == 0.0 {
+            return;
+        }
+        let dir = [v[0] / speed, v[1] / speed];
+        // Distance along dir to the edge of the box.
+        let mut len = f64::INFINITY;
+        for k in 0..2 {
+            let p = self.logical(k);
+            if dir[k] > 0.0 {
+                len = len.min((bounds[k][1] - p) / dir[k]);
+            } else if dir[k] < 0.0 {
+                len = len.min((bounds[k][0] - p) / dir[k]);
+            }
+        }
+        let len = len.max(0.0);
+        self.begin(MotionKind::Jog, [dir[0] * len, dir[1] * len], speed, None);
+        if let Some(m) = &mut self.motion {
+            m.deadline = Some(self.t + max_s);
+        }
+    }
+
+    pub fn start_dwell(&mut self, seconds: f64) {
+        self.motion = Some(Motion {
+            kind: MotionKind::Dwell,
+            start_m: self.motor,
+            dir: [0.0; 2],
+            profile: Profile::dwell(seconds),
+            t0: self.t,
+            end_m: None,
+            fault: None,
+            deadline: None,
+        });
+    }
+
+    /// Homing: seek the switch in the configured direction on both axes, take the reference
+    /// at its trip point, pull off.
+    pub fn start_home(&mut self) {
+        self.homed = false;
+        self.stalled = [None; 2];
+        let d = self.cfg.home_dir;
+        // Motor distance until each switch trips: first the play, then the carriage travel.
+        let mut delta = [0.0; 2];
+        for k in 0..2 {
+            let sw = self.cfg.switch_um[k][if d > 0.0 { 1 } else { 0 }];
+            let play_take = if d > 0.0 { self.play[k] } else { self.cfg.backlash_um[k] - self.play[k] };
+            delta[k] = d * (play_take + (sw - self.carriage(k)).abs());
+        }
+        // Axes seek independently; model as one straight motion (both switches trip at the end).
+        self.begin(MotionKind::HomeSeek, delta, self.cfg.home_speed_um_s, None);
+        self.home_next = Some(MotionKind::HomePulloff);
+    }
+
+    /// Decelerating stop.
+    pub fn stop(&mut self) {
+        let Some(m) = &self.motion else { return };
+        if m.kind == MotionKind::Dwell {
+            self.motion = None;
+            return;
+        }
+        let (s, v) = m.profile.at(self.t - m.t0);
+        let stop_len = v * v / (2.0 * self.cfg.accel_um_s2);
+        let mut nm = m.clone();
+        nm.start_m = [m.start_m[0] + m.dir[0] * s, m.start_m[1] + m.dir[1] * s];
+        nm.profile = Profile::new(stop_len, v, v, self.cfg.accel_um_s2);
+        nm.t0 = self.t;
+        nm.end_m = None;
+        nm.deadline = None;
+        self.motion = Some(nm);
+        self.home_next = None;
+    }
+
+    /// Stop at once (emergency stop, fault, reset).
+    pub fn halt(&mut self) {
+        self.motion = None;
+        self.home_next = None;
+    }
+
+    /// After a power cycle the controller counts from 0 wherever the carriage is.
+    pub fn power_on_reference(&mut self) {
+        self.halt();
+        self.homed = false;
+        self.reference = [-self.motor[0], -self.motor[1]];
+    }
+
+    /// Clears the position reference (after a reset or a fault that lost steps).
+    pub fn lose_reference(&mut self) {
+        self.homed = false;
+    }
+
+    fn set_motor(&mut self, m: [f64; 2]) {
+        for k in 0..2 {
+            let dm = m[k] - self.motor[k];
+            self.play[k] = (self.play[k] - dm).clamp(0.0, self.cfg.backlash_um[k]);
+            self.motor[k] = m[k];
+        }
+        if let Some(ex) = &mut self.excursion {
+            for k in 0..2 {
+                let c = self.stalled[k].unwrap_or(self.motor[k] + self.play[k] + self.settle[k]);
+                ex[k][0] = ex[k][0].min(c);
+                ex[k][1] = ex[k][1].max(c);
+            }
+        }
+    }
+
+    /// Advances the clock to `t`, returning what happened on the way, in order.
+    pub fn advance(&mut self, t: f64, events: &mut Vec<StageEvent>) {
+        while let Some(m) = self.motion.clone() {
+            let end = m.t0 + m.profile.duration;
+            let fault_t = m.fault.map(|(tf, _)| tf).unwrap_or(f64::INFINITY);
+            let dead_t = m.deadline.unwrap_or(f64::INFINITY);
+            let step_t = t.min(end).min(fault_t).min(dead_t);
+            let (s, _) = m.profile.at(step_t - m.t0);
+            self.t = self.t.max(step_t);
+            self.set_motor([m.start_m[0] + m.dir[0] * s, m.start_m[1] + m.dir[1] * s]);
+
+            // A stalled axis is noticed once the motor has run away from the carriage.
+            for k in 0..2 {
+                if let Some(c) = self.stalled[k] {
+                    if (self.motor[k] + self.play[k] + self.settle[k] - c).abs() > self.cfg.following_tol_um {
+                        self.halt();
+                        events.push(StageEvent::Faulted(StopCause::Stall { axis: k }));
+                        return;
+                    }
+                }
+            }
+            // A real switch closing outside homing stops everything.
+            if !matches!(m.kind, MotionKind::HomeSeek | MotionKind::HomePulloff) && self.switches() != 0 {
+                let sw = self.switches();
+                self.halt();
+                events.push(StageEvent::Faulted(StopCause::Limit { switches: sw }));
+                return;
+            }
+            if step_t >= fault_t {
+                let (_, f) = m.fault.unwrap();
+                self.injected.push(InjectedFault {
+                    t_s: self.t,
+                    fault: f,
+                    during: m.kind,
+                    carriage_um: [self.carriage_true(0), self.carriage_true(1)],
+                });
+                if let Some(mm) = &mut self.motion {
+                    mm.fault = None;
+                }
+                match f {
+                    MoveFault::Stall { axis } => self.stalled[axis] = Some(self.carriage(axis)),
+                    MoveFault::Limit => {
+                        // A switch bounces closed (a loose wire, dirt on the contact).
+                        let axis = self.rng.below(2) as usize;
+                        let bit = 1u8 << (1 + 2 * axis + if m.dir[axis] > 0.0 { 1 } else { 0 });
+                        self.halt();
+                        events.push(StageEvent::Faulted(StopCause::Limit { switches: bit }));
+                        return;
+                    }
+                    MoveFault::EStop => {
+                        self.halt();
+                        events.push(StageEvent::Faulted(StopCause::EStop));
+                        return;
+                    }
+                    MoveFault::Reset => {
+                        self.halt();
+                        self.homed = false;
+                        events.push(StageEvent::Reset);
+                        return;
+                    }
+                    MoveFault::Disconnect => events.push(StageEvent::Disconnect),
+                }
+                continue;
+            }
+            if step_t >= dead_t {
+                self.stop();
+                continue;
+            }
+            if step_t < end {
+                return; // still moving at t
+            }
+            // Motion finished.
+            self.motion = None;
+            if let Some(e) = m.end_m {
+                self.set_motor(e);
+            }
+            if matches!(m.kind, MotionKind::Move | MotionKind::Jog | MotionKind::HomePulloff) {
+                for k in 0..2 {
+                    if self.stalled[k].is_none() {
+                        self.settle[k] = self.cfg.repeat_sigma_um * self.rng.normal();
+                    }
+                }
+                self.moves_done += 1;
+            }
+            match (m.kind, self.home_next.take()) {
+                (MotionKind::HomeSeek, Some(MotionKind::HomePulloff)) => {
+                    // Reference at the trip point. The physical frame has carriage = motor
+                    // after a + approach, so a reference of 0 makes logical = carriage for the
+                    // native dialect (zero at the min end); GRBL puts machine zero on the max
+                    // switch, so its logical is carriage - switch. Plus the switch's scatter.
+                    for k in 0..2 {
+                        let noise = self.cfg.switch_sigma_um * self.rng.normal();
+                        let sw = self.cfg.switch_um[k][if self.cfg.home_dir > 0.0 { 1 } else { 0 }];
+                        self.reference[k] = noise - if self.cfg.home_dir > 0.0 { sw } else { 0.0 };
+                        // Pin the carriage exactly on the switch (numerical hygiene).
+                        self.settle[k] = sw - self.motor[k] - self.play[k];
+                    }
+                    let d = -self.cfg.home_dir * self.cfg.pulloff_um;
+                    let delta = if self.cfg.home_dir > 0.0 {
+                        [d, d]
+                    } else {
+                        // Native: pull off to logical 0 (the carriage frame's origin).
+                        [-self.logical(0), -self.logical(1)]
+                    };
+                    let end = [self.snap(self.motor[0] + delta[0]), self.snap(self.motor[1] + delta[1])];
+                    self.begin(MotionKind::HomePulloff, [end[0] - self.motor[0], end[1] - self.motor[1]], self.cfg.home_speed_um_s, Some(end));
+                    self.home_next = Some(MotionKind::Dwell); // marks "pull-off then homed"
+                }
+                (MotionKind::HomePulloff, Some(MotionKind::Dwell)) => {
+                    self.homed = true;
+                    self.excursion = Some([[self.carriage(0); 2], [self.carriage(1); 2]]);
+                    events.push(StageEvent::Homed);
+                }
+                _ => events.push(StageEvent::MotionDone(m.kind)),
+            }
+        }
+        self.t = self.t.max(t);
+    }
+}
