@@ -1,1 +1,21 @@
-fn main(){}
+//! The `rig` binary.
+
+mod cli;
+
+use clap::Parser;
+use cli::{Cli, Command};
+
+fn main() {
+    let cli = Cli::parse();
+    let code = match cli.command {
+        Command::Stage(a) => cli::stage_cmd::run(a),
+        Command::Sim(a) => rig_sim::cli::run(a).map(|_| 0).map_err(anyhow::Error::from),
+    };
+    match code {
+        Ok(c) => std::process::exit(c),
+        Err(e) => {
+            eprintln!("rig: {e:#}");
+            std::process::exit(1);
+        }
+    }
+}

@@ -17,32 +17,83 @@ pub const AXIS_Y: u8 = 2;
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Message {
     // Requests.
-    Hello { version: u16 },
+    Hello {
+        version: u16,
+    },
     Identify,
-    Home { axes: u8 },
-    MoveAbs { x_nm: i32, y_nm: i32, speed_um_s: u32 },
-    MoveRel { dx_nm: i32, dy_nm: i32, speed_um_s: u32 },
-    Jog { vx_um_s: i32, vy_um_s: i32, max_ms: u32 },
+    Home {
+        axes: u8,
+    },
+    MoveAbs {
+        x_nm: i32,
+        y_nm: i32,
+        speed_um_s: u32,
+    },
+    MoveRel {
+        dx_nm: i32,
+        dy_nm: i32,
+        speed_um_s: u32,
+    },
+    Jog {
+        vx_um_s: i32,
+        vy_um_s: i32,
+        max_ms: u32,
+    },
     Stop,
     EStop,
     Status,
-    GetSetting { id: u8 },
-    SetSetting { id: u8, value: i32 },
-    Trigger { mode: u8, delay_us: u32, pulse_us: u32 },
+    GetSetting {
+        id: u8,
+    },
+    SetSetting {
+        id: u8,
+        value: i32,
+    },
+    Trigger {
+        mode: u8,
+        delay_us: u32,
+        pulse_us: u32,
+    },
     ClearFault,
     // Replies.
     Ack,
-    Nak { code: NakCode },
-    HelloReply { version: u16 },
-    Identity { model: [u8; 16], serial: u32, firmware: u32 },
+    Nak {
+        code: NakCode,
+    },
+    HelloReply {
+        version: u16,
+    },
+    Identity {
+        model: [u8; 16],
+        serial: u32,
+        firmware: u32,
+    },
     StatusReply(StatusReport),
-    SettingValue { id: u8, value: i32 },
+    SettingValue {
+        id: u8,
+        value: i32,
+    },
     // Events.
-    MotionDone { x_nm: i32, y_nm: i32 },
-    LimitHit { switches: u8, x_nm: i32, y_nm: i32 },
-    Fault { code: FaultCode, x_nm: i32, y_nm: i32 },
-    Reset { cause: u8 },
-    TriggerFired { count: u32 },
+    MotionDone {
+        x_nm: i32,
+        y_nm: i32,
+    },
+    LimitHit {
+        switches: u8,
+        x_nm: i32,
+        y_nm: i32,
+    },
+    Fault {
+        code: FaultCode,
+        x_nm: i32,
+        y_nm: i32,
+    },
+    Reset {
+        cause: u8,
+    },
+    TriggerFired {
+        count: u32,
+    },
 }
 
 /// The body of a [`Message::StatusReply`].
@@ -164,17 +215,29 @@ impl Message {
             | Message::ClearFault
             | Message::Ack => Some(()),
             Message::Home { axes } => w.u8(axes),
-            Message::MoveAbs { x_nm, y_nm, speed_um_s } => {
+            Message::MoveAbs {
+                x_nm,
+                y_nm,
+                speed_um_s,
+            } => {
                 w.i32(x_nm)?;
                 w.i32(y_nm)?;
                 w.u32(speed_um_s)
             }
-            Message::MoveRel { dx_nm, dy_nm, speed_um_s } => {
+            Message::MoveRel {
+                dx_nm,
+                dy_nm,
+                speed_um_s,
+            } => {
                 w.i32(dx_nm)?;
                 w.i32(dy_nm)?;
                 w.u32(speed_um_s)
             }
-            Message::Jog { vx_um_s, vy_um_s, max_ms } => {
+            Message::Jog {
+                vx_um_s,
+                vy_um_s,
+                max_ms,
+            } => {
                 w.i32(vx_um_s)?;
                 w.i32(vy_um_s)?;
                 w.u32(max_ms)
@@ -184,13 +247,21 @@ impl Message {
                 w.u8(id)?;
                 w.i32(value)
             }
-            Message::Trigger { mode, delay_us, pulse_us } => {
+            Message::Trigger {
+                mode,
+                delay_us,
+                pulse_us,
+            } => {
                 w.u8(mode)?;
                 w.u32(delay_us)?;
                 w.u32(pulse_us)
             }
             Message::Nak { code } => w.u8(code as u8),
-            Message::Identity { model, serial, firmware } => {
+            Message::Identity {
+                model,
+                serial,
+                firmware,
+            } => {
                 w.bytes(&model)?;
                 w.u32(serial)?;
                 w.u32(firmware)
@@ -206,7 +277,11 @@ impl Message {
                 w.i32(x_nm)?;
                 w.i32(y_nm)
             }
-            Message::LimitHit { switches, x_nm, y_nm } => {
+            Message::LimitHit {
+                switches,
+                x_nm,
+                y_nm,
+            } => {
                 w.u8(switches)?;
                 w.i32(x_nm)?;
                 w.i32(y_nm)
@@ -229,23 +304,48 @@ impl Message {
             0x01 => Message::Hello { version: r.u16()? },
             0x02 => Message::Identify,
             0x03 => Message::Home { axes: r.u8()? },
-            0x04 => Message::MoveAbs { x_nm: r.i32()?, y_nm: r.i32()?, speed_um_s: r.u32()? },
-            0x05 => Message::MoveRel { dx_nm: r.i32()?, dy_nm: r.i32()?, speed_um_s: r.u32()? },
-            0x06 => Message::Jog { vx_um_s: r.i32()?, vy_um_s: r.i32()?, max_ms: r.u32()? },
+            0x04 => Message::MoveAbs {
+                x_nm: r.i32()?,
+                y_nm: r.i32()?,
+                speed_um_s: r.u32()?,
+            },
+            0x05 => Message::MoveRel {
+                dx_nm: r.i32()?,
+                dy_nm: r.i32()?,
+                speed_um_s: r.u32()?,
+            },
+            0x06 => Message::Jog {
+                vx_um_s: r.i32()?,
+                vy_um_s: r.i32()?,
+                max_ms: r.u32()?,
+            },
             0x07 => Message::Stop,
             0x08 => Message::EStop,
             0x09 => Message::Status,
             0x0A => Message::GetSetting { id: r.u8()? },
-            0x0B => Message::SetSetting { id: r.u8()?, value: r.i32()? },
-            0x0C => Message::Trigger { mode: r.u8()?, delay_us: r.u32()?, pulse_us: r.u32()? },
+            0x0B => Message::SetSetting {
+                id: r.u8()?,
+                value: r.i32()?,
+            },
+            0x0C => Message::Trigger {
+                mode: r.u8()?,
+                delay_us: r.u32()?,
+                pulse_us: r.u32()?,
+            },
             0x0D => Message::ClearFault,
             0x80 => Message::Ack,
-            0x81 => Message::Nak { code: NakCode::from_u8(r.u8()?)? },
+            0x81 => Message::Nak {
+                code: NakCode::from_u8(r.u8()?)?,
+            },
             0x82 => Message::HelloReply { version: r.u16()? },
             0x83 => {
                 let mut model = [0u8; 16];
                 model.copy_from_slice(r.take(16)?);
-                Message::Identity { model, serial: r.u32()?, firmware: r.u32()? }
+                Message::Identity {
+                    model,
+                    serial: r.u32()?,
+                    firmware: r.u32()?,
+                }
             }
             0x84 => Message::StatusReply(StatusReport {
                 state: State::from_u8(r.u8()?)?,
@@ -254,9 +354,19 @@ impl Message {
                 x_nm: r.i32()?,
                 y_nm: r.i32()?,
             }),
-            0x85 => Message::SettingValue { id: r.u8()?, value: r.i32()? },
-            0xC0 => Message::MotionDone { x_nm: r.i32()?, y_nm: r.i32()? },
-            0xC1 => Message::LimitHit { switches: r.u8()?, x_nm: r.i32()?, y_nm: r.i32()? },
+            0x85 => Message::SettingValue {
+                id: r.u8()?,
+                value: r.i32()?,
+            },
+            0xC0 => Message::MotionDone {
+                x_nm: r.i32()?,
+                y_nm: r.i32()?,
+            },
+            0xC1 => Message::LimitHit {
+                switches: r.u8()?,
+                x_nm: r.i32()?,
+                y_nm: r.i32()?,
+            },
             0xC2 => Message::Fault {
                 code: FaultCode::from_u8(r.u8()?)?,
                 x_nm: r.i32()?,

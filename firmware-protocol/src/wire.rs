@@ -34,10 +34,16 @@ pub enum DecodeError {
 /// Encodes `frame` onto `out` (delimiter included) and returns the number of bytes written.
 pub fn encode(frame: &Frame, out: &mut [u8]) -> Result<usize, EncodeError> {
     let mut raw = [0u8; MAX_RAW];
-    let mut w = Writer { buf: &mut raw, pos: 0 };
+    let mut w = Writer {
+        buf: &mut raw,
+        pos: 0,
+    };
     w.u8(frame.msg.kind()).ok_or(EncodeError::BufferTooSmall)?;
     w.u8(frame.seq).ok_or(EncodeError::BufferTooSmall)?;
-    frame.msg.write_body(&mut w).ok_or(EncodeError::BufferTooSmall)?;
+    frame
+        .msg
+        .write_body(&mut w)
+        .ok_or(EncodeError::BufferTooSmall)?;
     let n = w.pos;
     let crc = crc16(&raw[..n]);
     raw.get_mut(n..n + 2)
@@ -64,7 +70,11 @@ impl Default for Decoder {
 
 impl Decoder {
     pub const fn new() -> Self {
-        Decoder { buf: [0; MAX_WIRE], len: 0, overflow: false }
+        Decoder {
+            buf: [0; MAX_WIRE],
+            len: 0,
+            overflow: false,
+        }
     }
 
     /// Forgets any partial frame (after a purge of the line).

@@ -44,7 +44,10 @@ fn parse_faults(s: &str) -> Result<FaultSpec, String> {
 /// Runs until SIGTERM/SIGINT; the truth file is complete when this returns.
 pub fn run(args: SimArgs) -> std::io::Result<()> {
     if !(args.time_scale >= 0.0 && args.time_scale.is_finite()) {
-        return Err(std::io::Error::other(format!("--time-scale {} must be 0 or more", args.time_scale)));
+        return Err(std::io::Error::other(format!(
+            "--time-scale {} must be 0 or more",
+            args.time_scale
+        )));
     }
     let stop = Arc::new(AtomicBool::new(false));
     signal_hook::flag::register(signal_hook::consts::SIGTERM, stop.clone())?;

@@ -53,7 +53,10 @@ fn prob(item: &str, s: &str) -> Result<f64, FaultSpecError> {
         why: format!("`{s}` is not a number"),
     })?;
     if !(0.0..=1.0).contains(&p) {
-        return Err(FaultSpecError::BadValue { item: item.into(), why: format!("probability {p} is not in 0..1") });
+        return Err(FaultSpecError::BadValue {
+            item: item.into(),
+            why: format!("probability {p} is not in 0..1"),
+        });
     }
     Ok(p)
 }
@@ -62,7 +65,9 @@ impl FaultSpec {
     pub fn parse(spec: &str) -> Result<FaultSpec, FaultSpecError> {
         let mut f = FaultSpec::default();
         for item in spec.split(',').map(str::trim).filter(|s| !s.is_empty()) {
-            let (k, v) = item.split_once('=').ok_or_else(|| FaultSpecError::Syntax(item.into()))?;
+            let (k, v) = item
+                .split_once('=')
+                .ok_or_else(|| FaultSpecError::Syntax(item.into()))?;
             match k.trim() {
                 "drop" => f.drop = prob(item, v)?,
                 "corrupt" => f.corrupt = prob(item, v)?,
@@ -73,9 +78,11 @@ impl FaultSpec {
                         why: "expected delay=P:MS".into(),
                     })?;
                     f.delay = prob(item, p)?;
-                    f.delay_ms = ms.trim().trim_end_matches("ms").parse().map_err(|_| FaultSpecError::BadValue {
-                        item: item.into(),
-                        why: format!("`{ms}` is not a whole number of milliseconds"),
+                    f.delay_ms = ms.trim().trim_end_matches("ms").parse().map_err(|_| {
+                        FaultSpecError::BadValue {
+                            item: item.into(),
+                            why: format!("`{ms}` is not a whole number of milliseconds"),
+                        }
                     })?;
                 }
                 "stall" => match v.split_once(':') {
@@ -250,10 +257,22 @@ mod tests {
 
     #[test]
     fn rejects_bad_items() {
-        assert!(matches!(FaultSpec::parse("drop"), Err(FaultSpecError::Syntax(_))));
-        assert!(matches!(FaultSpec::parse("melt=0.1"), Err(FaultSpecError::UnknownKind(_))));
-        assert!(matches!(FaultSpec::parse("drop=2"), Err(FaultSpecError::BadValue { .. })));
-        assert!(matches!(FaultSpec::parse("stall=z:0.1"), Err(FaultSpecError::BadValue { .. })));
+        assert!(matches!(
+            FaultSpec::parse("drop"),
+            Err(FaultSpecError::Syntax(_))
+        ));
+        assert!(matches!(
+            FaultSpec::parse("melt=0.1"),
+            Err(FaultSpecError::UnknownKind(_))
+        ));
+        assert!(matches!(
+            FaultSpec::parse("drop=2"),
+            Err(FaultSpecError::BadValue { .. })
+        ));
+        assert!(matches!(
+            FaultSpec::parse("stall=z:0.1"),
+            Err(FaultSpecError::BadValue { .. })
+        ));
     }
 
     #[test]

@@ -64,14 +64,40 @@ impl GrblFirmware {
         let c = &stage.cfg;
         let steps_per_mm = 1000.0 / c.step_um;
         let settings: BTreeMap<u32, f64> = [
-            (0, 10.0), (1, 25.0), (2, 0.0), (3, 0.0), (4, 0.0), (5, 0.0), (6, 0.0),
-            (10, 1.0), (11, 0.010), (12, 0.002), (13, 0.0),
-            (20, 1.0), (21, 1.0), (22, 1.0), (23, 0.0), (24, 25.0), (25, c.home_speed_um_s * 0.06),
-            (26, 250.0), (27, c.pulloff_um / 1000.0), (30, 1000.0), (31, 0.0), (32, 0.0),
-            (100, steps_per_mm), (101, steps_per_mm), (102, 250.0),
-            (110, c.max_speed_um_s * 0.06), (111, c.max_speed_um_s * 0.06), (112, 500.0),
-            (120, c.accel_um_s2 / 1000.0), (121, c.accel_um_s2 / 1000.0), (122, 10.0),
-            (130, c.travel_um[0] / 1000.0), (131, c.travel_um[1] / 1000.0), (132, 100.0),
+            (0, 10.0),
+            (1, 25.0),
+            (2, 0.0),
+            (3, 0.0),
+            (4, 0.0),
+            (5, 0.0),
+            (6, 0.0),
+            (10, 1.0),
+            (11, 0.010),
+            (12, 0.002),
+            (13, 0.0),
+            (20, 1.0),
+            (21, 1.0),
+            (22, 1.0),
+            (23, 0.0),
+            (24, 25.0),
+            (25, c.home_speed_um_s * 0.06),
+            (26, 250.0),
+            (27, c.pulloff_um / 1000.0),
+            (30, 1000.0),
+            (31, 0.0),
+            (32, 0.0),
+            (100, steps_per_mm),
+            (101, steps_per_mm),
+            (102, 250.0),
+            (110, c.max_speed_um_s * 0.06),
+            (111, c.max_speed_um_s * 0.06),
+            (112, 500.0),
+            (120, c.accel_um_s2 / 1000.0),
+            (121, c.accel_um_s2 / 1000.0),
+            (122, 10.0),
+            (130, c.travel_um[0] / 1000.0),
+            (131, c.travel_um[1] / 1000.0),
+            (132, 100.0),
         ]
         .into_iter()
         .collect();
@@ -138,7 +164,11 @@ impl GrblFirmware {
             self.mode_name(stage),
             mm3(stage.logical(0)),
             mm3(stage.logical(1)),
-            if stage.is_busy() { self.feed_mm_min.unwrap_or(0.0).round() as i64 } else { 0 }
+            if stage.is_busy() {
+                self.feed_mm_min.unwrap_or(0.0).round() as i64
+            } else {
+                0
+            }
         );
         let sw = stage.switches();
         if sw != 0 {
@@ -214,7 +244,9 @@ impl GrblFirmware {
 
     fn resume_current(&mut self, stage: &mut Stage) {
         match self.current {
-            Some(Block::Move { target, speed }) | Some(Block::Jog { target, speed }) => stage.start_move(target, speed),
+            Some(Block::Move { target, speed }) | Some(Block::Jog { target, speed }) => {
+                stage.start_move(target, speed)
+            }
             _ => {}
         }
     }
@@ -232,7 +264,9 @@ impl GrblFirmware {
             if self.sync.is_some() || self.planner.len() >= PLANNER_BLOCKS {
                 return;
             }
-            let Some(nl) = self.rx.iter().position(|&b| b == b'\n' || b == b'\r') else { return };
+            let Some(nl) = self.rx.iter().position(|&b| b == b'\n' || b == b'\r') else {
+                return;
+            };
             let line: Vec<u8> = self.rx.drain(..=nl).collect();
             let line = String::from_utf8_lossy(&line[..nl]).to_string();
             if line.trim().is_empty() {
@@ -293,7 +327,11 @@ impl GrblFirmware {
     /// One line. `Ok(true)`: answer `ok` now; `Ok(false)`: `ok` comes later; `Err(n)`:
     /// `error:n`.
     fn line(&mut self, raw: &str, stage: &mut Stage, out: &mut Vec<u8>) -> Result<bool, u32> {
-        let line: String = strip_comments(raw).chars().filter(|c| !c.is_whitespace()).collect::<String>().to_uppercase();
+        let line: String = strip_comments(raw)
+            .chars()
+            .filter(|c| !c.is_whitespace())
+            .collect::<String>()
+            .to_uppercase();
         if line.is_empty() {
             return Ok(true);
         }
@@ -304,11 +342,18 @@ impl GrblFirmware {
             return Err(9);
         }
         let words = parse_words(&line)?;
-        self.gcode(&words, stage, false, out).map(|deferred| !deferred)
+        self.gcode(&words, stage, false, out)
+            .map(|deferred| !deferred)
     }
 
     /// G-code words (already validated as letter + number). Returns whether `ok` is deferred.
-    fn gcode(&mut self, words: &[(char, f64)], stage: &mut Stage, jog: bool, out: &mut Vec<u8>) -> Result<bool, u32> {
+    fn gcode(
+        &mut self,
+        words: &[(char, f64)],
+        stage: &mut Stage,
+        jog: bool,
+        out: &mut Vec<u8>,
+    ) -> Result<bool, u32> {
         let mut motion: Option<u32> = None;
         let mut dwell = false;
         let (mut absolute, mut inches) = (self.absolute, self.inches);
@@ -375,7 +420,11 @@ impl GrblFirmware {
         let mut t = base;
         for (k, v) in [(0, x), (1, y)] {
             if let Some(v) = v {
-                t[k] = if absolute { v * unit } else { base[k] + v * unit };
+                t[k] = if absolute {
+                    v * unit
+                } else {
+                    base[k] + v * unit
+                };
             }
         }
         let max_rate = self.settings[&110].min(self.settings[&111]) * 1000.0 / 60.0;
@@ -398,7 +447,11 @@ impl GrblFirmware {
             out.extend_from_slice(b"[MSG:Reset to continue]\r\n");
             return Ok(true);
         }
-        self.planner.push_back(if jog { Block::Jog { target: t, speed } } else { Block::Move { target: t, speed } });
+        self.planner.push_back(if jog {
+            Block::Jog { target: t, speed }
+        } else {
+            Block::Move { target: t, speed }
+        });
         if jog {
             self.mode = Mode::Jog;
         }
@@ -419,7 +472,9 @@ impl GrblFirmware {
         let idle_or_alarm = matches!(self.mode, Mode::Idle | Mode::Alarm) && !stage.is_busy();
         match rest {
             "" => {
-                out.extend_from_slice(b"[HLP:$$ $# $G $I $N $x=val $Nx=line $J=line $SLP $C $X $H ~ ! ? ctrl-x]\r\n");
+                out.extend_from_slice(
+                    b"[HLP:$$ $# $G $I $N $x=val $Nx=line $J=line $SLP $C $X $H ~ ! ? ctrl-x]\r\n",
+                );
                 Ok(true)
             }
             "$" => {
@@ -474,7 +529,9 @@ impl GrblFirmware {
                         return Err(8);
                     }
                     let words = parse_words(j).map_err(|_| 16u32)?;
-                    return self.gcode(&words, stage, true, out).map(|deferred| !deferred);
+                    return self
+                        .gcode(&words, stage, true, out)
+                        .map(|deferred| !deferred);
                 }
                 if let Some((k, v)) = rest.split_once('=') {
                     let k: u32 = k.parse().map_err(|_| 3u32)?;
@@ -532,7 +589,8 @@ impl GrblFirmware {
                 }
                 self.pump(stage, out);
             }
-            StageEvent::Faulted(StopCause::Limit { .. }) | StageEvent::Faulted(StopCause::Stall { .. }) => {
+            StageEvent::Faulted(StopCause::Limit { .. })
+            | StageEvent::Faulted(StopCause::Stall { .. }) => {
                 // Hard limit (a stalled driver reports through the limit pin, as sensorless
                 // set-ups do): position lost, reset required.
                 stage.lose_reference();
@@ -588,7 +646,8 @@ fn parse_words(line: &str) -> Result<Vec<(char, f64)>, u32> {
         }
         i += 1;
         let start = i;
-        while i < b.len() && (b[i].is_ascii_digit() || b[i] == b'.' || b[i] == b'-' || b[i] == b'+') {
+        while i < b.len() && (b[i].is_ascii_digit() || b[i] == b'.' || b[i] == b'-' || b[i] == b'+')
+        {
             i += 1;
         }
         let v: f64 = line[start..i].parse().map_err(|_| 2u32)?;

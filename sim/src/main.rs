@@ -1,7 +1,11 @@
 use clap::Parser;
 
 #[derive(Parser)]
-#[command(name = "rig-sim", version, about = "The rig's simulated stage controller on a real pseudo-terminal")]
+#[command(
+    name = "rig-sim",
+    version,
+    about = "The rig's simulated stage controller on a real pseudo-terminal"
+)]
 struct Cli {
     #[command(flatten)]
     args: rig_sim::cli::SimArgs,

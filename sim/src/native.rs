@@ -2,8 +2,8 @@
 
 use crate::stage::{MotionKind, Stage, StageEvent, StopCause};
 use firmware_protocol::{
-    encode, flags, major, Decoder, FaultCode, Frame, Message, NakCode, SettingId, State, StatusReport,
-    MAX_WIRE, PROTOCOL_VERSION,
+    encode, flags, major, Decoder, FaultCode, Frame, Message, NakCode, SettingId, State,
+    StatusReport, MAX_WIRE, PROTOCOL_VERSION,
 };
 
 /// Linear encoder resolution, µm.
@@ -26,7 +26,9 @@ pub struct NativeFirmware {
 }
 
 fn nm(um: f64) -> i32 {
-    (um * 1000.0).round().clamp(i32::MIN as f64, i32::MAX as f64) as i32
+    (um * 1000.0)
+        .round()
+        .clamp(i32::MIN as f64, i32::MAX as f64) as i32
 }
 
 impl NativeFirmware {
@@ -91,7 +93,13 @@ impl NativeFirmware {
         if self.trigger_armed_delay.is_some() {
             f |= flags::TRIGGER_ARMED;
         }
-        StatusReport { state: self.state(stage), flags: f, fault: self.fault, x_nm, y_nm }
+        StatusReport {
+            state: self.state(stage),
+            flags: f,
+            fault: self.fault,
+            x_nm,
+            y_nm,
+        }
     }
 
     pub fn state_name(&self, stage: &Stage) -> String {
@@ -116,9 +124,15 @@ impl NativeFirmware {
 
     fn start_move(&mut self, stage: &mut Stage, target: [f64; 2], speed_um_s: u32) -> Message {
         if !self.in_soft(target) {
-            return Message::Nak { code: NakCode::OutOfLimits };
+            return Message::Nak {
+                code: NakCode::OutOfLimits,
+            };
         }
-        let speed = if speed_um_s == 0 { self.max_speed } else { (speed_um_s as f64).min(self.max_speed) };
+        let speed = if speed_um_s == 0 {
+            self.max_speed
+        } else {
+            (speed_um_s as f64).min(self.max_speed)
+        };
         // Firmware backlash compensation: overshoot by the setting when moving in -.
         let mut t = target;
         for k in 0..2 {
@@ -149,15 +163,30 @@ impl NativeFirmware {
 
     fn set_setting(&mut self, stage: &mut Stage, id: SettingId, v: i32) -> Message {
         if id.read_only() {
-            return Message::Nak { code: NakCode::ReadOnly };
+            return Message::Nak {
+                code: NakCode::ReadOnly,
+            };
         }
         let um = v as f64 / 1000.0;
-        let bad = Message::Nak { code: NakCode::BadArgument };
+        let bad = Message::Nak {
+            code: NakCode::BadArgument,
+        };
         let in_travel = |k: usize| um >= 0.0 && um <= stage.cfg.travel_um[k];
         match id {
-            SettingId::SoftMinX | SettingId::SoftMaxX | SettingId::SoftMinY | SettingId::SoftMaxY => {
-                let k = if matches!(id, SettingId::SoftMinX | SettingId::SoftMaxX) { 0 } else { 1 };
-                let i = if matches!(id, SettingId::SoftMinX | SettingId::SoftMinY) { 0 } else { 1 };
+            SettingId::SoftMinX
+            | SettingId::SoftMaxX
+            | SettingId::SoftMinY
+            | SettingId::SoftMaxY => {
+                let k = if matches!(id, SettingId::SoftMinX | SettingId::SoftMaxX) {
+                    0
+                } else {
+                    1
+                };
+                let i = if matches!(id, SettingId::SoftMinX | SettingId::SoftMinY) {
+                    0
+                } else {
+                    1
+                };
                 if !in_travel(k) {
                     return bad;
                 }
@@ -187,7 +216,9 @@ impl NativeFirmware {
                 }
                 stage.cfg.following_tol_um = um;
             }
-            SettingId::StepNm | SettingId::TravelX | SettingId::TravelY => unreachable!("read-only"),
+            SettingId::StepNm | SettingId::TravelX | SettingId::TravelY => {
+                unreachable!("read-only")
+            }
         }
         Message::Ack
     }
@@ -196,20 +227,30 @@ impl NativeFirmware {
         if let Message::Hello { version } = req {
             self.hello_ok = major(version) == major(PROTOCOL_VERSION);
             return if self.hello_ok {
-                Message::HelloReply { version: PROTOCOL_VERSION }
+                Message::HelloReply {
+                    version: PROTOCOL_VERSION,
+                }
             } else {
-                Message::Nak { code: NakCode::Version }
+                Message::Nak {
+                    code: NakCode::Version,
+                }
             };
         }
         if !self.hello_ok {
-            return Message::Nak { code: NakCode::Version };
+            return Message::Nak {
+                code: NakCode::Version,
+            };
         }
         let nak = |code| Message::Nak { code };
         match req {
             Message::Identify => {
                 let mut model = [0u8; 16];
                 model[..14].copy_from_slice(b"rig-sim native");
-                Message::Identity { model, serial: self.serial, firmware: 0x01_00_00 }
+                Message::Identity {
+                    model,
+                    serial: self.serial,
+                    firmware: 0x01_00_00,
+                }
             }
             Message::Home { axes } => {
                 if axes & 3 == 0 {
@@ -224,18 +265,37 @@ impl NativeFirmware {
                 stage.start_home();
                 Message::Ack
             }
-            Message::MoveAbs { x_nm, y_nm, speed_um_s } => match self.motion_check(stage) {
+            Message::MoveAbs {
+                x_nm,
+                y_nm,
+                speed_um_s,
+            } => match self.motion_check(stage) {
                 Some(c) => nak(c),
-                None => self.start_move(stage, [x_nm as f64 / 1000.0, y_nm as f64 / 1000.0], speed_um_s),
+                None => self.start_move(
+                    stage,
+                    [x_nm as f64 / 1000.0, y_nm as f64 / 1000.0],
+                    speed_um_s,
+                ),
             },
-            Message::MoveRel { dx_nm, dy_nm, speed_um_s } => match self.motion_check(stage) {
+            Message::MoveRel {
+                dx_nm,
+                dy_nm,
+                speed_um_s,
+            } => match self.motion_check(stage) {
                 Some(c) => nak(c),
                 None => {
-                    let t = [stage.logical(0) + dx_nm as f64 / 1000.0, stage.logical(1) + dy_nm as f64 / 1000.0];
+                    let t = [
+                        stage.logical(0) + dx_nm as f64 / 1000.0,
+                        stage.logical(1) + dy_nm as f64 / 1000.0,
+                    ];
                     self.start_move(stage, t, speed_um_s)
                 }
             },
-            Message::Jog { vx_um_s, vy_um_s, max_ms } => {
+            Message::Jog {
+                vx_um_s,
+                vy_um_s,
+                max_ms,
+            } => {
                 if max_ms == 0 || max_ms > 60_000 {
                     return nak(NakCode::BadArgument);
                 }
@@ -244,7 +304,11 @@ impl NativeFirmware {
                     None => {
                         let v = [vx_um_s as f64, vy_um_s as f64];
                         let s = (v[0] * v[0] + v[1] * v[1]).sqrt();
-                        let k = if s > self.max_speed { self.max_speed / s } else { 1.0 };
+                        let k = if s > self.max_speed {
+                            self.max_speed / s
+                        } else {
+                            1.0
+                        };
                         stage.start_jog([v[0] * k, v[1] * k], self.soft, max_ms as f64 / 1000.0);
                         Message::Ack
                     }
@@ -262,7 +326,10 @@ impl NativeFirmware {
             }
             Message::Status => Message::StatusReply(self.status(stage)),
             Message::GetSetting { id } => match SettingId::from_u8(id) {
-                Some(s) => Message::SettingValue { id, value: self.setting(stage, s) },
+                Some(s) => Message::SettingValue {
+                    id,
+                    value: self.setting(stage, s),
+                },
                 None => nak(NakCode::UnknownSetting),
             },
             Message::SetSetting { id, value } => match SettingId::from_u8(id) {
@@ -274,7 +341,11 @@ impl NativeFirmware {
                 }
                 None => nak(NakCode::UnknownSetting),
             },
-            Message::Trigger { mode, delay_us, pulse_us } => {
+            Message::Trigger {
+                mode,
+                delay_us,
+                pulse_us,
+            } => {
                 if pulse_us == 0 {
                     return nak(NakCode::BadArgument);
                 }
@@ -340,12 +411,30 @@ impl NativeFirmware {
             StageEvent::Faulted(StopCause::Limit { switches }) => {
                 self.fault = FaultCode::Limit;
                 stage.lose_reference();
-                self.event(Message::LimitHit { switches, x_nm, y_nm }, out);
+                self.event(
+                    Message::LimitHit {
+                        switches,
+                        x_nm,
+                        y_nm,
+                    },
+                    out,
+                );
             }
             StageEvent::Faulted(c) => {
-                self.fault = if matches!(c, StopCause::EStop) { FaultCode::EStop } else { FaultCode::FollowingError };
+                self.fault = if matches!(c, StopCause::EStop) {
+                    FaultCode::EStop
+                } else {
+                    FaultCode::FollowingError
+                };
                 stage.lose_reference();
-                self.event(Message::Fault { code: self.fault, x_nm, y_nm }, out);
+                self.event(
+                    Message::Fault {
+                        code: self.fault,
+                        x_nm,
+                        y_nm,
+                    },
+                    out,
+                );
             }
             StageEvent::Reset => {
                 // A reset forgets everything: the handshake, the settings, the reference.

@@ -20,28 +20,62 @@ impl Profile {
         let len = len.max(0.0);
         let v0 = v0.max(0.0);
         if len == 0.0 {
-            return Profile { len, v0: 0.0, vp: 0.0, acc: a, dec: a, t1: 0.0, t2: 0.0, duration: 0.0 };
+            return Profile {
+                len,
+                v0: 0.0,
+                vp: 0.0,
+                acc: a,
+                dec: a,
+                t1: 0.0,
+                t2: 0.0,
+                duration: 0.0,
+            };
         }
         let stop_dist = v0 * v0 / (2.0 * a);
         if stop_dist >= len {
             let dec = v0 * v0 / (2.0 * len);
             let t = v0 / dec;
-            return Profile { len, v0, vp: v0, acc: a, dec, t1: 0.0, t2: 0.0, duration: t };
+            return Profile {
+                len,
+                v0,
+                vp: v0,
+                acc: a,
+                dec,
+                t1: 0.0,
+                t2: 0.0,
+                duration: t,
+            };
         }
         let vmax = vmax.max(v0);
         let d_full = (vmax * vmax - v0 * v0) / (2.0 * a) + vmax * vmax / (2.0 * a);
-        let vp = if d_full <= len { vmax } else { ((2.0 * a * len + v0 * v0) / 2.0).sqrt() };
+        let vp = if d_full <= len {
+            vmax
+        } else {
+            ((2.0 * a * len + v0 * v0) / 2.0).sqrt()
+        };
         let t1 = (vp - v0) / a;
         let d1 = (vp * vp - v0 * v0) / (2.0 * a);
         let d3 = vp * vp / (2.0 * a);
         let cruise = (len - d1 - d3).max(0.0) / vp;
         let t2 = t1 + cruise;
-        Profile { len, v0, vp, acc: a, dec: a, t1, t2, duration: t2 + vp / a }
+        Profile {
+            len,
+            v0,
+            vp,
+            acc: a,
+            dec: a,
+            t1,
+            t2,
+            duration: t2 + vp / a,
+        }
     }
 
     /// Standing still for `seconds` (a dwell).
     pub fn dwell(seconds: f64) -> Profile {
-        Profile { duration: seconds.max(0.0), ..Profile::new(0.0, 0.0, 1.0, 1.0) }
+        Profile {
+            duration: seconds.max(0.0),
+            ..Profile::new(0.0, 0.0, 1.0, 1.0)
+        }
     }
 
     /// Distance and speed `t` seconds after the start.
@@ -61,7 +95,10 @@ impl Profile {
         }
         let d2 = d1 + self.vp * (self.t2 - self.t1);
         let u = t - self.t2;
-        ((d2 + self.vp * u - 0.5 * self.dec * u * u).min(self.len), (self.vp - self.dec * u).max(0.0))
+        (
+            (d2 + self.vp * u - 0.5 * self.dec * u * u).min(self.len),
+            (self.vp - self.dec * u).max(0.0),
+        )
     }
 }
 

@@ -42,10 +42,14 @@ impl Pty {
             if r != 0 {
                 return Err(io::Error::from_raw_os_error(r));
             }
-            let slave_path = PathBuf::from(CStr::from_ptr(name.as_ptr()).to_string_lossy().into_owned());
+            let slave_path =
+                PathBuf::from(CStr::from_ptr(name.as_ptr()).to_string_lossy().into_owned());
             let cpath = std::ffi::CString::new(slave_path.as_os_str().as_encoded_bytes()).unwrap();
             let s = check(
-                libc::open(cpath.as_ptr(), libc::O_RDWR | libc::O_NOCTTY | libc::O_CLOEXEC),
+                libc::open(
+                    cpath.as_ptr(),
+                    libc::O_RDWR | libc::O_NOCTTY | libc::O_CLOEXEC,
+                ),
                 "open pty slave",
             )?;
             let slave = OwnedFd::from_raw_fd(s);
@@ -54,14 +58,20 @@ impl Pty {
             libc::cfmakeraw(&mut tio);
             check(libc::tcsetattr(s, libc::TCSANOW, &tio), "tcsetattr")?;
             let fl = check(libc::fcntl(m, libc::F_GETFL), "fcntl")?;
-            check(libc::fcntl(m, libc::F_SETFL, fl | libc::O_NONBLOCK), "fcntl")?;
+            check(
+                libc::fcntl(m, libc::F_SETFL, fl | libc::O_NONBLOCK),
+                "fcntl",
+            )?;
             let link = match link {
                 Some(l) => {
                     if let Ok(md) = std::fs::symlink_metadata(l) {
                         if !md.file_type().is_symlink() {
                             return Err(io::Error::new(
                                 io::ErrorKind::AlreadyExists,
-                                format!("{} exists and is not a symlink; refusing to replace it", l.display()),
+                                format!(
+                                    "{} exists and is not a symlink; refusing to replace it",
+                                    l.display()
+                                ),
                             ));
                         }
                         std::fs::remove_file(l)?;
@@ -71,7 +81,12 @@ impl Pty {
                 }
                 None => None,
             };
-            Ok(Pty { master, _slave: slave, slave_path, link })
+            Ok(Pty {
+                master,
+                _slave: slave,
+                slave_path,
+                link,
+            })
         }
     }
 
@@ -106,7 +121,11 @@ impl Pty {
 
     /// Waits up to `timeout_ms` for input.
     pub fn wait_readable(&self, timeout_ms: i32) -> bool {
-        let mut p = libc::pollfd { fd: self.master.as_raw_fd(), events: libc::POLLIN, revents: 0 };
+        let mut p = libc::pollfd {
+            fd: self.master.as_raw_fd(),
+            events: libc::POLLIN,
+            revents: 0,
+        };
         // SAFETY: one valid pollfd.
         let r = unsafe { libc::poll(&mut p, 1, timeout_ms) };
         r > 0 && (p.revents & libc::POLLIN) != 0

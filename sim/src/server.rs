@@ -107,13 +107,19 @@ impl EmbeddedSim {
         let stop = Arc::new(AtomicBool::new(false));
         let (tx, rx) = std::sync::mpsc::channel();
         let s2 = stop.clone();
-        let thread = std::thread::Builder::new().name("rig-sim".into()).spawn(move || {
-            serve(&cfg, &s2, |p| {
-                let _ = tx.send(p.to_path_buf());
-            })
-        })?;
+        let thread = std::thread::Builder::new()
+            .name("rig-sim".into())
+            .spawn(move || {
+                serve(&cfg, &s2, |p| {
+                    let _ = tx.send(p.to_path_buf());
+                })
+            })?;
         match rx.recv_timeout(Duration::from_secs(5)) {
-            Ok(port) => Ok(EmbeddedSim { stop, thread: Some(thread), port }),
+            Ok(port) => Ok(EmbeddedSim {
+                stop,
+                thread: Some(thread),
+                port,
+            }),
             Err(_) => {
                 stop.store(true, Ordering::SeqCst);
                 let err = thread.join().ok().and_then(|r| r.err());
@@ -130,7 +136,9 @@ impl EmbeddedSim {
     fn stop_inner(&mut self) -> std::io::Result<()> {
         self.stop.store(true, Ordering::SeqCst);
         match self.thread.take() {
-            Some(t) => t.join().map_err(|_| std::io::Error::other("simulator thread panicked"))?,
+            Some(t) => t
+                .join()
+                .map_err(|_| std::io::Error::other("simulator thread panicked"))?,
             None => Ok(()),
         }
     }
@@ -145,19 +153,29 @@ impl Drop for EmbeddedSim {
 /// Runs the simulator until `stop` is set. `ready` gets the slave path once it can be opened.
 pub fn serve(cfg: &SimConfig, stop: &AtomicBool, ready: impl FnOnce(&Path)) -> std::io::Result<()> {
     let mut rng = Rng::new(cfg.seed);
-    let home_dir = if cfg.dialect == Dialect::Grbl { 1.0 } else { -1.0 };
+    let home_dir = if cfg.dialect == Dialect::Grbl {
+        1.0
+    } else {
+        -1.0
+    };
     let stage_cfg = StageConfig::new(&mut rng, home_dir);
     let mut stage = Stage::new(stage_cfg, cfg.faults.clone(), cfg.seed, cfg.start_homed);
     let mut line = LineFilter::new(cfg.faults.clone(), cfg.seed);
     let mut pty = Some(Pty::open(cfg.stage_link.as_deref())?);
     let mut out = Vec::new();
     let mut fw = match cfg.dialect {
-        Dialect::Native => Firmware::Native(NativeFirmware::new(&stage, (cfg.seed as u32) ^ 0x5151)),
+        Dialect::Native => {
+            Firmware::Native(NativeFirmware::new(&stage, (cfg.seed as u32) ^ 0x5151))
+        }
         Dialect::Grbl => Firmware::Grbl(GrblFirmware::new(&stage, &mut out)),
     };
     ready(&pty.as_ref().unwrap().slave_path);
 
-    let write_truth = |stage: &Stage, fw: &Firmware, line: &LineFilter, disconnected: bool| -> std::io::Result<()> {
+    let write_truth = |stage: &Stage,
+                       fw: &Firmware,
+                       line: &LineFilter,
+                       disconnected: bool|
+     -> std::io::Result<()> {
         if let Some(p) = &cfg.truth {
             let t = StageTruth::from_stage(
                 stage,
@@ -227,7 +245,10 @@ pub fn serve(cfg: &SimConfig, stop: &AtomicBool, ready: impl FnOnce(&Path)) -> s
             next_t.unwrap_or(stage.t).max(stage.t)
         };
         let fw_t = fw.next_event_time();
-        stage.advance(fw_t.map_or(target_t, |f| f.min(target_t).max(stage.t)), &mut events);
+        stage.advance(
+            fw_t.map_or(target_t, |f| f.min(target_t).max(stage.t)),
+            &mut events,
+        );
         if fw_t.is_some_and(|f| f <= target_t) {
             fw.on_time(&stage, &mut out);
             stage.advance(target_t, &mut events);

@@ -95,9 +95,13 @@ pub enum StageEvent {
 #[serde(rename_all = "snake_case")]
 pub enum StopCause {
     /// Following error on this axis (a stall).
-    Stall { axis: usize },
+    Stall {
+        axis: usize,
+    },
     /// A limit switch closed: bits as in the protocol's status flags.
-    Limit { switches: u8 },
+    Limit {
+        switches: u8,
+    },
     EStop,
 }
 
@@ -164,7 +168,7 @@ impl Stage {
         if start_homed {
             // As if homed before this run (an absolute encoder, or a controller that kept its
             // reference): logical = motor, carriage taken up in + direction.
-            s.reference = [0.0; 2];
+            s.reference = [-s.logical_to_carriage(0), -s.logical_to_carriage(1)];
             s.homed = true;
             for k in 0..2 {
                 s.motor[k] = s.snap(s.motor[k]);
@@ -246,13 +250,22 @@ impl Stage {
 
     fn begin(&mut self, kind: MotionKind, delta: [f64; 2], speed: f64, end_m: Option<[f64; 2]>) {
         let len = (delta[0] * delta[0] + delta[1] * delta[1]).sqrt();
-        let dir = if len > 0.0 { [delta[0] / len, delta[1] / len] } else { [0.0, 0.0] };
+        let dir = if len > 0.0 {
+            [delta[0] / len, delta[1] / len]
+        } else {
+            [0.0, 0.0]
+        };
         for k in 0..2 {
             if dir[k] != 0.0 {
                 self.last_dir[k] = dir[k].signum();
             }
         }
-        let profile = Profile::new(len, 0.0, speed.min(self.cfg.max_speed_um_s).max(1.0), self.cfg.accel_um_s2);
+        let profile = Profile::new(
+            len,
+            0.0,
+            speed.min(self.cfg.max_speed_um_s).max(1.0),
+            self.cfg.accel_um_s2,
+        );
         let fault = if matches!(kind, MotionKind::Move | MotionKind::Jog) && len > 0.0 {
             self.faults.draw_move_fault(&mut self.rng).map(|f| {
                 let frac = 0.1 + 0.8 * self.rng.uniform();
@@ -261,7 +274,16 @@ impl Stage {
         } else {
             None
         };
-        self.motion = Some(Motion { kind, start_m: self.motor, dir, profile, t0: self.t, end_m, fault, deadline: None });
+        self.motion = Some(Motion {
+            kind,
+            start_m: self.motor,
+            dir,
+            profile,
+            t0: self.t,
+            end_m,
+            fault,
+            deadline: None,
+        });
     }
 
     /// Starts a straight move to a logical target (already checked against soft limits).
@@ -323,7 +345,11 @@ impl Stage {
         let mut delta = [0.0; 2];
         for k in 0..2 {
             let sw = self.cfg.switch_um[k][if d > 0.0 { 1 } else { 0 }];
-            let play_take = if d > 0.0 { self.play[k] } else { self.cfg.backlash_um[k] - self.play[k] };
+            let play_take = if d > 0.0 {
+                self.play[k]
+            } else {
+                self.cfg.backlash_um[k] - self.play[k]
+            };
             delta[k] = d * (play_take + (sw - self.carriage(k)).abs());
         }
         // Axes seek independently; model as one straight motion (both switches trip at the end).
@@ -397,7 +423,9 @@ impl Stage {
             // A stalled axis is noticed once the motor has run away from the carriage.
             for k in 0..2 {
                 if let Some(c) = self.stalled[k] {
-                    if (self.motor[k] + self.play[k] + self.settle[k] - c).abs() > self.cfg.following_tol_um {
+                    if (self.motor[k] + self.play[k] + self.settle[k] - c).abs()
+                        > self.cfg.following_tol_um
+                    {
                         self.halt();
                         events.push(StageEvent::Faulted(StopCause::Stall { axis: k }));
                         return;
@@ -405,7 +433,9 @@ impl Stage {
                 }
             }
             // A real switch closing outside homing stops everything.
-            if !matches!(m.kind, MotionKind::HomeSeek | MotionKind::HomePulloff) && self.switches() != 0 {
+            if !matches!(m.kind, MotionKind::HomeSeek | MotionKind::HomePulloff)
+                && self.switches() != 0
+            {
                 let sw = self.switches();
                 self.halt();
                 events.push(StageEvent::Faulted(StopCause::Limit { switches: sw }));
@@ -459,7 +489,10 @@ impl Stage {
             if let Some(e) = m.end_m {
                 self.set_motor(e);
             }
-            if matches!(m.kind, MotionKind::Move | MotionKind::Jog | MotionKind::HomePulloff) {
+            if matches!(
+                m.kind,
+                MotionKind::Move | MotionKind::Jog | MotionKind::HomePulloff
+            ) {
                 for k in 0..2 {
                     if self.stalled[k].is_none() {
                         self.settle[k] = self.cfg.repeat_sigma_um * self.rng.normal();
@@ -487,8 +520,16 @@ impl Stage {
                         // Native: pull off to logical 0 (the carriage frame's origin).
                         [-self.logical(0), -self.logical(1)]
                     };
-                    let end = [self.snap(self.motor[0] + delta[0]), self.snap(self.motor[1] + delta[1])];
-                    self.begin(MotionKind::HomePulloff, [end[0] - self.motor[0], end[1] - self.motor[1]], self.cfg.home_speed_um_s, Some(end));
+                    let end = [
+                        self.snap(self.motor[0] + delta[0]),
+                        self.snap(self.motor[1] + delta[1]),
+                    ];
+                    self.begin(
+                        MotionKind::HomePulloff,
+                        [end[0] - self.motor[0], end[1] - self.motor[1]],
+                        self.cfg.home_speed_um_s,
+                        Some(end),
+                    );
                     self.home_next = Some(MotionKind::Dwell); // marks "pull-off then homed"
                 }
                 (MotionKind::HomePulloff, Some(MotionKind::Dwell)) => {

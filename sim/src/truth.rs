@@ -60,7 +60,12 @@ impl<'a> StageTruth<'a> {
             accepted_targets_um: stage
                 .accepted_targets
                 .iter()
-                .map(|t| [t[0] + stage.logical_to_carriage(0), t[1] + stage.logical_to_carriage(1)])
+                .map(|t| {
+                    [
+                        t[0] + stage.logical_to_carriage(0),
+                        t[1] + stage.logical_to_carriage(1),
+                    ]
+                })
                 .collect(),
             moves_completed: stage.moves_done,
             injected_faults: &stage.injected,

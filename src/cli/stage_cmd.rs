@@ -1,0 +1,347 @@
+//! `rig stage`: drive the X/Y stages.
+
+use anyhow::{bail, Context};
+use clap::{Args, Subcommand};
+use rig::coords::CarriageUm;
+use rig::stage::{
+    self, Approach, Dialect, DriverOptions, SoftLimits, Stage, StageError, TimeoutPolicy,
+};
+use serde_json::json;
+use std::path::PathBuf;
+use std::time::Duration;
+
+/// Drive the X/Y stages. Positions are carriage coordinates in millimetres, 0..travel on both
+/// axes, whatever the controller's dialect.
+///
+/// Examples:
+///   rig stage --sim status --json
+///   rig stage --stage /dev/ttyUSB0 --dialect grbl home
+///   rig stage --sim move 120 80
+///   rig stage --sim move -- -0.5 0 --relative
+///
+/// Exit codes: 0 done; 2 bad usage; 3 target outside the soft limits (nothing sent);
+/// 4 no answer or motion timeout (stages stopped); 5 stage fault, alarm or not homed;
+/// 6 position check failed (stages stopped); 7 port cannot be opened, is busy or the link
+/// died; 8 controller refused the command or speaks another protocol; 1 anything else.
+#[derive(Debug, Args)]
+#[command(verbatim_doc_comment)]
+pub struct StageArgs {
+    /// Serial port of the stage controller (e.g. /dev/ttyUSB0, or the path `rig-sim` prints).
+    #[arg(
+        long,
+        value_name = "PATH",
+        conflicts_with = "sim",
+        required_unless_present = "sim"
+    )]
+    pub stage: Option<PathBuf>,
+    /// Controller dialect on that port.
+    #[arg(long, value_enum, default_value = "native")]
+    pub dialect: Dialect,
+    /// Use a built-in simulated controller (started homed) instead of hardware.
+    #[arg(long)]
+    pub sim: bool,
+    /// Simulator: wall seconds per simulated second (0 = no waiting).
+    #[arg(long, default_value_t = 0.2, value_name = "S", requires = "sim")]
+    pub sim_time_scale: f64,
+    /// Simulator: random seed.
+    #[arg(long, default_value_t = 1, requires = "sim")]
+    pub sim_seed: u64,
+    /// Simulator: faults to inject (see `rig sim --help`).
+    #[arg(long, value_name = "SPEC", requires = "sim")]
+    pub sim_faults: Option<String>,
+    /// Simulator: write its truth file here when done.
+    #[arg(long, value_name = "PATH", requires = "sim")]
+    pub sim_truth: Option<PathBuf>,
+    /// Print one JSON object on standard output instead of text.
+    #[arg(long, global = true)]
+    pub json: bool,
+    /// Direction every target is finally approached from, to take out backlash: `+`, `-`,
+    /// or `none`.
+    #[arg(long, default_value = "+", value_parser = ["+", "-", "none"], global = true)]
+    pub approach: String,
+    /// How far before the target the approach starts, µm (more than the backlash).
+    #[arg(long, default_value_t = 50.0, value_name = "UM", global = true)]
+    pub overshoot_um: f64,
+    /// Largest accepted difference between target and reported position, µm.
+    #[arg(long, default_value_t = 2.0, value_name = "UM", global = true)]
+    pub tolerance_um: f64,
+    /// Move speed, mm/s (default: the controller's maximum).
+    #[arg(long, value_name = "MM_S", global = true)]
+    pub speed: Option<f64>,
+    /// Tighter soft limits, mm: XMIN,XMAX,YMIN,YMAX (intersected with the controller's).
+    #[arg(long, value_name = "MM,MM,MM,MM", value_parser = parse_limits, global = true)]
+    pub limits: Option<SoftLimits>,
+    /// Motion timeout = expected duration × this + --timeout-margin.
+    #[arg(long, default_value_t = 1.5, global = true)]
+    pub timeout_factor: f64,
+    /// Seconds added to every motion timeout.
+    #[arg(long, default_value_t = 2.0, value_name = "S", global = true)]
+    pub timeout_margin: f64,
+    /// Record every byte on the line, both ways, as JSON Lines.
+    #[arg(long, value_name = "FILE", global = true)]
+    pub wire_log: Option<PathBuf>,
+    #[command(subcommand)]
+    pub action: Action,
+}
+
+#[derive(Debug, Subcommand)]
+pub enum Action {
+    /// Where the carriage is and what the controller is doing.
+    Status,
+    /// What the controller is: identity, travel, soft limits, speed, acceleration.
+    Info,
+    /// Home both axes (seek the switches, set the reference).
+    Home,
+    /// Move to X Y (mm), approached from one direction, position verified.
+    Move {
+        #[arg(allow_negative_numbers = true)]
+        x: f64,
+        #[arg(allow_negative_numbers = true)]
+        y: f64,
+        /// X and Y are offsets from the current position.
+        #[arg(long)]
+        relative: bool,
+    },
+    /// Jog by DX DY (mm) at a gentle speed, clipped to the soft limits.
+    Jog {
+        #[arg(allow_negative_numbers = true)]
+        dx: f64,
+        #[arg(allow_negative_numbers = true)]
+        dy: f64,
+        /// Jog speed, mm/s.
+        #[arg(long = "jog-speed", default_value_t = 2.0, value_name = "MM_S")]
+        jog_speed: f64,
+    },
+    /// Decelerate to a stop and report where the carriage rests.
+    Stop,
+    /// Stop at once (the position may be lost: home afterwards).
+    Estop,
+}
+
+fn parse_limits(s: &str) -> Result<SoftLimits, String> {
+    let v: Vec<f64> = s
+        .split(',')
+        .map(|x| {
+            x.trim()
+                .parse::<f64>()
+                .map_err(|_| format!("`{x}` is not a number"))
+        })
+        .collect::<Result<_, _>>()?;
+    if v.len() != 4 {
+        return Err("expected XMIN,XMAX,YMIN,YMAX in mm".into());
+    }
+    if v[0] > v[1] || v[2] > v[3] {
+        return Err("each minimum must be below its maximum".into());
+    }
+    Ok(SoftLimits {
+        min: CarriageUm::from_mm(v[0], v[2]),
+        max: CarriageUm::from_mm(v[1], v[3]),
+    })
+}
+
+fn options(a: &StageArgs) -> anyhow::Result<DriverOptions> {
+    let dir = match a.approach.as_str() {
+        "+" => 1.0,
+        "-" => -1.0,
+        _ => 0.0,
+    };
+    if !(a.overshoot_um >= 0.0
+        && a.tolerance_um > 0.0
+        && a.timeout_factor >= 1.0
+        && a.timeout_margin >= 0.0)
+    {
+        bail!("--overshoot-um must be ≥ 0, --tolerance-um > 0, --timeout-factor ≥ 1 and --timeout-margin ≥ 0");
+    }
+    Ok(DriverOptions {
+        approach: Approach {
+            direction: [dir, dir],
+            overshoot_um: a.overshoot_um,
+        },
+        timeouts: TimeoutPolicy {
+            factor: a.timeout_factor,
+            margin: Duration::from_secs_f64(a.timeout_margin),
+        },
+        tolerance_um: a.tolerance_um,
+        speed_um_s: a.speed.map(|s| s * 1000.0),
+        limits: a.limits,
+    })
+}
+
+fn status_json(st: &stage::StageStatus) -> serde_json::Value {
+    json!({
+        "x_mm": st.position.x_mm(),
+        "y_mm": st.position.y_mm(),
+        "state": st.state,
+        "controller_state": st.controller_state,
+        "homed": st.homed,
+        "limit_switches": st.limit_switches,
+        "fault": st.fault,
+    })
+}
+
+/// The result of one action: a JSON document and its text rendering.
+struct Outcome {
+    json: serde_json::Value,
+    text: String,
+}
+
+fn act(stage: &mut dyn Stage, action: &Action) -> Result<Outcome, StageError> {
+    Ok(match action {
+        Action::Status => {
+            let st = stage.status()?;
+            let text = format!(
+                "{} at X {:.4} mm, Y {:.4} mm{}{}{}",
+                st.controller_state,
+                st.position.x_mm(),
+                st.position.y_mm(),
+                if st.homed { "" } else { " (not homed)" },
+                if st.limit_switches.is_empty() {
+                    String::new()
+                } else {
+                    format!(", limit switch {} closed", st.limit_switches)
+                },
+                st.fault
+                    .as_ref()
+                    .map(|f| format!(", fault: {f}"))
+                    .unwrap_or_default()
+            );
+            Outcome {
+                json: status_json(&st),
+                text,
+            }
+        }
+        Action::Info => {
+            let i = stage.info().clone();
+            let l = stage.limits();
+            let text = format!(
+                "{} ({})\ntravel      {:.3} × {:.3} mm\nsoft limits X {:.3}..{:.3} mm, Y {:.3}..{:.3} mm\nmax speed   {:.2} mm/s, acceleration {:.1} mm/s²\nresolution  {} µm{}",
+                i.identity, i.dialect, i.travel.x_mm(), i.travel.y_mm(), l.min.x_mm(), l.max.x_mm(), l.min.y_mm(), l.max.y_mm(),
+                i.max_speed_um_s / 1000.0, i.accel_um_s2 / 1000.0, i.resolution_um,
+                i.notes.iter().map(|n| format!("\nnote: {n}")).collect::<String>()
+            );
+            let json = json!({
+                "identity": i.identity, "dialect": i.dialect,
+                "travel_mm": [i.travel.x_mm(), i.travel.y_mm()],
+                "soft_limits_mm": {"x": [l.min.x_mm(), l.max.x_mm()], "y": [l.min.y_mm(), l.max.y_mm()]},
+                "max_speed_mm_s": i.max_speed_um_s / 1000.0, "accel_mm_s2": i.accel_um_s2 / 1000.0,
+                "resolution_um": i.resolution_um, "notes": i.notes,
+            });
+            Outcome { json, text }
+        }
+        Action::Home => {
+            let p = stage.home()?;
+            let st = stage.status()?;
+            Outcome {
+                text: format!("homed; carriage at {p}"),
+                json: status_json(&st),
+            }
+        }
+        Action::Move { x, y, relative } => {
+            let p = if *relative {
+                stage.move_by(CarriageUm::from_mm(*x, *y))?
+            } else {
+                stage.move_to(CarriageUm::from_mm(*x, *y))?
+            };
+            let st = stage.status()?;
+            let mut j = status_json(&st);
+            j["verified_x_mm"] = json!(p.x_mm());
+            j["verified_y_mm"] = json!(p.y_mm());
+            Outcome {
+                text: format!("at {p} (verified)"),
+                json: j,
+            }
+        }
+        Action::Jog { dx, dy, jog_speed } => {
+            if !(*jog_speed > 0.0) {
+                return Err(StageError::Rejected {
+                    command: "jog".into(),
+                    reason: "--jog-speed must be positive".into(),
+                });
+            }
+            let p = stage.jog(CarriageUm::from_mm(*dx, *dy), jog_speed * 1000.0)?;
+            let st = stage.status()?;
+            Outcome {
+                text: format!("jogged to {p}"),
+                json: status_json(&st),
+            }
+        }
+        Action::Stop => {
+            let p = stage.stop()?;
+            let st = stage.status()?;
+            Outcome {
+                text: format!("stopped at {p}"),
+                json: status_json(&st),
+            }
+        }
+        Action::Estop => {
+            stage.emergency_stop()?;
+            let st = stage.status()?;
+            Outcome {
+                text: "emergency stop: home before moving again".into(),
+                json: status_json(&st),
+            }
+        }
+    })
+}
+
+/// Runs `rig stage`; returns the process exit code.
+pub fn run(a: StageArgs) -> anyhow::Result<i32> {
+    let opts = options(&a)?;
+    let mut sim = None;
+    let port = if a.sim {
+        let faults = match &a.sim_faults {
+            Some(s) => {
+                rig_sim::FaultSpec::parse(s).with_context(|| format!("--sim-faults `{s}`"))?
+            }
+            None => rig_sim::FaultSpec::default(),
+        };
+        if !(a.sim_time_scale >= 0.0) {
+            bail!("--sim-time-scale must be 0 or more");
+        }
+        let cfg = rig_sim::SimConfig {
+            dialect: match a.dialect {
+                Dialect::Native => rig_sim::Dialect::Native,
+                Dialect::Grbl => rig_sim::Dialect::Grbl,
+            },
+            time_scale: a.sim_time_scale,
+            seed: a.sim_seed,
+            faults,
+            truth: a.sim_truth.clone(),
+            stage_link: None,
+            start_homed: true,
+        };
+        let s = rig_sim::EmbeddedSim::start(cfg).context("starting the built-in simulator")?;
+        let p = s.port.clone();
+        sim = Some(s);
+        p
+    } else {
+        a.stage
+            .clone()
+            .expect("clap requires --stage without --sim")
+    };
+    let result = stage::open(&port, a.dialect, opts, a.wire_log.as_deref())
+        .and_then(|mut s| act(s.as_mut(), &a.action));
+    if let Some(s) = sim {
+        s.shutdown().context("stopping the built-in simulator")?;
+    }
+    match result {
+        Ok(o) => {
+            if a.json {
+                println!("{}", o.json);
+            } else {
+                println!("{}", o.text);
+            }
+            Ok(0)
+        }
+        Err(e) => {
+            if a.json {
+                println!(
+                    "{}",
+                    json!({"error": {"kind": e.kind(), "message": e.to_string()}})
+                );
+            }
+            eprintln!("rig stage: {e}");
+            Ok(e.exit_code())
+        }
+    }
+}

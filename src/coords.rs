@@ -1,0 +1,75 @@
+//! Coordinate types that carry their unit and system (DESIGN.md, "Coordinate systems"), so a
+//! carriage position cannot be passed where a photo coordinate is expected.
+
+use serde::{Deserialize, Serialize};
+use std::ops::{Add, Sub};
+
+/// A point in carriage (stage) coordinates, micrometres, 0..travel on each axis.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+pub struct CarriageUm {
+    pub x: f64,
+    pub y: f64,
+}
+
+impl CarriageUm {
+    pub const fn new(x: f64, y: f64) -> Self {
+        CarriageUm { x, y }
+    }
+
+    pub fn from_mm(x_mm: f64, y_mm: f64) -> Self {
+        CarriageUm {
+            x: x_mm * 1000.0,
+            y: y_mm * 1000.0,
+        }
+    }
+
+    pub fn x_mm(self) -> f64 {
+        self.x / 1000.0
+    }
+
+    pub fn y_mm(self) -> f64 {
+        self.y / 1000.0
+    }
+
+    /// Axis 0 is X, 1 is Y.
+    pub fn axis(self, k: usize) -> f64 {
+        if k == 0 {
+            self.x
+        } else {
+            self.y
+        }
+    }
+
+    pub fn with_axis(mut self, k: usize, v: f64) -> Self {
+        if k == 0 {
+            self.x = v
+        } else {
+            self.y = v
+        }
+        self
+    }
+
+    pub fn norm(self) -> f64 {
+        self.x.hypot(self.y)
+    }
+}
+
+impl Add for CarriageUm {
+    type Output = CarriageUm;
+    fn add(self, o: CarriageUm) -> CarriageUm {
+        CarriageUm::new(self.x + o.x, self.y + o.y)
+    }
+}
+
+impl Sub for CarriageUm {
+    type Output = CarriageUm;
+    fn sub(self, o: CarriageUm) -> CarriageUm {
+        CarriageUm::new(self.x - o.x, self.y - o.y)
+    }
+}
+
+impl std::fmt::Display for CarriageUm {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "({:.4}, {:.4}) mm", self.x_mm(), self.y_mm())
+    }
+}

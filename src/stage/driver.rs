@@ -1,0 +1,214 @@
+//! The safety policy over any [`Controller`].
+
+use super::motion::{move_duration, Approach, SoftLimits, TimeoutPolicy};
+use super::{Controller, ControllerInfo, Result, Stage, StageError, StageState, StageStatus};
+use crate::coords::CarriageUm;
+use std::time::Duration;
+
+#[derive(Debug, Clone)]
+pub struct DriverOptions {
+    pub approach: Approach,
+    pub timeouts: TimeoutPolicy,
+    /// Largest accepted difference between target and reported position, µm.
+    pub tolerance_um: f64,
+    /// Move speed; `None` = the controller's maximum.
+    pub speed_um_s: Option<f64>,
+    /// Extra soft limits from the operator, intersected with the controller's.
+    pub limits: Option<SoftLimits>,
+}
+
+impl Default for DriverOptions {
+    fn default() -> Self {
+        DriverOptions {
+            approach: Approach::default(),
+            timeouts: TimeoutPolicy::default(),
+            tolerance_um: 2.0,
+            speed_um_s: None,
+            limits: None,
+        }
+    }
+}
+
+pub struct Driver<C: Controller> {
+    ctl: C,
+    opts: DriverOptions,
+    limits: SoftLimits,
+}
+
+impl<C: Controller> Driver<C> {
+    pub fn new(ctl: C, opts: DriverOptions) -> Self {
+        let own = ctl.info().limits;
+        let limits = opts.limits.map_or(own, |l| l.intersect(&own));
+        Driver { ctl, opts, limits }
+    }
+
+    pub fn controller(&mut self) -> &mut C {
+        &mut self.ctl
+    }
+
+    fn speed(&self) -> f64 {
+        let max = self.ctl.info().max_speed_um_s;
+        self.opts.speed_um_s.map_or(max, |s| s.min(max))
+    }
+
+    /// On any error but a refusal before sending, stop the stages (best effort: the link may
+    /// be what failed) and pass the error on.
+    fn guard<T>(&mut self, r: Result<T>) -> Result<T> {
+        if let Err(e) = &r {
+            if !matches!(
+                e,
+                StageError::OutOfLimits { .. } | StageError::NotHomed | StageError::Disconnected(_)
+            ) {
+                let _ = self.ctl.stop();
+            }
+        }
+        r
+    }
+
+    fn fault_of(st: &StageStatus) -> StageError {
+        StageError::Fault {
+            kind: st.fault.clone().unwrap_or(super::FaultKind::Reset),
+            position: Some(st.position),
+        }
+    }
+
+    /// One straight leg: check, send, wait, check for faults.
+    fn leg(&mut self, from: CarriageUm, to: CarriageUm) -> Result<StageStatus> {
+        self.limits.check(to)?;
+        let speed = self.speed();
+        let expected = move_duration((to - from).norm(), speed, self.ctl.info().accel_um_s2);
+        let r = self.ctl.start_move(to, speed).and_then(|_| {
+            self.ctl
+                .wait_done(self.opts.timeouts.for_duration(expected))
+        });
+        let st = self.guard(r)?;
+        if st.state == StageState::Fault {
+            return Err(Self::fault_of(&st));
+        }
+        if !st.homed {
+            return Err(StageError::Fault {
+                kind: super::FaultKind::Reset,
+                position: Some(st.position),
+            });
+        }
+        Ok(st)
+    }
+
+    fn ready_to_move(&mut self) -> Result<StageStatus> {
+        let st = self.ctl.status()?;
+        match st.state {
+            StageState::Fault => Err(Self::fault_of(&st)),
+            _ if !st.homed => Err(StageError::NotHomed),
+            s if s.is_moving() => Err(StageError::Rejected {
+                command: "move".into(),
+                reason: format!(
+                    "the stage is still {}; stop it or wait",
+                    st.controller_state
+                ),
+            }),
+            _ => Ok(st),
+        }
+    }
+}
+
+impl<C: Controller> Stage for Driver<C> {
+    fn info(&self) -> &ControllerInfo {
+        self.ctl.info()
+    }
+
+    fn limits(&self) -> SoftLimits {
+        self.limits
+    }
+
+    fn status(&mut self) -> Result<StageStatus> {
+        self.ctl.status()
+    }
+
+    fn home(&mut self) -> Result<CarriageUm> {
+        let st = self.ctl.status()?;
+        if st.state == StageState::Fault {
+            self.ctl.clear_fault()?;
+        }
+        let info = self.ctl.info();
+        let far = info.travel.x.max(info.travel.y) * 1.2 + 5000.0;
+        let expected = move_duration(far, info.home_speed_um_s, info.accel_um_s2) * 2;
+        let r = self.ctl.start_home().and_then(|_| {
+            self.ctl
+                .wait_done(self.opts.timeouts.for_duration(expected))
+        });
+        let st = self.guard(r)?;
+        if st.state == StageState::Fault {
+            return Err(Self::fault_of(&st));
+        }
+        if !st.homed {
+            return Err(StageError::Protocol(format!(
+                "homing ended but the controller is not homed ({})",
+                st.controller_state
+            )));
+        }
+        Ok(st.position)
+    }
+
+    fn move_to(&mut self, target: CarriageUm) -> Result<CarriageUm> {
+        // Refuse before anything is sent.
+        self.limits.check(target)?;
+        let st = self.ready_to_move()?;
+        let mut from = st.position;
+        if let Some(pre) = self.opts.approach.pre_position(from, target, &self.limits) {
+            from = self.leg(from, pre)?.position;
+        }
+        let st = self.leg(from, target)?;
+        let err = st.position - target;
+        if err.x.abs() > self.opts.tolerance_um || err.y.abs() > self.opts.tolerance_um {
+            let _ = self.ctl.stop();
+            return Err(StageError::PositionMismatch {
+                target,
+                actual: st.position,
+                tolerance_um: self.opts.tolerance_um,
+            });
+        }
+        Ok(st.position)
+    }
+
+    fn jog(&mut self, delta: CarriageUm, speed_um_s: f64) -> Result<CarriageUm> {
+        let st = self.ready_to_move()?;
+        let to = self.limits.clamp(st.position + delta);
+        let d = to - st.position;
+        if d.norm() < 0.01 {
+            return Ok(st.position);
+        }
+        let speed = speed_um_s.min(self.ctl.info().max_speed_um_s).max(1.0);
+        let expected = move_duration(d.norm(), speed, self.ctl.info().accel_um_s2);
+        let r = self.ctl.start_jog(d, speed).and_then(|_| {
+            self.ctl
+                .wait_done(self.opts.timeouts.for_duration(expected))
+        });
+        let st = self.guard(r)?;
+        if st.state == StageState::Fault {
+            return Err(Self::fault_of(&st));
+        }
+        Ok(st.position)
+    }
+
+    fn stop(&mut self) -> Result<CarriageUm> {
+        self.ctl.stop()?;
+        let info = self.ctl.info();
+        // From full speed a stop takes v/a.
+        let expected = Duration::from_secs_f64(info.max_speed_um_s / info.accel_um_s2);
+        Ok(self
+            .ctl
+            .wait_done(self.opts.timeouts.for_duration(expected))?
+            .position)
+    }
+
+    fn emergency_stop(&mut self) -> Result<()> {
+        self.ctl.emergency_stop()
+    }
+
+    fn wait_motion(&mut self, expected: Duration) -> Result<StageStatus> {
+        let r = self
+            .ctl
+            .wait_done(self.opts.timeouts.for_duration(expected));
+        self.guard(r)
+    }
+}

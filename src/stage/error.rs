@@ -1,0 +1,125 @@
+use crate::coords::CarriageUm;
+use std::path::PathBuf;
+use std::time::Duration;
+
+fn at(p: &Option<CarriageUm>) -> String {
+    p.map(|p| format!(" at {p}")).unwrap_or_default()
+}
+
+/// Why the controller stopped or refuses to move.
+#[derive(Debug, Clone, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum FaultKind {
+    EmergencyStop,
+    /// A limit switch closed (`switches` names them, e.g. "X+").
+    LimitSwitch {
+        switches: String,
+    },
+    /// The axis did not follow the motor (stalled or blocked).
+    Stall,
+    /// The controller reset (power, watchdog, brown-out); its position is lost.
+    Reset,
+    /// A GRBL alarm, with GRBL's code and meaning.
+    Alarm {
+        code: u32,
+        meaning: String,
+    },
+}
+
+impl std::fmt::Display for FaultKind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            FaultKind::EmergencyStop => write!(f, "emergency stop"),
+            FaultKind::LimitSwitch { switches } => write!(f, "limit switch {switches} closed"),
+            FaultKind::Stall => write!(f, "axis stalled (following error)"),
+            FaultKind::Reset => write!(f, "controller reset"),
+            FaultKind::Alarm { code, meaning } => write!(f, "ALARM:{code} ({meaning})"),
+        }
+    }
+}
+
+/// Errors of the stage drivers. Every motion error has already stopped the stages (as far as
+/// the link allows) when it is returned.
+#[derive(Debug, thiserror::Error)]
+pub enum StageError {
+    #[error("cannot open stage port {path}: {source}")]
+    Open {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error(
+        "stage port {path} is in use by another program; close it (or stop the other rig) first"
+    )]
+    PortBusy { path: PathBuf },
+    #[error("the link to the stage controller is gone ({0}); check the cable and power, then home again")]
+    Disconnected(String),
+    #[error("no answer from the stage controller to {what} within {after:?}")]
+    Timeout { what: String, after: Duration },
+    #[error("the stage controller does not speak this protocol: {0}")]
+    Protocol(String),
+    #[error("protocol version mismatch: host speaks {host}, controller {controller}")]
+    Version { host: String, controller: String },
+    #[error("the controller refused {command}: {reason}")]
+    Rejected { command: String, reason: String },
+    #[error("{axis} target {value_mm:.4} mm is outside the soft limits {min_mm:.4}..{max_mm:.4} mm; nothing was sent")]
+    OutOfLimits {
+        axis: char,
+        value_mm: f64,
+        min_mm: f64,
+        max_mm: f64,
+    },
+    #[error("the stage is not homed; run `rig stage home` first")]
+    NotHomed,
+    #[error(
+        "stage fault: {kind}; stages stopped{}. Clear the cause, then home again",
+        at(position)
+    )]
+    Fault {
+        kind: FaultKind,
+        position: Option<CarriageUm>,
+    },
+    #[error("position check failed: asked for {target}, controller reports {actual} (tolerance {tolerance_um} µm); stages stopped")]
+    PositionMismatch {
+        target: CarriageUm,
+        actual: CarriageUm,
+        tolerance_um: f64,
+    },
+    #[error("motion did not finish within {after:?} (expected {expected:?}); stages stopped")]
+    MotionTimeout { after: Duration, expected: Duration },
+}
+
+impl StageError {
+    /// Exit code for the `rig` command (README, "Exit codes").
+    pub fn exit_code(&self) -> i32 {
+        match self {
+            StageError::OutOfLimits { .. } => 3,
+            StageError::Timeout { .. } | StageError::MotionTimeout { .. } => 4,
+            StageError::Fault { .. } | StageError::NotHomed => 5,
+            StageError::PositionMismatch { .. } => 6,
+            StageError::Open { .. } | StageError::PortBusy { .. } | StageError::Disconnected(_) => {
+                7
+            }
+            StageError::Rejected { .. } | StageError::Protocol(_) | StageError::Version { .. } => 8,
+        }
+    }
+
+    /// A short, stable name for `--json` output and logs.
+    pub fn kind(&self) -> &'static str {
+        match self {
+            StageError::Open { .. } => "open",
+            StageError::PortBusy { .. } => "port_busy",
+            StageError::Disconnected(_) => "disconnected",
+            StageError::Timeout { .. } => "timeout",
+            StageError::Protocol(_) => "protocol",
+            StageError::Version { .. } => "version",
+            StageError::Rejected { .. } => "rejected",
+            StageError::OutOfLimits { .. } => "out_of_limits",
+            StageError::NotHomed => "not_homed",
+            StageError::Fault { .. } => "fault",
+            StageError::PositionMismatch { .. } => "position_mismatch",
+            StageError::MotionTimeout { .. } => "motion_timeout",
+        }
+    }
+}
+
+pub type Result<T, E = StageError> = std::result::Result<T, E>;

@@ -1,0 +1,158 @@
+//! The stage driver layer: a small [`Stage`] trait for the rest of the rig, and serial clients
+//! for the rig's own firmware protocol ([`native`]) and for GRBL 1.1 ([`grbl`]).
+//!
+//! Each dialect implements the low-level [`Controller`] trait (send a move, wait for the end of
+//! motion, read the status); the safety policy lives once, in [`Driver`]: soft limits checked
+//! on the host before anything is sent, the one-direction approach that takes out backlash, a
+//! timeout on every wait computed from distance, speed and acceleration, the position verified
+//! after each move, and the stages stopped on any fault.
+
+mod driver;
+mod error;
+pub mod grbl;
+mod motion;
+pub mod native;
+mod port;
+
+pub use driver::{Driver, DriverOptions};
+pub use error::{FaultKind, Result, StageError};
+pub use motion::{move_duration, Approach, SoftLimits, TimeoutPolicy};
+pub use port::Port;
+
+use crate::coords::CarriageUm;
+use serde::Serialize;
+use std::path::Path;
+use std::time::Duration;
+
+/// What the controller is doing.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum StageState {
+    Idle,
+    Moving,
+    Homing,
+    Jogging,
+    /// Decelerating or paused by a feed hold (GRBL).
+    Holding,
+    /// Idle without a position reference: home before moving.
+    Unhomed,
+    /// Stopped by a fault or alarm: clear it and home.
+    Fault,
+}
+
+impl StageState {
+    pub fn is_moving(self) -> bool {
+        matches!(
+            self,
+            StageState::Moving | StageState::Homing | StageState::Jogging | StageState::Holding
+        )
+    }
+}
+
+/// One status reading.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct StageStatus {
+    pub state: StageState,
+    pub position: CarriageUm,
+    pub homed: bool,
+    /// Closed limit switches, e.g. "X-" or "XY"; empty when none.
+    pub limit_switches: String,
+    pub fault: Option<FaultKind>,
+    /// The controller's own words for its state (`Idle`, `Hold:0`, `Alarm`, …).
+    pub controller_state: String,
+}
+
+/// What the host learnt about the controller when it connected.
+#[derive(Debug, Clone, Serialize)]
+pub struct ControllerInfo {
+    pub dialect: &'static str,
+    pub identity: String,
+    pub travel: CarriageUm,
+    /// The controller's own soft limits, in carriage coordinates.
+    pub limits: SoftLimits,
+    pub max_speed_um_s: f64,
+    pub accel_um_s2: f64,
+    pub home_speed_um_s: f64,
+    /// Smallest position increment the controller reports (step or encoder count).
+    pub resolution_um: f64,
+    /// Things the operator should know (e.g. the controller's own soft limits are off).
+    pub notes: Vec<String>,
+}
+
+/// The low-level operations of one controller dialect. Implementations never decide policy:
+/// they send, wait and report; [`Driver`] decides.
+pub trait Controller {
+    fn info(&self) -> &ControllerInfo;
+    fn status(&mut self) -> Result<StageStatus>;
+    /// Sends a straight move to `target` and returns once the controller accepted it.
+    fn start_move(&mut self, target: CarriageUm, speed_um_s: f64) -> Result<()>;
+    fn start_home(&mut self) -> Result<()>;
+    /// Sends a jog by `delta` (already clipped to the soft limits) at `speed_um_s`.
+    fn start_jog(&mut self, delta: CarriageUm, speed_um_s: f64) -> Result<()>;
+    /// Waits for the motion to end, up to `timeout`; a fault during the wait is an error.
+    fn wait_done(&mut self, timeout: Duration) -> Result<StageStatus>;
+    /// Decelerating stop; returns when the controller has acknowledged it.
+    fn stop(&mut self) -> Result<()>;
+    /// Immediate stop.
+    fn emergency_stop(&mut self) -> Result<()>;
+    /// Leaves the fault or alarm state (the stage is then unhomed).
+    fn clear_fault(&mut self) -> Result<()>;
+}
+
+/// What the rest of the rig uses to move the carriage.
+pub trait Stage {
+    fn info(&self) -> &ControllerInfo;
+    /// The soft limits in force on the host.
+    fn limits(&self) -> SoftLimits;
+    fn status(&mut self) -> Result<StageStatus>;
+    fn position(&mut self) -> Result<CarriageUm> {
+        Ok(self.status()?.position)
+    }
+    /// Homes both axes; returns the position after homing.
+    fn home(&mut self) -> Result<CarriageUm>;
+    /// Moves to `target`, approached from the configured direction, and returns the verified
+    /// position.
+    fn move_to(&mut self, target: CarriageUm) -> Result<CarriageUm>;
+    fn move_by(&mut self, delta: CarriageUm) -> Result<CarriageUm> {
+        let here = self.position()?;
+        self.move_to(here + delta)
+    }
+    /// Jogs by `delta` at `speed_um_s`, clipped to the soft limits (a jog is for looking
+    /// around, not for measuring: no approach, no position check).
+    fn jog(&mut self, delta: CarriageUm, speed_um_s: f64) -> Result<CarriageUm>;
+    /// Decelerating stop; returns where the carriage came to rest.
+    fn stop(&mut self) -> Result<CarriageUm>;
+    fn emergency_stop(&mut self) -> Result<()>;
+    /// Waits for the current motion to end, with a timeout from the expected duration.
+    fn wait_motion(&mut self, expected: Duration) -> Result<StageStatus>;
+}
+
+/// The controller dialects the rig speaks.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Dialect {
+    /// The rig's own firmware protocol (firmware-protocol/PROTOCOL.md).
+    Native,
+    /// GRBL 1.1.
+    Grbl,
+}
+
+/// Opens the controller at `path` and wraps it in the safety [`Driver`].
+/// `wire_log` records every byte both ways as JSON Lines.
+pub fn open(
+    path: &Path,
+    dialect: Dialect,
+    opts: DriverOptions,
+    wire_log: Option<&Path>,
+) -> Result<Box<dyn Stage>> {
+    Ok(match dialect {
+        Dialect::Native => Box::new(Driver::new(
+            native::NativeController::open(path, wire_log)?,
+            opts,
+        )),
+        Dialect::Grbl => Box::new(Driver::new(
+            grbl::GrblController::open(path, wire_log)?,
+            opts,
+        )),
+    })
+}

@@ -1,0 +1,117 @@
+//! The serial line: opened by path, owned by one process, every read bounded in time.
+
+use super::error::{Result, StageError};
+use serialport::{ClearBuffer, SerialPort, TTYPort};
+use std::io::{Read, Write};
+use std::os::fd::AsRawFd;
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+pub struct Port {
+    port: TTYPort,
+    pub path: PathBuf,
+    /// JSON Lines record of every byte sent and received (`--wire-log`).
+    wire_log: Option<std::fs::File>,
+    opened: Instant,
+}
+
+/// Read slices are short so deadlines are kept to within this.
+const READ_SLICE: Duration = Duration::from_millis(20);
+
+impl Port {
+    /// Opens `path` at `baud`, exclusively: `TIOCEXCL` for other openers and an advisory
+    /// `flock` so that a second `rig` (even as root, which `TIOCEXCL` does not stop) is refused.
+    pub fn open(path: &Path, baud: u32, wire_log: Option<&Path>) -> Result<Port> {
+        let port = serialport::new(path.to_string_lossy(), baud)
+            .timeout(READ_SLICE)
+            .open_native()
+            .map_err(|e| StageError::Open {
+                path: path.to_path_buf(),
+                source: e.into(),
+            })?;
+        // SAFETY: flock on a descriptor we own.
+        let r = unsafe { libc::flock(port.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) };
+        if r != 0 {
+            return Err(StageError::PortBusy {
+                path: path.to_path_buf(),
+            });
+        }
+        let wire_log = match wire_log {
+            Some(l) => Some(
+                std::fs::OpenOptions::new()
+                    .create(true)
+                    .append(true)
+                    .open(l)
+                    .map_err(|e| StageError::Open {
+                        path: l.to_path_buf(),
+                        source: e,
+                    })?,
+            ),
+            None => None,
+        };
+        let mut p = Port {
+            port,
+            path: path.to_path_buf(),
+            wire_log,
+            opened: Instant::now(),
+        };
+        p.purge()?;
+        Ok(p)
+    }
+
+    /// Discards whatever is in the buffers both ways (after garbage, before a resync).
+    pub fn purge(&mut self) -> Result<()> {
+        self.port
+            .clear(ClearBuffer::All)
+            .map_err(|e| self.lost(e.to_string()))
+    }
+
+    fn lost(&self, why: String) -> StageError {
+        StageError::Disconnected(format!("{}: {why}", self.path.display()))
+    }
+
+    fn log(&mut self, dir: &str, bytes: &[u8]) {
+        if let Some(f) = &mut self.wire_log {
+            let hex: String = bytes.iter().map(|b| format!("{b:02x}")).collect();
+            let _ = writeln!(
+                f,
+                "{{\"t\":{:.6},\"dir\":\"{dir}\",\"hex\":\"{hex}\"}}",
+                self.opened.elapsed().as_secs_f64()
+            );
+        }
+    }
+
+    pub fn write_all(&mut self, bytes: &[u8]) -> Result<()> {
+        self.log("tx", bytes);
+        self.port
+            .write_all(bytes)
+            .map_err(|e| self.lost(e.to_string()))?;
+        self.port.flush().map_err(|e| self.lost(e.to_string()))
+    }
+
+    /// Reads what arrives before `deadline` (at least one slice). Returns an empty vector on a
+    /// quiet line; a dead line is an error.
+    pub fn read_until(&mut self, deadline: Instant, buf: &mut Vec<u8>) -> Result<usize> {
+        let mut tmp = [0u8; 256];
+        loop {
+            match self.port.read(&mut tmp) {
+                Ok(0) => return Err(self.lost("end of file".into())),
+                Ok(n) => {
+                    self.log("rx", &tmp[..n]);
+                    buf.extend_from_slice(&tmp[..n]);
+                    return Ok(n);
+                }
+                Err(e)
+                    if e.kind() == std::io::ErrorKind::TimedOut
+                        || e.kind() == std::io::ErrorKind::WouldBlock =>
+                {
+                    if Instant::now() >= deadline {
+                        return Ok(0);
+                    }
+                }
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+                Err(e) => return Err(self.lost(e.to_string())),
+            }
+        }
+    }
+}
