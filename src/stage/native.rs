@@ -399,7 +399,9 @@ impl Controller for NativeController {
     fn start_jog(&mut self, delta: CarriageUm, speed_um_s: f64) -> Result<()> {
         self.events.clear();
         let len = delta.norm();
-        let t_ms = (len / speed_um_s * 1000.0).round().max(1.0);
+        // Whole milliseconds, rounded up: the jog ends by decelerating, never short of the
+        // clipped target by a truncated deadline.
+        let t_ms = (len / speed_um_s * 1000.0).ceil().max(1.0);
         let v = [delta.x / len * speed_um_s, delta.y / len * speed_um_s];
         let msg = Message::Jog {
             vx_um_s: v[0].round() as i32,

@@ -3,7 +3,6 @@
 use super::error::{Result, StageError};
 use serialport::{ClearBuffer, SerialPort, TTYPort};
 use std::io::{Read, Write};
-use std::os::fd::AsRawFd;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
@@ -19,23 +18,24 @@ pub struct Port {
 const READ_SLICE: Duration = Duration::from_millis(20);
 
 impl Port {
-    /// Opens `path` at `baud`, exclusively: `TIOCEXCL` for other openers and an advisory
-    /// `flock` so that a second `rig` (even as root, which `TIOCEXCL` does not stop) is refused.
+    /// Opens `path` at `baud`, exclusively: serialport takes `TIOCEXCL` and an exclusive
+    /// `flock`, and reports either refusal as `NoDevice`, which is a busy port.
     pub fn open(path: &Path, baud: u32, wire_log: Option<&Path>) -> Result<Port> {
         let port = serialport::new(path.to_string_lossy(), baud)
             .timeout(READ_SLICE)
             .open_native()
-            .map_err(|e| StageError::Open {
-                path: path.to_path_buf(),
-                source: e.into(),
+            .map_err(|e| {
+                if e.kind() == serialport::ErrorKind::NoDevice {
+                    StageError::PortBusy {
+                        path: path.to_path_buf(),
+                    }
+                } else {
+                    StageError::Open {
+                        path: path.to_path_buf(),
+                        source: e.into(),
+                    }
+                }
             })?;
-        // SAFETY: flock on a descriptor we own.
-        let r = unsafe { libc::flock(port.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) };
-        if r != 0 {
-            return Err(StageError::PortBusy {
-                path: path.to_path_buf(),
-            });
-        }
         let wire_log = match wire_log {
             Some(l) => Some(
                 std::fs::OpenOptions::new()

@@ -1,0 +1,134 @@
+//! Helpers for end-to-end tests: a `rig sim` process on a real pseudo-terminal, `rig stage`
+//! invocations, and the simulator's truth file.
+#![allow(dead_code)]
+
+use serde_json::Value;
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+pub fn rig() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_rig"))
+}
+
+/// A `rig sim` child process, stopped with SIGTERM on drop.
+pub struct SimProcess {
+    pub child: Child,
+    pub port: PathBuf,
+    pub truth: PathBuf,
+    pub dir: tempfile::TempDir,
+}
+
+impl SimProcess {
+    pub fn start(dialect: &str, extra: &[&str]) -> SimProcess {
+        let dir = tempfile::tempdir().unwrap();
+        let truth = dir.path().join("truth.json");
+        let link = dir.path().join("stage");
+        let mut child = rig()
+            .args(["sim", "--dialect", dialect, "--time-scale", "0", "--truth"])
+            .arg(&truth)
+            .arg("--stage-link")
+            .arg(&link)
+            .args(extra)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit())
+            .spawn()
+            .expect("spawn rig sim");
+        let mut line = String::new();
+        BufReader::new(child.stdout.take().unwrap())
+            .read_line(&mut line)
+            .unwrap();
+        let port = PathBuf::from(line.trim());
+        assert!(port.starts_with("/dev/pts"), "rig sim printed {line:?}");
+        assert_eq!(
+            std::fs::read_link(&link).unwrap(),
+            port,
+            "--stage-link points at the pty"
+        );
+        SimProcess {
+            child,
+            port,
+            truth,
+            dir,
+        }
+    }
+
+    /// `rig stage --stage PORT --dialect D ARGS... --json`.
+    pub fn stage(&self, dialect: &str, args: &[&str]) -> (i32, Value, String) {
+        let out = rig()
+            .arg("stage")
+            .arg("--stage")
+            .arg(&self.port)
+            .args(["--dialect", dialect, "--json"])
+            .args(args)
+            .output()
+            .unwrap();
+        parse(out)
+    }
+
+    pub fn truth(&self) -> Value {
+        read_truth(&self.truth)
+    }
+
+    /// SIGTERM, wait, and the final truth.
+    pub fn stop(mut self) -> Value {
+        unsafe { libc::kill(self.child.id() as i32, libc::SIGTERM) };
+        let deadline = Instant::now() + Duration::from_secs(5);
+        loop {
+            if let Some(st) = self.child.try_wait().unwrap() {
+                assert!(st.success(), "rig sim exited with {st}");
+                break;
+            }
+            assert!(Instant::now() < deadline, "rig sim did not stop on SIGTERM");
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        assert!(
+            !self.dir.path().join("stage").exists(),
+            "the --stage-link is removed on exit"
+        );
+        read_truth(&self.truth)
+    }
+}
+
+impl Drop for SimProcess {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+pub fn parse(out: Output) -> (i32, Value, String) {
+    let code = out.status.code().unwrap_or(-1);
+    let stdout = String::from_utf8_lossy(&out.stdout).to_string();
+    let stderr = String::from_utf8_lossy(&out.stderr).to_string();
+    let json = serde_json::from_str(stdout.trim()).unwrap_or(Value::Null);
+    (code, json, stderr)
+}
+
+/// Reads the truth file once the simulator has written a settled state.
+pub fn read_truth(path: &Path) -> Value {
+    let deadline = Instant::now() + Duration::from_secs(2);
+    loop {
+        if let Ok(s) = std::fs::read_to_string(path) {
+            if let Ok(v) = serde_json::from_str::<Value>(&s) {
+                if v["busy"] == Value::Bool(false) || Instant::now() > deadline {
+                    return v;
+                }
+            }
+        }
+        assert!(
+            Instant::now() < deadline + Duration::from_secs(1),
+            "no truth file at {}",
+            path.display()
+        );
+        std::thread::sleep(Duration::from_millis(5));
+    }
+}
+
+pub fn carriage_um(truth: &Value) -> (f64, f64) {
+    (
+        truth["carriage_um"][0].as_f64().unwrap(),
+        truth["carriage_um"][1].as_f64().unwrap(),
+    )
+}
