@@ -30,7 +30,8 @@ pub struct StageConfig {
     pub pulloff_um: f64,
     /// σ of the switch's trip point.
     pub switch_sigma_um: f64,
-    /// Following error beyond which a stalled axis is detected.
+    /// Following error beyond which a stalled axis is detected; 0 = at the moment of the
+    /// stall (sensorless stall detection in the driver, as on GRBL boards).
     pub following_tol_um: f64,
 }
 
@@ -51,7 +52,7 @@ impl StageConfig {
             home_dir,
             pulloff_um: if home_dir > 0.0 { 1000.0 } else { 500.0 },
             switch_sigma_um: 0.2,
-            following_tol_um: 20.0,
+            following_tol_um: if home_dir > 0.0 { 0.0 } else { 20.0 },
         }
     }
 }
@@ -453,7 +454,14 @@ impl Stage {
                     mm.fault = None;
                 }
                 match f {
-                    MoveFault::Stall { axis } => self.stalled[axis] = Some(self.carriage(axis)),
+                    MoveFault::Stall { axis } => {
+                        self.stalled[axis] = Some(self.carriage(axis));
+                        if self.cfg.following_tol_um <= 0.0 {
+                            self.halt();
+                            events.push(StageEvent::Faulted(StopCause::Stall { axis }));
+                            return;
+                        }
+                    }
                     MoveFault::Limit => {
                         // A switch bounces closed (a loose wire, dirt on the contact).
                         let axis = self.rng.below(2) as usize;

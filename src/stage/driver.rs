@@ -72,8 +72,9 @@ impl<C: Controller> Driver<C> {
         }
     }
 
-    /// One straight leg: check, send, wait, check for faults.
-    fn leg(&mut self, from: CarriageUm, to: CarriageUm) -> Result<StageStatus> {
+    /// One straight leg: check, send, wait, check for faults, check the reported position
+    /// against `to` within `tol_um` per axis.
+    fn leg(&mut self, from: CarriageUm, to: CarriageUm, tol_um: [f64; 2]) -> Result<StageStatus> {
         self.limits.check(to)?;
         let speed = self.speed();
         let expected = move_duration((to - from).norm(), speed, self.ctl.info().accel_um_s2);
@@ -89,6 +90,18 @@ impl<C: Controller> Driver<C> {
             return Err(StageError::Fault {
                 kind: super::FaultKind::Reset,
                 position: Some(st.position),
+            });
+        }
+        // Every leg is checked, the approach detour too: a detour that went astray (a garbled
+        // line on a controller without checksums) would let the last leg arrive from the
+        // wrong side with the backlash unseen.
+        let err = st.position - to;
+        if err.x.abs() > tol_um[0] || err.y.abs() > tol_um[1] {
+            let _ = self.ctl.stop();
+            return Err(StageError::PositionMismatch {
+                target: to,
+                actual: st.position,
+                tolerance_um: tol_um[0].max(tol_um[1]),
             });
         }
         Ok(st)
@@ -154,20 +167,21 @@ impl<C: Controller> Stage for Driver<C> {
         self.limits.check(target)?;
         let st = self.ready_to_move()?;
         let mut from = st.position;
+        let tol = self.opts.tolerance_um;
         if let Some(pre) = self.opts.approach.pre_position(from, target, &self.limits) {
-            from = self.leg(from, pre)?.position;
+            // The detour lands against the approach direction, backlash and all: it only has
+            // to end well on the approach side of the target (half the overshoot), while an
+            // axis that needs no detour must already be exactly where it will stay.
+            let loose = |k: usize| {
+                if pre.axis(k) != target.axis(k) {
+                    (self.opts.approach.overshoot_um / 2.0).max(tol)
+                } else {
+                    tol
+                }
+            };
+            from = self.leg(from, pre, [loose(0), loose(1)])?.position;
         }
-        let st = self.leg(from, target)?;
-        let err = st.position - target;
-        if err.x.abs() > self.opts.tolerance_um || err.y.abs() > self.opts.tolerance_um {
-            let _ = self.ctl.stop();
-            return Err(StageError::PositionMismatch {
-                target,
-                actual: st.position,
-                tolerance_um: self.opts.tolerance_um,
-            });
-        }
-        Ok(st.position)
+        Ok(self.leg(from, target, [tol, tol])?.position)
     }
 
     fn jog(&mut self, delta: CarriageUm, speed_um_s: f64) -> Result<CarriageUm> {

@@ -30,6 +30,9 @@ impl std::fmt::Display for FaultKind {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
             FaultKind::EmergencyStop => write!(f, "emergency stop"),
+            FaultKind::LimitSwitch { switches } if switches.is_empty() => {
+                write!(f, "a limit switch tripped (open again now)")
+            }
             FaultKind::LimitSwitch { switches } => write!(f, "limit switch {switches} closed"),
             FaultKind::Stall => write!(f, "axis stalled (following error)"),
             FaultKind::Reset => write!(f, "controller reset"),

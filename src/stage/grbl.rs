@@ -80,6 +80,8 @@ pub struct GrblController {
     info_lines: Vec<String>,
     /// GRBL does not report whether it is homed: the host tracks it.
     homed: bool,
+    /// A `$H` is under way.
+    homing: bool,
     pub settings: BTreeMap<u32, f64>,
     info: ControllerInfo,
     /// Lines that were neither replies nor reports (line noise).
@@ -102,6 +104,7 @@ impl GrblController {
             last_status: None,
             info_lines: Vec::new(),
             homed: false,
+            homing: false,
             settings: BTreeMap::new(),
             info: ControllerInfo {
                 dialect: "grbl",
@@ -321,6 +324,9 @@ impl GrblController {
 
     /// Reports a new alarm or reset once.
     fn take_fault(&mut self) -> Option<StageError> {
+        if self.new_alarm || self.reset_seen {
+            self.homing = false;
+        }
         if self.new_alarm {
             self.new_alarm = false;
             self.reset_seen = false;
@@ -434,6 +440,21 @@ impl GrblController {
         }
     }
 
+    /// Reads reports until two in a row give the same state and position.
+    fn agreed_status(&mut self, first: StageStatus) -> Result<StageStatus> {
+        let mut prev = first;
+        for _ in 0..QUERY_TRIES {
+            let st = self.status()?;
+            if st.position == prev.position && st.controller_state == prev.controller_state {
+                return Ok(st);
+            }
+            prev = st;
+        }
+        Err(StageError::Protocol(
+            "GRBL status reports disagree with each other (line noise?)".into(),
+        ))
+    }
+
     /// Waits for a boot banner after a soft reset.
     fn reset_and_wait(&mut self) -> Result<()> {
         self.reset_seen = false;
@@ -543,6 +564,7 @@ impl Controller for GrblController {
             });
         }
         self.homed = false;
+        self.homing = true;
         self.send_line("$H")
     }
 
@@ -585,6 +607,9 @@ impl Controller for GrblController {
             if let Some(e) = self.take_fault() {
                 return Err(e);
             }
+            // GRBL answers `?` at once, ahead of lines still waiting in its buffer: only a
+            // report requested after the last answer arrived speaks for those lines.
+            let all_answered = self.inflight.is_empty();
             let st = self.status()?;
             if let Some(e) = self.take_fault() {
                 return Err(e);
@@ -607,8 +632,10 @@ impl Controller for GrblController {
                             false
                         }
                     };
-                    if self.inflight.is_empty() || lost {
+                    if all_answered || lost {
                         self.inflight.clear();
+                        // Reports carry no checksum: accept a position only when two agree.
+                        let st = self.agreed_status(st)?;
                         self.jogging = false;
                         if let Some(n) = error_reply {
                             return Err(StageError::Rejected {
@@ -616,13 +643,10 @@ impl Controller for GrblController {
                                 reason: format!("error:{n} ({})", error_meaning(n)),
                             });
                         }
-                        if st.controller_state == "Idle"
-                            && self.alarm.is_none()
-                            && !self.homed
-                            && self.settings.get(&22) == Some(&1.0)
-                        {
-                            // $H finished: GRBL is idle after a homing cycle.
+                        if std::mem::take(&mut self.homing) && st.controller_state == "Idle" {
+                            // `$H` answered and GRBL idle: referenced again, old alarms void.
                             self.homed = true;
+                            self.alarm = None;
                             return Ok(StageStatus {
                                 homed: true,
                                 state: StageState::Idle,

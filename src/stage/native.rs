@@ -391,8 +391,9 @@ impl Controller for NativeController {
 
     fn start_home(&mut self) -> Result<()> {
         self.events.clear();
+        // At a fast clock homing may be over before the status is read: homed and idle.
         self.motion_request(Message::Home { axes: 3 }, |st| {
-            st.state == StageState::Homing
+            st.state == StageState::Homing || (st.state == StageState::Idle && st.homed)
         })
     }
 
@@ -408,7 +409,10 @@ impl Controller for NativeController {
             vy_um_s: v[1].round() as i32,
             max_ms: t_ms as u32,
         };
-        self.motion_request(msg, |st| st.state == StageState::Jogging)
+        let before = self.status()?.position;
+        self.motion_request(msg, move |st| {
+            st.state == StageState::Jogging || (st.position - before).norm() > 0.5
+        })
     }
 
     fn wait_done(&mut self, timeout: Duration) -> Result<StageStatus> {
