@@ -10,7 +10,7 @@
 
 use firmware_protocol::{Decoder, Message};
 use rig::coords::CarriageUm;
-use rig::stage::{self, Dialect, DriverOptions, SoftLimits, Stage, StageError};
+use rig::stage::{self, Dialect, DriverOptions, SoftLimits, StageError};
 use rig_sim::{EmbeddedSim, FaultSpec, SimConfig};
 use serde_json::Value;
 use std::collections::BTreeMap;
@@ -162,7 +162,7 @@ fn run_trial(kind: &str, spec: &str, dialect: Dialect, seed: u64, cell: &mut Cel
         (rng >> 11) as f64 / (1u64 << 53) as f64
     };
 
-    let mut record = |cell: &mut Cell, t0: Instant, r: &Result<(), StageError>| {
+    let record = |cell: &mut Cell, t0: Instant, r: &Result<(), StageError>| {
         let dt = t0.elapsed();
         cell.ops += 1;
         cell.max_op = cell.max_op.max(dt);
