@@ -252,7 +252,7 @@ fn act(stage: &mut dyn Stage, action: &Action) -> Result<Outcome, StageError> {
             }
         }
         Action::Jog { dx, dy, jog_speed } => {
-            if !(*jog_speed > 0.0) {
+            if jog_speed.is_nan() || *jog_speed <= 0.0 {
                 return Err(StageError::Rejected {
                     command: "jog".into(),
                     reason: "--jog-speed must be positive".into(),
@@ -295,7 +295,7 @@ pub fn run(a: StageArgs) -> anyhow::Result<i32> {
             }
             None => rig_sim::FaultSpec::default(),
         };
-        if !(a.sim_time_scale >= 0.0) {
+        if a.sim_time_scale.is_nan() || a.sim_time_scale < 0.0 {
             bail!("--sim-time-scale must be 0 or more");
         }
         let cfg = rig_sim::SimConfig {
