@@ -551,3 +551,125 @@ impl Stage {
         self.t = self.t.max(t);
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn stage(home_dir: f64, homed: bool) -> Stage {
+        let mut rng = Rng::new(5);
+        let mut cfg = StageConfig::new(&mut rng, home_dir);
+        cfg.repeat_sigma_um = 0.0;
+        cfg.switch_sigma_um = 0.0;
+        Stage::new(cfg, FaultSpec::default(), 5, homed)
+    }
+
+    fn run(s: &mut Stage) -> Vec<StageEvent> {
+        let mut ev = Vec::new();
+        while let Some(t) = s.next_event_time() {
+            s.advance(t, &mut ev);
+        }
+        ev
+    }
+
+    #[test]
+    fn backlash_shows_only_when_arriving_downward() {
+        let mut s = stage(-1.0, true);
+        s.start_move([10_000.0, 10_000.0], 20_000.0);
+        run(&mut s);
+        s.start_move([100_000.0, 100_000.0], 20_000.0);
+        run(&mut s);
+        // Arriving in + direction: carriage = motor = target.
+        assert!((s.carriage(0) - 100_000.0).abs() < 1e-9);
+        s.start_move([90_000.0, 90_000.0], 20_000.0);
+        run(&mut s);
+        // Arriving in - direction: the carriage trails by the backlash.
+        assert!((s.carriage(0) - 90_000.0 - s.cfg.backlash_um[0]).abs() < 1e-9);
+        assert!((s.carriage(1) - 90_000.0 - s.cfg.backlash_um[1]).abs() < 1e-9);
+        assert_eq!(s.logical(0), 90_000.0);
+    }
+
+    #[test]
+    fn targets_land_on_the_step_grid() {
+        let mut s = stage(-1.0, true);
+        s.start_move([12_345.678, 1.1], 20_000.0);
+        run(&mut s);
+        assert_eq!(s.logical(0), 12_345.75); // 0.25 µm steps
+        assert_eq!(s.logical(1), 1.0);
+    }
+
+    #[test]
+    fn homing_frames_of_both_dialects() {
+        // Native: min switches, origin at 0, last motion upward (no backlash showing).
+        let mut s = stage(-1.0, false);
+        s.start_home();
+        let ev = run(&mut s);
+        assert_eq!(ev, vec![StageEvent::Homed]);
+        assert!(s.homed);
+        for k in 0..2 {
+            assert!(
+                s.logical(k).abs() < 1e-6 && s.carriage(k).abs() < 1e-6,
+                "axis {k}: {} {}",
+                s.logical(k),
+                s.carriage(k)
+            );
+        }
+        // GRBL: max switches, machine zero on the switch, pulled off downward by 1 mm, so the
+        // carriage sits a backlash above what the controller reports.
+        let mut s = stage(1.0, false);
+        s.start_home();
+        run(&mut s);
+        for k in 0..2 {
+            assert!((s.logical(k) + 1000.0).abs() < 1e-6);
+            let reported = s.logical(k) + s.logical_to_carriage(k);
+            assert!((s.carriage(k) - reported - s.cfg.backlash_um[k]).abs() < 1e-6);
+        }
+    }
+
+    #[test]
+    fn drift_accumulates_with_virtual_time() {
+        let mut s = stage(-1.0, true);
+        let c0 = s.carriage_true(0);
+        s.advance(3600.0, &mut Vec::new());
+        assert!((s.carriage_true(0) - c0 - s.cfg.drift_um_per_h[0]).abs() < 1e-9);
+        assert_eq!(s.carriage(0), c0 - 0.0, "the mechanism itself did not move");
+    }
+
+    #[test]
+    fn running_onto_a_switch_is_a_limit_fault() {
+        let mut s = stage(-1.0, true);
+        // Beyond the soft limits (the firmware would refuse this; the physics must still stop).
+        s.start_move([-2_000.0, 50_000.0], 20_000.0);
+        let ev = run(&mut s);
+        assert!(
+            matches!(ev.as_slice(), [StageEvent::Faulted(StopCause::Limit { switches })] if switches & 0b10 != 0),
+            "{ev:?}"
+        );
+        assert!(!s.is_busy());
+    }
+
+    #[test]
+    fn stop_decelerates_over_v_squared_over_2a() {
+        let mut s = stage(-1.0, true);
+        let x0 = s.logical(0);
+        s.start_move(
+            [
+                x0 + 200_000.0_f64.min(s.cfg.travel_um[0] - x0),
+                s.logical(1),
+            ],
+            20_000.0,
+        );
+        // Cruise reached after v/a = 0.2 s; stop at 1 s.
+        s.advance(1.0, &mut Vec::new());
+        let x1 = s.logical(0);
+        s.stop();
+        run(&mut s);
+        let v: f64 = 20_000.0;
+        let expect = v * v / (2.0 * s.cfg.accel_um_s2);
+        assert!(
+            (s.logical(0) - x1 - expect).abs() < 1e-6,
+            "stopping distance {}",
+            s.logical(0) - x1
+        );
+    }
+}
