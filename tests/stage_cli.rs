@@ -215,3 +215,73 @@ fn bad_usage_is_exit_code_2_with_help() {
     assert_ne!(out.status.code(), Some(0));
     assert!(String::from_utf8_lossy(&out.stderr).contains("melt"));
 }
+
+#[test]
+fn every_fault_kind_through_the_binary_ends_verified_or_typed() {
+    // Move faults at probability 1 so each kind really happens; byte faults at 1 %.
+    let kinds = [
+        "drop=0.01",
+        "corrupt=0.01",
+        "dup=0.01",
+        "delay=0.02:100",
+        "stall=1",
+        "limit=1",
+        "reset=1",
+        "estop=1",
+        "disconnect=1",
+    ];
+    let mut failures = vec![];
+    for d in DIALECTS {
+        for spec in kinds {
+            let dir = tempfile::tempdir().unwrap();
+            let truth = dir.path().join("truth.json");
+            let out = rig()
+                .args([
+                    "stage",
+                    "--sim",
+                    "--sim-time-scale",
+                    "0",
+                    "--dialect",
+                    d,
+                    "--sim-faults",
+                    spec,
+                    "--sim-truth",
+                ])
+                .arg(&truth)
+                .args(["--json", "move", "60", "40"])
+                .output()
+                .unwrap();
+            let (code, j, err) = parse(out);
+            let t = read_truth(&truth);
+            let (tx, ty) = carriage_um(&t);
+            match code {
+                0 => {
+                    let (x, y) = xy(&j);
+                    if (x * 1000.0 - tx).abs() > 1.5 || (y * 1000.0 - ty).abs() > 1.5 {
+                        failures.push(format!(
+                            "{d} {spec}: accepted {x},{y} mm but truth {tx},{ty} µm"
+                        ));
+                    }
+                }
+                4..=8 => {
+                    if j["error"]["kind"].as_str().is_none() {
+                        failures.push(format!(
+                            "{d} {spec}: exit {code} without a JSON error: {err}"
+                        ));
+                    }
+                    if t["busy"] != false && t["disconnected"] != true {
+                        failures.push(format!(
+                            "{d} {spec}: exit {code} but the stage is still moving"
+                        ));
+                    }
+                }
+                _ => failures.push(format!("{d} {spec}: exit {code}: {err}")),
+            }
+            // Move faults must show up as errors, never as a verified move.
+            if spec.ends_with("=1") && code == 0 {
+                failures.push(format!("{d} {spec}: a faulted move was reported as done"));
+            }
+        }
+    }
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+}
