@@ -284,6 +284,64 @@ fn act(stage: &mut dyn Stage, action: &Action) -> Result<Outcome, StageError> {
     })
 }
 
+/// A one-line "working…" indicator on stderr while a slow action runs, only on an interactive
+/// terminal (never in scripts, never with --json).
+struct Progress {
+    stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
+    thread: Option<std::thread::JoinHandle<()>>,
+}
+
+impl Progress {
+    fn start(label: &'static str, show: bool) -> Progress {
+        use std::io::{IsTerminal, Write};
+        use std::sync::atomic::{AtomicBool, Ordering};
+        let stop = std::sync::Arc::new(AtomicBool::new(false));
+        let thread = (show && std::io::stderr().is_terminal()).then(|| {
+            let stop = stop.clone();
+            std::thread::spawn(move || {
+                let t0 = std::time::Instant::now();
+                let spin = ['|', '/', '-', '\\'];
+                let mut i = 0;
+                while !stop.load(Ordering::Relaxed) {
+                    std::thread::sleep(Duration::from_millis(100));
+                    if t0.elapsed() > Duration::from_millis(500) {
+                        eprint!(
+                            "\r{} {label}… {:.1} s ",
+                            spin[i % 4],
+                            t0.elapsed().as_secs_f64()
+                        );
+                        let _ = std::io::stderr().flush();
+                        i += 1;
+                    }
+                }
+                if i > 0 {
+                    eprint!("\r{:width$}\r", "", width = label.len() + 16);
+                }
+            })
+        });
+        Progress { stop, thread }
+    }
+}
+
+impl Drop for Progress {
+    fn drop(&mut self) {
+        self.stop.store(true, std::sync::atomic::Ordering::Relaxed);
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+fn label(a: &Action) -> &'static str {
+    match a {
+        Action::Home => "homing",
+        Action::Move { .. } => "moving",
+        Action::Jog { .. } => "jogging",
+        Action::Stop => "stopping",
+        _ => "talking to the controller",
+    }
+}
+
 /// Runs `rig stage`; returns the process exit code.
 pub fn run(a: StageArgs) -> anyhow::Result<i32> {
     let opts = options(&a)?;
@@ -319,8 +377,10 @@ pub fn run(a: StageArgs) -> anyhow::Result<i32> {
             .clone()
             .expect("clap requires --stage without --sim")
     };
+    let progress = Progress::start(label(&a.action), !a.json);
     let result = stage::open(&port, a.dialect, opts, a.wire_log.as_deref())
         .and_then(|mut s| act(s.as_mut(), &a.action));
+    drop(progress);
     if let Some(s) = sim {
         s.shutdown().context("stopping the built-in simulator")?;
     }
