@@ -128,9 +128,19 @@ fn settings_moves_dwell_and_errors() {
     // the position (nothing moved) is kept.
     let out = g.tx(b"G90 G0 X-300\n", "continue]\r\n");
     assert!(out.starts_with("ALARM:2\r\n"), "{out:?}");
+    // The reset keeps the Alarm state (GRBL 1.1 keeps it across resets) and the position;
+    // `$X` unlocks.
+    let out = g.tx(&[0x18], "unlock]\r\n");
+    assert!(
+        out.contains("Grbl 1.1h") && out.contains("[MSG:'$H'|'$X' to unlock]"),
+        "{out:?}"
+    );
+    assert!(g.tx(b"?", ">").starts_with("<Alarm|MPos:-100.000,-50.000"));
+    assert!(g.tx(b"$X\n", "ok\r\n").ends_with("ok\r\n"));
+    assert!(g.tx(b"?", ">").starts_with("<Idle|MPos:-100.000,-50.000"));
+    // A reset while idle and unlocked comes up idle.
     let out = g.tx(&[0x18], "help]\r\n");
-    assert!(out.contains("Grbl 1.1h"), "{out:?}");
-    assert!(g.tx(b"?", ">").contains("MPos:-100.000,-50.000"));
+    assert!(!out.contains("unlock"), "{out:?}");
 }
 
 #[test]
@@ -185,4 +195,41 @@ fn realtime_hold_resume_and_jog_cancel() {
         moved > 0.5 && moved < 10.0,
         "stopped part way through the 50 mm jog: moved {moved} mm"
     );
+}
+
+#[test]
+fn client_unlocks_a_soft_limit_alarm_keeping_the_position() {
+    use rig::coords::CarriageUm;
+    use rig::stage::grbl::GrblController;
+    use rig::stage::{Controller, FaultKind, StageError, StageState};
+    let sim = EmbeddedSim::start(SimConfig {
+        dialect: Dialect::Grbl,
+        time_scale: 0.0,
+        start_homed: true,
+        ..Default::default()
+    })
+    .unwrap();
+    let mut c = GrblController::open(&sim.port, None).unwrap();
+    let before = c.status().unwrap();
+    assert_eq!(before.state, StageState::Idle);
+    // Below the driver: a target past GRBL's travel, so that GRBL itself refuses it.
+    c.start_move(CarriageUm::new(-5_000.0, 10_000.0), 5_000.0)
+        .unwrap_or(());
+    let e = c.wait_done(Duration::from_secs(5)).unwrap_err();
+    assert!(
+        matches!(
+            e,
+            StageError::Fault {
+                kind: FaultKind::Alarm { code: 2, .. },
+                ..
+            }
+        ),
+        "{e}"
+    );
+    assert_eq!(c.status().unwrap().state, StageState::Fault);
+    // Soft-limit alarm: nothing moved, so reset + `$X` gives back an idle, referenced stage.
+    c.clear_fault().unwrap();
+    let st = c.status().unwrap();
+    assert_eq!((st.state, st.homed), (StageState::Idle, true), "{st:?}");
+    assert_eq!(st.position, before.position);
 }

@@ -114,12 +114,19 @@ impl GrblFirmware {
             settings,
             rx_overflow: 0,
         };
-        g.boot(stage, out);
+        g.boot(stage, out, true);
         g
     }
 
-    /// Start-up: banner; with homing enabled and no valid position, the alarm lock.
-    fn boot(&mut self, stage: &Stage, out: &mut Vec<u8>) {
+    /// Start-up: the banner. At power-up with homing enabled (and no kept reference) GRBL locks
+    /// itself in Alarm; a soft reset keeps an Alarm state and otherwise comes up Idle (GRBL
+    /// 1.1 keeps `sys.state` across resets).
+    fn boot(&mut self, stage: &Stage, out: &mut Vec<u8>, power_on: bool) {
+        let alarm = if power_on {
+            self.settings[&22] != 0.0 && !stage.homed
+        } else {
+            self.mode == Mode::Alarm
+        };
         self.rx.clear();
         self.planner.clear();
         self.current = None;
@@ -129,7 +136,7 @@ impl GrblFirmware {
         self.inches = false;
         self.feed_mm_min = None;
         out.extend_from_slice(BANNER.as_bytes());
-        if self.settings[&22] != 0.0 && !stage.homed {
+        if alarm {
             self.mode = Mode::Alarm;
             out.extend_from_slice(b"[MSG:'$H'|'$X' to unlock]\r\n");
         } else {
@@ -238,8 +245,9 @@ impl GrblFirmware {
             // Reset while in motion: steps may be lost, so GRBL drops its position.
             stage.lose_reference();
             out.extend_from_slice(b"ALARM:3\r\n");
+            self.mode = Mode::Alarm;
         }
-        self.boot(stage, out);
+        self.boot(stage, out, false);
     }
 
     fn resume_current(&mut self, stage: &mut Stage) {
@@ -602,11 +610,12 @@ impl GrblFirmware {
                 // The e-stop is wired to the reset pin.
                 stage.lose_reference();
                 out.extend_from_slice(b"ALARM:3\r\n");
-                self.boot(stage, out);
+                self.mode = Mode::Alarm;
+                self.boot(stage, out, false);
             }
             StageEvent::Reset => {
                 stage.power_on_reference();
-                self.boot(stage, out);
+                self.boot(stage, out, true);
             }
             StageEvent::Disconnect => {}
         }

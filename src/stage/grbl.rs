@@ -704,10 +704,14 @@ impl Controller for GrblController {
         r
     }
 
+    /// A reset leaves GRBL in Alarm. After a soft-limit alarm (ALARM:2) nothing moved and the
+    /// position is good, so `$X` unlocks it; after any other alarm the position is lost and only
+    /// homing (`$H`, which the driver sends next) may unlock it.
     fn clear_fault(&mut self) -> Result<()> {
         self.reset_and_wait()?;
-        if self.alarm == Some(2) {
-            self.alarm = None; // soft-limit alarm: position kept
+        if self.alarm == Some(2) && self.homed {
+            self.command("$X", REPLY_TIMEOUT)?;
+            self.alarm = None;
         }
         Ok(())
     }
