@@ -1,9 +1,10 @@
 //! The simulated GRBL speaks GRBL 1.1's documented interface, checked byte by byte over its
 //! pseudo-terminal without the rig's client in between.
 
+mod common;
+
 use rig_sim::{Dialect, EmbeddedSim, SimConfig};
 use std::io::{Read, Write};
-use std::os::fd::AsRawFd;
 use std::time::{Duration, Instant};
 
 struct Raw {
@@ -25,20 +26,7 @@ impl Raw {
     }
 
     fn attach(sim: EmbeddedSim) -> Raw {
-        let f = std::fs::OpenOptions::new()
-            .read(true)
-            .write(true)
-            .open(&sim.port)
-            .unwrap();
-        // Non-blocking reads.
-        unsafe {
-            let fd = f.as_raw_fd();
-            libc::fcntl(
-                fd,
-                libc::F_SETFL,
-                libc::fcntl(fd, libc::F_GETFL) | libc::O_NONBLOCK,
-            );
-        }
+        let f = common::open_nonblocking(&sim.port);
         let mut r = Raw { f, _sim: sim };
         r.drain();
         r

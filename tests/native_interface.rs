@@ -1,10 +1,11 @@
 //! The simulated native controller follows PROTOCOL.md, checked frame by frame over its
 //! pseudo-terminal without the rig's client in between.
 
+mod common;
+
 use firmware_protocol::*;
 use rig_sim::{Dialect, EmbeddedSim, FaultSpec, SimConfig};
 use std::io::{Read, Write};
-use std::os::fd::AsRawFd;
 use std::time::{Duration, Instant};
 
 struct Line {
@@ -25,19 +26,7 @@ impl Line {
             ..Default::default()
         })
         .unwrap();
-        let f = std::fs::OpenOptions::new()
-            .read(true)
-            .write(true)
-            .open(&sim.port)
-            .unwrap();
-        unsafe {
-            let fd = f.as_raw_fd();
-            libc::fcntl(
-                fd,
-                libc::F_SETFL,
-                libc::fcntl(fd, libc::F_GETFL) | libc::O_NONBLOCK,
-            );
-        }
+        let f = common::open_nonblocking(&sim.port);
         Line {
             f,
             dec: Decoder::new(),

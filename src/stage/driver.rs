@@ -72,20 +72,29 @@ impl<C: Controller> Driver<C> {
         }
     }
 
+    /// Starts a motion, waits for its end with a timeout from its expected duration, and
+    /// turns a fault into an error; on any error the stages are stopped (see [`Self::guard`]).
+    fn run(
+        &mut self,
+        start: impl FnOnce(&mut C) -> Result<()>,
+        expected: Duration,
+    ) -> Result<StageStatus> {
+        let timeout = self.opts.timeouts.for_duration(expected);
+        let r = start(&mut self.ctl).and_then(|_| self.ctl.wait_done(timeout));
+        let st = self.guard(r)?;
+        if st.state == StageState::Fault {
+            return Err(Self::fault_of(&st));
+        }
+        Ok(st)
+    }
+
     /// One straight leg: check, send, wait, check for faults, check the reported position
     /// against `to` within `tol_um` per axis.
     fn leg(&mut self, from: CarriageUm, to: CarriageUm, tol_um: [f64; 2]) -> Result<StageStatus> {
         self.limits.check(to)?;
         let speed = self.speed();
         let expected = move_duration((to - from).norm(), speed, self.ctl.info().accel_um_s2);
-        let r = self.ctl.start_move(to, speed).and_then(|_| {
-            self.ctl
-                .wait_done(self.opts.timeouts.for_duration(expected))
-        });
-        let st = self.guard(r)?;
-        if st.state == StageState::Fault {
-            return Err(Self::fault_of(&st));
-        }
+        let st = self.run(|c| c.start_move(to, speed), expected)?;
         if !st.homed {
             return Err(StageError::Fault {
                 kind: super::FaultKind::Reset,
@@ -145,14 +154,7 @@ impl<C: Controller> Stage for Driver<C> {
         let info = self.ctl.info();
         let far = info.travel.x.max(info.travel.y) * 1.2 + 5000.0;
         let expected = move_duration(far, info.home_speed_um_s, info.accel_um_s2) * 2;
-        let r = self.ctl.start_home().and_then(|_| {
-            self.ctl
-                .wait_done(self.opts.timeouts.for_duration(expected))
-        });
-        let st = self.guard(r)?;
-        if st.state == StageState::Fault {
-            return Err(Self::fault_of(&st));
-        }
+        let st = self.run(|c| c.start_home(), expected)?;
         if !st.homed {
             return Err(StageError::Protocol(format!(
                 "homing ended but the controller is not homed ({})",
@@ -193,14 +195,7 @@ impl<C: Controller> Stage for Driver<C> {
         }
         let speed = speed_um_s.min(self.ctl.info().max_speed_um_s).max(1.0);
         let expected = move_duration(d.norm(), speed, self.ctl.info().accel_um_s2);
-        let r = self.ctl.start_jog(d, speed).and_then(|_| {
-            self.ctl
-                .wait_done(self.opts.timeouts.for_duration(expected))
-        });
-        let st = self.guard(r)?;
-        if st.state == StageState::Fault {
-            return Err(Self::fault_of(&st));
-        }
+        let st = self.run(|c| c.start_jog(d, speed), expected)?;
         Ok(st.position)
     }
 

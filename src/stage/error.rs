@@ -87,8 +87,8 @@ pub enum StageError {
         actual: CarriageUm,
         tolerance_um: f64,
     },
-    #[error("motion did not finish within {after:?} (expected {expected:?}); stages stopped")]
-    MotionTimeout { after: Duration, expected: Duration },
+    #[error("motion did not finish within {after:?} (its expected duration with margin); stages stopped")]
+    MotionTimeout { after: Duration },
 }
 
 impl StageError {

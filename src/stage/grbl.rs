@@ -106,20 +106,7 @@ impl GrblController {
             homed: false,
             homing: false,
             settings: BTreeMap::new(),
-            info: ControllerInfo {
-                dialect: "grbl",
-                identity: String::new(),
-                travel: CarriageUm::default(),
-                limits: SoftLimits {
-                    min: CarriageUm::default(),
-                    max: CarriageUm::default(),
-                },
-                max_speed_um_s: 1.0,
-                accel_um_s2: 1.0,
-                home_speed_um_s: 1.0,
-                resolution_um: 1.0,
-                notes: vec![],
-            },
+            info: ControllerInfo::unknown("grbl"),
             garbage_lines: 0,
             jogging: false,
         };
@@ -658,11 +645,8 @@ impl Controller for GrblController {
                 }
             }
             if Instant::now() >= deadline {
-                let _ = self.stop();
-                return Err(StageError::MotionTimeout {
-                    after: timeout,
-                    expected: timeout,
-                });
+                // Stopping is the driver's decision (it stops on every error).
+                return Err(StageError::MotionTimeout { after: timeout });
             }
             self.pump(Instant::now() + POLL * 4)?;
         }

@@ -79,6 +79,26 @@ pub struct ControllerInfo {
     pub notes: Vec<String>,
 }
 
+impl ControllerInfo {
+    /// Before the controller has been asked: nothing known but the dialect.
+    pub fn unknown(dialect: &'static str) -> Self {
+        ControllerInfo {
+            dialect,
+            identity: String::new(),
+            travel: CarriageUm::default(),
+            limits: SoftLimits {
+                min: CarriageUm::default(),
+                max: CarriageUm::default(),
+            },
+            max_speed_um_s: 1.0,
+            accel_um_s2: 1.0,
+            home_speed_um_s: 1.0,
+            resolution_um: 1.0,
+            notes: vec![],
+        }
+    }
+}
+
 /// The low-level operations of one controller dialect. Implementations never decide policy:
 /// they send, wait and report; [`Driver`] decides.
 pub trait Controller {

@@ -80,18 +80,8 @@ impl NativeController {
             seq: 0,
             events: VecDeque::new(),
             info: ControllerInfo {
-                dialect: "native",
-                identity: String::new(),
-                travel: CarriageUm::default(),
-                limits: SoftLimits {
-                    min: CarriageUm::default(),
-                    max: CarriageUm::default(),
-                },
-                max_speed_um_s: 1.0,
-                accel_um_s2: 1.0,
-                home_speed_um_s: 1.0,
                 resolution_um: 0.05,
-                notes: vec![],
+                ..ControllerInfo::unknown("native")
             },
             bad_frames: 0,
         };
@@ -438,11 +428,8 @@ impl Controller for NativeController {
                 }
             }
             if Instant::now() >= deadline {
-                let _ = self.stop();
-                return Err(StageError::MotionTimeout {
-                    after: timeout,
-                    expected: timeout,
-                });
+                // Stopping is the driver's decision (it stops on every error).
+                return Err(StageError::MotionTimeout { after: timeout });
             }
             // Listen for events between polls.
             let until = Instant::now() + POLL;

@@ -132,3 +132,23 @@ pub fn carriage_um(truth: &Value) -> (f64, f64) {
         truth["carriage_um"][1].as_f64().unwrap(),
     )
 }
+
+/// Opens a pseudo-terminal slave for raw, non-blocking reads and writes.
+pub fn open_nonblocking(path: &Path) -> std::fs::File {
+    use std::os::fd::AsRawFd;
+    let f = std::fs::OpenOptions::new()
+        .read(true)
+        .write(true)
+        .open(path)
+        .unwrap();
+    // SAFETY: fcntl on a descriptor this function owns.
+    unsafe {
+        let fd = f.as_raw_fd();
+        libc::fcntl(
+            fd,
+            libc::F_SETFL,
+            libc::fcntl(fd, libc::F_GETFL) | libc::O_NONBLOCK,
+        );
+    }
+    f
+}

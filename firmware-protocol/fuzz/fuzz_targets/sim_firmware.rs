@@ -6,34 +6,52 @@ use rig_sim::faults::FaultSpec;
 use rig_sim::grbl::GrblFirmware;
 use rig_sim::native::NativeFirmware;
 use rig_sim::rng::Rng;
-use rig_sim::stage::{Stage, StageConfig};
+use rig_sim::stage::{Stage, StageConfig, StageEvent};
+
+trait Firmware {
+    fn bytes(&mut self, b: &[u8], s: &mut Stage, out: &mut Vec<u8>);
+    fn event(&mut self, e: StageEvent, s: &mut Stage, out: &mut Vec<u8>);
+}
+
+impl Firmware for NativeFirmware {
+    fn bytes(&mut self, b: &[u8], s: &mut Stage, out: &mut Vec<u8>) {
+        self.on_bytes(b, s, out)
+    }
+    fn event(&mut self, e: StageEvent, s: &mut Stage, out: &mut Vec<u8>) {
+        self.on_event(e, s, out)
+    }
+}
+
+impl Firmware for GrblFirmware {
+    fn bytes(&mut self, b: &[u8], s: &mut Stage, out: &mut Vec<u8>) {
+        self.on_bytes(b, s, out)
+    }
+    fn event(&mut self, e: StageEvent, s: &mut Stage, out: &mut Vec<u8>) {
+        self.on_event(e, s, out)
+    }
+}
+
+fn drive(fw: &mut dyn Firmware, stage: &mut Stage, data: &[u8]) {
+    let (mut out, mut events) = (Vec::new(), Vec::new());
+    for chunk in data.chunks(7) {
+        fw.bytes(chunk, stage, &mut out);
+        let t = stage.next_event_time().unwrap_or(stage.t);
+        stage.advance(t, &mut events);
+        for e in events.drain(..) {
+            fw.event(e, stage, &mut out);
+        }
+    }
+}
 
 fuzz_target!(|data: &[u8]| {
     for home_dir in [-1.0, 1.0] {
         let cfg = StageConfig::new(&mut Rng::new(1), home_dir);
         let mut stage = Stage::new(cfg, FaultSpec::default(), 1, true);
-        let mut out = Vec::new();
-        let mut events = Vec::new();
         if home_dir < 0.0 {
-            let mut fw = NativeFirmware::new(&stage, 1);
-            for chunk in data.chunks(7) {
-                fw.on_bytes(chunk, &mut stage, &mut out);
-                let t = stage.next_event_time().unwrap_or(stage.t);
-                stage.advance(t, &mut events);
-                for e in events.drain(..) {
-                    fw.on_event(e, &mut stage, &mut out);
-                }
-            }
+            drive(&mut NativeFirmware::new(&stage, 1), &mut stage, data);
         } else {
-            let mut fw = GrblFirmware::new(&stage, &mut out);
-            for chunk in data.chunks(7) {
-                fw.on_bytes(chunk, &mut stage, &mut out);
-                let t = stage.next_event_time().unwrap_or(stage.t);
-                stage.advance(t, &mut events);
-                for e in events.drain(..) {
-                    fw.on_event(e, &mut stage, &mut out);
-                }
-            }
+            let mut fw = GrblFirmware::new(&stage, &mut Vec::new());
+            drive(&mut fw, &mut stage, data);
         }
         for k in 0..2 {
             let c = stage.carriage(k);
