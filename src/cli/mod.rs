@@ -18,7 +18,32 @@ pub struct Cli {
 #[derive(Debug, Subcommand)]
 pub enum Command {
     /// Drive the X/Y stages: status, home, move, jog, stop.
+    ///
+    /// Positions are carriage coordinates in millimetres, 0..travel on both axes, whatever
+    /// the controller's dialect.
+    ///
+    /// Examples:
+    ///   rig stage --sim status --json
+    ///   rig stage --stage /dev/ttyUSB0 --dialect grbl home
+    ///   rig stage --sim move 120 80
+    ///   rig stage --sim move --relative -0.5 0
+    ///
+    /// Exit codes: 0 done; 2 bad usage; 3 target outside the soft limits (nothing sent);
+    /// 4 no answer or motion timeout (stages stopped); 5 stage fault, alarm or not homed;
+    /// 6 position check failed (stages stopped); 7 port cannot be opened, is busy or the link
+    /// died; 8 controller refused the command or speaks another protocol; 1 anything else.
+    #[command(verbatim_doc_comment)]
     Stage(stage_cmd::StageArgs),
     /// Run the simulated stage controller on a pseudo-terminal (same as `rig-sim`).
+    ///
+    /// Prints the pseudo-terminal's path on its first line (and links it at --stage-link), then
+    /// serves the chosen dialect there until SIGTERM or Ctrl-C, when it writes its final truth
+    /// and removes the link. Open that path with `rig stage --stage PATH --dialect ...` exactly
+    /// as you would a real controller.
+    ///
+    /// Example:
+    ///   rig sim --dialect grbl --time-scale 0 --truth truth.json --stage-link /tmp/stage &
+    ///   rig stage --stage /tmp/stage --dialect grbl home
+    #[command(verbatim_doc_comment)]
     Sim(rig_sim::cli::SimArgs),
 }

@@ -10,21 +10,8 @@ use serde_json::json;
 use std::path::PathBuf;
 use std::time::Duration;
 
-/// Drive the X/Y stages. Positions are carriage coordinates in millimetres, 0..travel on both
-/// axes, whatever the controller's dialect.
-///
-/// Examples:
-///   rig stage --sim status --json
-///   rig stage --stage /dev/ttyUSB0 --dialect grbl home
-///   rig stage --sim move 120 80
-///   rig stage --sim move -- -0.5 0 --relative
-///
-/// Exit codes: 0 done; 2 bad usage; 3 target outside the soft limits (nothing sent);
-/// 4 no answer or motion timeout (stages stopped); 5 stage fault, alarm or not homed;
-/// 6 position check failed (stages stopped); 7 port cannot be opened, is busy or the link
-/// died; 8 controller refused the command or speaks another protocol; 1 anything else.
+/// Options of `rig stage` (its help text is on `Command::Stage`).
 #[derive(Debug, Args)]
-#[command(verbatim_doc_comment)]
 pub struct StageArgs {
     /// Serial port of the stage controller (e.g. /dev/ttyUSB0, or the path `rig-sim` prints).
     #[arg(
