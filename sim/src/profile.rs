@@ -78,6 +78,24 @@ impl Profile {
         }
     }
 
+    /// The first time at which the distance covered reaches `s` (bisection on the monotonic
+    /// profile); `None` if the profile never gets that far.
+    pub fn time_at(&self, s: f64) -> Option<f64> {
+        if s > self.len {
+            return None;
+        }
+        let (mut lo, mut hi) = (0.0, self.duration);
+        for _ in 0..80 {
+            let mid = 0.5 * (lo + hi);
+            if self.at(mid).0 >= s {
+                hi = mid;
+            } else {
+                lo = mid;
+            }
+        }
+        Some(hi)
+    }
+
     /// Distance and speed `t` seconds after the start.
     pub fn at(&self, t: f64) -> (f64, f64) {
         if t <= 0.0 {

@@ -410,13 +410,45 @@ impl Stage {
         }
     }
 
+    /// When the carriage would reach a limit switch on this motion (a switch trips where it
+    /// sits, however coarse the clock's steps). The play is taken as already taken up in the
+    /// direction of travel, which can only make the trip earlier.
+    fn switch_time(&self, m: &Motion) -> f64 {
+        let mut t_hit = f64::INFINITY;
+        for k in 0..2 {
+            let d = m.dir[k];
+            if d == 0.0 || self.stalled[k].is_some() {
+                continue;
+            }
+            // Carriage = motor + play + settle, with play 0 moving up and the backlash moving down.
+            let play = if d > 0.0 {
+                0.0
+            } else {
+                self.cfg.backlash_um[k]
+            };
+            let sw = self.cfg.switch_um[k][if d > 0.0 { 1 } else { 0 }] + d * 1e-6;
+            let s = (sw - play - self.settle[k] - m.start_m[k]) / d;
+            if s > 0.0 {
+                if let Some(ts) = m.profile.time_at(s) {
+                    t_hit = t_hit.min(m.t0 + ts);
+                }
+            }
+        }
+        t_hit
+    }
+
     /// Advances the clock to `t`, returning what happened on the way, in order.
     pub fn advance(&mut self, t: f64, events: &mut Vec<StageEvent>) {
         while let Some(m) = self.motion.clone() {
             let end = m.t0 + m.profile.duration;
             let fault_t = m.fault.map(|(tf, _)| tf).unwrap_or(f64::INFINITY);
             let dead_t = m.deadline.unwrap_or(f64::INFINITY);
-            let step_t = t.min(end).min(fault_t).min(dead_t);
+            let switch_t = if m.kind == MotionKind::HomeSeek {
+                f64::INFINITY
+            } else {
+                self.switch_time(&m)
+            };
+            let step_t = t.min(end).min(fault_t).min(dead_t).min(switch_t);
             let (s, _) = m.profile.at(step_t - m.t0);
             self.t = self.t.max(step_t);
             self.set_motor([m.start_m[0] + m.dir[0] * s, m.start_m[1] + m.dir[1] * s]);
@@ -646,6 +678,13 @@ mod tests {
             "{ev:?}"
         );
         assert!(!s.is_busy());
+        // It stops on the switch, not past it, even though the clock jumped in one step.
+        let sw = s.cfg.switch_um[0][0];
+        assert!(
+            s.carriage(0) <= sw && s.carriage(0) > sw - 0.01,
+            "stopped at {} for a switch at {sw}",
+            s.carriage(0)
+        );
     }
 
     #[test]
