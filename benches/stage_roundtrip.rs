@@ -45,7 +45,7 @@ fn roundtrips(c: &mut Criterion) {
 
     let stop = Arc::new(AtomicBool::new(false));
     let (h, path) = echo_peer(stop.clone());
-    let mut port = Port::open(&path, 115_200, None).unwrap();
+    let mut port = Port::open(&path, 115_200, &Default::default()).unwrap();
     let mut buf = Vec::with_capacity(64);
     g.bench_function("raw_echo_pty", |b| {
         b.iter(|| {
@@ -73,7 +73,13 @@ fn roundtrips(c: &mut Criterion) {
             ..Default::default()
         })
         .unwrap();
-        let mut st = stage::open(&sim.port, dialect, DriverOptions::default(), None).unwrap();
+        let mut st = stage::open(
+            &sim.port,
+            dialect,
+            DriverOptions::default(),
+            &Default::default(),
+        )
+        .unwrap();
         g.bench_function(name, |b| b.iter(|| black_box(st.status().unwrap())));
         drop(st);
         sim.shutdown().unwrap();

@@ -10,7 +10,7 @@
 
 use firmware_protocol::{Decoder, Message};
 use rig::coords::CarriageUm;
-use rig::stage::{self, Dialect, DriverOptions, SoftLimits, StageError};
+use rig::stage::{self, Dialect, DriverOptions, LinkOptions, SoftLimits, StageError};
 use rig_sim::{EmbeddedSim, FaultSpec, SimConfig};
 use serde_json::Value;
 use std::collections::BTreeMap;
@@ -183,8 +183,18 @@ fn run_trial(kind: &str, spec: &str, dialect: Dialect, seed: u64, cell: &mut Cel
 
     // Opening may itself fail on a noisy line: a typed error is a valid outcome.
     let t0 = Instant::now();
-    let opened = (0..3)
-        .find_map(|_| stage::open(&sim.port, dialect, DriverOptions::default(), Some(&wire)).ok());
+    let opened = (0..3).find_map(|_| {
+        stage::open(
+            &sim.port,
+            dialect,
+            DriverOptions::default(),
+            &LinkOptions {
+                wire_log: Some(wire.clone()),
+                cancel: None,
+            },
+        )
+        .ok()
+    });
     let Some(mut st) = opened else {
         record(
             cell,

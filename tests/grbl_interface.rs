@@ -197,7 +197,7 @@ fn client_unlocks_a_soft_limit_alarm_keeping_the_position() {
         ..Default::default()
     })
     .unwrap();
-    let mut c = GrblController::open(&sim.port, None).unwrap();
+    let mut c = GrblController::open(&sim.port, &Default::default()).unwrap();
     let before = c.status().unwrap();
     assert_eq!(before.state, StageState::Idle);
     // Below the driver: a target past GRBL's travel, so that GRBL itself refuses it.

@@ -190,7 +190,8 @@ fn missing_port_and_busy_port_are_clear_errors() {
 
     // A second owner is refused while the first holds the port.
     let sim = SimProcess::start("native", &["--start-homed"]);
-    let first = rig::stage::Port::open(&sim.port, 115_200, None).expect("first open");
+    let first =
+        rig::stage::Port::open(&sim.port, 115_200, &Default::default()).expect("first open");
     let (code, j, err) = sim.stage("native", &["status"]);
     assert_eq!(code, 7, "{err}");
     assert_eq!(j["error"]["kind"], "port_busy");
@@ -319,4 +320,45 @@ fn the_same_seed_replays_the_same_run() {
     assert_eq!(a, run("11"), "same seed, same commands: same truth");
     let b = run("12");
     assert_ne!(a.3, b.3, "another seed draws another drift");
+}
+
+#[test]
+fn ctrl_c_mid_move_stops_the_stages() {
+    for d in DIALECTS {
+        let dir = tempfile::tempdir().unwrap();
+        let truth = dir.path().join("truth.json");
+        // Real time: a 76 mm move takes about 4 s.
+        let child = rig()
+            .args([
+                "stage",
+                "--sim",
+                "--sim-time-scale",
+                "1",
+                "--dialect",
+                d,
+                "--sim-truth",
+            ])
+            .arg(&truth)
+            .args(["--json", "move", "200", "150"])
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        std::thread::sleep(std::time::Duration::from_millis(1200));
+        unsafe { libc::kill(child.id() as i32, libc::SIGINT) };
+        let (code, j, err) = parse(child.wait_with_output().unwrap());
+        assert_eq!(code, 130, "{d}: {err}");
+        assert_eq!(j["error"]["kind"], "cancelled");
+        let t = read_truth(&truth);
+        assert_eq!(t["busy"], false, "{d}: the stage came to rest");
+        let (tx, ty) = carriage_um(&t);
+        assert!(
+            tx < 199_000.0 && ty < 149_000.0,
+            "{d}: stopped short of the target, at {tx},{ty}"
+        );
+        assert!(
+            tx > 188_489.0 && ty > 74_790.0,
+            "{d}: it had moved toward it"
+        );
+    }
 }

@@ -31,7 +31,8 @@ pub enum Command {
     /// Exit codes: 0 done; 2 bad usage; 3 target outside the soft limits (nothing sent);
     /// 4 no answer or motion timeout (stages stopped); 5 stage fault, alarm or not homed;
     /// 6 position check failed (stages stopped); 7 port cannot be opened, is busy or the link
-    /// died; 8 controller refused the command or speaks another protocol; 1 anything else.
+    /// died; 8 controller refused the command or speaks another protocol; 130 Ctrl-C (stages
+    /// stopped); 1 anything else.
     #[command(verbatim_doc_comment)]
     Stage(stage_cmd::StageArgs),
     /// Run the simulated stage controller on a pseudo-terminal (same as `rig-sim`).

@@ -4,10 +4,14 @@ use anyhow::{bail, Context};
 use clap::{Args, Subcommand};
 use rig::coords::CarriageUm;
 use rig::stage::{
-    self, Approach, Dialect, DriverOptions, SoftLimits, Stage, StageError, TimeoutPolicy,
+    self, Approach, Dialect, DriverOptions, LinkOptions, SoftLimits, Stage, StageError,
+    TimeoutPolicy,
 };
 use serde_json::json;
+use signal_hook::consts::SIGINT;
 use std::path::PathBuf;
+use std::sync::atomic::AtomicBool;
+use std::sync::Arc;
 use std::time::Duration;
 
 /// Options of `rig stage` (its help text is on `Command::Stage`).
@@ -364,9 +368,24 @@ pub fn run(a: StageArgs) -> anyhow::Result<i32> {
             .clone()
             .expect("clap requires --stage without --sim")
     };
+    // Ctrl-C: the waiting read gives up, the stages decelerate to a stop, and we exit 130. A
+    // second Ctrl-C ends the program at once.
+    let cancel = Arc::new(AtomicBool::new(false));
+    signal_hook::flag::register_conditional_shutdown(SIGINT, 130, cancel.clone())?;
+    signal_hook::flag::register(SIGINT, cancel.clone())?;
+    let link = LinkOptions {
+        wire_log: a.wire_log.clone(),
+        cancel: Some(cancel),
+    };
     let progress = Progress::start(label(&a.action), !a.json);
-    let result = stage::open(&port, a.dialect, opts, a.wire_log.as_deref())
-        .and_then(|mut s| act(s.as_mut(), &a.action));
+    let result = stage::open(&port, a.dialect, opts, &link).and_then(|mut s| {
+        let r = act(s.as_mut(), &a.action);
+        if matches!(r, Err(StageError::Cancelled)) {
+            // Wait for the deceleration to end before letting go of the line.
+            let _ = s.stop();
+        }
+        r
+    });
     drop(progress);
     if let Some(s) = sim {
         s.shutdown().context("stopping the built-in simulator")?;

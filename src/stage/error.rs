@@ -87,6 +87,8 @@ pub enum StageError {
         actual: CarriageUm,
         tolerance_um: f64,
     },
+    #[error("cancelled by the operator; stages stopped")]
+    Cancelled,
     #[error("motion did not finish within {after:?} (its expected duration with margin); stages stopped")]
     MotionTimeout { after: Duration },
 }
@@ -103,6 +105,7 @@ impl StageError {
                 7
             }
             StageError::Rejected { .. } | StageError::Protocol(_) | StageError::Version { .. } => 8,
+            StageError::Cancelled => 130,
         }
     }
 
@@ -121,6 +124,7 @@ impl StageError {
             StageError::Fault { .. } => "fault",
             StageError::PositionMismatch { .. } => "position_mismatch",
             StageError::MotionTimeout { .. } => "motion_timeout",
+            StageError::Cancelled => "cancelled",
         }
     }
 }

@@ -7,8 +7,8 @@
 //! them to carriage coordinates `0..travel` by adding the max travel (`$130`, `$131`).
 
 use super::{
-    Controller, ControllerInfo, FaultKind, Port, Result, SoftLimits, StageError, StageState,
-    StageStatus,
+    Controller, ControllerInfo, FaultKind, LinkOptions, Port, Result, SoftLimits, StageError,
+    StageState, StageStatus,
 };
 use crate::coords::CarriageUm;
 use std::collections::{BTreeMap, VecDeque};
@@ -91,8 +91,8 @@ pub struct GrblController {
 }
 
 impl GrblController {
-    pub fn open(path: &Path, wire_log: Option<&Path>) -> Result<Self> {
-        let port = Port::open(path, 115_200, wire_log)?;
+    pub fn open(path: &Path, link: &LinkOptions) -> Result<Self> {
+        let port = Port::open(path, 115_200, link)?;
         let mut c = GrblController {
             port,
             rx: Vec::new(),

@@ -17,7 +17,7 @@ mod port;
 pub use driver::{Driver, DriverOptions};
 pub use error::{FaultKind, Result, StageError};
 pub use motion::{move_duration, Approach, SoftLimits, TimeoutPolicy};
-pub use port::Port;
+pub use port::{LinkOptions, Port};
 
 use crate::coords::CarriageUm;
 use serde::Serialize;
@@ -157,22 +157,19 @@ pub enum Dialect {
     Grbl,
 }
 
-/// Opens the controller at `path` and wraps it in the safety [`Driver`].
-/// `wire_log` records every byte both ways as JSON Lines.
+/// Opens the controller at `path` (with `link`: wire log, Ctrl-C) and wraps it in the safety
+/// [`Driver`].
 pub fn open(
     path: &Path,
     dialect: Dialect,
     opts: DriverOptions,
-    wire_log: Option<&Path>,
+    link: &LinkOptions,
 ) -> Result<Box<dyn Stage>> {
     Ok(match dialect {
         Dialect::Native => Box::new(Driver::new(
-            native::NativeController::open(path, wire_log)?,
+            native::NativeController::open(path, link)?,
             opts,
         )),
-        Dialect::Grbl => Box::new(Driver::new(
-            grbl::GrblController::open(path, wire_log)?,
-            opts,
-        )),
+        Dialect::Grbl => Box::new(Driver::new(grbl::GrblController::open(path, link)?, opts)),
     })
 }

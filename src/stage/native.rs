@@ -6,8 +6,8 @@
 //! more.
 
 use super::{
-    Controller, ControllerInfo, FaultKind, Port, Result, SoftLimits, StageError, StageState,
-    StageStatus,
+    Controller, ControllerInfo, FaultKind, LinkOptions, Port, Result, SoftLimits, StageError,
+    StageState, StageStatus,
 };
 use crate::coords::CarriageUm;
 use firmware_protocol::{
@@ -72,8 +72,8 @@ fn nak_reason(code: NakCode) -> &'static str {
 }
 
 impl NativeController {
-    pub fn open(path: &Path, wire_log: Option<&Path>) -> Result<Self> {
-        let port = Port::open(path, 115_200, wire_log)?;
+    pub fn open(path: &Path, link: &LinkOptions) -> Result<Self> {
+        let port = Port::open(path, 115_200, link)?;
         let mut c = NativeController {
             port,
             dec: Decoder::new(),

@@ -4,7 +4,19 @@ use super::error::{Result, StageError};
 use serialport::{ClearBuffer, SerialPort, TTYPort};
 use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
 use std::time::{Duration, Instant};
+
+/// How the line is opened, beyond its path.
+#[derive(Debug, Clone, Default)]
+pub struct LinkOptions {
+    /// Record every byte both ways as JSON Lines (`--wire-log`).
+    pub wire_log: Option<PathBuf>,
+    /// Set by the operator's Ctrl-C: the next read returns [`StageError::Cancelled`] (once),
+    /// so whatever was waiting gives up and the driver stops the stages.
+    pub cancel: Option<Arc<AtomicBool>>,
+}
 
 pub struct Port {
     port: TTYPort,
@@ -12,6 +24,7 @@ pub struct Port {
     /// JSON Lines record of every byte sent and received (`--wire-log`).
     wire_log: Option<std::fs::File>,
     opened: Instant,
+    cancel: Option<Arc<AtomicBool>>,
 }
 
 /// Read slices are short so deadlines are kept to within this.
@@ -20,7 +33,7 @@ const READ_SLICE: Duration = Duration::from_millis(20);
 impl Port {
     /// Opens `path` at `baud`, exclusively: serialport takes `TIOCEXCL` and an exclusive
     /// `flock`, and reports either refusal as `NoDevice`, which is a busy port.
-    pub fn open(path: &Path, baud: u32, wire_log: Option<&Path>) -> Result<Port> {
+    pub fn open(path: &Path, baud: u32, link: &LinkOptions) -> Result<Port> {
         let port = serialport::new(path.to_string_lossy(), baud)
             .timeout(READ_SLICE)
             .open_native()
@@ -36,7 +49,7 @@ impl Port {
                     }
                 }
             })?;
-        let wire_log = match wire_log {
+        let wire_log = match &link.wire_log {
             Some(l) => Some(
                 std::fs::OpenOptions::new()
                     .create(true)
@@ -54,6 +67,7 @@ impl Port {
             path: path.to_path_buf(),
             wire_log,
             opened: Instant::now(),
+            cancel: link.cancel.clone(),
         };
         p.purge()?;
         Ok(p)
@@ -94,6 +108,13 @@ impl Port {
     pub fn read_until(&mut self, deadline: Instant, buf: &mut Vec<u8>) -> Result<usize> {
         let mut tmp = [0u8; 256];
         loop {
+            if self
+                .cancel
+                .as_ref()
+                .is_some_and(|c| c.swap(false, Ordering::SeqCst))
+            {
+                return Err(StageError::Cancelled);
+            }
             match self.port.read(&mut tmp) {
                 Ok(0) => return Err(self.lost("end of file".into())),
                 Ok(n) => {
