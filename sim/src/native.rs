@@ -51,8 +51,7 @@ impl NativeFirmware {
 
     /// The encoder reading in the controller's frame, µm.
     fn encoder(stage: &Stage, k: usize) -> f64 {
-        let v = stage.carriage(k) + (stage.logical(k) - stage.motor(k));
-        (v / ENCODER_UM).round() * ENCODER_UM
+        (stage.encoder(k) / ENCODER_UM).round() * ENCODER_UM
     }
 
     fn pos_nm(stage: &Stage) -> (i32, i32) {

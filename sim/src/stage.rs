@@ -120,9 +120,11 @@ pub struct Stage {
     /// Virtual time in seconds.
     pub t: f64,
     motor: [f64; 2],
-    /// Backlash play taken up: carriage = motor + play + settle (0 ≤ play ≤ backlash).
+    /// Backlash play taken up: carriage = motor + play + slip + settle (0 ≤ play ≤ backlash).
     play: [f64; 2],
     settle: [f64; 2],
+    /// Persistent offset of the carriage from the motor: steps lost in a stall.
+    slip: [f64; 2],
     /// Carriage of a stalled axis, frozen.
     stalled: [Option<f64>; 2],
     reference: [f64; 2],
@@ -154,6 +156,7 @@ impl Stage {
             motor,
             play: [0.0; 2],
             settle: [0.0; 2],
+            slip: [0.0; 2],
             stalled: [None; 2],
             reference: [-motor[0], -motor[1]],
             homed: false,
@@ -185,12 +188,23 @@ impl Stage {
 
     /// Mechanical carriage position (what a linear encoder sees), physical µm.
     pub fn carriage(&self, k: usize) -> f64 {
-        self.stalled[k].unwrap_or(self.motor[k] + self.play[k] + self.settle[k])
+        self.stalled[k].unwrap_or(self.mechanism(k))
+    }
+
+    /// Where the motor, the play and the slip put the carriage (ignoring a stall).
+    fn mechanism(&self, k: usize) -> f64 {
+        self.motor[k] + self.play[k] + self.slip[k] + self.settle[k]
     }
 
     /// The carriage where it really is, drift included: the truth.
     pub fn carriage_true(&self, k: usize) -> f64 {
         self.carriage(k) + self.cfg.drift_um_per_h[k] * self.t / 3600.0
+    }
+
+    /// A linear encoder on the carriage, referenced with the controller at homing: the carriage
+    /// in the controller's frame (the slip is in the reference, not in what the scale sees).
+    pub fn encoder(&self, k: usize) -> f64 {
+        self.carriage(k) + self.reference[k] - self.slip[k]
     }
 
     /// Controller's logical position (its step count), µm.
@@ -340,7 +354,12 @@ impl Stage {
     /// at its trip point, pull off.
     pub fn start_home(&mut self) {
         self.homed = false;
-        self.stalled = [None; 2];
+        // The jam is cleared: the carriage stays where it froze while the motor ran on.
+        for k in 0..2 {
+            if let Some(c) = self.stalled[k].take() {
+                self.slip[k] += c - self.mechanism(k);
+            }
+        }
         let d = self.cfg.home_dir;
         // Motor distance until each switch trips: first the play, then the carriage travel.
         let mut delta = [0.0; 2];
@@ -401,11 +420,11 @@ impl Stage {
             self.play[k] = (self.play[k] - dm).clamp(0.0, self.cfg.backlash_um[k]);
             self.motor[k] = m[k];
         }
+        let c = [self.carriage(0), self.carriage(1)];
         if let Some(ex) = &mut self.excursion {
             for k in 0..2 {
-                let c = self.stalled[k].unwrap_or(self.motor[k] + self.play[k] + self.settle[k]);
-                ex[k][0] = ex[k][0].min(c);
-                ex[k][1] = ex[k][1].max(c);
+                ex[k][0] = ex[k][0].min(c[k]);
+                ex[k][1] = ex[k][1].max(c[k]);
             }
         }
     }
@@ -420,21 +439,23 @@ impl Stage {
             if d == 0.0 || self.stalled[k].is_some() {
                 continue;
             }
-            // Carriage = motor + play + settle, with play 0 moving up and the backlash moving down.
+            // Carriage = motor + play + slip + settle, with play 0 moving up and the backlash
+            // moving down.
             let play = if d > 0.0 {
                 0.0
             } else {
                 self.cfg.backlash_um[k]
             };
             let sw = self.cfg.switch_um[k][if d > 0.0 { 1 } else { 0 }] + d * 1e-6;
-            let s = (sw - play - self.settle[k] - m.start_m[k]) / d;
-            if s > 0.0 {
-                if let Some(ts) = m.profile.time_at(s) {
-                    t_hit = t_hit.min(m.t0 + ts);
-                }
+            let s = (sw - play - self.slip[k] - self.settle[k] - m.start_m[k]) / d;
+            if s <= 0.0 {
+                // Already on the switch and driving further into it: it trips at once.
+                t_hit = t_hit.min(self.t);
+            } else if let Some(ts) = m.profile.time_at(s) {
+                t_hit = t_hit.min(m.t0 + ts);
             }
         }
-        t_hit
+        t_hit.max(self.t)
     }
 
     /// Advances the clock to `t`, returning what happened on the way, in order.
@@ -456,9 +477,7 @@ impl Stage {
             // A stalled axis is noticed once the motor has run away from the carriage.
             for k in 0..2 {
                 if let Some(c) = self.stalled[k] {
-                    if (self.motor[k] + self.play[k] + self.settle[k] - c).abs()
-                        > self.cfg.following_tol_um
-                    {
+                    if (self.mechanism(k) - c).abs() > self.cfg.following_tol_um {
                         self.halt();
                         events.push(StageEvent::Faulted(StopCause::Stall { axis: k }));
                         return;
@@ -542,16 +561,18 @@ impl Stage {
             }
             match (m.kind, self.home_next.take()) {
                 (MotionKind::HomeSeek, Some(MotionKind::HomePulloff)) => {
-                    // Reference at the trip point. The physical frame has carriage = motor
-                    // after a + approach, so a reference of 0 makes logical = carriage for the
+                    // Reference at the trip point. The carriage sits on the switch: pin it there
+                    // exactly (the slip absorbs any lost steps). After a + approach the carriage
+                    // is motor + slip, so a reference of slip makes logical = carriage for the
                     // native dialect (zero at the min end); GRBL puts machine zero on the max
                     // switch, so its logical is carriage - switch. Plus the switch's scatter.
                     for k in 0..2 {
                         let noise = self.cfg.switch_sigma_um * self.rng.normal();
                         let sw = self.cfg.switch_um[k][if self.cfg.home_dir > 0.0 { 1 } else { 0 }];
-                        self.reference[k] = noise - if self.cfg.home_dir > 0.0 { sw } else { 0.0 };
-                        // Pin the carriage exactly on the switch (numerical hygiene).
-                        self.settle[k] = sw - self.motor[k] - self.play[k];
+                        self.settle[k] = 0.0;
+                        self.slip[k] = sw - self.motor[k] - self.play[k];
+                        self.reference[k] =
+                            self.slip[k] + noise - if self.cfg.home_dir > 0.0 { sw } else { 0.0 };
                     }
                     let d = -self.cfg.home_dir * self.cfg.pulloff_um;
                     let delta = if self.cfg.home_dir > 0.0 {
@@ -685,6 +706,65 @@ mod tests {
             "stopped at {} for a switch at {sw}",
             s.carriage(0)
         );
+    }
+
+    #[test]
+    fn driving_further_into_a_closed_switch_trips_at_once() {
+        let mut s = stage(-1.0, true);
+        s.start_move([-2_000.0, 50_000.0], 20_000.0);
+        run(&mut s);
+        let c0 = s.carriage(0);
+        s.start_move([-200_000.0, 50_000.0], 20_000.0);
+        let ev = run(&mut s);
+        assert!(
+            matches!(
+                ev.as_slice(),
+                [StageEvent::Faulted(StopCause::Limit { .. })]
+            ),
+            "{ev:?}"
+        );
+        assert!(
+            (s.carriage(0) - c0).abs() < 1e-6,
+            "did not move further: {} vs {c0}",
+            s.carriage(0)
+        );
+    }
+
+    #[test]
+    fn after_a_stall_homing_restores_carriage_and_encoder() {
+        let mut rng = Rng::new(5);
+        let mut cfg = StageConfig::new(&mut rng, -1.0);
+        cfg.repeat_sigma_um = 0.0;
+        cfg.switch_sigma_um = 0.0;
+        let mut s = Stage::new(cfg, FaultSpec::parse("stall=y:1").unwrap(), 5, true);
+        s.start_move([100_000.0, 150_000.0], 20_000.0);
+        let ev = run(&mut s);
+        assert!(
+            matches!(
+                ev.as_slice(),
+                [StageEvent::Faulted(StopCause::Stall { axis: 1 })]
+            ),
+            "{ev:?}"
+        );
+        // Steps were lost on Y: the carriage is not where the motor count says.
+        assert!((s.carriage(1) - (s.logical(1))).abs() > 10.0);
+        s.faults = FaultSpec::default();
+        s.start_home();
+        assert_eq!(run(&mut s), vec![StageEvent::Homed]);
+        s.start_move([50_000.0, 60_000.0], 20_000.0);
+        run(&mut s);
+        for (k, want) in [(0, 50_000.0), (1, 60_000.0)] {
+            assert!(
+                (s.carriage(k) - want).abs() < 1e-6,
+                "axis {k}: carriage {}",
+                s.carriage(k)
+            );
+            assert!(
+                (s.encoder(k) - want).abs() < 1e-6,
+                "axis {k}: encoder {}",
+                s.encoder(k)
+            );
+        }
     }
 
     #[test]
