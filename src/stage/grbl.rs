@@ -161,8 +161,11 @@ impl GrblController {
         };
     }
 
+    /// `$$`, until two complete dumps agree: a doubled digit in `$131=200` would otherwise
+    /// make a 2 m travel of it, and every limit and coordinate with it.
     fn read_settings(&mut self) -> Result<()> {
-        for _ in 0..QUERY_TRIES {
+        let mut prev: Option<BTreeMap<u32, f64>> = None;
+        for _ in 0..QUERY_TRIES * 2 {
             let lines = match self.command("$$", REPLY_TIMEOUT * 2) {
                 Ok(l) => l,
                 Err(StageError::Timeout { .. }) => continue,
@@ -177,14 +180,18 @@ impl GrblController {
                 }
             }
             let need = [27, 110, 111, 120, 121, 130, 131];
-            if need.iter().all(|k| s.contains_key(k)) {
+            if !need.iter().all(|k| s.contains_key(k)) {
+                continue;
+            }
+            if prev.as_ref() == Some(&s) {
                 self.settings = s;
                 self.apply_settings();
                 return Ok(());
             }
+            prev = Some(s);
         }
         Err(StageError::Protocol(
-            "could not read a complete `$$` settings list from GRBL".into(),
+            "could not read two complete, agreeing `$$` settings lists from GRBL".into(),
         ))
     }
 
@@ -430,8 +437,8 @@ impl GrblController {
     /// Reads reports until two in a row give the same state and position.
     fn agreed_status(&mut self, first: StageStatus) -> Result<StageStatus> {
         let mut prev = first;
-        for _ in 0..QUERY_TRIES {
-            let st = self.status()?;
+        for _ in 0..QUERY_TRIES * 2 {
+            let st = self.status_once()?;
             if st.position == prev.position && st.controller_state == prev.controller_state {
                 return Ok(st);
             }
@@ -440,6 +447,12 @@ impl GrblController {
         Err(StageError::Protocol(
             "GRBL status reports disagree with each other (line noise?)".into(),
         ))
+    }
+
+    /// One report, for polling; decisions use [`Controller::status`].
+    fn status_once(&mut self) -> Result<StageStatus> {
+        let (s, p, pins) = self.raw_status()?;
+        Ok(self.to_status(&s, p, &pins))
     }
 
     /// Waits for a boot banner after a soft reset.
@@ -500,9 +513,11 @@ impl Controller for GrblController {
         &self.info
     }
 
+    /// Reports carry no checksum, and one garbled digit would move the carriage 200 mm in the
+    /// host's mind: every status the host decides on is two reports that agree.
     fn status(&mut self) -> Result<StageStatus> {
-        let (s, p, pins) = self.raw_status()?;
-        Ok(self.to_status(&s, p, &pins))
+        let first = self.status_once()?;
+        self.agreed_status(first)
     }
 
     fn start_move(&mut self, target: CarriageUm, speed_um_s: f64) -> Result<()> {
@@ -597,7 +612,7 @@ impl Controller for GrblController {
             // GRBL answers `?` at once, ahead of lines still waiting in its buffer: only a
             // report requested after the last answer arrived speaks for those lines.
             let all_answered = self.inflight.is_empty();
-            let st = self.status()?;
+            let st = self.status_once()?;
             if let Some(e) = self.take_fault() {
                 return Err(e);
             }
@@ -619,10 +634,12 @@ impl Controller for GrblController {
                             false
                         }
                     };
-                    if all_answered || lost {
+                    // Reports carry no checksum: decide only on two that agree.
+                    let st = self.agreed_status(st)?;
+                    if st.state.is_moving() {
+                        idle_with_inflight = None;
+                    } else if all_answered || lost {
                         self.inflight.clear();
-                        // Reports carry no checksum: accept a position only when two agree.
-                        let st = self.agreed_status(st)?;
                         self.jogging = false;
                         if let Some(n) = error_reply {
                             return Err(StageError::Rejected {

@@ -21,6 +21,8 @@ use std::time::{Duration, Instant};
 /// How long to wait for a reply (the spec promises 50 ms; the rest is slack for the OS).
 const REPLY_TIMEOUT: Duration = Duration::from_millis(300);
 const QUERY_TRIES: usize = 4;
+/// Sends of one motion request, each after the status proved the previous did not run.
+const MOTION_TRIES: usize = 3;
 /// Status polling interval while waiting for motion.
 const POLL: Duration = Duration::from_millis(20);
 
@@ -281,16 +283,12 @@ impl NativeController {
         None
     }
 
-    /// Sends a motion request. If its reply is lost, reads the status back: if the motion is
-    /// under way (`started` says so) it was accepted; if the controller is idle where it was,
-    /// the request never arrived and is sent once more. Never more than that.
-    fn motion_request(
-        &mut self,
-        msg: Message,
-        started: impl Fn(&StageStatus) -> bool,
-    ) -> Result<()> {
+    /// Sends a motion request. If its reply is lost, reads the status back: if the stage is
+    /// moving, has moved or changed state, the request ran; if it is just as it was, the request
+    /// never arrived and is sent again, at most [`MOTION_TRIES`] times in all.
+    fn motion_request(&mut self, msg: Message) -> Result<()> {
         let before = Self::to_status(&self.raw_status()?);
-        for attempt in 0..2 {
+        for attempt in 0..MOTION_TRIES {
             let reply = self.exchange(msg)?;
             match reply {
                 Some(Message::Ack) => return Ok(()),
@@ -338,12 +336,15 @@ impl NativeController {
                             position: Some(st.position),
                         });
                     }
-                    if started(&st) {
-                        return Ok(());
-                    }
+                    // Nothing but our request moves the stage: if it is moving, or has moved, or
+                    // changed state, the request ran; the wait and the position check that follow
+                    // judge how it ended.
                     let unchanged =
                         st.state == before.state && (st.position - before.position).norm() < 0.5;
-                    if !unchanged || attempt == 1 {
+                    if st.state.is_moving() || !unchanged {
+                        return Ok(());
+                    }
+                    if attempt + 1 == MOTION_TRIES {
                         return Err(StageError::Timeout {
                             what: format!("{msg:?}"),
                             after: REPLY_TIMEOUT,
@@ -352,7 +353,7 @@ impl NativeController {
                 }
             }
         }
-        unreachable!("the loop returns on its second pass")
+        unreachable!("the last attempt returns")
     }
 }
 
@@ -373,18 +374,12 @@ impl Controller for NativeController {
             y_nm: nm(target.y),
             speed_um_s: speed_um_s.round().max(1.0) as u32,
         };
-        self.motion_request(msg, |st| {
-            st.state == StageState::Moving
-                || (st.state == StageState::Idle && (st.position - target).norm() < 2.0)
-        })
+        self.motion_request(msg)
     }
 
     fn start_home(&mut self) -> Result<()> {
         self.events.clear();
-        // At a fast clock homing may be over before the status is read: homed and idle.
-        self.motion_request(Message::Home { axes: 3 }, |st| {
-            st.state == StageState::Homing || (st.state == StageState::Idle && st.homed)
-        })
+        self.motion_request(Message::Home { axes: 3 })
     }
 
     fn start_jog(&mut self, delta: CarriageUm, speed_um_s: f64) -> Result<()> {
@@ -399,10 +394,7 @@ impl Controller for NativeController {
             vy_um_s: v[1].round() as i32,
             max_ms: t_ms as u32,
         };
-        let before = self.status()?.position;
-        self.motion_request(msg, move |st| {
-            st.state == StageState::Jogging || (st.position - before).norm() > 0.5
-        })
+        self.motion_request(msg)
     }
 
     fn wait_done(&mut self, timeout: Duration) -> Result<StageStatus> {
