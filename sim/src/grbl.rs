@@ -660,6 +660,9 @@ fn parse_words(line: &str) -> Result<Vec<(char, f64)>, u32> {
             i += 1;
         }
         let v: f64 = line[start..i].parse().map_err(|_| 2u32)?;
+        if !v.is_finite() {
+            return Err(2);
+        }
         words.push((l, v));
     }
     Ok(words)

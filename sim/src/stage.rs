@@ -264,11 +264,23 @@ impl Stage {
     }
 
     fn begin(&mut self, kind: MotionKind, delta: [f64; 2], speed: f64, end_m: Option<[f64; 2]>) {
-        let len = (delta[0] * delta[0] + delta[1] * delta[1]).sqrt();
-        let dir = if len > 0.0 {
-            [delta[0] / len, delta[1] / len]
+        let full = (delta[0] * delta[0] + delta[1] * delta[1]).sqrt();
+        if !full.is_finite() {
+            return; // no motor takes an infinite or NaN step count
+        }
+        let dir = if full > 0.0 {
+            [delta[0] / full, delta[1] / full]
         } else {
             [0.0, 0.0]
+        };
+        // No path is longer than the frame the carriage runs in: a longer one would meet a
+        // switch (and the end stop behind it) first. Capping keeps the clock's arithmetic sane
+        // for absurd targets (GRBL happily parses X-1e39).
+        let frame = 2.0 * (self.cfg.travel_um[0].max(self.cfg.travel_um[1]) + 10_000.0);
+        let (len, end_m) = if full > frame {
+            (frame, None)
+        } else {
+            (full, end_m)
         };
         for k in 0..2 {
             if dir[k] != 0.0 {
@@ -704,6 +716,26 @@ mod tests {
         assert!(
             s.carriage(0) <= sw && s.carriage(0) > sw - 0.01,
             "stopped at {} for a switch at {sw}",
+            s.carriage(0)
+        );
+    }
+
+    #[test]
+    fn an_absurd_target_still_stops_at_the_switch() {
+        let mut s = stage(-1.0, true);
+        s.start_move([-1e42, 50_000.0], 20_000.0);
+        let ev = run(&mut s);
+        assert!(
+            matches!(
+                ev.as_slice(),
+                [StageEvent::Faulted(StopCause::Limit { .. })]
+            ),
+            "{ev:?}"
+        );
+        let sw = s.cfg.switch_um[0][0];
+        assert!(
+            s.carriage(0) <= sw && s.carriage(0) > sw - 0.01,
+            "at {}",
             s.carriage(0)
         );
     }
