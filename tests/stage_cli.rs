@@ -209,6 +209,24 @@ fn bad_usage_is_exit_code_2_with_help() {
     assert_eq!(out.status.code(), Some(2));
     let out = rig().args(["stage", "status"]).output().unwrap();
     assert_eq!(out.status.code(), Some(2), "--stage or --sim is required");
+    for bad in [
+        ["--speed", "0"],
+        ["--tolerance-um", "nan"],
+        ["--timeout-factor", "0.5"],
+    ] {
+        let out = rig()
+            .args(["stage", "--sim"])
+            .args(bad)
+            .arg("status")
+            .output()
+            .unwrap();
+        assert_eq!(out.status.code(), Some(2), "{bad:?}");
+        assert!(
+            String::from_utf8_lossy(&out.stderr).contains(bad[0]),
+            "the message names {}",
+            bad[0]
+        );
+    }
     let out = rig()
         .args(["stage", "--sim", "--sim-faults", "melt=1", "status"])
         .output()

@@ -130,18 +130,50 @@ fn parse_limits(s: &str) -> Result<SoftLimits, String> {
     })
 }
 
-fn options(a: &StageArgs) -> anyhow::Result<DriverOptions> {
+/// The motion options, checked; an error is bad usage (exit code 2).
+fn options(a: &StageArgs) -> Result<DriverOptions, String> {
     let dir = match a.approach.as_str() {
         "+" => 1.0,
         "-" => -1.0,
         _ => 0.0,
     };
-    if !(a.overshoot_um >= 0.0
-        && a.tolerance_um > 0.0
-        && a.timeout_factor >= 1.0
-        && a.timeout_margin >= 0.0)
-    {
-        bail!("--overshoot-um must be ≥ 0, --tolerance-um > 0, --timeout-factor ≥ 1 and --timeout-margin ≥ 0");
+    // (written so that NaN fails too)
+    let checks = [
+        (
+            "--overshoot-um",
+            a.overshoot_um,
+            a.overshoot_um >= 0.0 && a.overshoot_um < 10_000.0,
+            "0 to 10000 µm",
+        ),
+        (
+            "--tolerance-um",
+            a.tolerance_um,
+            a.tolerance_um > 0.0 && a.tolerance_um < 1000.0,
+            "above 0 and below 1000 µm",
+        ),
+        (
+            "--timeout-factor",
+            a.timeout_factor,
+            a.timeout_factor >= 1.0 && a.timeout_factor < 100.0,
+            "1 to 100",
+        ),
+        (
+            "--timeout-margin",
+            a.timeout_margin,
+            a.timeout_margin >= 0.0 && a.timeout_margin < 3600.0,
+            "0 to 3600 s",
+        ),
+        (
+            "--speed",
+            a.speed.unwrap_or(1.0),
+            a.speed.is_none_or(|v| v > 0.0 && v < 10_000.0),
+            "above 0 mm/s",
+        ),
+    ];
+    for (name, value, ok, range) in checks {
+        if !ok {
+            return Err(format!("{name} {value} is out of range: use {range}"));
+        }
     }
     Ok(DriverOptions {
         approach: Approach {
@@ -335,7 +367,13 @@ fn label(a: &Action) -> &'static str {
 
 /// Runs `rig stage`; returns the process exit code.
 pub fn run(a: StageArgs) -> anyhow::Result<i32> {
-    let opts = options(&a)?;
+    let opts = match options(&a) {
+        Ok(o) => o,
+        Err(e) => {
+            eprintln!("rig stage: {e}");
+            return Ok(2);
+        }
+    };
     let mut sim = None;
     let port = if a.sim {
         let faults = match &a.sim_faults {

@@ -48,7 +48,8 @@ impl<C: Controller> Driver<C> {
 
     fn speed(&self) -> f64 {
         let max = self.ctl.info().max_speed_um_s;
-        self.opts.speed_um_s.map_or(max, |s| s.min(max))
+        // Never zero: a move's timeout is computed from its speed.
+        self.opts.speed_um_s.map_or(max, |s| s.min(max)).max(1.0)
     }
 
     /// On any error but a refusal before sending, stop the stages (best effort: the link may
