@@ -118,7 +118,7 @@ impl GrblController {
         c.identify();
         // With homing enabled GRBL boots locked in Alarm until homed; idle means it was homed
         // (or unlocked by hand, which the operator then answers for).
-        let (state, _, _) = c.raw_status()?;
+        let state = c.status()?.controller_state;
         c.homed = state != "Alarm" && c.settings.get(&22) == Some(&1.0);
         c.new_alarm = false;
         c.reset_seen = false;
