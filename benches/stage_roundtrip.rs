@@ -103,6 +103,7 @@ fn main() {
     Criterion::default().configure_from_args().final_summary();
     if let Some(base) = mean_ns("raw_echo_pty") {
         println!("\nstatus round trip, ratio to a raw echo of the same sizes over a pty:");
+        println!("  (a GRBL status is two reports that must agree: its reports carry no checksum)");
         for b in ["native_driver", "grbl_driver"] {
             if let Some(t) = mean_ns(b) {
                 println!(
