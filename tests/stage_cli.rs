@@ -6,6 +6,22 @@ use common::*;
 
 const DIALECTS: [&str; 2] = ["native", "grbl"];
 
+/// `rig stage --sim --sim-time-scale SCALE --dialect D --sim-truth TRUTH`, for more arguments.
+fn embedded(scale: &str, dialect: &str, truth: &std::path::Path) -> std::process::Command {
+    let mut c = rig();
+    c.args([
+        "stage",
+        "--sim",
+        "--sim-time-scale",
+        scale,
+        "--dialect",
+        dialect,
+        "--sim-truth",
+    ])
+    .arg(truth);
+    c
+}
+
 fn xy(v: &serde_json::Value) -> (f64, f64) {
     (v["x_mm"].as_f64().unwrap(), v["y_mm"].as_f64().unwrap())
 }
@@ -254,20 +270,8 @@ fn every_fault_kind_through_the_binary_ends_verified_or_typed() {
         for spec in kinds {
             let dir = tempfile::tempdir().unwrap();
             let truth = dir.path().join("truth.json");
-            let out = rig()
-                .args([
-                    "stage",
-                    "--sim",
-                    "--sim-time-scale",
-                    "0",
-                    "--dialect",
-                    d,
-                    "--sim-faults",
-                    spec,
-                    "--sim-truth",
-                ])
-                .arg(&truth)
-                .args(["--json", "move", "60", "40"])
+            let out = embedded("0", d, &truth)
+                .args(["--sim-faults", spec, "--json", "move", "60", "40"])
                 .output()
                 .unwrap();
             let (code, j, err) = parse(out);
@@ -310,20 +314,16 @@ fn the_same_seed_replays_the_same_run() {
     let run = |seed: &str| {
         let dir = tempfile::tempdir().unwrap();
         let truth = dir.path().join("truth.json");
-        let out = rig()
+        let out = embedded("0", "native", &truth)
             .args([
-                "stage",
-                "--sim",
-                "--sim-time-scale",
-                "0",
                 "--sim-seed",
                 seed,
                 "--sim-faults",
                 "stall=0.5",
-                "--sim-truth",
+                "move",
+                "70",
+                "30",
             ])
-            .arg(&truth)
-            .args(["move", "70", "30"])
             .output()
             .unwrap();
         let t = read_truth(&truth);
@@ -346,17 +346,7 @@ fn ctrl_c_mid_move_stops_the_stages() {
         let dir = tempfile::tempdir().unwrap();
         let truth = dir.path().join("truth.json");
         // Real time: a 76 mm move takes about 4 s.
-        let child = rig()
-            .args([
-                "stage",
-                "--sim",
-                "--sim-time-scale",
-                "1",
-                "--dialect",
-                d,
-                "--sim-truth",
-            ])
-            .arg(&truth)
+        let child = embedded("1", d, &truth)
             .args(["--json", "move", "200", "150"])
             .stdout(std::process::Stdio::piped())
             .stderr(std::process::Stdio::piped())
