@@ -8,10 +8,12 @@
 //! - [`pty`]: the real pseudo-terminal the host opens;
 //! - [`server`]: the loop that ties them together; [`truth`]: the truth file.
 
+pub mod camera;
 pub mod cli;
 pub mod faults;
 pub mod grbl;
 pub mod native;
+pub mod plate;
 pub mod profile;
 pub mod pty;
 pub mod rng;

@@ -1,0 +1,275 @@
+//! The simulated camera over the carriage (seed 002's CCD on the AC1): it renders what lies
+//! under the lens at the stage's true position, through the pixel→carriage affine, and adds
+//! the sensor's faults as the seed describes them: shot and read noise, a grey-level shift
+//! between the two video fields (alternate rows, 4–5 DN), vertical 3-pixel stripes darker every
+//! 12 pixels, more noise on the top rows, dust, automatic gain, quantisation.
+//!
+//! Every parameter and the affine are part of the truth ([`CameraConfig`] serialises).
+
+use crate::plate::Plate;
+use crate::rng::Rng;
+use serde::Serialize;
+
+/// Pixel → local carriage coordinates (µm, origin at the measuring mark):
+/// `x = a[0]·(col − mark.0) + a[1]·(row − mark.1)`, `y = b[0]·(col − mark.0) + b[1]·(row − mark.1)`.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct PixelToCarriage {
+    pub a: [f64; 2],
+    pub b: [f64; 2],
+    /// Pixel (col, row) of the measuring mark.
+    pub mark_px: [f64; 2],
+}
+
+impl PixelToCarriage {
+    /// Seed 002's figures: 10.19 µm in x, 10.96 µm in y, shears about 0.1 µm, the measuring
+    /// mark near pixel (238, 230).
+    pub fn seed_default() -> Self {
+        PixelToCarriage {
+            a: [10.19, 0.09],
+            b: [0.10, 10.96],
+            mark_px: [238.3, 229.6],
+        }
+    }
+
+    pub fn local_um(&self, col: f64, row: f64) -> [f64; 2] {
+        let (dc, dr) = (col - self.mark_px[0], row - self.mark_px[1]);
+        [
+            self.a[0] * dc + self.a[1] * dr,
+            self.b[0] * dc + self.b[1] * dr,
+        ]
+    }
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct CameraConfig {
+    pub width: usize,
+    pub height: usize,
+    pub bit_depth: u32,
+    pub affine: PixelToCarriage,
+    /// Optical blur (Gaussian σ, pixels), before the pixel's own box.
+    pub psf_sigma_px: f64,
+    /// Grey level of fully clear glass at gain 1 and the reference exposure, in 8-bit DN.
+    pub white_dn8: f64,
+    pub exposure_ms: f64,
+    pub gain: f64,
+    /// Automatic gain: a slow flicker of the gain from frame to frame.
+    pub auto_gain: bool,
+    /// Shot noise: variance in DN² per DN of signal (8-bit scale).
+    pub shot_dn8: f64,
+    /// Read noise σ, 8-bit DN.
+    pub read_noise_dn8: f64,
+    /// Extra noise on the top rows: σ × (1 + factor·exp(−row / rows)).
+    pub top_noise_factor: f64,
+    pub top_noise_rows: f64,
+    /// Grey-level shift of the odd rows (the second video field), 8-bit DN, and its jitter
+    /// from frame to frame.
+    pub field_shift_dn8: f64,
+    pub field_jitter_dn8: f64,
+    /// Vertical stripes: 3 pixels wide, alternately dark and light, the dark ones darker
+    /// every 12 pixels. Depth of the dark and of the darker stripes, 8-bit DN; phase in pixels.
+    pub stripe_dark_dn8: f64,
+    pub stripe_darker_dn8: f64,
+    pub stripe_phase_px: usize,
+    /// Dust on the sensor: (col, row, radius px, transmittance at its centre).
+    pub dust: Vec<(f64, f64, f64, f64)>,
+    pub frame_rate_hz: f64,
+}
+
+impl CameraConfig {
+    pub fn new(rng: &mut Rng) -> Self {
+        let mut dust = Vec::new();
+        for _ in 0..4 {
+            dust.push((
+                rng.uniform() * 512.0,
+                rng.uniform() * 512.0,
+                2.0 + 4.0 * rng.uniform(),
+                0.6 + 0.3 * rng.uniform(),
+            ));
+        }
+        CameraConfig {
+            width: 512,
+            height: 512,
+            bit_depth: 8,
+            affine: PixelToCarriage::seed_default(),
+            psf_sigma_px: 0.6,
+            white_dn8: 220.0,
+            exposure_ms: 20.0,
+            gain: 1.0,
+            auto_gain: true,
+            shot_dn8: 0.02,
+            read_noise_dn8: 1.0,
+            top_noise_factor: 1.5,
+            top_noise_rows: 30.0,
+            field_shift_dn8: 4.5,
+            field_jitter_dn8: 0.3,
+            stripe_dark_dn8: 2.0,
+            stripe_darker_dn8: 3.5,
+            stripe_phase_px: rng.below(12) as usize,
+            dust,
+            frame_rate_hz: 25.0,
+        }
+    }
+
+    /// DN of the configured bit depth per 8-bit DN.
+    pub fn scale(&self) -> f64 {
+        (1u64 << self.bit_depth) as f64 / 256.0
+    }
+
+    /// The stripe offset of a column, 8-bit DN (the fixed pattern, not yet scaled).
+    pub fn stripe_dn8(&self, col: usize) -> f64 {
+        match ((col + self.stripe_phase_px) % 12) / 3 {
+            0 => -self.stripe_darker_dn8,
+            2 => -self.stripe_dark_dn8,
+            _ => 0.0,
+        }
+    }
+}
+
+/// Error function (Abramowitz & Stegun 7.1.26, |error| < 1.5e-7).
+pub fn erf(x: f64) -> f64 {
+    let s = x.signum();
+    let x = x.abs();
+    let t = 1.0 / (1.0 + 0.327_591_1 * x);
+    let y = 1.0
+        - (((((1.061_405_429 * t - 1.453_152_027) * t) + 1.421_413_741) * t - 0.284_496_736) * t
+            + 0.254_829_592)
+            * t
+            * (-x * x).exp();
+    s * y
+}
+
+/// Fraction of a blurred band |d| ≤ half covers at offset `d` (blur σ `s`).
+fn band(d: f64, half: f64, s: f64) -> f64 {
+    let k = std::f64::consts::SQRT_2 * s;
+    0.5 * (erf((d + half) / k) - erf((d - half) / k))
+}
+
+/// The noiseless image (transmittance 0..1) of the plate with the measuring mark at carriage
+/// position `mark_um`.
+pub fn render_plate(cfg: &CameraConfig, plate: &Plate, mark_um: [f64; 2]) -> Vec<f32> {
+    let (w, h) = (cfg.width, cfg.height);
+    let mut img = vec![plate.clear as f32; w * h];
+    let af = &cfg.affine;
+    // Blur in µm: optics and the pixel's box, along x and along y.
+    let px = [af.a[0].hypot(af.b[0]), af.a[1].hypot(af.b[1])];
+    let s2 = cfg.psf_sigma_px * cfg.psf_sigma_px + 1.0 / 12.0;
+    let sx = (s2).sqrt() * px[0];
+    let sy = (s2).sqrt() * px[1];
+    let centre = af.local_um(w as f64 / 2.0, h as f64 / 2.0);
+    let view_r = (w as f64 * px[0]).max(h as f64 * px[1]);
+    let centre = [mark_um[0] + centre[0], mark_um[1] + centre[1]];
+    let dark = 1.0 - plate.line / plate.clear;
+    let half = plate.line_um / 2.0;
+    for c in plate.crosses_near(centre, view_r) {
+        for row in 0..h {
+            for col in 0..w {
+                let l = af.local_um(col as f64 + 0.5, row as f64 + 0.5);
+                let d = [
+                    mark_um[0] + l[0] - c.true_um[0],
+                    mark_um[1] + l[1] - c.true_um[1],
+                ];
+                if d[0].abs() > plate.arm_um + 5.0 * sx && d[1].abs() > plate.arm_um + 5.0 * sy {
+                    continue;
+                }
+                // Horizontal bar (along x) and vertical bar (along y).
+                let hb = band(d[1], half, sy) * band(d[0], plate.arm_um, sx);
+                let vb = band(d[0], half, sx) * band(d[1], plate.arm_um, sy);
+                let cov = hb + vb - hb * vb;
+                let i = row * w + col;
+                img[i] *= (1.0 - dark * cov) as f32;
+            }
+        }
+    }
+    img
+}
+
+/// Turns a noiseless image into one frame from the sensor: gain, dust, shot and read noise
+/// (more on the top rows), the field shift, the stripes, quantisation. `seq` is the frame
+/// number (it drives the gain flicker and seeds the noise with `seed`).
+pub fn expose(cfg: &CameraConfig, ideal: &[f32], seed: u64, seq: u64) -> Vec<u16> {
+    let (w, h) = (cfg.width, cfg.height);
+    let mut rng = Rng::new(seed ^ seq.wrapping_mul(0x2545_F491_4F6C_DD1D) ^ 0xCA3E_5A);
+    let sc = cfg.scale();
+    let max = ((1u64 << cfg.bit_depth) - 1) as f64;
+    let flicker = if cfg.auto_gain {
+        1.0 + 0.003 * (seq as f64 * 0.7).sin()
+    } else {
+        1.0
+    };
+    let level = cfg.white_dn8 * cfg.gain * flicker * cfg.exposure_ms / 20.0;
+    let field = cfg.field_shift_dn8 + cfg.field_jitter_dn8 * rng.normal();
+    let mut out = vec![0u16; w * h];
+    for row in 0..h {
+        let top = 1.0 + cfg.top_noise_factor * (-(row as f64) / cfg.top_noise_rows).exp();
+        let read = cfg.read_noise_dn8 * top;
+        let field_dn = if row % 2 == 1 { field } else { 0.0 };
+        for col in 0..w {
+            let mut t = ideal[row * w + col] as f64;
+            for &(dc, dr, r, depth) in &cfg.dust {
+                let q = ((col as f64 - dc).powi(2) + (row as f64 - dr).powi(2)) / (r * r);
+                if q < 9.0 {
+                    t *= 1.0 - (1.0 - depth) * (-q).exp();
+                }
+            }
+            let s = level * t;
+            let sigma = (cfg.shot_dn8 * s * top * top + read * read).sqrt();
+            let v = s + sigma * rng.normal() + field_dn + cfg.stripe_dn8(col);
+            out[row * w + col] = (v * sc).round().clamp(0.0, max) as u16;
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn erf_matches_known_values() {
+        for (x, e) in [
+            (0.0, 0.0),
+            (0.5, 0.520_499_877_8),
+            (1.0, 0.842_700_792_9),
+            (2.0, 0.995_322_265_0),
+            (-1.0, -0.842_700_792_9),
+        ] {
+            assert!((erf(x) - e).abs() < 2e-7, "erf({x})");
+        }
+    }
+
+    #[test]
+    fn stripe_pattern_is_three_wide_darker_every_twelve() {
+        let mut c = CameraConfig::new(&mut Rng::new(1));
+        c.stripe_phase_px = 0;
+        let p: Vec<f64> = (0..24).map(|i| c.stripe_dn8(i)).collect();
+        assert_eq!(&p[0..3], &[-3.5; 3]);
+        assert_eq!(&p[3..6], &[0.0; 3]);
+        assert_eq!(&p[6..9], &[-2.0; 3]);
+        assert_eq!(&p[12..15], &[-3.5; 3]);
+    }
+
+    #[test]
+    fn a_cross_renders_where_the_affine_puts_it() {
+        let mut rng = Rng::new(2);
+        let cfg = CameraConfig::new(&mut rng);
+        let plate = Plate::new(&mut rng);
+        let c = plate.crosses[4];
+        // Put the cross exactly under the measuring mark: its centre must be the darkest
+        // spot, at the mark's pixel.
+        let img = render_plate(&cfg, &plate, c.true_um);
+        let (mut best, mut at) = (f32::MAX, 0);
+        for (i, &v) in img.iter().enumerate() {
+            if v < best {
+                best = v;
+                at = i;
+            }
+        }
+        let (col, row) = ((at % 512) as f64 + 0.5, (at / 512) as f64 + 0.5);
+        assert!(
+            (col - cfg.affine.mark_px[0]).abs() <= 1.0
+                && (row - cfg.affine.mark_px[1]).abs() <= 1.0,
+            "{col},{row}"
+        );
+        assert!(best < 0.2 && img[0] > 0.8);
+    }
+}
