@@ -188,7 +188,7 @@ pub fn render_plate(cfg: &CameraConfig, plate: &Plate, mark_um: [f64; 2]) -> Vec
 /// number (it drives the gain flicker and seeds the noise with `seed`).
 pub fn expose(cfg: &CameraConfig, ideal: &[f32], seed: u64, seq: u64) -> Vec<u16> {
     let (w, h) = (cfg.width, cfg.height);
-    let mut rng = Rng::new(seed ^ seq.wrapping_mul(0x2545_F491_4F6C_DD1D) ^ 0xCA3E_5A);
+    let mut rng = Rng::new(seed ^ seq.wrapping_mul(0x2545_F491_4F6C_DD1D) ^ 0x00CA_3E5A);
     let sc = cfg.scale();
     let max = ((1u64 << cfg.bit_depth) - 1) as f64;
     let flicker = if cfg.auto_gain {
