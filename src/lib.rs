@@ -2,4 +2,5 @@
 //! turn the photos into elevation models. See README.md and DESIGN.md.
 
 pub mod coords;
+pub mod digitise;
 pub mod stage;

@@ -1,0 +1,34 @@
+/// A single-channel floating-point image, row-major.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ImageF32 {
+    pub width: usize,
+    pub height: usize,
+    pub data: Vec<f32>,
+}
+
+impl ImageF32 {
+    pub fn new(width: usize, height: usize) -> Self {
+        ImageF32 {
+            width,
+            height,
+            data: vec![0.0; width * height],
+        }
+    }
+
+    pub fn from_u16(width: usize, height: usize, px: &[u16]) -> Self {
+        ImageF32 {
+            width,
+            height,
+            data: px.iter().map(|&v| v as f32).collect(),
+        }
+    }
+
+    #[inline]
+    pub fn at(&self, col: usize, row: usize) -> f32 {
+        self.data[row * self.width + col]
+    }
+
+    pub fn row(&self, row: usize) -> &[f32] {
+        &self.data[row * self.width..(row + 1) * self.width]
+    }
+}

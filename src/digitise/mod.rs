@@ -1,0 +1,30 @@
+//! Digitisation (seed 002, "Test data"): average N frames, remove the CCD's stripe noise
+//! without blurring, stretch the contrast. The seed's own filters (3×3 then 7×3 low-pass) are
+//! kept as a baseline to compare against, since they blurred the edges the matcher needs.
+
+mod average;
+mod image;
+mod lowpass;
+mod stretch;
+mod stripes;
+
+pub use average::{Averaged, Averager};
+pub use image::ImageF32;
+pub use lowpass::seed_lowpass;
+pub use stretch::{stretch, Stretch};
+pub use stripes::{estimate_stripes, remove_stripes, StripeEstimate};
+
+/// Why digitisation could not go on.
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum DigitiseError {
+    #[error("frame {seq} is {got_w}×{got_h}, the others {want_w}×{want_h}")]
+    SizeMismatch {
+        seq: u64,
+        got_w: usize,
+        got_h: usize,
+        want_w: usize,
+        want_h: usize,
+    },
+    #[error("no frames to average")]
+    NoFrames,
+}
