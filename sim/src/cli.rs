@@ -61,7 +61,8 @@ pub fn run(args: SimArgs) -> std::io::Result<()> {
         stage_link: args.stage_link,
         start_homed: args.start_homed,
     };
-    serve(&cfg, &stop, |p| {
+    let world = crate::server::World::new(&cfg);
+    serve(&cfg, &world, &stop, |p| {
         use std::io::Write;
         println!("{}", p.display());
         let _ = std::io::stdout().flush();

@@ -22,4 +22,4 @@ pub mod stage;
 pub mod truth;
 
 pub use faults::FaultSpec;
-pub use server::{serve, Dialect, EmbeddedSim, SimConfig};
+pub use server::{serve, Dialect, EmbeddedSim, SimConfig, World};

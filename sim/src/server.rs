@@ -1,9 +1,11 @@
 //! The simulator's main loop: the pty, the line faults, the firmware dialect and the stage
 //! on a virtual clock, and the truth file.
 
+use crate::camera::CameraConfig;
 use crate::faults::{FaultSpec, LineFilter};
 use crate::grbl::GrblFirmware;
 use crate::native::NativeFirmware;
+use crate::plate::Plate;
 use crate::pty::Pty;
 use crate::rng::Rng;
 use crate::stage::{Stage, StageConfig, StageEvent};
@@ -11,6 +13,7 @@ use crate::truth::{write_atomic, StageTruth};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
+use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
@@ -95,8 +98,47 @@ impl Firmware {
     }
 }
 
+/// The simulated world the stage firmware and the camera share: the camera renders what lies
+/// under the lens where the stage really is.
+pub struct World {
+    pub stage: Mutex<Stage>,
+    pub camera: CameraConfig,
+    pub plate: Plate,
+    pub seed: u64,
+    pub time_scale: f64,
+}
+
+impl World {
+    pub fn new(cfg: &SimConfig) -> Arc<World> {
+        let mut rng = Rng::new(cfg.seed);
+        let home_dir = if cfg.dialect == Dialect::Grbl {
+            1.0
+        } else {
+            -1.0
+        };
+        let stage_cfg = StageConfig::new(&mut rng, home_dir);
+        // Drawn after the stage, so the stage of a seed is the same with or without a camera.
+        let camera = CameraConfig::new(&mut rng);
+        let plate = Plate::new(&mut rng);
+        let stage = Stage::new(stage_cfg, cfg.faults.clone(), cfg.seed, cfg.start_homed);
+        Arc::new(World {
+            stage: Mutex::new(stage),
+            camera,
+            plate,
+            seed: cfg.seed,
+            time_scale: cfg.time_scale,
+        })
+    }
+
+    /// The stage, even if a thread panicked while holding it (the state is plain data).
+    pub fn stage(&self) -> std::sync::MutexGuard<'_, Stage> {
+        self.stage.lock().unwrap_or_else(|e| e.into_inner())
+    }
+}
+
 /// A simulator running on a thread of this process (what `rig --sim` uses).
 pub struct EmbeddedSim {
+    pub world: Arc<World>,
     stop: Arc<AtomicBool>,
     thread: Option<std::thread::JoinHandle<std::io::Result<()>>>,
     pub port: PathBuf,
@@ -107,15 +149,18 @@ impl EmbeddedSim {
         let stop = Arc::new(AtomicBool::new(false));
         let (tx, rx) = std::sync::mpsc::channel();
         let s2 = stop.clone();
+        let world = World::new(&cfg);
+        let w2 = world.clone();
         let thread = std::thread::Builder::new()
             .name("rig-sim".into())
             .spawn(move || {
-                serve(&cfg, &s2, |p| {
+                serve(&cfg, &w2, &s2, |p| {
                     let _ = tx.send(p.to_path_buf());
                 })
             })?;
         match rx.recv_timeout(Duration::from_secs(5)) {
             Ok(port) => Ok(EmbeddedSim {
+                world,
                 stop,
                 thread: Some(thread),
                 port,
@@ -150,16 +195,16 @@ impl Drop for EmbeddedSim {
     }
 }
 
-/// Runs the simulator until `stop` is set. `ready` gets the slave path once it can be opened.
-pub fn serve(cfg: &SimConfig, stop: &AtomicBool, ready: impl FnOnce(&Path)) -> std::io::Result<()> {
-    let mut rng = Rng::new(cfg.seed);
-    let home_dir = if cfg.dialect == Dialect::Grbl {
-        1.0
-    } else {
-        -1.0
-    };
-    let stage_cfg = StageConfig::new(&mut rng, home_dir);
-    let mut stage = Stage::new(stage_cfg, cfg.faults.clone(), cfg.seed, cfg.start_homed);
+/// Runs the stage controller of `world` until `stop` is set. `ready` gets the slave path once
+/// it can be opened. The world's stage is locked for each turn of the loop, never while
+/// waiting for input.
+pub fn serve(
+    cfg: &SimConfig,
+    world: &World,
+    stop: &AtomicBool,
+    ready: impl FnOnce(&Path),
+) -> std::io::Result<()> {
+    let stage = world.stage();
     let mut line = LineFilter::new(cfg.faults.clone(), cfg.seed);
     let mut pty = Some(Pty::open(cfg.stage_link.as_deref())?);
     let mut out = Vec::new();
@@ -191,6 +236,7 @@ pub fn serve(cfg: &SimConfig, stop: &AtomicBool, ready: impl FnOnce(&Path)) -> s
         Ok(())
     };
     write_truth(&stage, &fw, &line, false)?;
+    drop(stage);
 
     let wall0 = Instant::now();
     let mut last_truth = Instant::now();
@@ -199,6 +245,7 @@ pub fn serve(cfg: &SimConfig, stop: &AtomicBool, ready: impl FnOnce(&Path)) -> s
     let mut buf = [0u8; 4096];
     let mut events = Vec::new();
     while !stop.load(Ordering::SeqCst) {
+        let stage = world.stage();
         // Output first, so replies leave before the clock jumps.
         if !out.is_empty() {
             line.outgoing(&out);
@@ -223,8 +270,11 @@ pub fn serve(cfg: &SimConfig, stop: &AtomicBool, ready: impl FnOnce(&Path)) -> s
             20
         };
         let mut got_input = false;
+        drop(stage);
+        let readable = pty.as_ref().is_some_and(|p| p.wait_readable(wait_ms));
+        let mut stage = world.stage();
         if let Some(p) = &pty {
-            if p.wait_readable(wait_ms) {
+            if readable {
                 let n = p.read(&mut buf)?;
                 if n > 0 {
                     got_input = true;
@@ -245,8 +295,9 @@ pub fn serve(cfg: &SimConfig, stop: &AtomicBool, ready: impl FnOnce(&Path)) -> s
             next_t.unwrap_or(stage.t).max(stage.t)
         };
         let fw_t = fw.next_event_time();
+        let now = stage.t;
         stage.advance(
-            fw_t.map_or(target_t, |f| f.min(target_t).max(stage.t)),
+            fw_t.map_or(target_t, |f| f.min(target_t).max(now)),
             &mut events,
         );
         if fw_t.is_some_and(|f| f <= target_t) {
@@ -269,5 +320,6 @@ pub fn serve(cfg: &SimConfig, stop: &AtomicBool, ready: impl FnOnce(&Path)) -> s
             dirty = false;
         }
     }
+    let stage = world.stage();
     write_truth(&stage, &fw, &line, disconnected)
 }
