@@ -273,3 +273,106 @@ mod tests {
         assert!(best < 0.2 && img[0] > 0.8);
     }
 }
+
+/// One frame as the simulated frame grabber delivers it.
+#[derive(Debug, Clone)]
+pub struct SimFrame {
+    pub seq: u64,
+    /// Simulated seconds since the stream started.
+    pub t_s: f64,
+    pub width: usize,
+    pub height: usize,
+    pub bit_depth: u32,
+    pub data: Vec<u16>,
+    /// Where the measuring mark really was (carriage µm): the truth behind this frame.
+    pub mark_um: [f64; 2],
+}
+
+/// A stream of frames from the simulated camera, looking at the world's plate wherever the
+/// world's stage really is. Frames come at the camera's frame rate (time-scaled; never waits at
+/// time scale 0); with `drop_p` > 0 frames are lost on the way, leaving gaps in `seq`.
+pub struct FrameSource {
+    world: std::sync::Arc<crate::server::World>,
+    cfg: CameraConfig,
+    next_seq: u64,
+    drop_p: f64,
+    rng: Rng,
+    started: std::time::Instant,
+    /// Sequence numbers lost on the way (the truth of the drop fault).
+    pub dropped: Vec<u64>,
+    cache: Option<([f64; 2], Vec<f32>)>,
+}
+
+impl FrameSource {
+    pub fn new(world: std::sync::Arc<crate::server::World>, drop_p: f64) -> Self {
+        let cfg = world.camera.clone();
+        let rng = Rng::new(world.seed ^ 0xF4A3E);
+        FrameSource {
+            world,
+            cfg,
+            next_seq: 0,
+            drop_p,
+            rng,
+            started: std::time::Instant::now(),
+            dropped: vec![],
+            cache: None,
+        }
+    }
+
+    pub fn config(&self) -> &CameraConfig {
+        &self.cfg
+    }
+
+    /// Exposure (ms) and gain (`None` = automatic gain).
+    pub fn set_exposure(&mut self, ms: f64) {
+        self.cfg.exposure_ms = ms;
+    }
+
+    pub fn set_gain(&mut self, gain: Option<f64>) {
+        self.cfg.auto_gain = gain.is_none();
+        self.cfg.gain = gain.unwrap_or(1.0);
+    }
+
+    /// The next frame that arrives.
+    pub fn next_frame(&mut self) -> SimFrame {
+        loop {
+            let seq = self.next_seq;
+            self.next_seq += 1;
+            let t_s = seq as f64 / self.cfg.frame_rate_hz;
+            let ts = self.world.time_scale;
+            if ts > 0.0 {
+                let due = std::time::Duration::from_secs_f64(t_s * ts);
+                if let Some(wait) = due.checked_sub(self.started.elapsed()) {
+                    std::thread::sleep(wait);
+                }
+            }
+            if self.rng.chance(self.drop_p) {
+                self.dropped.push(seq);
+                continue;
+            }
+            let mark_um = {
+                let st = self.world.stage();
+                [st.carriage_true(0), st.carriage_true(1)]
+            };
+            // The scene only changes when the stage moves.
+            let ideal = match &self.cache {
+                Some((p, img)) if *p == mark_um => img.clone(),
+                _ => {
+                    let img = render_plate(&self.cfg, &self.world.plate, mark_um);
+                    self.cache = Some((mark_um, img.clone()));
+                    img
+                }
+            };
+            let data = expose(&self.cfg, &ideal, self.world.seed, seq);
+            return SimFrame {
+                seq,
+                t_s,
+                width: self.cfg.width,
+                height: self.cfg.height,
+                bit_depth: self.cfg.bit_depth,
+                data,
+                mark_um,
+            };
+        }
+    }
+}

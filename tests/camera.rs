@@ -1,0 +1,87 @@
+//! The simulated camera through the `Camera` trait: sequence gaps are reported, and the image
+//! shows what lies under the lens where the stage really is.
+
+use rig::camera::{Camera, SimCamera};
+use rig::coords::CarriageUm;
+use rig::digitise::Averager;
+use rig::stage::{self, DriverOptions, Stage};
+use rig_sim::{Dialect, EmbeddedSim, FaultSpec, SimConfig};
+use std::time::Duration;
+
+fn sim() -> EmbeddedSim {
+    EmbeddedSim::start(SimConfig {
+        dialect: Dialect::Native,
+        time_scale: 0.0,
+        start_homed: true,
+        faults: FaultSpec::default(),
+        ..Default::default()
+    })
+    .unwrap()
+}
+
+#[test]
+fn dropped_frames_are_detected() {
+    let s = sim();
+    let mut cam = SimCamera::new(s.world.clone(), 0.1);
+    let mut seqs = Vec::new();
+    for _ in 0..200 {
+        seqs.push(cam.next_frame(Duration::from_secs(1)).unwrap().seq);
+    }
+    let truth = cam.truth_dropped().to_vec();
+    assert!(!truth.is_empty(), "frames were dropped");
+    // Every frame the simulator lost before the last one delivered is counted, and none other.
+    let lost_before_last = truth.iter().filter(|&&q| q < *seqs.last().unwrap()).count() as u64;
+    assert_eq!(cam.dropped(), lost_before_last);
+    for q in truth.iter().filter(|&&q| q < *seqs.last().unwrap()) {
+        assert!(
+            !seqs.contains(q),
+            "seq {q} was reported dropped and delivered"
+        );
+    }
+}
+
+#[test]
+fn the_camera_sees_the_cross_the_stage_is_over() {
+    let s = sim();
+    let mut st = stage::open(
+        &s.port,
+        stage::Dialect::Native,
+        DriverOptions::default(),
+        &Default::default(),
+    )
+    .unwrap();
+    // Drive the plate's central cross under the measuring mark (nominal position: the host
+    // would know it from the plate certificate).
+    let nominal = s.world.plate.crosses[4].nominal_um;
+    st.move_to(CarriageUm::new(nominal[0], nominal[1])).unwrap();
+    let mut cam = SimCamera::new(s.world.clone(), 0.0);
+    let info = cam.info();
+    let mut avg = Averager::new(info.width, info.height);
+    for _ in 0..8 {
+        let f = cam.next_frame(Duration::from_secs(1)).unwrap();
+        avg.add(f.width, f.height, f.seq, &f.data).unwrap();
+    }
+    let img = avg.finish().unwrap().mean;
+    // The cross's centre is where its two arms cross: the darkest 5×5 block.
+    let (mut best, mut at) = (f32::MAX, (0, 0));
+    for r in 10..img.height - 10 {
+        for c in 10..img.width - 10 {
+            let mut sum = 0.0;
+            for dr in 0..5 {
+                for dc in 0..5 {
+                    sum += img.at(c + dc - 2, r + dr - 2);
+                }
+            }
+            if sum < best {
+                best = sum;
+                at = (c, r);
+            }
+        }
+    }
+    let mark = s.world.camera.affine.mark_px;
+    // Within a pixel or two: stage noise, engraving error and backlash are a few µm.
+    assert!(
+        (at.0 as f64 - mark[0]).abs() <= 2.0 && (at.1 as f64 - mark[1]).abs() <= 2.0,
+        "cross at {at:?}, mark at {mark:?}"
+    );
+}
