@@ -4,7 +4,7 @@
 use rig::camera::{Camera, SimCamera};
 use rig::coords::CarriageUm;
 use rig::digitise::Averager;
-use rig::stage::{self, DriverOptions, Stage};
+use rig::stage::{self, DriverOptions};
 use rig_sim::{Dialect, EmbeddedSim, FaultSpec, SimConfig};
 use std::time::Duration;
 
