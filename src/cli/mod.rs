@@ -1,5 +1,6 @@
 //! The `rig` command line.
 
+pub mod camera_cmd;
 pub mod stage_cmd;
 
 use clap::{Parser, Subcommand};
@@ -35,6 +36,19 @@ pub enum Command {
     /// stopped); 1 anything else.
     #[command(verbatim_doc_comment)]
     Stage(stage_cmd::StageArgs),
+    /// Look at the camera and grab averaged, stripe-filtered frames.
+    ///
+    /// Examples:
+    ///   rig camera --sim info
+    ///   rig camera --sim grab --frames 32 -o plate.tiff
+    ///   rig camera --sim grab --frames 32 --no-filter --stretch none -o raw.tiff
+    ///
+    /// `grab` writes a 16-bit TIFF and a JSON sidecar beside it (frames, dropped frames,
+    /// exposure, gain, stage position, the stripe parameters it estimated and removed, and how
+    /// grey levels were mapped). With --sim the stage first moves over the plate's central
+    /// cross (or --at X,Y).
+    #[command(verbatim_doc_comment)]
+    Camera(camera_cmd::CameraArgs),
     /// Run the simulated stage controller on a pseudo-terminal (same as `rig-sim`).
     ///
     /// Prints the pseudo-terminal's path on its first line (and links it at --stage-link), then

@@ -5,6 +5,7 @@
 mod average;
 mod image;
 mod lowpass;
+pub mod output;
 mod stretch;
 mod stripes;
 

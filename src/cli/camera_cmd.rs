@@ -1,0 +1,292 @@
+//! `rig camera`: look at the camera, and grab averaged, stripe-filtered frames.
+
+use anyhow::{bail, Context};
+use clap::{Args, Subcommand};
+use rig::camera::{Camera, SimCamera};
+use rig::coords::CarriageUm;
+use rig::digitise::{estimate_stripes, output, remove_stripes, stretch, Averager};
+use rig::stage::{self, DriverOptions};
+use serde_json::json;
+use std::path::PathBuf;
+use std::time::Duration;
+
+/// Options of `rig camera` (its help text is on `Command::Camera`).
+#[derive(Debug, Args)]
+pub struct CameraArgs {
+    /// Camera device: /dev/videoN (needs the `v4l2` build feature).
+    #[arg(
+        long,
+        value_name = "DEVICE",
+        conflicts_with = "sim",
+        required_unless_present = "sim"
+    )]
+    pub camera: Option<String>,
+    /// Use the built-in simulator (a simulated camera over a simulated, homed stage).
+    #[arg(long)]
+    pub sim: bool,
+    /// Simulator: random seed.
+    #[arg(long, default_value_t = 1, requires = "sim")]
+    pub sim_seed: u64,
+    /// Simulator: probability that a frame is lost on the way.
+    #[arg(long, default_value_t = 0.0, value_name = "P", requires = "sim")]
+    pub sim_frame_drop: f64,
+    /// Print one JSON object on standard output instead of text.
+    #[arg(long, global = true)]
+    pub json: bool,
+    #[command(subcommand)]
+    pub action: CameraAction,
+}
+
+#[derive(Debug, Subcommand)]
+pub enum CameraAction {
+    /// What the camera is: size, bit depth, formats, exposure and gain.
+    Info,
+    /// Average N frames, remove the stripe noise, stretch, write a 16-bit TIFF and a JSON sidecar.
+    Grab {
+        /// Frames to average (the seed used 32).
+        #[arg(long, default_value_t = 32)]
+        frames: u32,
+        /// Keep the stripe noise (no field-shift or column-pattern removal).
+        #[arg(long)]
+        no_filter: bool,
+        /// Clip percentiles of the contrast stretch, LOW,HIGH; `none` keeps the grey levels
+        /// linear (scaled to 16 bits).
+        #[arg(long, default_value = "0.1,99.9", value_name = "LOW,HIGH|none")]
+        stretch: String,
+        /// Exposure, ms.
+        #[arg(long, value_name = "MS")]
+        exposure: Option<f64>,
+        /// Gain, or `auto`.
+        #[arg(long, value_name = "GAIN|auto")]
+        gain: Option<String>,
+        /// Simulator: drive the stage here first, X,Y mm (default: the plate's central cross).
+        #[arg(long, value_name = "X,Y", requires = "sim")]
+        at: Option<String>,
+        /// Output TIFF; the sidecar is written beside it with the extension .json.
+        #[arg(short, long, value_name = "FILE.tiff")]
+        output: PathBuf,
+    },
+}
+
+fn parse_pair(s: &str, what: &str) -> anyhow::Result<(f64, f64)> {
+    let v: Vec<f64> = s
+        .split(',')
+        .map(|x| x.trim().parse::<f64>())
+        .collect::<Result<_, _>>()
+        .with_context(|| format!("{what} `{s}`: expected two numbers A,B"))?;
+    if v.len() != 2 || !v.iter().all(|x| x.is_finite()) {
+        bail!("{what} `{s}`: expected two numbers A,B");
+    }
+    Ok((v[0], v[1]))
+}
+
+/// Runs `rig camera`; returns the exit code.
+pub fn run(a: CameraArgs) -> anyhow::Result<i32> {
+    let (sim, mut cam): (_, Box<dyn Camera>) = if a.sim {
+        if !(0.0..=0.5).contains(&a.sim_frame_drop) {
+            bail!(
+                "--sim-frame-drop {} is out of range: use 0 to 0.5",
+                a.sim_frame_drop
+            );
+        }
+        let s = rig_sim::EmbeddedSim::start(rig_sim::SimConfig {
+            time_scale: 0.0,
+            seed: a.sim_seed,
+            start_homed: true,
+            ..Default::default()
+        })
+        .context("starting the built-in simulator")?;
+        let c = SimCamera::new(s.world.clone(), a.sim_frame_drop);
+        (Some(s), Box::new(c))
+    } else {
+        let dev = a
+            .camera
+            .clone()
+            .expect("clap requires --camera without --sim");
+        bail!("camera {dev}: this build has no V4L2 backend yet; use --sim (the V4L2 backend is the `v4l2` cargo feature, in progress)");
+    };
+    let code = match &a.action {
+        CameraAction::Info => {
+            let info = cam.info();
+            let formats = cam.formats()?;
+            if a.json {
+                println!("{}", json!({"camera": info, "formats": formats}));
+            } else {
+                println!(
+                    "{} ({}): {}×{} px, {} bit, exposure {} ms, gain {}",
+                    info.name,
+                    info.driver,
+                    info.width,
+                    info.height,
+                    info.bit_depth,
+                    info.exposure_ms.map_or("?".into(), |e| format!("{e}")),
+                    info.gain.map_or("auto".into(), |g| format!("{g}"))
+                );
+                for f in formats {
+                    println!(
+                        "  {} {}×{} {} bit{}",
+                        f.fourcc,
+                        f.width,
+                        f.height,
+                        f.bit_depth,
+                        f.refused
+                            .map(|r| format!(" (refused: {r})"))
+                            .unwrap_or_default()
+                    );
+                }
+            }
+            0
+        }
+        CameraAction::Grab {
+            frames,
+            no_filter,
+            stretch: st,
+            exposure,
+            gain,
+            at,
+            output,
+        } => {
+            if *frames == 0 || *frames > 4096 {
+                bail!("--frames {frames} is out of range: use 1 to 4096");
+            }
+            if let Some(ms) = exposure {
+                if !(*ms > 0.0 && *ms < 10_000.0) {
+                    bail!(
+                        "--exposure {ms} is out of range: use more than 0 and less than 10000 ms"
+                    );
+                }
+                cam.set_exposure_ms(*ms)?;
+            }
+            if let Some(g) = gain {
+                let g = if g == "auto" {
+                    None
+                } else {
+                    Some(
+                        g.parse::<f64>()
+                            .ok()
+                            .filter(|v| *v > 0.0)
+                            .with_context(|| {
+                                format!("--gain `{g}`: a positive number or `auto`")
+                            })?,
+                    )
+                };
+                cam.set_gain(g)?;
+            }
+            let clip = if st == "none" {
+                None
+            } else {
+                Some(parse_pair(st, "--stretch")?)
+            };
+            if let Some((lo, hi)) = clip {
+                if !(0.0 <= lo && lo < hi && hi <= 100.0) {
+                    bail!("--stretch {lo},{hi}: need 0 ≤ LOW < HIGH ≤ 100");
+                }
+            }
+            // With the simulator, put something under the lens.
+            let mut stage_mm = None;
+            if let Some(s) = &sim {
+                let (x, y) = match at {
+                    Some(p) => parse_pair(p, "--at")?,
+                    None => {
+                        let c = s.world.plate.crosses[4].nominal_um;
+                        (c[0] / 1000.0, c[1] / 1000.0)
+                    }
+                };
+                let mut st = stage::open(
+                    &s.port,
+                    stage::Dialect::Native,
+                    DriverOptions::default(),
+                    &Default::default(),
+                )?;
+                let p = st.move_to(CarriageUm::from_mm(x, y))?;
+                stage_mm = Some([p.x_mm(), p.y_mm()]);
+            }
+            let info = cam.info();
+            let mut avg = Averager::new(info.width, info.height);
+            for i in 0..*frames {
+                let f = cam.next_frame(Duration::from_secs(5))?;
+                avg.add(f.width, f.height, f.seq, &f.data)?;
+                if !a.json && std::io::IsTerminal::is_terminal(&std::io::stderr()) {
+                    eprint!("\rframes {}/{frames}", i + 1);
+                }
+            }
+            if !a.json && std::io::IsTerminal::is_terminal(&std::io::stderr()) {
+                eprintln!();
+            }
+            let av = avg.finish()?;
+            let mut img = av.mean.clone();
+            let stripes = if *no_filter {
+                None
+            } else {
+                let e = estimate_stripes(&img);
+                remove_stripes(&mut img, &e);
+                Some(e)
+            };
+            let (px, mapping) = match clip {
+                Some((lo, hi)) => {
+                    let (px, s) = stretch(&img, lo, hi);
+                    (
+                        px,
+                        json!({"kind": "stretch", "low_dn": s.low, "high_dn": s.high, "low_percentile": lo, "high_percentile": hi}),
+                    )
+                }
+                None => {
+                    let k = 65535.0 / ((1u64 << info.bit_depth) - 1) as f32;
+                    (
+                        img.data
+                            .iter()
+                            .map(|&v| (v * k).round().clamp(0.0, 65535.0) as u16)
+                            .collect(),
+                        json!({"kind": "linear", "dn_per_output": 1.0 / k}),
+                    )
+                }
+            };
+            output::write_tiff16(output, info.width, info.height, &px)
+                .with_context(|| format!("writing {}", output.display()))?;
+            let noise: f64 =
+                av.std.data.iter().map(|&v| v as f64).sum::<f64>() / av.std.data.len() as f64;
+            let sidecar = json!({
+                "image": output.file_name().map(|f| f.to_string_lossy().to_string()),
+                "width": info.width, "height": info.height,
+                "source_bit_depth": info.bit_depth,
+                "frames": av.frames,
+                "dropped_frames": cam.dropped(),
+                "exposure_ms": info.exposure_ms,
+                "gain": info.gain,
+                "camera": info.name,
+                "stage_position_mm": stage_mm,
+                "mean_frame_noise_dn": noise,
+                "stripes": stripes,
+                "grey_mapping": mapping,
+            });
+            let side = output.with_extension("json");
+            output::write_json(&side, &sidecar)
+                .with_context(|| format!("writing {}", side.display()))?;
+            if a.json {
+                println!("{sidecar}");
+            } else {
+                println!(
+                    "{}: {} frames averaged ({} dropped), {}; sidecar {}",
+                    output.display(),
+                    av.frames,
+                    cam.dropped(),
+                    match &stripes {
+                        Some(s) => format!(
+                            "field shift {:.2} DN and a {}-px column pattern of {:.2} DN removed",
+                            s.field_offset,
+                            s.column_period.map_or("no".into(), |p| p.to_string()),
+                            s.column_amplitude
+                        ),
+                        None => "not filtered".into(),
+                    },
+                    side.display()
+                );
+            }
+            0
+        }
+    };
+    if let Some(s) = sim {
+        s.shutdown().context("stopping the built-in simulator")?;
+    }
+    Ok(code)
+}

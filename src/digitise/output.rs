@@ -1,0 +1,48 @@
+//! Writing digitised images: 16-bit greyscale TIFF, written to a temporary file and renamed, so
+//! a crash never leaves half an image under the final name.
+
+use std::path::Path;
+
+/// Writes `px` (row-major, `width × height`) as a 16-bit greyscale TIFF at `path`, atomically.
+pub fn write_tiff16(path: &Path, width: usize, height: usize, px: &[u16]) -> std::io::Result<()> {
+    let tmp = path.with_extension("tiff.part");
+    let bytes: Vec<u8> = px.iter().flat_map(|v| v.to_ne_bytes()).collect();
+    image::save_buffer_with_format(
+        &tmp,
+        &bytes,
+        width as u32,
+        height as u32,
+        image::ExtendedColorType::L16,
+        image::ImageFormat::Tiff,
+    )
+    .map_err(|e| std::io::Error::other(format!("writing {}: {e}", tmp.display())))?;
+    std::fs::rename(&tmp, path)
+}
+
+/// Reads a 16-bit greyscale TIFF back (for tests and for later stages).
+pub fn read_tiff16(path: &Path) -> std::io::Result<(usize, usize, Vec<u16>)> {
+    let img = image::open(path)
+        .map_err(|e| std::io::Error::other(format!("reading {}: {e}", path.display())))?;
+    let g = img.into_luma16();
+    Ok((g.width() as usize, g.height() as usize, g.into_raw()))
+}
+
+/// Writes JSON next to an image, atomically.
+pub fn write_json(path: &Path, v: &serde_json::Value) -> std::io::Result<()> {
+    let tmp = path.with_extension("json.part");
+    std::fs::write(&tmp, serde_json::to_vec_pretty(v)?)?;
+    std::fs::rename(&tmp, path)
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn tiff_roundtrip() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("a.tiff");
+        let px: Vec<u16> = (0..12).map(|v| v * 5000).collect();
+        super::write_tiff16(&p, 4, 3, &px).unwrap();
+        assert_eq!(super::read_tiff16(&p).unwrap(), (4, 3, px));
+        assert!(!p.with_extension("tiff.part").exists());
+    }
+}
