@@ -1,0 +1,74 @@
+//! `rig camera` through the binary.
+
+mod common;
+use common::*;
+
+#[test]
+fn grab_writes_a_tiff_and_a_sidecar() {
+    let dir = tempfile::tempdir().unwrap();
+    let tiff = dir.path().join("plate.tiff");
+    let out = rig()
+        .args([
+            "camera",
+            "--sim",
+            "--sim-frame-drop",
+            "0.2",
+            "grab",
+            "--frames",
+            "16",
+            "--json",
+            "-o",
+        ])
+        .arg(&tiff)
+        .output()
+        .unwrap();
+    let (code, j, err) = parse(out);
+    assert_eq!(code, 0, "{err}");
+    let (w, h, px) = rig::digitise::output::read_tiff16(&tiff).unwrap();
+    assert_eq!((w, h), (512, 512));
+    // Stretched to the full 16-bit range.
+    assert_eq!(*px.iter().min().unwrap(), 0);
+    assert_eq!(*px.iter().max().unwrap(), 65535);
+    let side: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(tiff.with_extension("json")).unwrap()).unwrap();
+    assert_eq!(side, j, "the sidecar is what --json printed");
+    assert_eq!(side["frames"], 16);
+    assert!(
+        side["dropped_frames"].as_u64().unwrap() > 0,
+        "frame drops were injected and must be reported"
+    );
+    assert_eq!(side["stripes"]["column_period"], 12);
+    assert!((side["stripes"]["field_offset"].as_f64().unwrap() - 4.5).abs() < 0.5);
+    let pos = &side["stage_position_mm"];
+    assert!(
+        (pos[0].as_f64().unwrap() - 125.0).abs() < 0.01
+            && (pos[1].as_f64().unwrap() - 100.0).abs() < 0.01
+    );
+}
+
+#[test]
+fn bad_grab_options_are_named() {
+    let dir = tempfile::tempdir().unwrap();
+    let tiff = dir.path().join("x.tiff");
+    for (args, needle) in [
+        (vec!["--frames", "0"], "--frames"),
+        (vec!["--stretch", "50,10"], "--stretch"),
+        (vec!["--gain", "loud"], "--gain"),
+        (vec!["--exposure", "0"], "--exposure"),
+    ] {
+        let out = rig()
+            .args(["camera", "--sim", "grab"])
+            .args(&args)
+            .arg("-o")
+            .arg(&tiff)
+            .output()
+            .unwrap();
+        assert_ne!(out.status.code(), Some(0), "{args:?}");
+        assert!(
+            String::from_utf8_lossy(&out.stderr).contains(needle),
+            "{args:?}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        assert!(!tiff.exists(), "nothing written on bad options");
+    }
+}
