@@ -2,7 +2,10 @@
 //! gain, a stream of numbered, time-stamped frames, dropped frames counted), with the simulated
 //! camera here and the V4L2 backend behind the `v4l2` feature.
 
+pub mod convert;
 mod sim;
+#[cfg(feature = "v4l2")]
+pub mod v4l2;
 
 pub use sim::SimCamera;
 

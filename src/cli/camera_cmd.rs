@@ -80,6 +80,17 @@ fn parse_pair(s: &str, what: &str) -> anyhow::Result<(f64, f64)> {
     Ok((v[0], v[1]))
 }
 
+/// Opens a real camera by device path.
+#[cfg(feature = "v4l2")]
+fn open_device(dev: &str) -> anyhow::Result<Box<dyn Camera>> {
+    Ok(Box::new(rig::camera::v4l2::V4l2Camera::open(dev)?))
+}
+
+#[cfg(not(feature = "v4l2"))]
+fn open_device(dev: &str) -> anyhow::Result<Box<dyn Camera>> {
+    bail!("camera {dev}: this rig was built without the V4L2 backend; rebuild with `cargo build --release --features v4l2` (needs libclang), or use --sim")
+}
+
 /// Runs `rig camera`; returns the exit code.
 pub fn run(a: CameraArgs) -> anyhow::Result<i32> {
     let (sim, mut cam): (_, Box<dyn Camera>) = if a.sim {
@@ -103,7 +114,7 @@ pub fn run(a: CameraArgs) -> anyhow::Result<i32> {
             .camera
             .clone()
             .expect("clap requires --camera without --sim");
-        bail!("camera {dev}: this build has no V4L2 backend yet; use --sim (the V4L2 backend is the `v4l2` cargo feature, in progress)");
+        (None, open_device(&dev)?)
     };
     let code = match &a.action {
         CameraAction::Info => {
