@@ -3,6 +3,8 @@
 //! sizes over the same kind of pseudo-terminal, in one run. Reported as a ratio: what the
 //! protocol and driver cost on top of the line itself.
 
+mod common;
+
 use criterion::{criterion_group, Criterion};
 use rig::stage::{self, Dialect, DriverOptions, Port};
 use rig_sim::pty::Pty;
@@ -89,23 +91,14 @@ fn roundtrips(c: &mut Criterion) {
 
 criterion_group!(benches, roundtrips);
 
-fn mean_ns(bench: &str) -> Option<f64> {
-    let p = std::path::Path::new(env!("CARGO_TARGET_TMPDIR"))
-        .join("../criterion/status_roundtrip")
-        .join(bench)
-        .join("new/estimates.json");
-    let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(p).ok()?).ok()?;
-    v["mean"]["point_estimate"].as_f64()
-}
-
 fn main() {
     benches();
     Criterion::default().configure_from_args().final_summary();
-    if let Some(base) = mean_ns("raw_echo_pty") {
+    if let Some(base) = common::mean_ns("status_roundtrip", "raw_echo_pty") {
         println!("\nstatus round trip, ratio to a raw echo of the same sizes over a pty:");
         println!("  (a GRBL status is two reports that must agree: its reports carry no checksum)");
         for b in ["native_driver", "grbl_driver"] {
-            if let Some(t) = mean_ns(b) {
+            if let Some(t) = common::mean_ns("status_roundtrip", b) {
                 println!(
                     "  {b:<14} {:>9.1} µs  = {:>5.2} × raw echo ({:.1} µs)",
                     t / 1000.0,

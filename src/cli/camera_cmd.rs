@@ -4,7 +4,7 @@ use anyhow::{bail, Context};
 use clap::{Args, Subcommand};
 use rig::camera::{Camera, SimCamera};
 use rig::coords::CarriageUm;
-use rig::digitise::{estimate_stripes, output, remove_stripes, stretch, Averager};
+use rig::digitise::{average_frames, estimate_stripes, output, remove_stripes, stretch};
 use rig::stage::{self, DriverOptions};
 use serde_json::json;
 use std::path::PathBuf;
@@ -213,10 +213,20 @@ pub fn run(a: CameraArgs) -> anyhow::Result<i32> {
                 stage_mm = Some([p.x_mm(), p.y_mm()]);
             }
             let info = cam.info();
-            let mut avg = Averager::new(info.width, info.height);
+            let mut kept: Vec<Vec<u16>> = Vec::with_capacity(*frames as usize);
             for i in 0..*frames {
                 let f = cam.next_frame(Duration::from_secs(5))?;
-                avg.add(f.width, f.height, f.seq, &f.data)?;
+                if (f.width, f.height) != (info.width, info.height) {
+                    bail!(
+                        "frame {} is {}×{}, the camera said {}×{}",
+                        f.seq,
+                        f.width,
+                        f.height,
+                        info.width,
+                        info.height
+                    );
+                }
+                kept.push(f.data);
                 if !a.json && std::io::IsTerminal::is_terminal(&std::io::stderr()) {
                     eprint!("\rframes {}/{frames}", i + 1);
                 }
@@ -224,7 +234,8 @@ pub fn run(a: CameraArgs) -> anyhow::Result<i32> {
             if !a.json && std::io::IsTerminal::is_terminal(&std::io::stderr()) {
                 eprintln!();
             }
-            let av = avg.finish()?;
+            let refs: Vec<&[u16]> = kept.iter().map(|f| f.as_slice()).collect();
+            let av = average_frames(info.width, info.height, &refs)?;
             let mut img = av.mean.clone();
             let stripes = if *no_filter {
                 None
