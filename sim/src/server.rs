@@ -231,7 +231,12 @@ pub fn serve(
                 &line.counts,
                 disconnected,
             );
-            write_atomic(p, &t)?;
+            // The stage's truth, and the world the camera sees: its parameters, the
+            // pixel→carriage affine and the plate's crosses where they really are.
+            let mut v = serde_json::to_value(&t)?;
+            v["camera"] = serde_json::to_value(&world.camera)?;
+            v["plate"] = serde_json::to_value(&world.plate)?;
+            write_atomic(p, &v)?;
         }
         Ok(())
     };
