@@ -72,3 +72,70 @@ fn bad_grab_options_are_named() {
         assert!(!tiff.exists(), "nothing written on bad options");
     }
 }
+
+#[test]
+fn camera_socket_shows_where_the_stage_moved() {
+    let dir = tempfile::tempdir().unwrap();
+    let sock = dir.path().join("cam.sock");
+    let sim = SimProcess::start(
+        "native",
+        &[
+            "--start-homed",
+            "--camera-drop",
+            "0.1",
+            "--camera-socket",
+            sock.to_str().unwrap(),
+        ],
+    );
+    // Put the plate's central cross under the measuring mark, from another process.
+    let truth = sim.truth();
+    let c = &truth["plate"]["crosses"][4]["nominal_um"];
+    let (x, y) = (
+        c[0].as_f64().unwrap() / 1000.0,
+        c[1].as_f64().unwrap() / 1000.0,
+    );
+    let (code, _, err) = sim.stage("native", &["move", &x.to_string(), &y.to_string()]);
+    assert_eq!(code, 0, "{err}");
+    let tiff = dir.path().join("s.tiff");
+    let cam = format!("sim:{}", sock.display());
+    let (code, j, err) = parse(
+        rig()
+            .args([
+                "camera", "--camera", &cam, "grab", "--frames", "16", "--json", "-o",
+            ])
+            .arg(&tiff)
+            .output()
+            .unwrap(),
+    );
+    assert_eq!(code, 0, "{err}");
+    assert!(
+        j["dropped_frames"].as_u64().unwrap() > 0,
+        "drops over the socket are seen as sequence gaps"
+    );
+    let (w, _, px) = rig::digitise::output::read_tiff16(&tiff).unwrap();
+    // Darkest 5×5 block = where the arms cross = the measuring mark's pixel (from the truth).
+    let mark = &truth["camera"]["affine"]["mark_px"];
+    let (mc, mr) = (mark[0].as_f64().unwrap(), mark[1].as_f64().unwrap());
+    let mut best = (u64::MAX, 0, 0);
+    for r in 5..507 {
+        for cc in 5..507 {
+            let s: u64 = (0..5)
+                .flat_map(|dr| (0..5).map(move |dc| (dr, dc)))
+                .map(|(dr, dc)| px[(r + dr - 2) * w + cc + dc - 2] as u64)
+                .sum();
+            if s < best.0 {
+                best = (s, cc, r);
+            }
+        }
+    }
+    assert!(
+        (best.1 as f64 - mc).abs() <= 2.0 && (best.2 as f64 - mr).abs() <= 2.0,
+        "cross at {:?}, mark at {mc},{mr}",
+        (best.1, best.2)
+    );
+    sim.stop(); // SIGTERM
+    assert!(
+        !sock.exists(),
+        "the socket is removed when the simulator stops on SIGTERM"
+    );
+}

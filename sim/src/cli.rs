@@ -35,6 +35,13 @@ pub struct SimArgs {
     /// Start as if already homed.
     #[arg(long)]
     pub start_homed: bool,
+    /// Also serve the simulated camera on a Unix socket here (see sim/CAMERA_SOCKET.md); the
+    /// host opens it as `--camera sim:PATH`.
+    #[arg(long, value_name = "PATH")]
+    pub camera_socket: Option<PathBuf>,
+    /// Probability that a camera frame is lost on the way.
+    #[arg(long, default_value_t = 0.0, value_name = "P")]
+    pub camera_drop: f64,
 }
 
 fn parse_faults(s: &str) -> Result<FaultSpec, String> {
@@ -62,6 +69,20 @@ pub fn run(args: SimArgs) -> std::io::Result<()> {
         start_homed: args.start_homed,
     };
     let world = crate::server::World::new(&cfg);
+    if !(0.0..=0.5).contains(&args.camera_drop) {
+        return Err(std::io::Error::other(format!(
+            "--camera-drop {} must be between 0 and 0.5",
+            args.camera_drop
+        )));
+    }
+    let _camera = match &args.camera_socket {
+        Some(p) => Some(crate::camera_socket::serve_camera(
+            world.clone(),
+            p,
+            args.camera_drop,
+        )?),
+        None => None,
+    };
     serve(&cfg, &world, &stop, |p| {
         use std::io::Write;
         println!("{}", p.display());

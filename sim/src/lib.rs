@@ -9,6 +9,7 @@
 //! - [`server`]: the loop that ties them together; [`truth`]: the truth file.
 
 pub mod camera;
+pub mod camera_socket;
 pub mod cli;
 pub mod faults;
 pub mod grbl;

@@ -4,6 +4,7 @@
 
 pub mod convert;
 mod sim;
+pub mod socket;
 #[cfg(feature = "v4l2")]
 pub mod v4l2;
 

@@ -13,7 +13,8 @@ use std::time::Duration;
 /// Options of `rig camera` (its help text is on `Command::Camera`).
 #[derive(Debug, Args)]
 pub struct CameraArgs {
-    /// Camera device: /dev/videoN (needs the `v4l2` build feature).
+    /// Camera: /dev/videoN (needs the `v4l2` build feature) or sim:SOCKET (a running
+    /// `rig-sim --camera-socket SOCKET`).
     #[arg(
         long,
         value_name = "DEVICE",
@@ -80,14 +81,21 @@ fn parse_pair(s: &str, what: &str) -> anyhow::Result<(f64, f64)> {
     Ok((v[0], v[1]))
 }
 
-/// Opens a real camera by device path.
-#[cfg(feature = "v4l2")]
+/// Opens a camera by name: `sim:SOCKET` (a running `rig-sim --camera-socket`) or a device path.
 fn open_device(dev: &str) -> anyhow::Result<Box<dyn Camera>> {
+    match dev.strip_prefix("sim:") {
+        Some(path) => Ok(Box::new(rig::camera::socket::SocketCamera::open(path)?)),
+        None => open_v4l2(dev),
+    }
+}
+
+#[cfg(feature = "v4l2")]
+fn open_v4l2(dev: &str) -> anyhow::Result<Box<dyn Camera>> {
     Ok(Box::new(rig::camera::v4l2::V4l2Camera::open(dev)?))
 }
 
 #[cfg(not(feature = "v4l2"))]
-fn open_device(dev: &str) -> anyhow::Result<Box<dyn Camera>> {
+fn open_v4l2(dev: &str) -> anyhow::Result<Box<dyn Camera>> {
     bail!("camera {dev}: this rig was built without the V4L2 backend; rebuild with `cargo build --release --features v4l2` (needs libclang), or use --sim")
 }
 
