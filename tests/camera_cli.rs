@@ -42,7 +42,7 @@ fn grab_writes_a_tiff_and_a_sidecar() {
     let pos = &side["stage_position_mm"];
     assert!(
         (pos[0].as_f64().unwrap() - 125.0).abs() < 0.01
-            && (pos[1].as_f64().unwrap() - 100.0).abs() < 0.01
+            && (pos[1].as_f64().unwrap() - 125.0).abs() < 0.01
     );
 }
 

@@ -93,7 +93,7 @@ fn settings_moves_dwell_and_errors() {
         "$22=1\r\n",
         "$27=1\r\n",
         "$130=250\r\n",
-        "$131=200\r\n",
+        "$131=250\r\n",
         "$110=1200\r\n",
     ] {
         assert!(out.contains(s), "missing {s:?} in {out:?}");

@@ -83,7 +83,7 @@ fn targets_outside_the_soft_limits_are_refused_before_sending() {
         for (x, y) in [
             ("250.5", "10"),
             ("-0.001", "10"),
-            ("10", "200.01"),
+            ("10", "250.01"),
             ("10", "-3"),
         ] {
             let (code, j, err) = sim.stage(d, &["--wire-log", log_s, "move", "--", x, y]);

@@ -28,11 +28,11 @@ pub struct Plate {
 }
 
 impl Plate {
-    /// The plate of a 250 × 200 mm carriage: crosses at 25/125/225 mm × 20/100/180 mm, each
+    /// The plate of a 250 × 250 mm carriage: crosses at 25/125/225 mm on both axes, each
     /// engraved within about ±1.5 µm of nominal.
     pub fn new(rng: &mut Rng) -> Plate {
         let mut crosses = Vec::new();
-        for (j, y) in [20_000.0, 100_000.0, 180_000.0].into_iter().enumerate() {
+        for (j, y) in [25_000.0, 125_000.0, 225_000.0].into_iter().enumerate() {
             for (i, x) in [25_000.0, 125_000.0, 225_000.0].into_iter().enumerate() {
                 let err = [rng.normal() * 0.8, rng.normal() * 0.8];
                 crosses.push(Cross {

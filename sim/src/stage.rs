@@ -37,7 +37,7 @@ pub struct StageConfig {
 
 impl StageConfig {
     pub fn new(rng: &mut Rng, home_dir: f64) -> Self {
-        let travel = [250_000.0, 200_000.0];
+        let travel = [250_000.0, 250_000.0];
         let max_sw = |t: f64| if home_dir > 0.0 { t } else { t + 500.0 };
         StageConfig {
             travel_um: travel,
