@@ -85,3 +85,52 @@ fn the_camera_sees_the_cross_the_stage_is_over() {
         "cross at {at:?}, mark at {mark:?}"
     );
 }
+
+#[test]
+fn the_camera_sees_each_fiducial_where_the_film_lies() {
+    let s = EmbeddedSim::start(SimConfig {
+        dialect: Dialect::Native,
+        time_scale: 0.0,
+        start_homed: true,
+        film: true,
+        ..Default::default()
+    })
+    .unwrap();
+    let film = s.world.film.clone().expect("a film is loaded");
+    let mut st = stage::open(
+        &s.port,
+        stage::Dialect::Native,
+        DriverOptions::default(),
+        &Default::default(),
+    )
+    .unwrap();
+    let mut cam = SimCamera::new(s.world.clone(), 0.0);
+    let mark = s.world.camera.affine.mark_px;
+    for fid in film.fiducials.iter() {
+        // The truth's placement puts the fiducial's centre here on the carriage.
+        let c = film.to_carriage(fid.photo_mm);
+        st.move_to(CarriageUm::new(c[0], c[1])).unwrap();
+        let f = cam.next_frame(Duration::from_secs(1)).unwrap();
+        // Centroid of darkness within 12 px of the mark: only the centre dot is that close
+        // (lines start 15 px out, rings lie at 30 px).
+        let w = f.width;
+        let bright = f.data[20 * w + 20] as f64; // clear film base far from the mark
+        let (mut sw, mut sx, mut sy) = (0.0, 0.0, 0.0);
+        for r in (mark[1] as usize - 12)..=(mark[1] as usize + 12) {
+            for cc in (mark[0] as usize - 12)..=(mark[0] as usize + 12) {
+                let d = (bright - f.data[r * w + cc] as f64).max(0.0);
+                let d = if d > 0.4 * bright { d } else { 0.0 };
+                sw += d;
+                sx += d * (cc as f64 + 0.5);
+                sy += d * (r as f64 + 0.5);
+            }
+        }
+        let at = (sx / sw, sy / sw);
+        assert!(
+            (at.0 - mark[0]).abs() <= 1.0 && (at.1 - mark[1]).abs() <= 1.0,
+            "fiducial {} ({:?}) at {at:?}, mark at {mark:?}",
+            fid.id,
+            fid.shape
+        );
+    }
+}

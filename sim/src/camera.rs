@@ -183,6 +183,30 @@ pub fn render_plate(cfg: &CameraConfig, plate: &Plate, mark_um: [f64; 2]) -> Vec
     img
 }
 
+/// The noiseless image of everything under the lens: the plate and, where it lies, the film.
+pub fn render_scene(
+    cfg: &CameraConfig,
+    plate: &Plate,
+    film: Option<&crate::film::Film>,
+    mark_um: [f64; 2],
+) -> Vec<f32> {
+    let mut img = render_plate(cfg, plate, mark_um);
+    if let Some(f) = film {
+        let af = &cfg.affine;
+        let s2 = cfg.psf_sigma_px * cfg.psf_sigma_px + 1.0 / 12.0;
+        // One blur for the film: the mean of the two pixel spacings.
+        let s = s2.sqrt() * 0.5 * (af.a[0].hypot(af.b[0]) + af.a[1].hypot(af.b[1]));
+        for row in 0..cfg.height {
+            for col in 0..cfg.width {
+                let l = af.local_um(col as f64 + 0.5, row as f64 + 0.5);
+                let t = f.transmittance([mark_um[0] + l[0], mark_um[1] + l[1]], s);
+                img[row * cfg.width + col] *= t as f32;
+            }
+        }
+    }
+    img
+}
+
 /// Turns a noiseless image into one frame from the sensor: gain, dust, shot and read noise
 /// (more on the top rows), the field shift, the stripes, quantisation. `seq` is the frame
 /// number (it drives the gain flicker and seeds the noise with `seed`).
@@ -358,7 +382,12 @@ impl FrameSource {
             let ideal = match &self.cache {
                 Some((p, img)) if *p == mark_um => img.clone(),
                 _ => {
-                    let img = render_plate(&self.cfg, &self.world.plate, mark_um);
+                    let img = render_scene(
+                        &self.cfg,
+                        &self.world.plate,
+                        self.world.film.as_ref(),
+                        mark_um,
+                    );
                     self.cache = Some((mark_um, img.clone()));
                     img
                 }

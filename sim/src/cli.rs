@@ -39,6 +39,9 @@ pub struct SimArgs {
     /// host opens it as `--camera sim:PATH`.
     #[arg(long, value_name = "PATH")]
     pub camera_socket: Option<PathBuf>,
+    /// Lay a film (an RC10-like frame with 8 fiducials) on the carriage.
+    #[arg(long)]
+    pub film: bool,
     /// Probability that a camera frame is lost on the way.
     #[arg(long, default_value_t = 0.0, value_name = "P")]
     pub camera_drop: f64,
@@ -67,6 +70,7 @@ pub fn run(args: SimArgs) -> std::io::Result<()> {
         truth: args.truth,
         stage_link: args.stage_link,
         start_homed: args.start_homed,
+        film: args.film,
     };
     let world = crate::server::World::new(&cfg);
     if !(0.0..=0.5).contains(&args.camera_drop) {

@@ -12,6 +12,7 @@ pub mod camera;
 pub mod camera_socket;
 pub mod cli;
 pub mod faults;
+pub mod film;
 pub mod grbl;
 pub mod native;
 pub mod plate;

@@ -45,6 +45,8 @@ pub struct SimConfig {
     pub stage_link: Option<PathBuf>,
     /// Start as if homed before (for one-shot commands against an embedded simulator).
     pub start_homed: bool,
+    /// A film lies on the carriage.
+    pub film: bool,
 }
 
 impl Default for SimConfig {
@@ -57,6 +59,7 @@ impl Default for SimConfig {
             truth: None,
             stage_link: None,
             start_homed: false,
+            film: false,
         }
     }
 }
@@ -104,6 +107,7 @@ pub struct World {
     pub stage: Mutex<Stage>,
     pub camera: CameraConfig,
     pub plate: Plate,
+    pub film: Option<crate::film::Film>,
     pub seed: u64,
     pub time_scale: f64,
 }
@@ -120,11 +124,15 @@ impl World {
         // Drawn after the stage, so the stage of a seed is the same with or without a camera.
         let camera = CameraConfig::new(&mut rng);
         let plate = Plate::new(&mut rng);
+        // Drawn whether loaded or not, so a seed's world is the same either way.
+        let film = crate::film::Film::rc10(&mut rng);
+        let film = cfg.film.then_some(film);
         let stage = Stage::new(stage_cfg, cfg.faults.clone(), cfg.seed, cfg.start_homed);
         Arc::new(World {
             stage: Mutex::new(stage),
             camera,
             plate,
+            film,
             seed: cfg.seed,
             time_scale: cfg.time_scale,
         })
@@ -236,6 +244,7 @@ pub fn serve(
             let mut v = serde_json::to_value(&t)?;
             v["camera"] = serde_json::to_value(&world.camera)?;
             v["plate"] = serde_json::to_value(&world.plate)?;
+            v["film"] = serde_json::to_value(&world.film)?;
             write_atomic(p, &v)?;
         }
         Ok(())

@@ -28,6 +28,9 @@ pub struct CameraArgs {
     /// Simulator: random seed.
     #[arg(long, default_value_t = 1, requires = "sim")]
     pub sim_seed: u64,
+    /// Simulator: lay a film (8 fiducials, a textured picture) on the carriage.
+    #[arg(long, requires = "sim")]
+    pub sim_film: bool,
     /// Simulator: probability that a frame is lost on the way.
     #[arg(long, default_value_t = 0.0, value_name = "P", requires = "sim")]
     pub sim_frame_drop: f64,
@@ -112,6 +115,7 @@ pub fn run(a: CameraArgs) -> anyhow::Result<i32> {
             time_scale: 0.0,
             seed: a.sim_seed,
             start_homed: true,
+            film: a.sim_film,
             ..Default::default()
         })
         .context("starting the built-in simulator")?;

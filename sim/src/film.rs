@@ -1,0 +1,233 @@
+//! A film on the carriage: an RC10-like frame (230 mm, fiducial centre as photo origin) with 8
+//! fiducials of two shapes (4 corner rings with a centre dot; 4 mid-side dots with short lines
+//! pointing to the centre), laid on the carriage with an unknown shift, rotation and slight
+//! film deformation, all part of the truth. The picture area carries a procedural texture with
+//! multiplicative grain until the aerial photo rendered from a DEM replaces it (issue 5).
+
+use crate::camera::erf;
+use crate::rng::Rng;
+use serde::Serialize;
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum FiducialShape {
+    /// A ring (radius 300 µm) around a centre dot (radius 40 µm); lines 40 µm wide.
+    RingWithDot,
+    /// A dot (radius 60 µm) with a line 40 µm wide from 150 to 600 µm toward the photo centre.
+    DotWithLine,
+}
+
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct Fiducial {
+    pub id: u32,
+    pub shape: FiducialShape,
+    /// Calibrated photo coordinates, mm (what a camera certificate lists).
+    pub photo_mm: [f64; 2],
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct Film {
+    pub fiducials: Vec<Fiducial>,
+    /// Photo (mm) → carriage (µm): `x = p[0] + p[1]·u + p[2]·v`, `y = p[3] + p[4]·u + p[5]·v`.
+    pub photo_to_carriage: [f64; 6],
+    /// Transmittance of the clear film base and of a fiducial's dark.
+    pub base: f64,
+    pub mark: f64,
+    /// Half-size of the film frame and of the picture area, mm.
+    pub frame_half_mm: f64,
+    pub picture_half_mm: f64,
+    pub texture_seed: u64,
+}
+
+const LINE_UM: f64 = 40.0;
+
+fn band(d: f64, half: f64, s: f64) -> f64 {
+    let k = std::f64::consts::SQRT_2 * s;
+    0.5 * (erf((d + half) / k) - erf((d - half) / k))
+}
+
+fn disk(r: f64, radius: f64, s: f64) -> f64 {
+    0.5 * (1.0 - erf((r - radius) / (std::f64::consts::SQRT_2 * s)))
+}
+
+/// Smooth value noise in [0, 1) on a unit lattice.
+fn value_noise(seed: u64, x: f64, y: f64) -> f64 {
+    let h = |i: i64, j: i64| -> f64 {
+        let mut z = seed
+            ^ (i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
+            ^ (j as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F);
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
+    };
+    let (i, j) = (x.floor() as i64, y.floor() as i64);
+    let (fx, fy) = (x - x.floor(), y - y.floor());
+    let (sx, sy) = (fx * fx * (3.0 - 2.0 * fx), fy * fy * (3.0 - 2.0 * fy));
+    let a = h(i, j) + sx * (h(i + 1, j) - h(i, j));
+    let b = h(i, j + 1) + sx * (h(i + 1, j + 1) - h(i, j + 1));
+    a + sy * (b - a)
+}
+
+impl Film {
+    /// An RC10-like film laid on the middle of the carriage, slightly shifted, rotated and
+    /// deformed.
+    pub fn rc10(rng: &mut Rng) -> Film {
+        let mut fiducials = Vec::new();
+        let mut cal = |x: f64, y: f64| [x + 0.005 * rng.normal(), y + 0.005 * rng.normal()];
+        for (i, (x, y)) in [
+            (-106.0, -106.0),
+            (106.0, -106.0),
+            (106.0, 106.0),
+            (-106.0, 106.0),
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            fiducials.push(Fiducial {
+                id: i as u32 + 1,
+                shape: FiducialShape::RingWithDot,
+                photo_mm: cal(x, y),
+            });
+        }
+        for (i, (x, y)) in [(0.0, -112.0), (112.0, 0.0), (0.0, 112.0), (-112.0, 0.0)]
+            .into_iter()
+            .enumerate()
+        {
+            fiducials.push(Fiducial {
+                id: i as u32 + 5,
+                shape: FiducialShape::DotWithLine,
+                photo_mm: cal(x, y),
+            });
+        }
+        let rot = (rng.uniform() - 0.5) * 0.6f64.to_radians();
+        let (sx, sy, shear) = (
+            1.0 + 2e-4 * rng.normal(),
+            1.0 + 2e-4 * rng.normal(),
+            1e-4 * rng.normal(),
+        );
+        let (c, s) = (rot.cos(), rot.sin());
+        let centre = [
+            125_000.0 + 800.0 * rng.normal(),
+            125_000.0 + 800.0 * rng.normal(),
+        ];
+        // µm per mm, with the deformation, then the rotation.
+        let (a1, a2) = (1000.0 * sx, 1000.0 * shear);
+        let (b1, b2) = (0.0, 1000.0 * sy);
+        let photo_to_carriage = [
+            centre[0],
+            c * a1 - s * b1,
+            c * a2 - s * b2,
+            centre[1],
+            s * a1 + c * b1,
+            s * a2 + c * b2,
+        ];
+        Film {
+            fiducials,
+            photo_to_carriage,
+            base: 0.9,
+            mark: 0.08,
+            frame_half_mm: 116.0,
+            picture_half_mm: 100.0,
+            texture_seed: rng.next_u64(),
+        }
+    }
+
+    pub fn to_carriage(&self, photo_mm: [f64; 2]) -> [f64; 2] {
+        let p = &self.photo_to_carriage;
+        [
+            p[0] + p[1] * photo_mm[0] + p[2] * photo_mm[1],
+            p[3] + p[4] * photo_mm[0] + p[5] * photo_mm[1],
+        ]
+    }
+
+    pub fn to_photo(&self, carriage_um: [f64; 2]) -> [f64; 2] {
+        let p = &self.photo_to_carriage;
+        let det = p[1] * p[5] - p[2] * p[4];
+        let (dx, dy) = (carriage_um[0] - p[0], carriage_um[1] - p[3]);
+        [
+            (p[5] * dx - p[2] * dy) / det,
+            (-p[4] * dx + p[1] * dy) / det,
+        ]
+    }
+
+    /// The picture's transmittance (texture, grain) at photo coordinates (mm).
+    fn picture(&self, u: f64, v: f64) -> f64 {
+        let t = 0.5
+            + 0.2 * (u / 3.1).sin() * (v / 2.3).cos()
+            + 0.35 * (value_noise(self.texture_seed, u / 1.7, v / 1.7) - 0.5);
+        let grain =
+            1.0 + 0.06 * (value_noise(self.texture_seed ^ 0x6A, u * 200.0, v * 200.0) - 0.5);
+        (t * grain).clamp(0.05, 0.95)
+    }
+
+    /// Transmittance of the film at carriage point `c` (µm), blurred by `s` µm; 1 off the film.
+    pub fn transmittance(&self, c: [f64; 2], s: f64) -> f64 {
+        let [u, v] = self.to_photo(c);
+        if u.abs() > self.frame_half_mm || v.abs() > self.frame_half_mm {
+            return 1.0;
+        }
+        if u.abs() <= self.picture_half_mm && v.abs() <= self.picture_half_mm {
+            return self.picture(u, v);
+        }
+        let mut clear = 1.0;
+        for f in &self.fiducials {
+            let d = [(u - f.photo_mm[0]) * 1000.0, (v - f.photo_mm[1]) * 1000.0];
+            let r = d[0].hypot(d[1]);
+            if r > 1_000.0 {
+                continue;
+            }
+            let cov = match f.shape {
+                FiducialShape::RingWithDot => {
+                    let ring = band(r - 300.0, LINE_UM / 2.0, s);
+                    let dot = disk(r, 40.0, s);
+                    ring + dot - ring * dot
+                }
+                FiducialShape::DotWithLine => {
+                    let n = f.photo_mm[0].hypot(f.photo_mm[1]);
+                    let inward = [-f.photo_mm[0] / n, -f.photo_mm[1] / n];
+                    let along = d[0] * inward[0] + d[1] * inward[1];
+                    let across = -d[0] * inward[1] + d[1] * inward[0];
+                    let line = band(across, LINE_UM / 2.0, s) * band(along - 375.0, 225.0, s);
+                    let dot = disk(r, 60.0, s);
+                    line + dot - line * dot
+                }
+            };
+            clear *= 1.0 - cov;
+        }
+        self.base * (1.0 - (1.0 - self.mark / self.base) * (1.0 - clear))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn placement_inverts() {
+        let f = Film::rc10(&mut Rng::new(3));
+        for p in [[0.0, 0.0], [106.0, -106.0], [-50.5, 77.25]] {
+            let q = f.to_photo(f.to_carriage(p));
+            assert!((q[0] - p[0]).abs() < 1e-9 && (q[1] - p[1]).abs() < 1e-9);
+        }
+        // Fiducials stay inside the 250 mm travel.
+        for fid in &f.fiducials {
+            let c = f.to_carriage(fid.photo_mm);
+            assert!(c.iter().all(|&v| v > 2_000.0 && v < 248_000.0), "{c:?}");
+        }
+    }
+
+    #[test]
+    fn fiducials_are_dark_at_their_centre_and_clear_around() {
+        let f = Film::rc10(&mut Rng::new(4));
+        for fid in &f.fiducials {
+            let c = f.to_carriage(fid.photo_mm);
+            assert!(f.transmittance(c, 5.0) < 0.15, "{:?} centre", fid.id);
+            // 200 µm off the centre, away from every line: clear base.
+            let off = f.to_carriage([
+                fid.photo_mm[0] + 0.15 * fid.photo_mm[1].signum(),
+                fid.photo_mm[1] - 0.15 * fid.photo_mm[0].signum(),
+            ]);
+            assert!(f.transmittance(off, 5.0) > 0.85, "{:?} surround", fid.id);
+        }
+    }
+}
