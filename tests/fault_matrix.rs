@@ -150,6 +150,7 @@ fn run_trial(kind: &str, spec: &str, dialect: Dialect, seed: u64, cell: &mut Cel
         truth: Some(truth.clone()),
         stage_link: None,
         start_homed: false,
+        film: false,
     })
     .unwrap();
     cell.trials += 1;
