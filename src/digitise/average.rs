@@ -124,15 +124,19 @@ fn tile_body(frames: &[&[u16]], off: usize, m: &mut [f32], s: &mut [f32]) {
     let mut max = 0u16;
     for f in frames {
         let src = &f[off..off + len];
-        max = max.max(src.iter().copied().max().unwrap_or(0));
         // Indexed over slices of one length, so the bounds checks go and the loop vectorises
         // (a three-way zip did not).
         let (a, b, src) = (&mut sum[..len], &mut sq32[..len], &src[..len]);
+        // One read of each pixel: the largest value (which tells whether the squares fit) is
+        // taken in the same pass as the sums.
+        let mut m = 0u16;
         for i in 0..len {
+            m = m.max(src[i]);
             let v = src[i] as u32;
             a[i] = a[i].wrapping_add(v);
             b[i] = b[i].wrapping_add(v * v);
         }
+        max = max.max(m);
     }
     let inv_n = 1.0 / n as f64;
     let inv_n1 = if n > 1 { 1.0 / (n as f64 - 1.0) } else { 0.0 };
