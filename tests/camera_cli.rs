@@ -139,3 +139,27 @@ fn camera_socket_shows_where_the_stage_moved() {
         "the socket is removed when the simulator stops on SIGTERM"
     );
 }
+
+#[test]
+fn camera_needs_a_device_and_list_explains_the_build() {
+    let out = rig().args(["camera", "info"]).output().unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--camera"));
+    let out = rig().args(["camera", "list"]).output().unwrap();
+    if cfg!(feature = "v4l2") {
+        assert_eq!(out.status.code(), Some(0));
+    } else {
+        assert_ne!(out.status.code(), Some(0));
+        assert!(String::from_utf8_lossy(&out.stderr).contains("--features v4l2"));
+    }
+    let out = rig()
+        .args(["camera", "--camera", "sim:/nonexistent/cam.sock", "info"])
+        .output()
+        .unwrap();
+    assert_ne!(out.status.code(), Some(0));
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains("camera-socket"),
+        "says how to start the simulator: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}

@@ -15,12 +15,7 @@ use std::time::Duration;
 pub struct CameraArgs {
     /// Camera: /dev/videoN (needs the `v4l2` build feature) or sim:SOCKET (a running
     /// `rig-sim --camera-socket SOCKET`).
-    #[arg(
-        long,
-        value_name = "DEVICE",
-        conflicts_with = "sim",
-        required_unless_present = "sim"
-    )]
+    #[arg(long, value_name = "DEVICE", conflicts_with = "sim")]
     pub camera: Option<String>,
     /// Use the built-in simulator (a simulated camera over a simulated, homed stage).
     #[arg(long)]
@@ -43,6 +38,8 @@ pub struct CameraArgs {
 
 #[derive(Debug, Subcommand)]
 pub enum CameraAction {
+    /// The V4L2 cameras on this machine.
+    List,
     /// What the camera is: size, bit depth, formats, exposure and gain.
     Info,
     /// Average N frames, remove the stripe noise, stretch, write a 16-bit TIFF and a JSON sidecar.
@@ -102,8 +99,42 @@ fn open_v4l2(dev: &str) -> anyhow::Result<Box<dyn Camera>> {
     bail!("camera {dev}: this rig was built without the V4L2 backend; rebuild with `cargo build --release --features v4l2` (needs libclang), or use --sim")
 }
 
+/// `rig camera list`.
+#[cfg(feature = "v4l2")]
+fn list(as_json: bool) -> anyhow::Result<i32> {
+    let devs = rig::camera::v4l2::list_devices();
+    if as_json {
+        println!(
+            "{}",
+            json!(devs
+                .iter()
+                .map(|(p, n)| json!({"device": p, "name": n}))
+                .collect::<Vec<_>>())
+        );
+    } else if devs.is_empty() {
+        println!("no V4L2 cameras found (is one plugged in, and may this user open /dev/video*?)");
+    } else {
+        for (p, n) in devs {
+            println!("{p}  {n}");
+        }
+    }
+    Ok(0)
+}
+
+#[cfg(not(feature = "v4l2"))]
+fn list(_as_json: bool) -> anyhow::Result<i32> {
+    bail!("this rig was built without the V4L2 backend; rebuild with `cargo build --release --features v4l2` (needs libclang) to list cameras")
+}
+
 /// Runs `rig camera`; returns the exit code.
 pub fn run(a: CameraArgs) -> anyhow::Result<i32> {
+    if let CameraAction::List = a.action {
+        return list(a.json);
+    }
+    if a.camera.is_none() && !a.sim {
+        eprintln!("rig camera: name a camera with --camera DEVICE (/dev/videoN or sim:SOCKET), or use --sim");
+        return Ok(2);
+    }
     let (sim, mut cam): (_, Box<dyn Camera>) = if a.sim {
         if !(0.0..=0.5).contains(&a.sim_frame_drop) {
             bail!(
@@ -129,6 +160,7 @@ pub fn run(a: CameraArgs) -> anyhow::Result<i32> {
         (None, open_device(&dev)?)
     };
     let code = match &a.action {
+        CameraAction::List => unreachable!("handled above"),
         CameraAction::Info => {
             let info = cam.info();
             let formats = cam.formats()?;
