@@ -8,20 +8,33 @@ use rig::stage::{self, DriverOptions};
 use rig_sim::{Dialect, EmbeddedSim, FaultSpec, SimConfig};
 use std::time::Duration;
 
-fn sim() -> EmbeddedSim {
+/// A simulator at time scale 0, homed, with or without a film.
+fn sim(film: bool) -> EmbeddedSim {
     EmbeddedSim::start(SimConfig {
         dialect: Dialect::Native,
         time_scale: 0.0,
         start_homed: true,
         faults: FaultSpec::default(),
+        film,
         ..Default::default()
     })
     .unwrap()
 }
 
+/// The stage driver on a simulator.
+fn open_stage(s: &EmbeddedSim) -> Box<dyn rig::stage::Stage> {
+    stage::open(
+        &s.port,
+        stage::Dialect::Native,
+        DriverOptions::default(),
+        &Default::default(),
+    )
+    .unwrap()
+}
+
 #[test]
 fn dropped_frames_are_detected() {
-    let s = sim();
+    let s = sim(false);
     let mut cam = SimCamera::new(s.world.clone(), 0.1);
     let mut seqs = Vec::new();
     for _ in 0..200 {
@@ -42,14 +55,8 @@ fn dropped_frames_are_detected() {
 
 #[test]
 fn the_camera_sees_the_cross_the_stage_is_over() {
-    let s = sim();
-    let mut st = stage::open(
-        &s.port,
-        stage::Dialect::Native,
-        DriverOptions::default(),
-        &Default::default(),
-    )
-    .unwrap();
+    let s = sim(false);
+    let mut st = open_stage(&s);
     // Drive the plate's central cross under the measuring mark (nominal position: the host
     // would know it from the plate certificate).
     let nominal = s.world.plate.crosses[4].nominal_um;
@@ -88,22 +95,9 @@ fn the_camera_sees_the_cross_the_stage_is_over() {
 
 #[test]
 fn the_camera_sees_each_fiducial_where_the_film_lies() {
-    let s = EmbeddedSim::start(SimConfig {
-        dialect: Dialect::Native,
-        time_scale: 0.0,
-        start_homed: true,
-        film: true,
-        ..Default::default()
-    })
-    .unwrap();
+    let s = sim(true);
     let film = s.world.film.clone().expect("a film is loaded");
-    let mut st = stage::open(
-        &s.port,
-        stage::Dialect::Native,
-        DriverOptions::default(),
-        &Default::default(),
-    )
-    .unwrap();
+    let mut st = open_stage(&s);
     let mut cam = SimCamera::new(s.world.clone(), 0.0);
     let mark = s.world.camera.affine.mark_px;
     for fid in film.fiducials.iter() {
