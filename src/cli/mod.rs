@@ -47,6 +47,9 @@ pub enum Command {
     /// exposure, gain, stage position, the stripe parameters it estimated and removed, and how
     /// grey levels were mapped). With --sim the stage first moves over the plate's central
     /// cross (or --at X,Y).
+    ///
+    /// Exit codes: 0 done; 2 bad usage; 1 any other error (the message names the camera,
+    /// file or option).
     #[command(verbatim_doc_comment)]
     Camera(camera_cmd::CameraArgs),
     /// Run the simulated stage controller on a pseudo-terminal (same as `rig-sim`).
