@@ -144,17 +144,28 @@ fn band(d: f64, half: f64, s: f64) -> f64 {
     0.5 * (erf((d + half) / k) - erf((d - half) / k))
 }
 
+/// Pixel spacing along x and along y, µm.
+fn spacing_um(cfg: &CameraConfig) -> [f64; 2] {
+    let af = &cfg.affine;
+    [af.a[0].hypot(af.b[0]), af.a[1].hypot(af.b[1])]
+}
+
+/// Blur of one pixel's sample in µm along x and along y: the optics' Gaussian and the pixel's
+/// own box (variance 1/12 px²).
+fn blur_um(cfg: &CameraConfig) -> [f64; 2] {
+    let s = (cfg.psf_sigma_px * cfg.psf_sigma_px + 1.0 / 12.0).sqrt();
+    let px = spacing_um(cfg);
+    [s * px[0], s * px[1]]
+}
+
 /// The noiseless image (transmittance 0..1) of the plate with the measuring mark at carriage
 /// position `mark_um`.
 pub fn render_plate(cfg: &CameraConfig, plate: &Plate, mark_um: [f64; 2]) -> Vec<f32> {
     let (w, h) = (cfg.width, cfg.height);
     let mut img = vec![plate.clear as f32; w * h];
     let af = &cfg.affine;
-    // Blur in µm: optics and the pixel's box, along x and along y.
-    let px = [af.a[0].hypot(af.b[0]), af.a[1].hypot(af.b[1])];
-    let s2 = cfg.psf_sigma_px * cfg.psf_sigma_px + 1.0 / 12.0;
-    let sx = (s2).sqrt() * px[0];
-    let sy = (s2).sqrt() * px[1];
+    let px = spacing_um(cfg);
+    let [sx, sy] = blur_um(cfg);
     let centre = af.local_um(w as f64 / 2.0, h as f64 / 2.0);
     let view_r = (w as f64 * px[0]).max(h as f64 * px[1]);
     let centre = [mark_um[0] + centre[0], mark_um[1] + centre[1]];
@@ -193,9 +204,9 @@ pub fn render_scene(
     let mut img = render_plate(cfg, plate, mark_um);
     if let Some(f) = film {
         let af = &cfg.affine;
-        let s2 = cfg.psf_sigma_px * cfg.psf_sigma_px + 1.0 / 12.0;
-        // One blur for the film: the mean of the two pixel spacings.
-        let s = s2.sqrt() * 0.5 * (af.a[0].hypot(af.b[0]) + af.a[1].hypot(af.b[1]));
+        // One blur for the film: the mean of the two axes'.
+        let [bx, by] = blur_um(cfg);
+        let s = 0.5 * (bx + by);
         for row in 0..cfg.height {
             for col in 0..cfg.width {
                 let l = af.local_um(col as f64 + 0.5, row as f64 + 0.5);

@@ -138,7 +138,6 @@ pub struct Stage {
     /// Extremes of the carriage since the last homing, physical µm.
     pub excursion: Option<[[f64; 2]; 2]>,
     pub moves_done: u64,
-    pub last_dir: [f64; 2],
 }
 
 impl Stage {
@@ -167,7 +166,6 @@ impl Stage {
             accepted_targets: Vec::new(),
             excursion: None,
             moves_done: 0,
-            last_dir: [1.0, 1.0],
         };
         if start_homed {
             // As if homed before this run (an absolute encoder, or a controller that kept its
@@ -220,10 +218,6 @@ impl Stage {
         } else {
             0.0
         }
-    }
-
-    pub fn motor(&self, k: usize) -> f64 {
-        self.motor[k]
     }
 
     pub fn is_busy(&self) -> bool {
@@ -282,11 +276,6 @@ impl Stage {
         } else {
             (full, end_m)
         };
-        for k in 0..2 {
-            if dir[k] != 0.0 {
-                self.last_dir[k] = dir[k].signum();
-            }
-        }
         let profile = Profile::new(
             len,
             0.0,

@@ -42,10 +42,6 @@ impl<C: Controller> Driver<C> {
         Driver { ctl, opts, limits }
     }
 
-    pub fn controller(&mut self) -> &mut C {
-        &mut self.ctl
-    }
-
     fn speed(&self) -> f64 {
         let max = self.ctl.info().max_speed_um_s;
         // Never zero: a move's timeout is computed from its speed.
