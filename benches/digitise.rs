@@ -6,7 +6,8 @@ mod common;
 
 use criterion::{criterion_group, Criterion};
 use rig::digitise::{
-    average_frames, estimate_stripes, remove_stripes, seed_lowpass, Averager, ImageF32,
+    average_frames, average_frames_into, estimate_stripes, remove_stripes, seed_lowpass, Averager,
+    ImageF32,
 };
 use std::hint::black_box;
 use std::time::Duration;
@@ -55,6 +56,14 @@ fn averaging(c: &mut Criterion) {
     g.bench_function("average_frames", |b| {
         b.iter(|| black_box(average_frames(W, H, &refs).unwrap()))
     });
+    // As a scan uses it: the output images are reused from tile to tile.
+    let mut out = average_frames(W, H, &refs).unwrap();
+    g.bench_function("average_frames_into", |b| {
+        b.iter(|| {
+            average_frames_into(W, H, &refs, &mut out).unwrap();
+            black_box(&out);
+        })
+    });
     g.bench_function("streaming_averager", |b| {
         b.iter(|| {
             let mut a = Averager::new(W, H);
@@ -98,6 +107,16 @@ fn main() {
         common::mean_ns("average_32_frames_1280x1024", "average_frames"),
     ) {
         println!("\naveraging 32 frames of 1280×1024: {:.1} ms = {:.2} × a plain copy of the same bytes ({:.1} ms)", t / 1e6, t / base, base / 1e6);
+    }
+    if let (Some(base), Some(t)) = (
+        common::mean_ns("average_32_frames_1280x1024", "memcpy_baseline"),
+        common::mean_ns("average_32_frames_1280x1024", "average_frames_into"),
+    ) {
+        println!(
+            "  into reused output images: {:.1} ms = {:.2} × the copy",
+            t / 1e6,
+            t / base
+        );
     }
     if let (Some(base), Some(t)) = (
         common::mean_ns("stripes_1280x1024", "seed_lowpass_baseline"),

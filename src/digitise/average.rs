@@ -172,6 +172,24 @@ pub fn average_frames(
     height: usize,
     frames: &[&[u16]],
 ) -> Result<Averaged, DigitiseError> {
+    let mut out = Averaged {
+        mean: ImageF32::new(width, height),
+        std: ImageF32::new(width, height),
+        frames: 0,
+    };
+    average_frames_into(width, height, frames, &mut out)?;
+    Ok(out)
+}
+
+/// [`average_frames`] into images that already exist (resized if need be), for a scan that
+/// averages tile after tile: fresh output pages would cost the kernel a fault and a clear
+/// each, a good part of the whole average.
+pub fn average_frames_into(
+    width: usize,
+    height: usize,
+    frames: &[&[u16]],
+    out: &mut Averaged,
+) -> Result<(), DigitiseError> {
     if frames.is_empty() {
         return Err(DigitiseError::NoFrames);
     }
@@ -188,19 +206,19 @@ pub fn average_frames(
             want_h: height,
         });
     }
-    let n = frames.len() as u32;
-    let mut mean = ImageF32::new(width, height);
-    let mut std = ImageF32::new(width, height);
-    mean.data
+    for img in [&mut out.mean, &mut out.std] {
+        img.width = width;
+        img.height = height;
+        img.data.resize(width * height, 0.0);
+    }
+    out.frames = frames.len() as u32;
+    out.mean
+        .data
         .par_chunks_mut(TILE)
-        .zip(std.data.par_chunks_mut(TILE))
+        .zip(out.std.data.par_chunks_mut(TILE))
         .enumerate()
         .for_each(|(t, (m, s))| tile(frames, t * TILE, m, s));
-    Ok(Averaged {
-        mean,
-        std,
-        frames: n,
-    })
+    Ok(())
 }
 
 #[cfg(test)]
@@ -246,6 +264,12 @@ mod tests {
         let (s, b) = (a.finish().unwrap(), average_frames(w, h, &refs).unwrap());
         assert_eq!(s.mean, b.mean);
         assert_eq!(s.std, b.std);
+        // Into a reused result of another size: resized, every pixel overwritten.
+        let mut r = average_frames(2, 2, &[&[9, 9, 9, 9]]).unwrap();
+        average_frames_into(w, h, &refs, &mut r).unwrap();
+        assert_eq!((r.mean.width, r.mean.height, r.frames), (w, h, 7));
+        assert_eq!(r.mean, b.mean);
+        assert_eq!(r.std, b.std);
         assert!(matches!(
             average_frames(w, h, &[]),
             Err(DigitiseError::NoFrames)

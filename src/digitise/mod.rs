@@ -9,7 +9,7 @@ pub mod output;
 mod stretch;
 mod stripes;
 
-pub use average::{average_frames, Averaged, Averager};
+pub use average::{average_frames, average_frames_into, Averaged, Averager};
 pub use image::ImageF32;
 pub use lowpass::seed_lowpass;
 pub use stretch::{stretch, Stretch};
