@@ -8,12 +8,13 @@ fn grab_writes_a_tiff_and_a_sidecar() {
     let dir = tempfile::tempdir().unwrap();
     let tiff = dir.path().join("plate.tiff");
     let out = rig()
+        // The issue's own form: the camera options after the action.
         .args([
             "camera",
+            "grab",
             "--sim",
             "--sim-frame-drop",
             "0.2",
-            "grab",
             "--frames",
             "16",
             "--json",

@@ -171,12 +171,13 @@ fn jog_and_stop_and_info() {
 
 #[test]
 fn embedded_simulator_status_json() {
-    // The README's first command.
+    // The README's first command; the connection options also go after the action.
     for d in DIALECTS {
-        let out = rig()
-            .args(["stage", "--sim", "--dialect", d, "status", "--json"])
-            .output()
-            .unwrap();
+        let mut args = vec!["stage", "--sim", "--dialect", d, "status", "--json"];
+        if d == "grbl" {
+            args = vec!["stage", "status", "--sim", "--dialect", d, "--json"];
+        }
+        let out = rig().args(&args).output().unwrap();
         let (code, j, err) = parse(out);
         assert_eq!(code, 0, "{d}: {err}");
         for k in ["x_mm", "y_mm", "state", "controller_state", "homed"] {

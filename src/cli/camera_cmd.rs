@@ -15,19 +15,25 @@ use std::time::Duration;
 pub struct CameraArgs {
     /// Camera: /dev/videoN (needs the `v4l2` build feature) or sim:SOCKET (a running
     /// `rig-sim --camera-socket SOCKET`).
-    #[arg(long, value_name = "DEVICE", conflicts_with = "sim")]
+    #[arg(long, value_name = "DEVICE", conflicts_with = "sim", global = true)]
     pub camera: Option<String>,
     /// Use the built-in simulator (a simulated camera over a simulated, homed stage).
-    #[arg(long)]
+    #[arg(long, global = true)]
     pub sim: bool,
     /// Simulator: random seed.
-    #[arg(long, default_value_t = 1, requires = "sim")]
+    #[arg(long, default_value_t = 1, requires = "sim", global = true)]
     pub sim_seed: u64,
     /// Simulator: lay a film (8 fiducials, a textured picture) on the carriage.
-    #[arg(long, requires = "sim")]
+    #[arg(long, requires = "sim", global = true)]
     pub sim_film: bool,
     /// Simulator: probability that a frame is lost on the way.
-    #[arg(long, default_value_t = 0.0, value_name = "P", requires = "sim")]
+    #[arg(
+        long,
+        default_value_t = 0.0,
+        value_name = "P",
+        requires = "sim",
+        global = true
+    )]
     pub sim_frame_drop: f64,
     /// Print one JSON object on standard output instead of text.
     #[arg(long, global = true)]

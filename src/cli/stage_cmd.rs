@@ -18,30 +18,31 @@ use std::time::Duration;
 #[derive(Debug, Args)]
 pub struct StageArgs {
     /// Serial port of the stage controller (e.g. /dev/ttyUSB0, or the path `rig-sim` prints).
-    #[arg(
-        long,
-        value_name = "PATH",
-        conflicts_with = "sim",
-        required_unless_present = "sim"
-    )]
+    #[arg(long, value_name = "PATH", conflicts_with = "sim", global = true)]
     pub stage: Option<PathBuf>,
     /// Controller dialect on that port.
-    #[arg(long, value_enum, default_value = "native")]
+    #[arg(long, value_enum, default_value = "native", global = true)]
     pub dialect: Dialect,
     /// Use a built-in simulated controller (started homed) instead of hardware.
-    #[arg(long)]
+    #[arg(long, global = true)]
     pub sim: bool,
     /// Simulator: wall seconds per simulated second (0 = no waiting).
-    #[arg(long, default_value_t = 0.2, value_name = "S", requires = "sim")]
+    #[arg(
+        long,
+        default_value_t = 0.2,
+        value_name = "S",
+        requires = "sim",
+        global = true
+    )]
     pub sim_time_scale: f64,
     /// Simulator: random seed.
-    #[arg(long, default_value_t = 1, requires = "sim")]
+    #[arg(long, default_value_t = 1, requires = "sim", global = true)]
     pub sim_seed: u64,
     /// Simulator: faults to inject (see `rig sim --help`).
-    #[arg(long, value_name = "SPEC", requires = "sim")]
+    #[arg(long, value_name = "SPEC", requires = "sim", global = true)]
     pub sim_faults: Option<String>,
     /// Simulator: write its truth file here when done.
-    #[arg(long, value_name = "PATH", requires = "sim")]
+    #[arg(long, value_name = "PATH", requires = "sim", global = true)]
     pub sim_truth: Option<PathBuf>,
     /// Print one JSON object on standard output instead of text.
     #[arg(long, global = true)]
@@ -367,6 +368,10 @@ fn label(a: &Action) -> &'static str {
 
 /// Runs `rig stage`; returns the process exit code.
 pub fn run(a: StageArgs) -> anyhow::Result<i32> {
+    if a.stage.is_none() && !a.sim {
+        eprintln!("rig stage: name the controller with --stage PATH (and --dialect native|grbl), or use --sim");
+        return Ok(2);
+    }
     let opts = match options(&a) {
         Ok(o) => o,
         Err(e) => {
