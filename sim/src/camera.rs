@@ -70,6 +70,11 @@ pub struct CameraConfig {
     pub stripe_dark_dn8: f64,
     pub stripe_darker_dn8: f64,
     pub stripe_phase_px: usize,
+    /// The measuring mark, fixed in the optical path at `affine.mark_px` (seed 002: "the
+    /// measuring mark is in every digital image"): a dark dot of this radius (µm on the
+    /// carriage) and this transmittance at its centre.
+    pub mark_radius_um: f64,
+    pub mark_transmittance: f64,
     /// Dust on the sensor: (col, row, radius px, transmittance at its centre).
     pub dust: Vec<(f64, f64, f64, f64)>,
     pub frame_rate_hz: f64,
@@ -105,6 +110,8 @@ impl CameraConfig {
             stripe_dark_dn8: 2.0,
             stripe_darker_dn8: 3.5,
             stripe_phase_px: rng.below(12) as usize,
+            mark_radius_um: 12.0,
+            mark_transmittance: 0.45,
             dust,
             frame_rate_hz: 25.0,
         }
@@ -194,7 +201,26 @@ pub fn render_plate(cfg: &CameraConfig, plate: &Plate, mark_um: [f64; 2]) -> Vec
     img
 }
 
-/// The noiseless image of everything under the lens: the plate and, where it lies, the film.
+/// Darkens the measuring mark into a rendered image: a blurred disk at the mark's pixel.
+fn draw_measuring_mark(cfg: &CameraConfig, img: &mut [f32]) {
+    let af = &cfg.affine;
+    let [sx, sy] = blur_um(cfg);
+    let s = 0.5 * (sx + sy);
+    let (c0, r0) = (af.mark_px[0].floor() as i64, af.mark_px[1].floor() as i64);
+    let reach = 4 + ((cfg.mark_radius_um + 5.0 * s) / spacing_um(cfg)[0]) as i64;
+    for row in (r0 - reach).max(0)..(r0 + reach).min(cfg.height as i64) {
+        for col in (c0 - reach).max(0)..(c0 + reach).min(cfg.width as i64) {
+            let l = af.local_um(col as f64 + 0.5, row as f64 + 0.5);
+            let r = l[0].hypot(l[1]);
+            let cov = 0.5 * (1.0 - erf((r - cfg.mark_radius_um) / (std::f64::consts::SQRT_2 * s)));
+            img[row as usize * cfg.width + col as usize] *=
+                (1.0 - (1.0 - cfg.mark_transmittance) * cov) as f32;
+        }
+    }
+}
+
+/// The noiseless image of everything under the lens: the plate and, where it lies, the film,
+/// and the measuring mark over both.
 pub fn render_scene(
     cfg: &CameraConfig,
     plate: &Plate,
@@ -215,6 +241,7 @@ pub fn render_scene(
             }
         }
     }
+    draw_measuring_mark(cfg, &mut img);
     img
 }
 
@@ -306,6 +333,30 @@ mod tests {
             "{col},{row}"
         );
         assert!(best < 0.2 && img[0] > 0.8);
+    }
+
+    #[test]
+    fn the_measuring_mark_is_in_every_image() {
+        let mut rng = Rng::new(3);
+        let cfg = CameraConfig::new(&mut rng);
+        let plate = Plate::new(&mut rng);
+        // Clear glass between the crosses: the only dark spot is the mark.
+        let img = render_scene(&cfg, &plate, None, [75_000.0, 75_000.0]);
+        let (mut best, mut at) = (f32::MAX, 0);
+        for (i, &v) in img.iter().enumerate() {
+            if v < best {
+                best = v;
+                at = i;
+            }
+        }
+        let (col, row) = ((at % 512) as f64 + 0.5, (at / 512) as f64 + 0.5);
+        assert!(
+            (col - cfg.affine.mark_px[0]).abs() <= 1.0
+                && (row - cfg.affine.mark_px[1]).abs() <= 1.0,
+            "{col},{row}"
+        );
+        let clear = plate.clear as f32;
+        assert!(best < 0.8 * clear, "the mark is visible: {best} vs {clear}");
     }
 }
 
