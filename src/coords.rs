@@ -73,3 +73,37 @@ impl std::fmt::Display for CarriageUm {
         write!(f, "({:.4}, {:.4}) mm", self.x_mm(), self.y_mm())
     }
 }
+
+/// A point in an image, pixels, with the origin at the top-left corner of the top-left pixel:
+/// pixel (c, r) covers [c, c+1) × [r, r+1), so its centre is (c + 0.5, r + 0.5). The same
+/// convention as the simulator's truth and GDAL's, so centres compare without a half-pixel
+/// shift.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+pub struct PixelXY {
+    pub col: f64,
+    pub row: f64,
+}
+
+impl PixelXY {
+    pub const fn new(col: f64, row: f64) -> Self {
+        PixelXY { col, row }
+    }
+
+    pub fn dist(self, o: PixelXY) -> f64 {
+        (self.col - o.col).hypot(self.row - o.row)
+    }
+}
+
+/// A point in photo coordinates, millimetres, origin at the fiducial centre (the camera
+/// certificate's system).
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+pub struct PhotoMm {
+    pub x: f64,
+    pub y: f64,
+}
+
+impl PhotoMm {
+    pub const fn new(x: f64, y: f64) -> Self {
+        PhotoMm { x, y }
+    }
+}

@@ -5,3 +5,4 @@ pub mod camera;
 pub mod coords;
 pub mod digitise;
 pub mod stage;
+pub mod targets;

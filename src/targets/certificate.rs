@@ -1,0 +1,381 @@
+//! Plate and camera certificates: the calibrated coordinates of the carriage plate's crosses
+//! and of a camera's fiducials, with the geometry the templates are drawn from. TOML files;
+//! the README documents the format. Errors name the file and the line or the field.
+
+use super::template::{MarkShape, Polarity};
+use crate::coords::{CarriageUm, PhotoMm};
+use serde::Deserialize;
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+#[derive(Debug, thiserror::Error)]
+pub enum CertificateError {
+    #[error("cannot read {path}: {source}")]
+    Read {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("{path}: {message}")]
+    Parse { path: PathBuf, message: String },
+    #[error("{path}: {message}")]
+    Invalid { path: PathBuf, message: String },
+}
+
+/// One calibration cross of the carriage plate.
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CertCross {
+    pub id: u32,
+    pub x_um: f64,
+    pub y_um: f64,
+}
+
+impl CertCross {
+    pub fn position(&self) -> CarriageUm {
+        CarriageUm::new(self.x_um, self.y_um)
+    }
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct PlateHeader {
+    name: String,
+    arm_um: f64,
+    line_um: f64,
+    #[serde(default)]
+    polarity: Polarity,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct PlateFile {
+    plate: PlateHeader,
+    cross: Vec<CertCross>,
+}
+
+/// The carriage plate's certificate.
+#[derive(Debug, Clone)]
+pub struct PlateCertificate {
+    pub name: String,
+    pub shape: MarkShape,
+    pub polarity: Polarity,
+    /// Row-major from the origin corner; the central one is the 5th of 9.
+    pub crosses: Vec<CertCross>,
+    pub path: PathBuf,
+}
+
+impl PlateCertificate {
+    pub fn load(path: &Path) -> Result<Self, CertificateError> {
+        let text = read(path)?;
+        Self::parse(&text, path)
+    }
+
+    pub fn parse(text: &str, path: &Path) -> Result<Self, CertificateError> {
+        let f: PlateFile = toml::from_str(text).map_err(|e| parse_error(path, e))?;
+        let bad = |message: String| CertificateError::Invalid {
+            path: path.to_path_buf(),
+            message,
+        };
+        if !(f.plate.arm_um > 0.0 && f.plate.line_um > 0.0 && f.plate.line_um < f.plate.arm_um) {
+            return Err(bad(format!(
+                "[plate] arm_um {} and line_um {} must be positive, the line narrower than the arm",
+                f.plate.arm_um, f.plate.line_um
+            )));
+        }
+        let mut seen = BTreeMap::new();
+        for c in &f.cross {
+            if !(c.x_um.is_finite() && c.y_um.is_finite()) {
+                return Err(bad(format!("cross {}: coordinates must be numbers", c.id)));
+            }
+            if seen.insert(c.id, ()).is_some() {
+                return Err(bad(format!("cross {} is listed twice", c.id)));
+            }
+        }
+        if f.cross.len() < 3 {
+            return Err(bad(format!(
+                "{} crosses listed; a plate certificate needs at least 3 (the rig's has 9)",
+                f.cross.len()
+            )));
+        }
+        Ok(PlateCertificate {
+            name: f.plate.name,
+            shape: MarkShape::Cross {
+                arm_um: f.plate.arm_um,
+                line_um: f.plate.line_um,
+            },
+            polarity: f.plate.polarity,
+            crosses: f.cross,
+            path: path.to_path_buf(),
+        })
+    }
+
+    /// The cross nearest the middle of the plate (the one the 5×5 grid uses).
+    pub fn central(&self) -> CertCross {
+        let n = self.crosses.len() as f64;
+        let mx = self.crosses.iter().map(|c| c.x_um).sum::<f64>() / n;
+        let my = self.crosses.iter().map(|c| c.y_um).sum::<f64>() / n;
+        *self
+            .crosses
+            .iter()
+            .min_by(|a, b| {
+                let da = (a.x_um - mx).hypot(a.y_um - my);
+                let db = (b.x_um - mx).hypot(b.y_um - my);
+                da.total_cmp(&db)
+            })
+            .expect("at least 3 crosses")
+    }
+}
+
+/// The group of a fiducial (seed 002: corner fiducials are calibrated more precisely than the
+/// mid-side ones, and the interior orientation is fitted with each group and with all).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, serde::Serialize, PartialOrd, Ord)]
+#[serde(rename_all = "snake_case")]
+pub enum FiducialGroup {
+    Corner,
+    MidSide,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields, tag = "kind", rename_all = "snake_case")]
+enum ShapeSpec {
+    RingWithDot {
+        ring_radius_um: f64,
+        dot_radius_um: f64,
+        line_um: f64,
+    },
+    /// The line points from the dot toward the photo centre.
+    DotWithLine {
+        dot_radius_um: f64,
+        line_um: f64,
+        from_um: f64,
+        to_um: f64,
+    },
+    Cross {
+        arm_um: f64,
+        line_um: f64,
+    },
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct FidSpec {
+    id: u32,
+    x_mm: f64,
+    y_mm: f64,
+    group: FiducialGroup,
+    shape: String,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct CameraHeader {
+    name: String,
+    focal_length_mm: f64,
+    #[serde(default)]
+    polarity: Polarity,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct CameraFile {
+    camera: CameraHeader,
+    shapes: BTreeMap<String, ShapeSpec>,
+    fiducial: Vec<FidSpec>,
+}
+
+/// One fiducial as the certificate gives it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CertFiducial {
+    pub id: u32,
+    pub photo: PhotoMm,
+    pub group: FiducialGroup,
+    /// Its form, with lines already turned toward the photo centre.
+    pub shape: MarkShape,
+}
+
+/// An aerial camera's certificate: calibrated fiducial coordinates and their forms.
+#[derive(Debug, Clone)]
+pub struct CameraCertificate {
+    pub name: String,
+    pub focal_length_mm: f64,
+    pub polarity: Polarity,
+    pub fiducials: Vec<CertFiducial>,
+    pub path: PathBuf,
+}
+
+impl CameraCertificate {
+    pub fn load(path: &Path) -> Result<Self, CertificateError> {
+        let text = read(path)?;
+        Self::parse(&text, path)
+    }
+
+    pub fn parse(text: &str, path: &Path) -> Result<Self, CertificateError> {
+        let f: CameraFile = toml::from_str(text).map_err(|e| parse_error(path, e))?;
+        let bad = |message: String| CertificateError::Invalid {
+            path: path.to_path_buf(),
+            message,
+        };
+        if f.camera.focal_length_mm.is_nan() || f.camera.focal_length_mm <= 0.0 {
+            return Err(bad(format!(
+                "[camera] focal_length_mm {} must be positive",
+                f.camera.focal_length_mm
+            )));
+        }
+        let mut fiducials = Vec::new();
+        let mut seen = BTreeMap::new();
+        for s in &f.fiducial {
+            if seen.insert(s.id, ()).is_some() {
+                return Err(bad(format!("fiducial {} is listed twice", s.id)));
+            }
+            let spec = f.shapes.get(&s.shape).ok_or_else(|| {
+                bad(format!(
+                    "fiducial {}: shape `{}` is not among [shapes] ({})",
+                    s.id,
+                    s.shape,
+                    f.shapes.keys().cloned().collect::<Vec<_>>().join(", ")
+                ))
+            })?;
+            let shape = match *spec {
+                ShapeSpec::RingWithDot {
+                    ring_radius_um,
+                    dot_radius_um,
+                    line_um,
+                } => MarkShape::RingWithDot {
+                    ring_radius_um,
+                    dot_radius_um,
+                    line_um,
+                },
+                ShapeSpec::Cross { arm_um, line_um } => MarkShape::Cross { arm_um, line_um },
+                ShapeSpec::DotWithLine {
+                    dot_radius_um,
+                    line_um,
+                    from_um,
+                    to_um,
+                } => {
+                    let n = s.x_mm.hypot(s.y_mm);
+                    if n < 1.0 {
+                        return Err(bad(format!(
+                            "fiducial {}: a line toward the centre needs a fiducial away from it",
+                            s.id
+                        )));
+                    }
+                    MarkShape::DotWithLine {
+                        dot_radius_um,
+                        line_um,
+                        from_um,
+                        to_um,
+                        direction: [-s.x_mm / n, -s.y_mm / n],
+                    }
+                }
+            };
+            fiducials.push(CertFiducial {
+                id: s.id,
+                photo: PhotoMm::new(s.x_mm, s.y_mm),
+                group: s.group,
+                shape,
+            });
+        }
+        if fiducials.len() < 3 {
+            return Err(bad(format!(
+                "{} fiducials listed; an interior orientation needs at least 3",
+                fiducials.len()
+            )));
+        }
+        Ok(CameraCertificate {
+            name: f.camera.name,
+            focal_length_mm: f.camera.focal_length_mm,
+            polarity: f.camera.polarity,
+            fiducials,
+            path: path.to_path_buf(),
+        })
+    }
+}
+
+fn read(path: &Path) -> Result<String, CertificateError> {
+    std::fs::read_to_string(path).map_err(|source| CertificateError::Read {
+        path: path.to_path_buf(),
+        source,
+    })
+}
+
+fn parse_error(path: &Path, e: toml::de::Error) -> CertificateError {
+    CertificateError::Parse {
+        path: path.to_path_buf(),
+        message: e.to_string().trim_end().to_string(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const PLATE: &str = r#"
+[plate]
+name = "test plate"
+arm_um = 1000.0
+line_um = 40.0
+
+[[cross]]
+id = 1
+x_um = 25000.0
+y_um = 25000.0
+
+[[cross]]
+id = 5
+x_um = 125000.4
+y_um = 124999.1
+
+[[cross]]
+id = 9
+x_um = 225000.0
+y_um = 225000.0
+"#;
+
+    #[test]
+    fn a_plate_certificate_reads_and_finds_its_central_cross() {
+        let p = PlateCertificate::parse(PLATE, Path::new("p.toml")).unwrap();
+        assert_eq!(p.crosses.len(), 3);
+        assert_eq!(p.central().id, 5);
+        assert_eq!(p.central().x_um, 125000.4);
+    }
+
+    #[test]
+    fn errors_name_the_file_and_the_line_or_field() {
+        let typo = PLATE.replace("y_um = 124999.1", "yum = 124999.1");
+        let e = PlateCertificate::parse(&typo, Path::new("plate.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.starts_with("plate.toml:") && e.contains("yum") && e.contains("line"),
+            "{e}"
+        );
+        let twice = PLATE.replace("id = 9", "id = 1");
+        let e = PlateCertificate::parse(&twice, Path::new("plate.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("cross 1 is listed twice"), "{e}");
+        let cam = r#"
+[camera]
+name = "c"
+focal_length_mm = 153.0
+[shapes.corner]
+kind = "ring_with_dot"
+ring_radius_um = 300.0
+dot_radius_um = 40.0
+line_um = 40.0
+[[fiducial]]
+id = 1
+x_mm = -106.0
+y_mm = -106.0
+group = "corner"
+shape = "corners"
+"#;
+        let e = CameraCertificate::parse(cam, Path::new("cam.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("fiducial 1: shape `corners`") && e.contains("corner"),
+            "{e}"
+        );
+    }
+}

@@ -1,0 +1,265 @@
+//! Synthetic ideal templates of the marks (seed 002: "least squares matching with a
+//! synthetically generated ideal cross"), drawn from the geometry a plate or camera certificate
+//! gives, at the pixel spacing of the camera, and softened by the optics' blur so that the
+//! template looks like the image it is matched against.
+
+use crate::digitise::ImageF32;
+use serde::{Deserialize, Serialize};
+
+/// The form of a mark, in micrometres about its centre (x right, y down the image rows, as the
+/// carriage axes appear under the camera).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum MarkShape {
+    /// An engraved calibration cross: two bars `line_um` wide, each arm `arm_um` from the centre.
+    Cross { arm_um: f64, line_um: f64 },
+    /// A ring (radius to the middle of its line) around a centre dot.
+    RingWithDot {
+        ring_radius_um: f64,
+        dot_radius_um: f64,
+        line_um: f64,
+    },
+    /// A dot with one line along `direction` (a unit vector) from `from_um` to `to_um`.
+    DotWithLine {
+        dot_radius_um: f64,
+        line_um: f64,
+        from_um: f64,
+        to_um: f64,
+        direction: [f64; 2],
+    },
+}
+
+impl MarkShape {
+    /// Whether the point (µm from the centre) is on the mark.
+    pub fn contains(&self, p: [f64; 2]) -> bool {
+        match *self {
+            MarkShape::Cross { arm_um, line_um } => {
+                let h = line_um / 2.0;
+                (p[0].abs() <= h && p[1].abs() <= arm_um)
+                    || (p[1].abs() <= h && p[0].abs() <= arm_um)
+            }
+            MarkShape::RingWithDot {
+                ring_radius_um,
+                dot_radius_um,
+                line_um,
+            } => {
+                let r = p[0].hypot(p[1]);
+                r <= dot_radius_um || (r - ring_radius_um).abs() <= line_um / 2.0
+            }
+            MarkShape::DotWithLine {
+                dot_radius_um,
+                line_um,
+                from_um,
+                to_um,
+                direction: d,
+            } => {
+                let along = p[0] * d[0] + p[1] * d[1];
+                let across = -p[0] * d[1] + p[1] * d[0];
+                p[0].hypot(p[1]) <= dot_radius_um
+                    || (across.abs() <= line_um / 2.0 && along >= from_um && along <= to_um)
+            }
+        }
+    }
+
+    /// The form to locate coarsely with. A cross's arms are drawn past the template's border:
+    /// the arms' ends then carry no weight, so a cross cut by the frame is found by where its
+    /// arms cross, and a pixel spacing a few per cent off does not pull it toward the one end
+    /// that is in view.
+    pub fn for_coarse(&self) -> MarkShape {
+        match *self {
+            MarkShape::Cross { arm_um, line_um } => MarkShape::Cross {
+                arm_um: 100.0 * arm_um,
+                line_um,
+            },
+            ref other => other.clone(),
+        }
+    }
+
+    /// How far the mark reaches from its centre, µm.
+    pub fn reach_um(&self) -> f64 {
+        match *self {
+            MarkShape::Cross { arm_um, line_um } => arm_um.hypot(line_um / 2.0),
+            MarkShape::RingWithDot {
+                ring_radius_um,
+                dot_radius_um,
+                line_um,
+            } => (ring_radius_um + line_um / 2.0).max(dot_radius_um),
+            MarkShape::DotWithLine {
+                dot_radius_um,
+                to_um,
+                line_um,
+                ..
+            } => to_um.hypot(line_um / 2.0).max(dot_radius_um),
+        }
+    }
+}
+
+/// How a mark appears: dark on clear (a diapositive, the plate in transmitted light) or clear
+/// on dark (a negative).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum Polarity {
+    #[default]
+    DarkOnClear,
+    ClearOnDark,
+}
+
+/// A square template: grey values 0 (mark) to 1 (background) for a dark mark, the mark's
+/// centre at the middle of the patch.
+#[derive(Debug, Clone)]
+pub struct Template {
+    pub image: ImageF32,
+}
+
+impl Template {
+    /// Side in pixels (odd).
+    pub fn size(&self) -> usize {
+        self.image.width
+    }
+
+    /// The mark's centre in template pixel coordinates (corner origin): the middle of the
+    /// middle pixel.
+    pub fn centre(&self) -> f64 {
+        self.image.width as f64 / 2.0
+    }
+}
+
+/// How to draw a template.
+#[derive(Debug, Clone, Copy)]
+pub struct TemplateSpec {
+    /// Side of the patch in pixels; made odd.
+    pub size: usize,
+    /// Pixel → µm (the 2×2 part of the pixel→carriage affine, or its nominal diagonal):
+    /// `[[a1, a2], [b1, b2]]`.
+    pub um_per_px: [[f64; 2]; 2],
+    /// The optics' blur, a Gaussian σ in pixels, applied after each pixel's own area.
+    pub blur_px: f64,
+    pub polarity: Polarity,
+}
+
+/// Draws `shape` into a template: each pixel's coverage integrated on a 6×6 sub-grid, then the
+/// blur.
+pub fn render(shape: &MarkShape, spec: &TemplateSpec) -> Template {
+    const SUB: usize = 6;
+    let size = spec.size | 1;
+    let margin = (3.0 * spec.blur_px).ceil() as usize;
+    let big = size + 2 * margin;
+    let c = big as f64 / 2.0;
+    let m = spec.um_per_px;
+    let mut cov = vec![0f64; big * big];
+    for r in 0..big {
+        for col in 0..big {
+            let mut n = 0;
+            for sj in 0..SUB {
+                for si in 0..SUB {
+                    let x = col as f64 + (si as f64 + 0.5) / SUB as f64 - c;
+                    let y = r as f64 + (sj as f64 + 0.5) / SUB as f64 - c;
+                    let p = [m[0][0] * x + m[0][1] * y, m[1][0] * x + m[1][1] * y];
+                    n += shape.contains(p) as usize;
+                }
+            }
+            cov[r * big + col] = n as f64 / (SUB * SUB) as f64;
+        }
+    }
+    let cov = gaussian_blur(&cov, big, spec.blur_px);
+    let mut image = ImageF32::new(size, size);
+    for r in 0..size {
+        for col in 0..size {
+            let k = cov[(r + margin) * big + col + margin];
+            image.data[r * size + col] = match spec.polarity {
+                Polarity::DarkOnClear => 1.0 - k,
+                Polarity::ClearOnDark => k,
+            } as f32;
+        }
+    }
+    Template { image }
+}
+
+/// Separable Gaussian blur of a square grid (edges clamped).
+fn gaussian_blur(src: &[f64], n: usize, sigma: f64) -> Vec<f64> {
+    if sigma <= 0.0 {
+        return src.to_vec();
+    }
+    let rad = (3.0 * sigma).ceil() as i64;
+    let k: Vec<f64> = (-rad..=rad)
+        .map(|i| (-(i * i) as f64 / (2.0 * sigma * sigma)).exp())
+        .collect();
+    let ks: f64 = k.iter().sum();
+    let k: Vec<f64> = k.iter().map(|v| v / ks).collect();
+    let at = |i: i64| i.clamp(0, n as i64 - 1) as usize;
+    let mut tmp = vec![0.0; n * n];
+    for r in 0..n {
+        for c in 0..n {
+            tmp[r * n + c] = (-rad..=rad)
+                .map(|d| k[(d + rad) as usize] * src[r * n + at(c as i64 + d)])
+                .sum();
+        }
+    }
+    let mut out = vec![0.0; n * n];
+    for r in 0..n {
+        for c in 0..n {
+            out[r * n + c] = (-rad..=rad)
+                .map(|d| k[(d + rad) as usize] * tmp[at(r as i64 + d) * n + c])
+                .sum();
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_cross_template_is_symmetric_and_centred() {
+        let t = render(
+            &MarkShape::Cross {
+                arm_um: 1000.0,
+                line_um: 40.0,
+            },
+            &TemplateSpec {
+                size: 70, // made odd
+                um_per_px: [[10.0, 0.0], [0.0, 10.0]],
+                blur_px: 0.7,
+                polarity: Polarity::DarkOnClear,
+            },
+        );
+        assert_eq!(t.size(), 71);
+        assert_eq!(t.centre(), 35.5);
+        let im = &t.image;
+        // Centre dark, corner clear; the 4-px line's middle is dark along the arm.
+        assert!(im.at(35, 35) < 0.05 && im.at(0, 0) > 0.999);
+        assert!(im.at(35, 5) < 0.1 && im.at(5, 35) < 0.1);
+        // Mirror symmetry about both axes.
+        for r in 0..71 {
+            for c in 0..71 {
+                assert!((im.at(c, r) - im.at(70 - c, r)).abs() < 1e-5);
+                assert!((im.at(c, r) - im.at(c, 70 - r)).abs() < 1e-5);
+            }
+        }
+        // The dark area is the line area: 2 bars of 4 px × 71 px, less the overlap.
+        let dark: f64 = im.data.iter().map(|&v| 1.0 - v as f64).sum();
+        assert!((dark - (2.0 * 4.0 * 71.0 - 16.0)).abs() < 1.0, "{dark}");
+    }
+
+    #[test]
+    fn shapes_contain_what_their_geometry_says() {
+        let ring = MarkShape::RingWithDot {
+            ring_radius_um: 300.0,
+            dot_radius_um: 40.0,
+            line_um: 40.0,
+        };
+        assert!(ring.contains([0.0, 39.0]) && ring.contains([310.0, 0.0]));
+        assert!(!ring.contains([100.0, 0.0]) && !ring.contains([0.0, 330.0]));
+        let dl = MarkShape::DotWithLine {
+            dot_radius_um: 60.0,
+            line_um: 40.0,
+            from_um: 150.0,
+            to_um: 600.0,
+            direction: [0.0, -1.0],
+        };
+        assert!(dl.contains([0.0, -400.0]) && !dl.contains([0.0, 400.0]));
+        assert!(!dl.contains([0.0, -100.0]) && dl.contains([50.0, 0.0]));
+        assert_eq!(ring.reach_um(), 320.0);
+    }
+}
