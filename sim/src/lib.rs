@@ -10,6 +10,7 @@
 
 pub mod camera;
 pub mod camera_socket;
+pub mod certificates;
 pub mod cli;
 pub mod faults;
 pub mod film;

@@ -4,7 +4,7 @@ use anyhow::{bail, Context};
 use clap::{Args, Subcommand};
 use rig::camera::{Camera, SimCamera};
 use rig::coords::CarriageUm;
-use rig::digitise::{average_frames, estimate_stripes, output, remove_stripes, stretch};
+use rig::digitise::{capture, output, stretch};
 use rig::stage::{self, DriverOptions};
 use serde_json::json;
 use std::path::PathBuf;
@@ -88,7 +88,7 @@ fn parse_pair(s: &str, what: &str) -> anyhow::Result<(f64, f64)> {
 }
 
 /// Opens a camera by name: `sim:SOCKET` (a running `rig-sim --camera-socket`) or a device path.
-fn open_device(dev: &str) -> anyhow::Result<Box<dyn Camera>> {
+pub fn open_device(dev: &str) -> anyhow::Result<Box<dyn Camera>> {
     match dev.strip_prefix("sim:") {
         Some(path) => Ok(Box::new(rig::camera::socket::SocketCamera::open(path)?)),
         None => open_v4l2(dev),
@@ -263,37 +263,22 @@ pub fn run(a: CameraArgs) -> anyhow::Result<i32> {
                 stage_mm = Some([p.x_mm(), p.y_mm()]);
             }
             let info = cam.info();
-            let mut kept: Vec<Vec<u16>> = Vec::with_capacity(*frames as usize);
-            for i in 0..*frames {
-                let f = cam.next_frame(Duration::from_secs(5))?;
-                if (f.width, f.height) != (info.width, info.height) {
-                    bail!(
-                        "frame {} is {}×{}, the camera said {}×{}",
-                        f.seq,
-                        f.width,
-                        f.height,
-                        info.width,
-                        info.height
-                    );
-                }
-                kept.push(f.data);
-                if !a.json && std::io::IsTerminal::is_terminal(&std::io::stderr()) {
-                    eprint!("\rframes {}/{frames}", i + 1);
-                }
-            }
-            if !a.json && std::io::IsTerminal::is_terminal(&std::io::stderr()) {
+            let tty = !a.json && std::io::IsTerminal::is_terminal(&std::io::stderr());
+            let cap = capture(
+                cam.as_mut(),
+                *frames,
+                !*no_filter,
+                Duration::from_secs(5),
+                |i| {
+                    if tty {
+                        eprint!("\rframes {i}/{frames}");
+                    }
+                },
+            )?;
+            if tty {
                 eprintln!();
             }
-            let refs: Vec<&[u16]> = kept.iter().map(|f| f.as_slice()).collect();
-            let av = average_frames(info.width, info.height, &refs)?;
-            let mut img = av.mean.clone();
-            let stripes = if *no_filter {
-                None
-            } else {
-                let e = estimate_stripes(&img);
-                remove_stripes(&mut img, &e);
-                Some(e)
-            };
+            let (av, img, stripes) = (cap.averaged, cap.image, cap.stripes);
             let (px, mapping) = match clip {
                 Some((lo, hi)) => {
                     let (px, s) = stretch(&img, lo, hi);

@@ -1,5 +1,6 @@
 //! The `rig` command line.
 
+pub mod calibrate_cmd;
 pub mod camera_cmd;
 pub mod stage_cmd;
 
@@ -52,6 +53,21 @@ pub enum Command {
     /// file or option).
     #[command(verbatim_doc_comment)]
     Camera(camera_cmd::CameraArgs),
+    /// Calibrate the rig: pixel→carriage from the plate's crosses (and, with a film, the
+    /// interior orientation from its fiducials).
+    ///
+    /// Examples:
+    ///   rig calibrate pixel --sim
+    ///   rig calibrate pixel --stage /dev/ttyUSB0 --camera /dev/video0 --plate-cert plate.toml
+    ///
+    /// Each session is a directory in --store (default ./rig-sessions): log.jsonl (every
+    /// step, flushed as it happens), crops/ (every mark with its fitted centre drawn),
+    /// results.json; with --sim also the simulator's certificate and sim-truth.json.
+    ///
+    /// Exit codes: 0 done; 2 bad usage; 1 any other error (the message says which step and
+    /// where the session so far was kept).
+    #[command(verbatim_doc_comment)]
+    Calibrate(calibrate_cmd::CalibrateArgs),
     /// Run the simulated stage controller on a pseudo-terminal (same as `rig-sim`).
     ///
     /// Prints the pseudo-terminal's path on its first line (and links it at --stage-link), then

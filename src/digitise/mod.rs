@@ -3,6 +3,7 @@
 //! kept as a baseline to compare against, since they blurred the edges the matcher needs.
 
 mod average;
+pub mod capture;
 mod image;
 mod lowpass;
 pub mod output;
@@ -10,6 +11,7 @@ mod stretch;
 mod stripes;
 
 pub use average::{average_frames, average_frames_into, Averaged, Averager};
+pub use capture::{capture, CaptureError, Captured};
 pub use image::ImageF32;
 pub use lowpass::seed_lowpass;
 pub use stretch::{stretch, Stretch};

@@ -1,0 +1,302 @@
+//! `rig calibrate`: calibration sessions on the rig or on the simulator.
+
+use anyhow::{bail, Context};
+use clap::{Args, Subcommand};
+use rig::calibrate::{calibrate_pixel, PixelCalibration, PixelOptions, Rig, Session};
+use rig::camera::{Camera, SimCamera};
+use rig::stage::{self, Dialect, DriverOptions, Stage};
+use rig::targets::certificate::PlateCertificate;
+use serde_json::json;
+use std::io::IsTerminal;
+use std::path::PathBuf;
+
+/// Options of `rig calibrate` (its help text is on `Command::Calibrate`).
+#[derive(Debug, Args)]
+pub struct CalibrateArgs {
+    /// Serial port of the stage controller.
+    #[arg(long, value_name = "PATH", conflicts_with = "sim", global = true)]
+    pub stage: Option<PathBuf>,
+    /// Controller dialect on that port.
+    #[arg(long, value_enum, default_value = "native", global = true)]
+    pub dialect: Dialect,
+    /// Camera: /dev/videoN (needs the `v4l2` build feature) or sim:SOCKET.
+    #[arg(long, value_name = "DEVICE", conflicts_with = "sim", global = true)]
+    pub camera: Option<String>,
+    /// Use the built-in simulator (stage, camera, plate; it writes its own certificates and
+    /// keeps its truth in the session as sim-truth.json).
+    #[arg(long, global = true)]
+    pub sim: bool,
+    /// Simulator: random seed.
+    #[arg(long, default_value_t = 1, requires = "sim", global = true)]
+    pub sim_seed: u64,
+    /// Simulator: wall seconds per simulated second (0 = no waiting).
+    #[arg(
+        long,
+        default_value_t = 0.0,
+        value_name = "S",
+        requires = "sim",
+        global = true
+    )]
+    pub sim_time_scale: f64,
+    /// Where sessions are kept.
+    #[arg(
+        long,
+        value_name = "DIR",
+        default_value = "rig-sessions",
+        global = true
+    )]
+    pub store: PathBuf,
+    /// Print the results document as JSON on standard output.
+    #[arg(long, global = true)]
+    pub json: bool,
+    #[command(subcommand)]
+    pub action: CalibrateAction,
+}
+
+#[derive(Debug, Subcommand)]
+pub enum CalibrateAction {
+    /// The pixel→carriage transformation: the central cross through a 5×5 grid of image
+    /// positions, then every cross under the measuring mark.
+    Pixel {
+        /// The carriage plate's certificate (TOML; see the README). With --sim: the
+        /// simulator's own, written into the session.
+        #[arg(long, value_name = "FILE")]
+        plate_cert: Option<PathBuf>,
+        /// The session directory (default: a new one in --store).
+        #[arg(long, value_name = "DIR")]
+        out: Option<PathBuf>,
+        /// Frames averaged at each position.
+        #[arg(long, default_value_t = 32)]
+        frames: u32,
+        /// Positions per side of the grid.
+        #[arg(long, default_value_t = 5)]
+        grid: usize,
+        /// Nominal pixel spacing to start from, µm (x,y): the first look measures it.
+        #[arg(long, value_name = "X,Y", default_value = "10,10")]
+        pixel_um: String,
+        /// Do not home first (the stage must already be homed).
+        #[arg(long)]
+        no_home: bool,
+        /// Only the 5×5 grid: skip the crosses that locate the measuring mark.
+        #[arg(long)]
+        grid_only: bool,
+    },
+}
+
+struct Hardware {
+    sim: Option<rig_sim::EmbeddedSim>,
+    stage: Box<dyn Stage>,
+    camera: Box<dyn Camera>,
+}
+
+/// Opens the stage and camera, or starts the simulator (writing its truth to `truth` when it
+/// stops).
+fn connect(a: &CalibrateArgs, truth: Option<PathBuf>) -> anyhow::Result<Hardware> {
+    if a.sim {
+        if a.sim_time_scale.is_nan() || a.sim_time_scale < 0.0 {
+            bail!("--sim-time-scale must be 0 or more");
+        }
+        let s = rig_sim::EmbeddedSim::start(rig_sim::SimConfig {
+            time_scale: a.sim_time_scale,
+            seed: a.sim_seed,
+            dialect: match a.dialect {
+                Dialect::Native => rig_sim::Dialect::Native,
+                Dialect::Grbl => rig_sim::Dialect::Grbl,
+            },
+            truth,
+            ..Default::default()
+        })
+        .context("starting the built-in simulator")?;
+        let stage = stage::open(
+            &s.port,
+            a.dialect,
+            DriverOptions::default(),
+            &Default::default(),
+        )?;
+        let camera = Box::new(SimCamera::new(s.world.clone(), 0.0));
+        return Ok(Hardware {
+            sim: Some(s),
+            stage,
+            camera,
+        });
+    }
+    let (Some(port), Some(cam)) = (&a.stage, &a.camera) else {
+        bail!("name the stage and the camera (--stage PATH --dialect native|grbl --camera DEVICE), or use --sim");
+    };
+    let stage = stage::open(
+        port,
+        a.dialect,
+        DriverOptions::default(),
+        &Default::default(),
+    )
+    .with_context(|| format!("opening the stage at {}", port.display()))?;
+    let camera = super::camera_cmd::open_device(cam)?;
+    Ok(Hardware {
+        sim: None,
+        stage,
+        camera,
+    })
+}
+
+fn parse_pair(s: &str, what: &str) -> anyhow::Result<[f64; 2]> {
+    let v: Vec<f64> = s
+        .split(',')
+        .map(|t| t.trim().parse::<f64>())
+        .collect::<Result<_, _>>()
+        .with_context(|| format!("{what} `{s}`: two numbers X,Y"))?;
+    match v[..] {
+        [x, y] if x > 0.0 && y > 0.0 && x.is_finite() && y.is_finite() => Ok([x, y]),
+        _ => bail!("{what} `{s}`: two positive numbers X,Y"),
+    }
+}
+
+/// Runs `rig calibrate`; returns the exit code.
+pub fn run(a: CalibrateArgs) -> anyhow::Result<i32> {
+    match &a.action {
+        CalibrateAction::Pixel {
+            plate_cert,
+            out,
+            frames,
+            grid,
+            pixel_um,
+            no_home,
+            grid_only,
+        } => {
+            if *frames == 0 || *frames > 1024 {
+                bail!("--frames {frames} is out of range: use 1 to 1024");
+            }
+            if !(2..=15).contains(grid) {
+                bail!("--grid {grid} is out of range: use 2 to 15");
+            }
+            let nominal = parse_pair(pixel_um, "--pixel-um")?;
+            if plate_cert.is_none() && !a.sim {
+                bail!("--plate-cert FILE is needed (the carriage plate's certificate; the README shows its format)");
+            }
+            let mut session = match out {
+                Some(d) => Session::create(d),
+                None => Session::new_in_store(&a.store, "pixel"),
+            }
+            .context("creating the session directory")?;
+            let mut hw = connect(&a, Some(session.dir.join("sim-truth.json")))?;
+            let cert_path = match (plate_cert, &hw.sim) {
+                (Some(p), _) => p.clone(),
+                (None, Some(s)) => {
+                    let p = session.dir.join("plate-cert.toml");
+                    std::fs::write(
+                        &p,
+                        rig_sim::certificates::plate_certificate(&s.world.plate, s.world.seed),
+                    )
+                    .with_context(|| format!("writing {}", p.display()))?;
+                    p
+                }
+                (None, None) => unreachable!("checked above"),
+            };
+            let plate = PlateCertificate::load(&cert_path)?;
+            let opt = PixelOptions {
+                frames: *frames,
+                grid: *grid,
+                nominal_um_per_px: nominal,
+                home: !no_home,
+                all_crosses: !grid_only,
+                ..Default::default()
+            };
+            session.start(
+                "pixel",
+                json!({
+                    "plate_certificate": cert_path, "plate": plate.name,
+                    "camera": hw.camera.info(), "stage": hw.stage.info(),
+                    "frames": opt.frames, "grid": opt.grid, "patch": opt.patch,
+                    "blur_px": opt.blur_px, "nominal_um_per_px": nominal, "sim": a.sim,
+                }),
+            )?;
+            let tty = std::io::stderr().is_terminal();
+            let mut progress = |m: &str| {
+                if tty {
+                    eprint!("\r\x1b[K{m}");
+                } else if !a.json {
+                    eprintln!("{m}");
+                }
+            };
+            let r = calibrate_pixel(
+                &mut Rig {
+                    stage: hw.stage.as_mut(),
+                    camera: hw.camera.as_mut(),
+                    session: &mut session,
+                    progress: &mut progress,
+                },
+                &plate,
+                &opt,
+            );
+            if tty {
+                eprintln!();
+            }
+            let result = match r {
+                Ok(c) => {
+                    let doc = json!({"kind": "pixel", "session": session.dir, "calibration": c});
+                    session.write_results(&doc)?;
+                    session.stop("done", None)?;
+                    Ok((c, doc))
+                }
+                Err(e) => {
+                    let _ = session.stop("failed", Some(&e.to_string()));
+                    Err(e)
+                }
+            };
+            if let Some(s) = hw.sim.take() {
+                drop(hw);
+                s.shutdown().context("stopping the built-in simulator")?;
+            }
+            let (c, doc) = result.with_context(|| {
+                format!(
+                    "calibration failed; the session so far is in {}",
+                    session.dir.display()
+                )
+            })?;
+            if a.json {
+                println!("{doc}");
+            } else {
+                print_pixel(&c, &session.dir);
+            }
+            Ok(0)
+        }
+    }
+}
+
+fn print_pixel(c: &PixelCalibration, dir: &std::path::Path) {
+    let used = c
+        .grid
+        .iter()
+        .filter(|o| o.result.centre().is_some())
+        .count();
+    println!(
+        "pixel → carriage ({used} of {} grid positions used)",
+        c.grid.len()
+    );
+    println!(
+        "  x-scale {:.4} µm  y-scale {:.4} µm  x-shear {:.4} µm  y-shear {:.4} µm  RMS {:.2} µm",
+        c.x_scale, c.y_scale, c.x_shear, c.y_shear, c.rms_um
+    );
+    for o in c.grid.iter().chain(&c.crosses) {
+        if let Some(why) = &o.result.rejected {
+            println!("  {}: left out — {why}", o.id);
+        }
+    }
+    for r in c.affine.residuals.iter().filter(|r| r.rejected) {
+        println!("  {}: rejected as an outlier (w = {:.1})", r.id, r.w);
+    }
+    if let Some(m) = &c.mark {
+        println!(
+            "measuring mark at pixel ({:.3}, {:.3}) ± ({:.3}, {:.3}) from {} crosses; from the affine ({:.3}, {:.3})",
+            m.mean.col, m.mean.row, m.std[0], m.std[1], m.per_cross.len(), m.from_affine.col, m.from_affine.row
+        );
+    }
+    if let Some(l) = &c.linear4 {
+        println!(
+            "4-parameter variant (centred at the mark): RMS {:.2} µm, residual sums ({:+.2}, {:+.2}) µm",
+            l.rms_total(),
+            l.residual_sum[0],
+            l.residual_sum[1]
+        );
+    }
+    println!("session: {}", dir.display());
+}
