@@ -124,3 +124,94 @@ fn calibrate_usage_errors_say_what_to_do() {
         "{}"
     );
 }
+
+#[test]
+fn interior_orientation_finds_every_fiducial_and_fits_the_corners_within_a_micrometre() {
+    let store = tempfile::tempdir().unwrap();
+    // A quick pixel session first (the interior orientation uses the newest in the store).
+    let o = rig()
+        .args([
+            "calibrate",
+            "pixel",
+            "--sim",
+            "--frames",
+            "8",
+            "--grid",
+            "3",
+            "--grid-only",
+            "--json",
+            "--store",
+        ])
+        .arg(store.path())
+        .output()
+        .unwrap();
+    let (code, _, err) = parse(o);
+    assert_eq!(code, 0, "{err}");
+    let out = store.path().join("interior");
+    let o = rig()
+        .args([
+            "calibrate",
+            "interior",
+            "--sim",
+            "--sim-seed",
+            "4",
+            "--json",
+            "--store",
+        ])
+        .arg(store.path())
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .unwrap();
+    let (code, doc, err) = parse(o);
+    assert_eq!(code, 0, "{err}");
+    let c = &doc["calibration"];
+    let truth: Value =
+        serde_json::from_slice(&std::fs::read(out.join("sim-truth.json")).unwrap()).unwrap();
+    let film = &truth["film"];
+    let p = |k: usize| f(&film["photo_to_carriage"][k]);
+    // Every fiducial found, measured where the truth puts it (carriage, µm).
+    let fids = c["fiducials"].as_array().unwrap();
+    assert_eq!(fids.len(), 8);
+    let mut worst = 0.0f64;
+    for o in fids {
+        assert!(o["missing"].is_null(), "{o}");
+        let id = o["id"].as_u64().unwrap();
+        let t = film["fiducials"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|t| t["id"].as_u64() == Some(id))
+            .unwrap();
+        let (u, v) = (f(&t["photo_mm"][0]), f(&t["photo_mm"][1]));
+        let want = [p(0) + p(1) * u + p(2) * v, p(3) + p(4) * u + p(5) * v];
+        let got = [f(&o["carriage_um"]["x"]), f(&o["carriage_um"]["y"])];
+        let e = (got[0] - want[0]).hypot(got[1] - want[1]);
+        println!("fiducial {id}: carriage error {e:.3} µm");
+        worst = worst.max(e);
+    }
+    assert!(
+        worst < 1.5,
+        "fiducials within 1.5 µm of the truth: {worst:.3}"
+    );
+    let version = |name: &str| {
+        c["versions"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|v| v["name"] == name)
+            .unwrap()
+            .clone()
+    };
+    let (all, corners, mids) = (version("all"), version("corners"), version("mid-sides"));
+    println!(
+        "interior orientation RMS: all {:.2} µm, corners {:.2} µm, mid-sides {:.2} µm",
+        f(&all["rms_um"]),
+        f(&corners["rms_um"]),
+        f(&mids["rms_um"])
+    );
+    assert!(f(&corners["rms_um"]) < 1.0);
+    assert_eq!(all["fiducials"].as_array().unwrap().len(), 8);
+    assert!(out.join("crops").join("fiducial-1.png").is_file());
+    assert!(out.join("camera-cert.toml").is_file());
+}

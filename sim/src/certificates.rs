@@ -1,7 +1,8 @@
 //! Certificates of the simulated world, written as a calibration laboratory would issue them
 //! (the TOML format the rig's README documents): the plate's crosses at their calibrated
-//! positions. The host reads them through its own parser; nothing else is shared.
+//! positions, and the film camera's fiducials with the certificate's own small errors. The host reads them through its own parser; nothing else is shared.
 
+use crate::film::{FiducialShape, Film};
 use crate::plate::Plate;
 use std::fmt::Write;
 
@@ -20,6 +21,36 @@ pub fn plate_certificate(plate: &Plate, seed: u64) -> String {
             s,
             "\n[[cross]]\nid = {}\nx_um = {:.2}\ny_um = {:.2}",
             c.id, c.true_um[0], c.true_um[1]
+        );
+    }
+    s
+}
+
+/// The film camera's certificate: each fiducial's calibrated photo coordinates (true position
+/// plus the certificate's error), group and form.
+pub fn camera_certificate(film: &Film, seed: u64) -> String {
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "# Calibration certificate of the simulated RC10-like film camera (simulator seed {seed}).\n\
+         [camera]\nname = \"simulated RC10, seed {seed}\"\nfocal_length_mm = 153.0\n\
+         polarity = \"dark_on_clear\"\n\n\
+         [shapes.corner]\nkind = \"ring_with_dot\"\nring_radius_um = 300.0\ndot_radius_um = 40.0\n\
+         line_um = 40.0\n\n\
+         [shapes.mid_side]\nkind = \"dot_with_line\"\ndot_radius_um = 60.0\nline_um = 40.0\n\
+         from_um = 150.0\nto_um = 600.0"
+    );
+    for f in &film.fiducials {
+        let (group, shape) = match f.shape {
+            FiducialShape::RingWithDot => ("corner", "corner"),
+            FiducialShape::DotWithLine => ("mid_side", "mid_side"),
+        };
+        let _ = writeln!(
+            s,
+            "\n[[fiducial]]\nid = {}\nx_mm = {:.4}\ny_mm = {:.4}\ngroup = \"{group}\"\nshape = \"{shape}\"",
+            f.id,
+            f.photo_mm[0] + f.cert_error_um[0] / 1000.0,
+            f.photo_mm[1] + f.cert_error_um[1] / 1000.0
         );
     }
     s

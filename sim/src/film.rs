@@ -21,8 +21,11 @@ pub enum FiducialShape {
 pub struct Fiducial {
     pub id: u32,
     pub shape: FiducialShape,
-    /// Calibrated photo coordinates, mm (what a camera certificate lists).
+    /// Where the fiducial really is, photo mm.
     pub photo_mm: [f64; 2],
+    /// The camera certificate's error for it, µm: the certificate lists photo_mm + this.
+    /// Seed 002: the mid-side fiducials "are not so precisely calibrated" as the corners.
+    pub cert_error_um: [f64; 2],
 }
 
 #[derive(Debug, Clone, Serialize)]
@@ -87,6 +90,7 @@ impl Film {
                 id: i as u32 + 1,
                 shape: FiducialShape::RingWithDot,
                 photo_mm: cal(x, y),
+                cert_error_um: [0.0; 2],
             });
         }
         for (i, (x, y)) in [(0.0, -112.0), (112.0, 0.0), (0.0, 112.0), (-112.0, 0.0)]
@@ -97,6 +101,7 @@ impl Film {
                 id: i as u32 + 5,
                 shape: FiducialShape::DotWithLine,
                 photo_mm: cal(x, y),
+                cert_error_um: [0.0; 2],
             });
         }
         let rot = (rng.uniform() - 0.5) * 0.6f64.to_radians();
@@ -121,6 +126,16 @@ impl Film {
             s * a1 + c * b1,
             s * a2 + c * b2,
         ];
+        let texture_seed = rng.next_u64();
+        // The certificate's errors from their own stream: corners σ 0.3 µm, mid-sides 2 µm.
+        let mut cert = Rng::new(texture_seed ^ 0xCE27_1F1C);
+        for f in fiducials.iter_mut() {
+            let s = match f.shape {
+                FiducialShape::RingWithDot => 0.3,
+                FiducialShape::DotWithLine => 2.0,
+            };
+            f.cert_error_um = [s * cert.normal(), s * cert.normal()];
+        }
         Film {
             fiducials,
             photo_to_carriage,
@@ -128,7 +143,7 @@ impl Film {
             mark: 0.08,
             frame_half_mm: 116.0,
             picture_half_mm: 100.0,
-            texture_seed: rng.next_u64(),
+            texture_seed,
         }
     }
 

@@ -4,10 +4,12 @@
 //! store so drift between sessions shows.
 
 pub mod affine_fit;
+pub mod interior;
 pub mod measure;
 pub mod pixel;
 pub mod session;
 
 pub use affine_fit::{fit, Fit, FitError, Model};
+pub use interior::{calibrate_interior, InteriorOptions, InteriorOrientation, PixelTransform};
 pub use pixel::{calibrate_pixel, CalibrateError, PixelCalibration, PixelOptions, Rig};
 pub use session::Session;

@@ -2,10 +2,13 @@
 
 use anyhow::{bail, Context};
 use clap::{Args, Subcommand};
-use rig::calibrate::{calibrate_pixel, PixelCalibration, PixelOptions, Rig, Session};
+use rig::calibrate::{
+    calibrate_interior, calibrate_pixel, CalibrateError, InteriorOptions, InteriorOrientation,
+    PixelCalibration, PixelOptions, PixelTransform, Rig, Session,
+};
 use rig::camera::{Camera, SimCamera};
 use rig::stage::{self, Dialect, DriverOptions, Stage};
-use rig::targets::certificate::PlateCertificate;
+use rig::targets::certificate::{CameraCertificate, PlateCertificate};
 use serde_json::json;
 use std::io::IsTerminal;
 use std::path::PathBuf;
@@ -81,6 +84,30 @@ pub enum CalibrateAction {
         #[arg(long)]
         grid_only: bool,
     },
+    /// The interior orientation: find and measure the film's fiducials, fit carriage→image
+    /// with all fiducials, the corners only and the mid-sides only (seed 002, Table 5).
+    Interior {
+        /// The film camera's certificate (TOML; see the README). With --sim: the simulator's
+        /// own, written into the session.
+        #[arg(long, value_name = "FILE")]
+        camera_cert: Option<PathBuf>,
+        /// The pixel session whose pixel→carriage transformation to use (default: the newest
+        /// in --store).
+        #[arg(long, value_name = "DIR")]
+        pixel_session: Option<PathBuf>,
+        /// Where the film's centre lies on the carriage, roughly (mm): the search starts there.
+        #[arg(long, value_name = "X,Y", default_value = "125,125")]
+        film_centre: String,
+        /// The session directory (default: a new one in --store).
+        #[arg(long, value_name = "DIR")]
+        out: Option<PathBuf>,
+        /// Frames averaged at each fiducial.
+        #[arg(long, default_value_t = 32)]
+        frames: u32,
+        /// Do not home first (the stage must already be homed).
+        #[arg(long)]
+        no_home: bool,
+    },
 }
 
 struct Hardware {
@@ -91,7 +118,7 @@ struct Hardware {
 
 /// Opens the stage and camera, or starts the simulator (writing its truth to `truth` when it
 /// stops).
-fn connect(a: &CalibrateArgs, truth: Option<PathBuf>) -> anyhow::Result<Hardware> {
+fn connect(a: &CalibrateArgs, truth: Option<PathBuf>, film: bool) -> anyhow::Result<Hardware> {
     if a.sim {
         if a.sim_time_scale.is_nan() || a.sim_time_scale < 0.0 {
             bail!("--sim-time-scale must be 0 or more");
@@ -104,6 +131,8 @@ fn connect(a: &CalibrateArgs, truth: Option<PathBuf>) -> anyhow::Result<Hardware
                 Dialect::Grbl => rig_sim::Dialect::Grbl,
             },
             truth,
+            film,
+            start_homed: false,
             ..Default::default()
         })
         .context("starting the built-in simulator")?;
@@ -150,6 +179,88 @@ fn parse_pair(s: &str, what: &str) -> anyhow::Result<[f64; 2]> {
     }
 }
 
+/// A session being run: its directory, the hardware (or simulator), progress output.
+struct Running {
+    session: Session,
+    hw: Hardware,
+}
+
+impl Running {
+    fn begin(
+        a: &CalibrateArgs,
+        out: &Option<PathBuf>,
+        kind: &str,
+        film: bool,
+    ) -> anyhow::Result<Self> {
+        let session = match out {
+            Some(d) => Session::create(d),
+            None => Session::new_in_store(&a.store, kind),
+        }
+        .context("creating the session directory")?;
+        let hw = connect(a, Some(session.dir.join("sim-truth.json")), film)?;
+        Ok(Running { session, hw })
+    }
+
+    /// Runs `body` with the rig, then records the outcome, stops the simulator, and returns
+    /// the results document.
+    fn run<T: serde::Serialize>(
+        mut self,
+        a: &CalibrateArgs,
+        kind: &str,
+        body: impl FnOnce(&mut Rig) -> Result<T, CalibrateError>,
+    ) -> anyhow::Result<(T, serde_json::Value, PathBuf)> {
+        let tty = std::io::stderr().is_terminal();
+        let json_out = a.json;
+        let mut progress = |m: &str| {
+            if tty {
+                eprint!("\r\x1b[K{m}");
+            } else if !json_out {
+                eprintln!("{m}");
+            }
+        };
+        let r = body(&mut Rig {
+            stage: self.hw.stage.as_mut(),
+            camera: self.hw.camera.as_mut(),
+            session: &mut self.session,
+            progress: &mut progress,
+        });
+        if tty {
+            eprintln!();
+        }
+        let result = match r {
+            Ok(c) => {
+                let doc = json!({"kind": kind, "session": self.session.dir, "calibration": c});
+                self.session.write_results(&doc)?;
+                self.session.stop("done", None)?;
+                Ok((c, doc))
+            }
+            Err(e) => {
+                let _ = self.session.stop("failed", Some(&e.to_string()));
+                Err(e)
+            }
+        };
+        let dir = self.session.dir.clone();
+        if let Some(s) = self.hw.sim.take() {
+            drop(self.hw);
+            s.shutdown().context("stopping the built-in simulator")?;
+        }
+        let (c, doc) = result.with_context(|| {
+            format!(
+                "calibration failed; the session so far is in {}",
+                dir.display()
+            )
+        })?;
+        Ok((c, doc, dir))
+    }
+}
+
+fn check_frames(frames: u32) -> anyhow::Result<()> {
+    if frames == 0 || frames > 1024 {
+        bail!("--frames {frames} is out of range: use 1 to 1024");
+    }
+    Ok(())
+}
+
 /// Runs `rig calibrate`; returns the exit code.
 pub fn run(a: CalibrateArgs) -> anyhow::Result<i32> {
     match &a.action {
@@ -162,9 +273,7 @@ pub fn run(a: CalibrateArgs) -> anyhow::Result<i32> {
             no_home,
             grid_only,
         } => {
-            if *frames == 0 || *frames > 1024 {
-                bail!("--frames {frames} is out of range: use 1 to 1024");
-            }
+            check_frames(*frames)?;
             if !(2..=15).contains(grid) {
                 bail!("--grid {grid} is out of range: use 2 to 15");
             }
@@ -172,16 +281,11 @@ pub fn run(a: CalibrateArgs) -> anyhow::Result<i32> {
             if plate_cert.is_none() && !a.sim {
                 bail!("--plate-cert FILE is needed (the carriage plate's certificate; the README shows its format)");
             }
-            let mut session = match out {
-                Some(d) => Session::create(d),
-                None => Session::new_in_store(&a.store, "pixel"),
-            }
-            .context("creating the session directory")?;
-            let mut hw = connect(&a, Some(session.dir.join("sim-truth.json")))?;
-            let cert_path = match (plate_cert, &hw.sim) {
+            let mut run = Running::begin(&a, out, "pixel", false)?;
+            let cert_path = match (plate_cert, &run.hw.sim) {
                 (Some(p), _) => p.clone(),
                 (None, Some(s)) => {
-                    let p = session.dir.join("plate-cert.toml");
+                    let p = run.session.dir.join("plate-cert.toml");
                     std::fs::write(
                         &p,
                         rig_sim::certificates::plate_certificate(&s.world.plate, s.world.seed),
@@ -200,66 +304,151 @@ pub fn run(a: CalibrateArgs) -> anyhow::Result<i32> {
                 all_crosses: !grid_only,
                 ..Default::default()
             };
-            session.start(
+            run.session.start(
                 "pixel",
                 json!({
                     "plate_certificate": cert_path, "plate": plate.name,
-                    "camera": hw.camera.info(), "stage": hw.stage.info(),
+                    "camera": run.hw.camera.info(), "stage": run.hw.stage.info(),
                     "frames": opt.frames, "grid": opt.grid, "patch": opt.patch,
                     "blur_px": opt.blur_px, "nominal_um_per_px": nominal, "sim": a.sim,
                 }),
             )?;
-            let tty = std::io::stderr().is_terminal();
-            let mut progress = |m: &str| {
-                if tty {
-                    eprint!("\r\x1b[K{m}");
-                } else if !a.json {
-                    eprintln!("{m}");
-                }
-            };
-            let r = calibrate_pixel(
-                &mut Rig {
-                    stage: hw.stage.as_mut(),
-                    camera: hw.camera.as_mut(),
-                    session: &mut session,
-                    progress: &mut progress,
-                },
-                &plate,
-                &opt,
-            );
-            if tty {
-                eprintln!();
+            let (c, doc, dir) = run.run(&a, "pixel", |rig| calibrate_pixel(rig, &plate, &opt))?;
+            if a.json {
+                println!("{doc}");
+            } else {
+                print_pixel(&c, &dir);
             }
-            let result = match r {
-                Ok(c) => {
-                    let doc = json!({"kind": "pixel", "session": session.dir, "calibration": c});
-                    session.write_results(&doc)?;
-                    session.stop("done", None)?;
-                    Ok((c, doc))
-                }
-                Err(e) => {
-                    let _ = session.stop("failed", Some(&e.to_string()));
-                    Err(e)
-                }
-            };
-            if let Some(s) = hw.sim.take() {
-                drop(hw);
-                s.shutdown().context("stopping the built-in simulator")?;
+            Ok(0)
+        }
+        CalibrateAction::Interior {
+            camera_cert,
+            pixel_session,
+            film_centre,
+            out,
+            frames,
+            no_home,
+        } => {
+            check_frames(*frames)?;
+            let centre = parse_pair(film_centre, "--film-centre")?;
+            if camera_cert.is_none() && !a.sim {
+                bail!("--camera-cert FILE is needed (the film camera's certificate with its fiducials; the README shows its format)");
             }
-            let (c, doc) = result.with_context(|| {
-                format!(
-                    "calibration failed; the session so far is in {}",
-                    session.dir.display()
-                )
+            let pixel_dir = match pixel_session {
+                Some(d) => d.clone(),
+                None => rig::calibrate::session::list(&a.store, "pixel")?
+                    .pop()
+                    .with_context(|| {
+                        format!(
+                            "no pixel session in {}: run `rig calibrate pixel` first, or name one with --pixel-session DIR",
+                            a.store.display()
+                        )
+                    })?,
+            };
+            let pixel = PixelTransform::from_session(&pixel_dir).map_err(anyhow::Error::msg)?;
+            let mut run = Running::begin(&a, out, "interior", true)?;
+            let cert_path = match (camera_cert, &run.hw.sim) {
+                (Some(p), _) => p.clone(),
+                (None, Some(s)) => {
+                    let p = run.session.dir.join("camera-cert.toml");
+                    let film = s
+                        .world
+                        .film
+                        .as_ref()
+                        .expect("the simulator was started with a film");
+                    std::fs::write(
+                        &p,
+                        rig_sim::certificates::camera_certificate(film, s.world.seed),
+                    )
+                    .with_context(|| format!("writing {}", p.display()))?;
+                    p
+                }
+                (None, None) => unreachable!("checked above"),
+            };
+            let cert = CameraCertificate::load(&cert_path)?;
+            let opt = InteriorOptions {
+                frames: *frames,
+                film_centre: rig::coords::CarriageUm::from_mm(centre[0], centre[1]),
+                ..Default::default()
+            };
+            run.session.start(
+                "interior",
+                json!({
+                    "camera_certificate": cert_path, "camera_name": cert.name,
+                    "pixel_session": pixel_dir, "pixel_to_carriage": pixel,
+                    "camera": run.hw.camera.info(), "stage": run.hw.stage.info(),
+                    "frames": opt.frames, "patch": opt.patch, "film_centre_mm": centre, "sim": a.sim,
+                }),
+            )?;
+            let home = !no_home;
+            let (c, doc, dir) = run.run(&a, "interior", |rig| {
+                if home {
+                    (rig.progress)("homing");
+                    rig.stage.home()?;
+                }
+                calibrate_interior(rig, &cert, &pixel, &opt)
             })?;
             if a.json {
                 println!("{doc}");
             } else {
-                print_pixel(&c, &session.dir);
+                print_interior(&c, &dir);
             }
             Ok(0)
         }
     }
+}
+
+fn print_interior(c: &InteriorOrientation, dir: &std::path::Path) {
+    println!("fiducials:");
+    for f in &c.fiducials {
+        match (&f.carriage_um, &f.missing) {
+            (Some(cu), None) => println!(
+                "  {} ({:?}) at carriage ({:.4}, {:.4}) mm",
+                f.id,
+                f.group,
+                cu.x_mm(),
+                cu.y_mm()
+            ),
+            (_, why) => println!(
+                "  {} ({:?}): left out — {}",
+                f.id,
+                f.group,
+                why.as_deref().unwrap_or("not measured")
+            ),
+        }
+    }
+    println!("carriage → image (affine), residuals in µm:");
+    for v in &c.versions {
+        match &v.fit {
+            Some(fit) => {
+                println!(
+                    "  {:<9} RMS {:.2} µm over {} fiducials",
+                    v.name,
+                    fit.rms_total(),
+                    v.fiducials.len()
+                );
+                for r in &fit.residuals {
+                    println!(
+                        "    {:>3}: vx {:+6.2}  vy {:+6.2}{}",
+                        r.id,
+                        r.v[0],
+                        r.v[1],
+                        if r.w > rig::calibrate::affine_fit::OUTLIER_W {
+                            "  ← outlier?"
+                        } else {
+                            ""
+                        }
+                    );
+                }
+            }
+            None => println!(
+                "  {:<9} not fitted: {}",
+                v.name,
+                v.error.as_deref().unwrap_or("")
+            ),
+        }
+    }
+    println!("session: {}", dir.display());
 }
 
 fn print_pixel(c: &PixelCalibration, dir: &std::path::Path) {

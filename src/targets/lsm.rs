@@ -19,8 +19,8 @@ use serde::Serialize;
 #[derive(Debug, Clone, Copy)]
 pub struct LsmOptions {
     pub max_iterations: u32,
-    /// Converged when the shift corrections fall below this (px) and the affine ones below
-    /// a tenth of it.
+    /// Converged when the shift corrections fall below this (px) and the affine ones move the
+    /// patch's edge by less than ten times it.
     pub tolerance_px: f64,
     /// Give up when the centre wanders this far from the start (px).
     pub max_shift_px: f64,
@@ -31,7 +31,9 @@ pub struct LsmOptions {
 impl Default for LsmOptions {
     fn default() -> Self {
         LsmOptions {
-            max_iterations: 30,
+            // A ring's rotation is weakly determined (only by the pixels' anisotropy): it can
+            // take some 30 iterations to settle, and the centre moves with it by ~0.01 px.
+            max_iterations: 60,
             tolerance_px: 1e-4,
             max_shift_px: 3.0,
             min_contrast_dn: 3.0,
