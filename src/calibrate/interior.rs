@@ -329,6 +329,12 @@ pub fn calibrate_interior(
         version("corners", &|o| o.group == FiducialGroup::Corner),
         version("mid-sides", &|o| o.group == FiducialGroup::MidSide),
     ];
+    for v in &versions {
+        if let Some(f) = &v.fit {
+            let name = format!("residuals-{}.png", v.name);
+            super::plot::residual_plot(f, "um", &rig.session.dir.join(name))?;
+        }
+    }
     rig.session.event(
         "carriage_to_image",
         serde_json::to_value(&versions).unwrap_or_default(),

@@ -4,9 +4,11 @@
 //! store so drift between sessions shows.
 
 pub mod affine_fit;
+pub mod history;
 pub mod interior;
 pub mod measure;
 pub mod pixel;
+pub mod plot;
 pub mod session;
 
 pub use affine_fit::{fit, Fit, FitError, Model};

@@ -356,6 +356,10 @@ pub fn calibrate_pixel(
             mark = Some(m);
         }
     }
+    super::plot::residual_plot(&affine, "um", &rig.session.dir.join("residuals-affine.png"))?;
+    if let Some(l) = &linear4 {
+        super::plot::residual_plot(l, "um", &rig.session.dir.join("residuals-linear4.png"))?;
+    }
     Ok(PixelCalibration {
         first_look: a,
         x_scale: ap[1],

@@ -84,6 +84,20 @@ pub enum CalibrateAction {
         #[arg(long)]
         grid_only: bool,
     },
+    /// Compare the newest pixel session with the earlier ones in --store: scales, shears, the
+    /// measuring mark's pixel (seed 002, Tables 2 and 3); changes beyond the thresholds are
+    /// flagged as drift (exit code 3).
+    History {
+        /// Drift threshold for scales, µm per px.
+        #[arg(long, default_value_t = 0.005)]
+        scale_um: f64,
+        /// Drift threshold for shears, µm per px.
+        #[arg(long, default_value_t = 0.01)]
+        shear_um: f64,
+        /// Drift threshold for the measuring mark, px.
+        #[arg(long, default_value_t = 0.3)]
+        mark_px: f64,
+    },
     /// The interior orientation: find and measure the film's fiducials, fit carriage→image
     /// with all fiducials, the corners only and the mid-sides only (seed 002, Table 5).
     Interior {
@@ -321,6 +335,44 @@ pub fn run(a: CalibrateArgs) -> anyhow::Result<i32> {
             }
             Ok(0)
         }
+        CalibrateAction::History {
+            scale_um,
+            shear_um,
+            mark_px,
+        } => {
+            for (name, v) in [
+                ("--scale-um", scale_um),
+                ("--shear-um", shear_um),
+                ("--mark-px", mark_px),
+            ] {
+                if v.is_nan() || *v <= 0.0 {
+                    bail!("{name} {v}: a positive threshold");
+                }
+            }
+            let dirs = rig::calibrate::session::list(&a.store, "pixel")?;
+            if dirs.is_empty() {
+                bail!(
+                    "no pixel sessions in {}: run `rig calibrate pixel` (or give --store DIR)",
+                    a.store.display()
+                );
+            }
+            let h = rig::calibrate::history::history(
+                &dirs,
+                rig::calibrate::history::DriftThresholds {
+                    scale_um: *scale_um,
+                    shear_um: *shear_um,
+                    mark_px: *mark_px,
+                },
+            )
+            .map_err(anyhow::Error::msg)?;
+            let drift = h.newest_vs.first().is_some_and(|c| !c.drift.is_empty());
+            if a.json {
+                println!("{}", serde_json::to_string(&h)?);
+            } else {
+                print_history(&h);
+            }
+            Ok(if drift { 3 } else { 0 })
+        }
         CalibrateAction::Interior {
             camera_cert,
             pixel_session,
@@ -394,6 +446,45 @@ pub fn run(a: CalibrateArgs) -> anyhow::Result<i32> {
                 print_interior(&c, &dir);
             }
             Ok(0)
+        }
+    }
+}
+
+fn print_history(h: &rig::calibrate::history::History) {
+    println!("pixel → carriage sessions (seed 002, Tables 2 and 3):");
+    println!(
+        "  {:<34} {:>9} {:>9} {:>8} {:>8} {:>6}  {:>17}",
+        "session", "x-scale", "y-scale", "x-shear", "y-shear", "RMS", "mark (col, row)"
+    );
+    for s in &h.sessions {
+        let name = s.session.file_name().map_or_else(
+            || s.session.display().to_string(),
+            |n| n.to_string_lossy().to_string(),
+        );
+        println!(
+            "  {:<34} {:>9.4} {:>9.4} {:>8.4} {:>8.4} {:>6.2}  {}",
+            name,
+            s.x_scale,
+            s.y_scale,
+            s.x_shear,
+            s.y_shear,
+            s.rms_um,
+            s.mark
+                .map_or("—".into(), |m| format!("{:.3}, {:.3}", m[0], m[1]))
+        );
+    }
+    for c in &h.newest_vs {
+        let name = c.earlier.file_name().map_or_else(
+            || c.earlier.display().to_string(),
+            |n| n.to_string_lossy().to_string(),
+        );
+        if c.drift.is_empty() {
+            println!("newest vs {name}: no drift");
+        } else {
+            println!("newest vs {name}: DRIFT");
+            for d in &c.drift {
+                println!("  {d}");
+            }
         }
     }
 }
