@@ -13,12 +13,15 @@ fn pixel_calibration_matches_the_truth() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("session");
     let o = rig()
+        // Dirt over cross 7: it must be reported and left out, never used.
         .args([
             "calibrate",
             "pixel",
             "--sim",
             "--sim-seed",
             "3",
+            "--sim-dirty-crosses",
+            "7",
             "--json",
             "--out",
         ])
@@ -55,7 +58,27 @@ fn pixel_calibration_matches_the_truth() {
     let (mc, mr) = (f(&m["mean"]["col"]), f(&m["mean"]["row"]));
     let (tc, tr) = (f(&af["mark_px"][0]), f(&af["mark_px"][1]));
     println!("mark ({mc:.3}, {mr:.3}) truth ({tc}, {tr}); σ {}", m["std"]);
-    assert_eq!(m["per_cross"].as_array().unwrap().len(), 9);
+    let per: Vec<u64> = m["per_cross"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|p| p[0].as_u64().unwrap())
+        .collect();
+    assert_eq!(
+        per,
+        [1, 2, 3, 4, 5, 6, 8, 9],
+        "the dirty cross 7 is left out"
+    );
+    let c7 = c["crosses"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|o| o["cross"] == 7)
+        .unwrap();
+    assert!(
+        c7["rejected"].as_str().unwrap().contains("poor match"),
+        "{c7}"
+    );
     assert!((mc - tc).abs() < 0.1 && (mr - tr).abs() < 0.1);
     // The seed's observation: without shifts the 4-parameter fit is biased.
     let l4 = &c["linear4"];
@@ -149,12 +172,15 @@ fn interior_orientation_finds_every_fiducial_and_fits_the_corners_within_a_micro
     assert_eq!(code, 0, "{err}");
     let out = store.path().join("interior");
     let o = rig()
+        // Fiducial 6 is not on the film: reported missing, left out of every fit.
         .args([
             "calibrate",
             "interior",
             "--sim",
             "--sim-seed",
             "4",
+            "--sim-missing-fiducials",
+            "6",
             "--json",
             "--store",
         ])
@@ -175,8 +201,13 @@ fn interior_orientation_finds_every_fiducial_and_fits_the_corners_within_a_micro
     assert_eq!(fids.len(), 8);
     let mut worst = 0.0f64;
     for o in fids {
-        assert!(o["missing"].is_null(), "{o}");
         let id = o["id"].as_u64().unwrap();
+        if id == 6 {
+            assert!(o["missing"].as_str().unwrap().contains("not found"), "{o}");
+            assert!(o["carriage_um"].is_null());
+            continue;
+        }
+        assert!(o["missing"].is_null(), "{o}");
         let t = film["fiducials"]
             .as_array()
             .unwrap()
@@ -205,13 +236,22 @@ fn interior_orientation_finds_every_fiducial_and_fits_the_corners_within_a_micro
     };
     let (all, corners, mids) = (version("all"), version("corners"), version("mid-sides"));
     println!(
-        "interior orientation RMS: all {:.2} µm, corners {:.2} µm, mid-sides {:.2} µm",
+        "interior orientation RMS: all {:.2} µm, corners {:.2} µm; mid-sides: {}",
         f(&all["rms_um"]),
         f(&corners["rms_um"]),
-        f(&mids["rms_um"])
+        mids["error"]
     );
     assert!(f(&corners["rms_um"]) < 1.0);
-    assert_eq!(all["fiducials"].as_array().unwrap().len(), 8);
+    let used: Vec<u64> = all["fiducials"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_u64().unwrap())
+        .collect();
+    assert_eq!(used.len(), 7);
+    assert!(!used.contains(&6));
+    // Three mid-sides left: an affine cannot be checked with them, and says so.
+    assert!(mids["fit"].is_null() && mids["error"].as_str().unwrap().contains("3 points"));
     assert!(out.join("crops").join("fiducial-1.png").is_file());
     assert!(out.join("camera-cert.toml").is_file());
 }

@@ -149,8 +149,7 @@ fn run_trial(kind: &str, spec: &str, dialect: Dialect, seed: u64, cell: &mut Cel
         faults: FaultSpec::parse(spec).unwrap(),
         truth: Some(truth.clone()),
         stage_link: None,
-        start_homed: false,
-        film: false,
+        ..Default::default()
     })
     .unwrap();
     cell.trials += 1;

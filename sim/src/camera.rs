@@ -198,6 +198,20 @@ pub fn render_plate(cfg: &CameraConfig, plate: &Plate, mark_um: [f64; 2]) -> Vec
             }
         }
     }
+    for d in &plate.dirt {
+        let s = 0.5 * (sx + sy);
+        for row in 0..h {
+            for col in 0..w {
+                let l = af.local_um(col as f64 + 0.5, row as f64 + 0.5);
+                let r = (mark_um[0] + l[0] - d[0]).hypot(mark_um[1] + l[1] - d[1]);
+                if r > d[2] + 5.0 * s {
+                    continue;
+                }
+                let cov = 0.5 * (1.0 - erf((r - d[2]) / (std::f64::consts::SQRT_2 * s)));
+                img[row * w + col] *= (1.0 - (1.0 - d[3]) * cov) as f32;
+            }
+        }
+    }
     img
 }
 

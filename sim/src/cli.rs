@@ -42,6 +42,12 @@ pub struct SimArgs {
     /// Lay a film (an RC10-like frame with 8 fiducials) on the carriage.
     #[arg(long)]
     pub film: bool,
+    /// Smudge dirt over these crosses' centres (comma-separated ids, 1–9).
+    #[arg(long, value_name = "IDS", value_delimiter = ',')]
+    pub dirty_crosses: Vec<u32>,
+    /// Leave these fiducials off the film (comma-separated ids, 1–8).
+    #[arg(long, value_name = "IDS", value_delimiter = ',')]
+    pub missing_fiducials: Vec<u32>,
     /// Probability that a camera frame is lost on the way.
     #[arg(long, default_value_t = 0.0, value_name = "P")]
     pub camera_drop: f64,
@@ -71,6 +77,8 @@ pub fn run(args: SimArgs) -> std::io::Result<()> {
         stage_link: args.stage_link,
         start_homed: args.start_homed,
         film: args.film,
+        dirty_crosses: args.dirty_crosses,
+        missing_fiducials: args.missing_fiducials,
     };
     let world = crate::server::World::new(&cfg);
     if !(0.0..=0.5).contains(&args.camera_drop) {

@@ -26,6 +26,8 @@ pub struct Fiducial {
     /// The camera certificate's error for it, µm: the certificate lists photo_mm + this.
     /// Seed 002: the mid-side fiducials "are not so precisely calibrated" as the corners.
     pub cert_error_um: [f64; 2],
+    /// Not on the film (never exposed, or damaged away).
+    pub missing: bool,
 }
 
 #[derive(Debug, Clone, Serialize)]
@@ -91,6 +93,7 @@ impl Film {
                 shape: FiducialShape::RingWithDot,
                 photo_mm: cal(x, y),
                 cert_error_um: [0.0; 2],
+                missing: false,
             });
         }
         for (i, (x, y)) in [(0.0, -112.0), (112.0, 0.0), (0.0, 112.0), (-112.0, 0.0)]
@@ -102,6 +105,7 @@ impl Film {
                 shape: FiducialShape::DotWithLine,
                 photo_mm: cal(x, y),
                 cert_error_um: [0.0; 2],
+                missing: false,
             });
         }
         let rot = (rng.uniform() - 0.5) * 0.6f64.to_radians();
@@ -185,7 +189,7 @@ impl Film {
             return self.picture(u, v);
         }
         let mut clear = 1.0;
-        for f in &self.fiducials {
+        for f in self.fiducials.iter().filter(|f| !f.missing) {
             let d = [(u - f.photo_mm[0]) * 1000.0, (v - f.photo_mm[1]) * 1000.0];
             let r = d[0].hypot(d[1]);
             if r > 1_000.0 {

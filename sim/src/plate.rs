@@ -25,6 +25,8 @@ pub struct Plate {
     /// Transmittance of clear glass and of an engraved line (diapositive light).
     pub clear: f64,
     pub line: f64,
+    /// Smudges of dirt: (x µm, y µm, radius µm, transmittance).
+    pub dirt: Vec<[f64; 4]>,
 }
 
 impl Plate {
@@ -48,6 +50,7 @@ impl Plate {
             line_um: 40.0,
             clear: 0.85,
             line: 0.12,
+            dirt: Vec::new(),
         }
     }
 

@@ -47,6 +47,10 @@ pub struct SimConfig {
     pub start_homed: bool,
     /// A film lies on the carriage.
     pub film: bool,
+    /// Crosses of the plate with a smudge of dirt over their centre.
+    pub dirty_crosses: Vec<u32>,
+    /// Fiducials the film lacks (not exposed, torn off); the certificate still lists them.
+    pub missing_fiducials: Vec<u32>,
 }
 
 impl Default for SimConfig {
@@ -60,6 +64,8 @@ impl Default for SimConfig {
             stage_link: None,
             start_homed: false,
             film: false,
+            dirty_crosses: Vec::new(),
+            missing_fiducials: Vec::new(),
         }
     }
 }
@@ -123,9 +129,20 @@ impl World {
         let stage_cfg = StageConfig::new(&mut rng, home_dir);
         // Drawn after the stage, so the stage of a seed is the same with or without a camera.
         let camera = CameraConfig::new(&mut rng);
-        let plate = Plate::new(&mut rng);
+        let mut plate = Plate::new(&mut rng);
         // Drawn whether loaded or not, so a seed's world is the same either way.
-        let film = crate::film::Film::rc10(&mut rng);
+        let mut film = crate::film::Film::rc10(&mut rng);
+        for id in &cfg.dirty_crosses {
+            if let Some(c) = plate.crosses.iter().find(|c| c.id == *id) {
+                // Off the centre, so that it would pull a match that used it.
+                plate
+                    .dirt
+                    .push([c.true_um[0] + 35.0, c.true_um[1] + 25.0, 70.0, 0.25]);
+            }
+        }
+        for f in film.fiducials.iter_mut() {
+            f.missing = cfg.missing_fiducials.contains(&f.id);
+        }
         let film = cfg.film.then_some(film);
         let stage = Stage::new(stage_cfg, cfg.faults.clone(), cfg.seed, cfg.start_homed);
         Arc::new(World {

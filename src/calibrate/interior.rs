@@ -307,7 +307,17 @@ pub fn calibrate_interior(
             })
             .collect();
         let ids = pts.iter().map(|p| p.0.parse().unwrap_or(0)).collect();
-        match fit(Model::Affine6, &pts, false) {
+        // Three points fix an affine exactly: nothing would be checked, so at least four.
+        let r = if pts.len() < 4 {
+            Err(super::affine_fit::FitError::TooFewPoints {
+                points: pts.len(),
+                params: 6,
+                need: 4,
+            })
+        } else {
+            fit(Model::Affine6, &pts, false)
+        };
+        match r {
             Ok(f) => InteriorVersion {
                 name: name.into(),
                 fiducials: ids,

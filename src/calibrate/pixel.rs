@@ -64,7 +64,7 @@ pub enum CalibrateError {
     Capture(#[from] CaptureError),
     #[error("session store: {0}")]
     Io(#[from] std::io::Error),
-    #[error("{0}")]
+    #[error(transparent)]
     Fit(#[from] FitError),
     #[error("{0}")]
     NotFound(String),
@@ -278,6 +278,19 @@ pub fn calibrate_pixel(
             Some((o.id.clone(), [p.col, p.row], [l.x, l.y]))
         })
         .collect();
+    if pts.len() < 4 {
+        let why = grid
+            .iter()
+            .find_map(|o| o.result.rejected.clone())
+            .unwrap_or_default();
+        return Err(CalibrateError::NotFound(format!(
+            "cross {} was measured usably at only {} of {} grid positions (first reason: {why}); \
+             clean the cross or see the crops in the session",
+            central.id,
+            pts.len(),
+            grid.len()
+        )));
+    }
     let affine = fit(Model::Affine6, &pts, true)?;
     let ap = affine.params;
     let a_fit = [[ap[1], ap[2]], [ap[4], ap[5]]];

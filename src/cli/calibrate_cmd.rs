@@ -41,6 +41,24 @@ pub struct CalibrateArgs {
         global = true
     )]
     pub sim_time_scale: f64,
+    /// Simulator: smudge dirt over these crosses' centres (ids, comma-separated).
+    #[arg(
+        long,
+        value_name = "IDS",
+        value_delimiter = ',',
+        requires = "sim",
+        global = true
+    )]
+    pub sim_dirty_crosses: Vec<u32>,
+    /// Simulator: leave these fiducials off the film (ids, comma-separated).
+    #[arg(
+        long,
+        value_name = "IDS",
+        value_delimiter = ',',
+        requires = "sim",
+        global = true
+    )]
+    pub sim_missing_fiducials: Vec<u32>,
     /// Where sessions are kept.
     #[arg(
         long,
@@ -147,6 +165,8 @@ fn connect(a: &CalibrateArgs, truth: Option<PathBuf>, film: bool) -> anyhow::Res
             truth,
             film,
             start_homed: false,
+            dirty_crosses: a.sim_dirty_crosses.clone(),
+            missing_fiducials: a.sim_missing_fiducials.clone(),
             ..Default::default()
         })
         .context("starting the built-in simulator")?;

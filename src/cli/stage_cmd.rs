@@ -401,7 +401,7 @@ pub fn run(a: StageArgs) -> anyhow::Result<i32> {
             truth: a.sim_truth.clone(),
             stage_link: None,
             start_homed: true,
-            film: false,
+            ..Default::default()
         };
         let s = rig_sim::EmbeddedSim::start(cfg).context("starting the built-in simulator")?;
         let p = s.port.clone();
