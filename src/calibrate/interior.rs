@@ -122,6 +122,8 @@ pub struct InteriorVersion {
 
 #[derive(Debug, Clone, Serialize)]
 pub struct InteriorOrientation {
+    /// Coarse and fine matching of the fiducials (seed Table 4).
+    pub matching: Option<super::measure::MatchTable>,
     pub fiducials: Vec<FiducialObservation>,
     pub versions: Vec<InteriorVersion>,
 }
@@ -350,6 +352,7 @@ pub fn calibrate_interior(
         serde_json::to_value(&versions).unwrap_or_default(),
     )?;
     Ok(InteriorOrientation {
+        matching: super::measure::match_table(obs.iter().filter_map(|o| o.result.as_ref())),
         fiducials: obs,
         versions,
     })

@@ -124,3 +124,76 @@ pub fn measure(img: &ImageF32, t: &MarkTemplates, q: &Quality) -> MarkResult {
         }
     }
 }
+
+/// Average, minimum and maximum of one column.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct Stat {
+    pub average: f64,
+    pub minimum: f64,
+    pub maximum: f64,
+}
+
+impl Stat {
+    fn of(v: impl Iterator<Item = f64>) -> Option<Stat> {
+        let v: Vec<f64> = v.collect();
+        (!v.is_empty()).then(|| Stat {
+            average: v.iter().sum::<f64>() / v.len() as f64,
+            minimum: v.iter().copied().fold(f64::MAX, f64::min),
+            maximum: v.iter().copied().fold(f64::MIN, f64::max),
+        })
+    }
+}
+
+/// The columns of seed 002's Tables 1 and 4 over the marks used: how far fine matching moved
+/// the coarse position, the shifts' standard deviations, the correlation, σ0, iterations.
+#[derive(Debug, Clone, Serialize)]
+pub struct MatchTable {
+    pub marks: usize,
+    pub x_shift_px: Stat,
+    pub y_shift_px: Stat,
+    pub sigma_x_px: Stat,
+    pub sigma_y_px: Stat,
+    pub correlation: Stat,
+    pub sigma0_dn: Stat,
+    pub iterations: Stat,
+}
+
+pub fn match_table<'a>(results: impl Iterator<Item = &'a MarkResult>) -> Option<MatchTable> {
+    let used: Vec<&LsmMatch> = results
+        .filter(|r| r.rejected.is_none())
+        .filter_map(|r| r.lsm.as_ref())
+        .collect();
+    let col = |f: &dyn Fn(&LsmMatch) -> f64| Stat::of(used.iter().map(|m| f(m)));
+    Some(MatchTable {
+        marks: used.len(),
+        x_shift_px: col(&|m| m.moved_px[0].abs())?,
+        y_shift_px: col(&|m| m.moved_px[1].abs())?,
+        sigma_x_px: col(&|m| m.sigma_px[0])?,
+        sigma_y_px: col(&|m| m.sigma_px[1])?,
+        correlation: col(&|m| m.correlation)?,
+        sigma0_dn: col(&|m| m.sigma0_dn)?,
+        iterations: col(&|m| m.iterations as f64)?,
+    })
+}
+
+/// Prints a match table as the seed lays it out.
+pub fn print_match_table(t: &MatchTable, title: &str) {
+    println!("{title} ({} marks; seed 002 Table 1 columns)", t.marks);
+    println!("           |x-shift|  |y-shift|   σ x-shift  σ y-shift  correlation   σ0 (DN)  iterations");
+    for (name, f) in [
+        ("average", (|s: &Stat| s.average) as fn(&Stat) -> f64),
+        ("minimum", |s: &Stat| s.minimum),
+        ("maximum", |s: &Stat| s.maximum),
+    ] {
+        println!(
+            "  {name:<8} {:>9.3}  {:>9.3}   {:>9.4}  {:>9.4}  {:>11.4}  {:>8.2}  {:>10.1}",
+            f(&t.x_shift_px),
+            f(&t.y_shift_px),
+            f(&t.sigma_x_px),
+            f(&t.sigma_y_px),
+            f(&t.correlation),
+            f(&t.sigma0_dn),
+            f(&t.iterations)
+        );
+    }
+}

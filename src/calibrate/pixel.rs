@@ -106,6 +106,8 @@ pub struct PixelCalibration {
     pub mark: Option<MarkLocation>,
     /// Pixel coordinates centred at the mark, no shifts (the seed's first attempt).
     pub linear4: Option<Fit>,
+    /// Coarse and fine matching of every cross measured (seed Table 1).
+    pub matching: Option<super::measure::MatchTable>,
 }
 
 fn inv2(m: [[f64; 2]; 2]) -> Option<[[f64; 2]; 2]> {
@@ -373,7 +375,9 @@ pub fn calibrate_pixel(
     if let Some(l) = &linear4 {
         super::plot::residual_plot(l, "um", &rig.session.dir.join("residuals-linear4.png"))?;
     }
+    let matching = super::measure::match_table(grid.iter().chain(&crosses).map(|o| &o.result));
     Ok(PixelCalibration {
+        matching,
         first_look: a,
         x_scale: ap[1],
         y_scale: ap[5],
