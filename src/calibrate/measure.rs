@@ -179,7 +179,9 @@ pub fn match_table<'a>(results: impl Iterator<Item = &'a MarkResult>) -> Option<
 /// Prints a match table as the seed lays it out.
 pub fn print_match_table(t: &MatchTable, title: &str) {
     println!("{title} ({} marks; seed 002 Table 1 columns)", t.marks);
-    println!("           |x-shift|  |y-shift|   σ x-shift  σ y-shift  correlation   σ0 (DN)  iterations");
+    println!(
+        "           |x-shift|  |y-shift|   σ x-shift  σ y-shift  correlation   σ0 (DN)  iterations"
+    );
     for (name, f) in [
         ("average", (|s: &Stat| s.average) as fn(&Stat) -> f64),
         ("minimum", |s: &Stat| s.minimum),
