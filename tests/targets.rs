@@ -115,7 +115,9 @@ fn crosses_to_a_hundredth_of_a_pixel() {
         "cross centres: LSM RMSE {rmse:.4} px per coordinate; coarse worst {worst_coarse:.3} px"
     );
     assert!(worst_coarse < 0.5, "coarse location {worst_coarse:.3} px");
-    assert!(rmse < 0.01, "LSM RMSE {rmse:.4} px");
+    // The issue asks for 0.01 px; sampling the finely drawn template instead of resampling
+    // the image reaches the noise floor (σ ≈ 0.001 px), so hold it to 0.002.
+    assert!(rmse < 0.002, "LSM RMSE {rmse:.4} px");
 }
 
 #[test]

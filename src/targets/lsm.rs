@@ -9,7 +9,7 @@
 //! coefficient, σ0 and the iterations; failures are typed, never a silent bad position.
 
 use super::resample::sample;
-use super::template::Template;
+use super::template::{Template, FINE, FINE_PAD};
 use crate::coords::PixelXY;
 use crate::digitise::ImageF32;
 use nalgebra::{SMatrix, SVector};
@@ -79,6 +79,190 @@ pub enum LsmError {
 /// Matches `tpl` into `img` starting with its centre at `start` and the template's axes along
 /// the image's (the template is drawn at the image's pixel spacing).
 pub fn match_template(
+    img: &ImageF32,
+    tpl: &Template,
+    start: PixelXY,
+    opt: &LsmOptions,
+) -> Result<LsmMatch, LsmError> {
+    match &tpl.fine {
+        Some(fine) => match_sampling_template(img, tpl, fine, start, opt),
+        None => match_resampling_image(img, tpl, start, opt),
+    }
+}
+
+/// The same model with the roles turned: each image pixel x of a fixed window is predicted
+/// from the finely drawn template, `g(x) = r0 + r1·f(U(x − s))` with U affine (u0, u1, u2,
+/// v0, v1, v2) from the window's start s to template coordinates. The image is used only at
+/// its own pixels, so no interpolation error enters; the template is smooth and drawn
+/// [`FINE`] times finer, so sampling it is all but exact. The mark's centre is where U is
+/// zero, and its covariance follows from the parameters' by the Jacobian of that solution.
+fn match_sampling_template(
+    img: &ImageF32,
+    tpl: &Template,
+    fine: &ImageF32,
+    start: PixelXY,
+    opt: &LsmOptions,
+) -> Result<LsmMatch, LsmError> {
+    let n = tpl.size();
+    let half = n as f64 / 2.0;
+    let k = FINE as f64;
+    // The window: the n×n image pixels around the start.
+    let c0 = (start.col - half).round() as i64;
+    let r0 = (start.row - half).round() as i64;
+    if c0 < 0 || r0 < 0 || c0 + n as i64 > img.width as i64 || r0 + n as i64 > img.height as i64 {
+        return Err(LsmError::LeftWindow);
+    }
+    let pix: Vec<(f64, f64, f64)> = (0..n * n)
+        .map(|i| {
+            let (c, r) = (c0 as usize + i % n, r0 as usize + i / n);
+            (
+                c as f64 + 0.5 - start.col,
+                r as f64 + 0.5 - start.row,
+                img.data[r * img.width + c] as f64,
+            )
+        })
+        .collect();
+    let np = pix.len() as f64;
+    let gm = pix.iter().map(|p| p.2).sum::<f64>() / np;
+    let gs = (pix.iter().map(|p| (p.2 - gm).powi(2)).sum::<f64>() / np).sqrt();
+    if gs < opt.min_contrast_dn {
+        return Err(LsmError::LowContrast { contrast_dn: gs });
+    }
+    // Template coordinates (template pixels, about its centre) → the fine drawing's.
+    let off = (half + FINE_PAD as f64) * k;
+    let sample_f = |u: &[f64; 6]| -> Option<Vec<(f64, f64, f64)>> {
+        pix.iter()
+            .map(|&(dx, dy, _)| {
+                let tx = u[0] + u[1] * dx + u[2] * dy;
+                let ty = u[3] + u[4] * dx + u[5] * dy;
+                sample(fine, off + tx * k, off + ty * k).map(|(v, fx, fy)| (v, fx * k, fy * k))
+            })
+            .collect()
+    };
+    let mut u = [0.0, 1.0, 0.0, 0.0, 0.0, 1.0];
+    let f0 = sample_f(&u).ok_or(LsmError::LeftWindow)?;
+    let fm = f0.iter().map(|f| f.0).sum::<f64>() / np;
+    let fs = (f0.iter().map(|f| (f.0 - fm).powi(2)).sum::<f64>() / np).sqrt();
+    if fs < 1e-6 {
+        return Err(LsmError::LowContrast { contrast_dn: gs });
+    }
+    let mut r = [gm - gs / fs * fm, gs / fs];
+    // The centre: where U(d) = 0, d = −M⁻¹·(u0, v0).
+    let centre_of = |u: &[f64; 6]| -> Option<[f64; 2]> {
+        let det = u[1] * u[5] - u[2] * u[4];
+        (det.abs() > 1e-9).then(|| {
+            [
+                -(u[5] * u[0] - u[2] * u[3]) / det,
+                -(-u[4] * u[0] + u[1] * u[3]) / det,
+            ]
+        })
+    };
+    let normal = |r: &[f64; 2], f: &[(f64, f64, f64)]| {
+        let mut nm = SMatrix::<f64, 8, 8>::zeros();
+        let mut rhs = SVector::<f64, 8>::zeros();
+        let mut vv = 0.0;
+        for (&(dx, dy, g), &(fv, fx, fy)) in pix.iter().zip(f) {
+            let (ax, ay) = (r[1] * fx, r[1] * fy);
+            let row =
+                SVector::<f64, 8>::from([ax, ax * dx, ax * dy, ay, ay * dx, ay * dy, 1.0, fv]);
+            let l = g - r[0] - r[1] * fv;
+            vv += l * l;
+            nm += row * row.transpose();
+            rhs += row * l;
+        }
+        (nm, rhs, vv)
+    };
+    let mut prev = centre_of(&u).unwrap_or([0.0, 0.0]);
+    let mut settled = 0;
+    let mut it = 0;
+    loop {
+        it += 1;
+        let f = sample_f(&u).ok_or(LsmError::LeftWindow)?;
+        let (nm, rhs, _) = normal(&r, &f);
+        let d = nm.cholesky().ok_or(LsmError::Singular)?.solve(&rhs);
+        for j in 0..6 {
+            u[j] += d[j];
+        }
+        r[0] += d[6];
+        r[1] += d[7];
+        let det = u[1] * u[5] - u[2] * u[4];
+        if !(0.5..2.0).contains(&det) {
+            return Err(LsmError::Diverged { iterations: it });
+        }
+        let c = centre_of(&u).ok_or(LsmError::Singular)?;
+        let moved = c[0].hypot(c[1]);
+        if !moved.is_finite() || moved > opt.max_shift_px {
+            return Err(LsmError::Wandered { moved_px: moved });
+        }
+        let step = (c[0] - prev[0]).hypot(c[1] - prev[1]);
+        prev = c;
+        // The centre is what is wanted. Converged when it has settled twice running with the
+        // shape settled too, or four times running while the shape still swings along a
+        // weakly determined direction (a ring's rotation oscillates by ±0.1° there, moving
+        // nothing of the centre).
+        let shape_small = [d[1], d[2], d[4], d[5]]
+            .iter()
+            .all(|v| v.abs() * half < opt.tolerance_px * 10.0);
+        settled = if step < opt.tolerance_px {
+            settled + 1
+        } else {
+            0
+        };
+        if (settled >= 2 && shape_small) || settled >= 4 {
+            let f = sample_f(&u).ok_or(LsmError::LeftWindow)?;
+            let (nm, _, vv) = normal(&r, &f);
+            let q = nm.try_inverse().ok_or(LsmError::Singular)?;
+            let sigma0 = (vv / (np - 8.0)).sqrt();
+            // ∂centre/∂u: −M⁻¹ applied to the unit vectors (shifts) and to d (shape).
+            let det = u[1] * u[5] - u[2] * u[4];
+            let mi = [[u[5] / det, -u[2] / det], [-u[4] / det, u[1] / det]];
+            let col = |v: [f64; 2]| {
+                [
+                    -(mi[0][0] * v[0] + mi[0][1] * v[1]),
+                    -(mi[1][0] * v[0] + mi[1][1] * v[1]),
+                ]
+            };
+            let cols = [
+                col([1.0, 0.0]),
+                col([c[0], 0.0]),
+                col([c[1], 0.0]),
+                col([0.0, 1.0]),
+                col([0.0, c[0]]),
+                col([0.0, c[1]]),
+            ];
+            let var = |a: usize| -> f64 {
+                let mut v = 0.0;
+                for i in 0..6 {
+                    for j in 0..6 {
+                        v += cols[i][a] * q[(i, j)] * cols[j][a];
+                    }
+                }
+                v.max(0.0)
+            };
+            let corr = correlation(pix.iter().map(|p| p.2), f.iter().map(|f| f.0));
+            let centre = PixelXY::new(start.col + c[0], start.row + c[1]);
+            return Ok(LsmMatch {
+                centre,
+                sigma_px: [sigma0 * var(0).sqrt(), sigma0 * var(1).sqrt()],
+                // Image from template: x = centre + M⁻¹·t.
+                affine: [
+                    centre.col, mi[0][0], mi[0][1], centre.row, mi[1][0], mi[1][1],
+                ],
+                radiometric: r,
+                sigma0_dn: sigma0,
+                correlation: corr,
+                iterations: it,
+                moved_px: c,
+            });
+        }
+        if it >= opt.max_iterations {
+            return Err(LsmError::Diverged { iterations: it });
+        }
+    }
+}
+
+/// Gruen's form: the image resampled (bicubic) under the template's pixels.
+fn match_resampling_image(
     img: &ImageF32,
     tpl: &Template,
     start: PixelXY,
