@@ -64,8 +64,8 @@ pub enum Command {
     /// step, flushed as it happens), crops/ (every mark with its fitted centre drawn),
     /// results.json; with --sim also the simulator's certificate and sim-truth.json.
     ///
-    /// Exit codes: 0 done; 2 bad usage; 1 any other error (the message says which step and
-    /// where the session so far was kept).
+    /// Exit codes: 0 done; 2 bad usage; 3 `history` found drift; 1 any other error (the
+    /// message says which step and where the session so far was kept).
     #[command(verbatim_doc_comment)]
     Calibrate(calibrate_cmd::CalibrateArgs),
     /// Run the simulated stage controller on a pseudo-terminal (same as `rig-sim`).
