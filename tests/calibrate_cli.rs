@@ -4,6 +4,17 @@ mod common;
 use common::*;
 use serde_json::Value;
 
+/// Runs a `rig calibrate` that must succeed; its `--json` document.
+fn run_ok(cmd: &mut std::process::Command) -> Value {
+    let (code, doc, err) = parse(cmd.output().unwrap());
+    assert_eq!(code, 0, "{err}");
+    doc
+}
+
+fn read_json(p: &std::path::Path) -> Value {
+    serde_json::from_slice(&std::fs::read(p).unwrap()).unwrap()
+}
+
 fn f(v: &Value) -> f64 {
     v.as_f64().unwrap_or_else(|| panic!("not a number: {v}"))
 }
@@ -12,27 +23,24 @@ fn f(v: &Value) -> f64 {
 fn pixel_calibration_matches_the_truth() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("session");
-    let o = rig()
-        // Dirt over cross 7: it must be reported and left out, never used.
-        .args([
-            "calibrate",
-            "pixel",
-            "--sim",
-            "--sim-seed",
-            "3",
-            "--sim-dirty-crosses",
-            "7",
-            "--json",
-            "--out",
-        ])
-        .arg(&out)
-        .output()
-        .unwrap();
-    let (code, doc, err) = parse(o);
-    assert_eq!(code, 0, "{err}");
+    let doc = run_ok(
+        rig()
+            // Dirt over cross 7: it must be reported and left out, never used.
+            .args([
+                "calibrate",
+                "pixel",
+                "--sim",
+                "--sim-seed",
+                "3",
+                "--sim-dirty-crosses",
+                "7",
+                "--json",
+                "--out",
+            ])
+            .arg(&out),
+    );
     let c = &doc["calibration"];
-    let truth: Value =
-        serde_json::from_slice(&std::fs::read(out.join("sim-truth.json")).unwrap()).unwrap();
+    let truth = read_json(&out.join("sim-truth.json"));
     let af = &truth["camera"]["affine"];
     let (xs, ys, xsh, ysh) = (
         f(&af["a"][0]),
@@ -101,8 +109,7 @@ fn pixel_calibration_matches_the_truth() {
             "{id}"
         );
     }
-    let saved: Value =
-        serde_json::from_slice(&std::fs::read(out.join("results.json")).unwrap()).unwrap();
+    let saved = read_json(&out.join("results.json"));
     assert_eq!(saved, doc, "results.json is what --json printed");
 }
 
@@ -152,48 +159,43 @@ fn calibrate_usage_errors_say_what_to_do() {
 fn interior_orientation_finds_every_fiducial_and_fits_the_corners_within_a_micrometre() {
     let store = tempfile::tempdir().unwrap();
     // A quick pixel session first (the interior orientation uses the newest in the store).
-    let o = rig()
-        .args([
-            "calibrate",
-            "pixel",
-            "--sim",
-            "--frames",
-            "8",
-            "--grid",
-            "3",
-            "--grid-only",
-            "--json",
-            "--store",
-        ])
-        .arg(store.path())
-        .output()
-        .unwrap();
-    let (code, _, err) = parse(o);
-    assert_eq!(code, 0, "{err}");
+    run_ok(
+        rig()
+            .args([
+                "calibrate",
+                "pixel",
+                "--sim",
+                "--frames",
+                "8",
+                "--grid",
+                "3",
+                "--grid-only",
+                "--json",
+                "--store",
+            ])
+            .arg(store.path()),
+    );
     let out = store.path().join("interior");
-    let o = rig()
-        // Fiducial 6 is not on the film: reported missing, left out of every fit.
-        .args([
-            "calibrate",
-            "interior",
-            "--sim",
-            "--sim-seed",
-            "4",
-            "--sim-missing-fiducials",
-            "6",
-            "--json",
-            "--store",
-        ])
-        .arg(store.path())
-        .arg("--out")
-        .arg(&out)
-        .output()
-        .unwrap();
-    let (code, doc, err) = parse(o);
-    assert_eq!(code, 0, "{err}");
+    let doc = run_ok(
+        rig()
+            // Fiducial 6 is not on the film: reported missing, left out of every fit.
+            .args([
+                "calibrate",
+                "interior",
+                "--sim",
+                "--sim-seed",
+                "4",
+                "--sim-missing-fiducials",
+                "6",
+                "--json",
+                "--store",
+            ])
+            .arg(store.path())
+            .arg("--out")
+            .arg(&out),
+    );
     let c = &doc["calibration"];
-    let truth: Value =
-        serde_json::from_slice(&std::fs::read(out.join("sim-truth.json")).unwrap()).unwrap();
+    let truth = read_json(&out.join("sim-truth.json"));
     let film = &truth["film"];
     let p = |k: usize| f(&film["photo_to_carriage"][k]);
     // Every fiducial found, measured where the truth puts it (carriage, µm).
