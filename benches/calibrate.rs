@@ -41,6 +41,7 @@ fn cases(n: usize) -> (Template, Vec<Case>) {
             um_per_px: [[af.a[0], af.a[1]], [af.b[0], af.b[1]]],
             blur_px: 0.7,
             polarity: Polarity::DarkOnClear,
+            fine: true,
         },
     );
     let v = (0..n)

@@ -61,19 +61,20 @@ fn templates(w: &World) -> (Template, Template) {
         line_um: w.plate.line_um,
     };
     let af = &w.cfg.affine;
-    let spec = |size, um_per_px| TemplateSpec {
+    let spec = |size, um_per_px, fine| TemplateSpec {
         size,
         um_per_px,
         blur_px: 0.7,
         polarity: Polarity::DarkOnClear,
+        fine,
     };
     let k = 1.003;
     let first_look = [[af.a[0] * k, af.a[1] * k], [af.b[0] * k, af.b[1] * k]];
     let nominal = [[10.0, 0.0], [0.0, 11.2]];
     let whole = (2.0 * w.plate.arm_um / 10.0) as usize + 12;
     (
-        render(&shape.for_coarse(), &spec(whole, first_look)),
-        render(&shape, &spec(71, nominal)),
+        render(&shape.for_coarse(), &spec(whole, first_look, false)),
+        render(&shape, &spec(71, nominal, true)),
     )
 }
 

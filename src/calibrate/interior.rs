@@ -9,12 +9,10 @@ use super::affine_fit::{fit, Fit, Model};
 use super::measure::{measure, MarkResult, MarkTemplates, Quality};
 use super::pixel::{CalibrateError, Rig};
 use crate::coords::{CarriageUm, PixelXY};
-use crate::digitise::capture;
 use crate::targets::certificate::{CameraCertificate, FiducialGroup};
 use serde::{Deserialize, Serialize};
 use serde_json::json;
 use std::path::Path;
-use std::time::Duration;
 
 /// Pixel → carriage as a pixel session measured it: carriage = stage + A·p + t.
 #[derive(Debug, Clone, Copy, Serialize, Deserialize)]
@@ -235,9 +233,8 @@ pub fn calibrate_interior(
             if rig.stage.limits().check(at).is_err() {
                 continue;
             }
-            let s = rig.stage.move_to(at)?;
-            let c = capture(rig.camera, 4, true, Duration::from_secs(5), |_| {})?;
-            if let Ok(m) = crate::targets::locate(&c.image, &tpl.whole, &q.coarse) {
+            let (s, img) = rig.look(at, 4)?;
+            if let Ok(m) = crate::targets::locate(&img, &tpl.whole, &q.coarse) {
                 hit = Some(pixel.carriage(s, m.centre));
                 break;
             }
@@ -265,18 +262,11 @@ pub fn calibrate_interior(
             k + 1,
             order.len()
         ));
-        let s = rig.stage.move_to(rough)?;
-        let c = capture(rig.camera, opt.frames, true, Duration::from_secs(5), |_| {})?;
-        let r = measure(&c.image, &tpl, q);
+        let (s, img) = rig.look(rough, opt.frames)?;
+        let r = measure(&img, &tpl, q);
         let id = format!("fiducial-{}", f.id);
-        let p = r
-            .lsm
-            .as_ref()
-            .map(|m| m.centre)
-            .or(r.coarse.map(|c| c.centre))
-            .unwrap_or(mark);
-        rig.session
-            .save_crop(&id, &c.image, p, opt.patch / 2 + 10)?;
+        let p = r.seen_at().unwrap_or(mark);
+        rig.session.save_crop(&id, &img, p, opt.patch / 2 + 10)?;
         let carriage = r.centre().map(|p| pixel.carriage(s, p));
         if let Some(cu) = carriage {
             found.push((cu, [f.photo.x, f.photo.y]));

@@ -26,15 +26,16 @@ impl MarkTemplates {
     ) -> Self {
         let px = um_per_px[0][0].abs().min(um_per_px[1][1].abs());
         let whole = (2.0 * shape.reach_um() / px).ceil() as usize + 12;
-        let spec = |size| TemplateSpec {
+        let spec = |size, fine| TemplateSpec {
             size,
             um_per_px,
             blur_px,
             polarity,
+            fine,
         };
         MarkTemplates {
-            whole: render(&shape.for_coarse(), &spec(whole)),
-            patch: render(shape, &spec(patch)),
+            whole: render(&shape.for_coarse(), &spec(whole, false)),
+            patch: render(shape, &spec(patch, true)),
         }
     }
 }
@@ -73,6 +74,14 @@ pub struct MarkResult {
 }
 
 impl MarkResult {
+    /// Where the mark was seen at all (fine if measured, else coarse): for the crop.
+    pub fn seen_at(&self) -> Option<PixelXY> {
+        self.lsm
+            .as_ref()
+            .map(|m| m.centre)
+            .or(self.coarse.map(|c| c.centre))
+    }
+
     pub fn centre(&self) -> Option<PixelXY> {
         match (&self.lsm, &self.rejected) {
             (Some(m), None) => Some(m.centre),

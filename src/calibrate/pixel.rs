@@ -137,7 +137,8 @@ pub struct Rig<'a> {
 }
 
 impl Rig<'_> {
-    fn look(
+    /// Moves to `at` and takes a filtered average of `frames` frames there.
+    pub(super) fn look(
         &mut self,
         at: CarriageUm,
         frames: u32,
@@ -253,11 +254,7 @@ pub fn calibrate_pixel(
             let (s, img) = rig.look(target, opt.frames)?;
             let r = measure(&img, &tpl, q);
             let id = format!("grid-{}-{}", i + 1, j + 1);
-            let at = r
-                .lsm
-                .as_ref()
-                .map(|m| m.centre)
-                .or(r.coarse.map(|c| c.centre));
+            let at = r.seen_at();
             if let Some(c) = at {
                 rig.session.save_crop(&id, &img, c, opt.patch / 2 + 10)?;
             }
@@ -295,10 +292,11 @@ pub fn calibrate_pixel(
     }
     let affine = fit(Model::Affine6, &pts, true)?;
     let ap = affine.params;
-    let a_fit = [[ap[1], ap[2]], [ap[4], ap[5]]];
-    let ainv_fit = inv2(a_fit).ok_or(FitError::Singular)?;
+    if (ap[1] * ap[5] - ap[2] * ap[4]).abs() < 1e-12 {
+        return Err(FitError::Singular.into());
+    }
     let mark_affine = {
-        let m = mul2(ainv_fit, [-ap[0], -ap[3]]);
+        let m = affine.inverse_linear([-ap[0], -ap[3]]);
         PixelXY::new(m[0], m[1])
     };
     rig.session.event(
@@ -322,17 +320,12 @@ pub fn calibrate_pixel(
             let (s, img) = rig.look(c.position(), opt.frames)?;
             let r = measure(&img, &tpl, q);
             let id = format!("cross-{}", c.id);
-            if let Some(p) = r
-                .lsm
-                .as_ref()
-                .map(|m| m.centre)
-                .or(r.coarse.map(|c| c.centre))
-            {
+            if let Some(p) = r.seen_at() {
                 rig.session.save_crop(&id, &img, p, opt.patch / 2 + 10)?;
             }
             if let Some(p) = r.centre() {
                 let l = c.position() - s;
-                let d = mul2(ainv_fit, [l.x, l.y]);
+                let d = affine.inverse_linear([l.x, l.y]);
                 per.push((c.id, PixelXY::new(p.col - d[0], p.row - d[1])));
             }
             let o = CrossObservation {

@@ -201,14 +201,10 @@ fn connect(a: &CalibrateArgs, truth: Option<PathBuf>, film: bool) -> anyhow::Res
     })
 }
 
+/// Two positive numbers X,Y (a spacing, a position on the carriage).
 fn parse_pair(s: &str, what: &str) -> anyhow::Result<[f64; 2]> {
-    let v: Vec<f64> = s
-        .split(',')
-        .map(|t| t.trim().parse::<f64>())
-        .collect::<Result<_, _>>()
-        .with_context(|| format!("{what} `{s}`: two numbers X,Y"))?;
-    match v[..] {
-        [x, y] if x > 0.0 && y > 0.0 && x.is_finite() && y.is_finite() => Ok([x, y]),
+    match super::camera_cmd::parse_pair(s, what)? {
+        (x, y) if x > 0.0 && y > 0.0 => Ok([x, y]),
         _ => bail!("{what} `{s}`: two positive numbers X,Y"),
     }
 }

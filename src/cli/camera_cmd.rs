@@ -75,7 +75,7 @@ pub enum CameraAction {
     },
 }
 
-fn parse_pair(s: &str, what: &str) -> anyhow::Result<(f64, f64)> {
+pub fn parse_pair(s: &str, what: &str) -> anyhow::Result<(f64, f64)> {
     let v: Vec<f64> = s
         .split(',')
         .map(|x| x.trim().parse::<f64>())

@@ -112,7 +112,7 @@ pub struct Template {
     /// The same template drawn [`FINE`] times finer, with a margin of [`FINE_PAD`] template
     /// pixels: least-squares matching samples the template (smooth, finely drawn) instead of
     /// resampling the image, whose sharp edges would bias the centre by the interpolation
-    /// error (about ±0.015 px, varying with the sub-pixel phase). Only for patches.
+    /// error (about ±0.015 px, varying with the sub-pixel phase). Drawn when asked for.
     pub fine: Option<ImageF32>,
 }
 
@@ -120,8 +120,6 @@ pub struct Template {
 pub const FINE: usize = 4;
 /// Margin of [`Template::fine`] around the patch, template pixels.
 pub const FINE_PAD: usize = 4;
-/// Patches up to this side get a fine version.
-const FINE_MAX: usize = 128;
 
 impl Template {
     /// Side in pixels (odd).
@@ -147,13 +145,15 @@ pub struct TemplateSpec {
     /// The optics' blur, a Gaussian σ in pixels, applied after each pixel's own area.
     pub blur_px: f64,
     pub polarity: Polarity,
+    /// Also draw [`Template::fine`], for least-squares matching (not needed to locate coarsely).
+    pub fine: bool,
 }
 
 /// Draws `shape` into a template: each pixel's coverage integrated on a 6×6 sub-grid, then the
 /// blur.
 pub fn render(shape: &MarkShape, spec: &TemplateSpec) -> Template {
     let size = spec.size | 1;
-    let fine = (size <= FINE_MAX).then(|| {
+    let fine = spec.fine.then(|| {
         let k = FINE as f64;
         let m = spec.um_per_px;
         let fine_spec = TemplateSpec {
@@ -162,6 +162,7 @@ pub fn render(shape: &MarkShape, spec: &TemplateSpec) -> Template {
             // The image pixel's own area, as a Gaussian of the same variance, with the optics.
             blur_px: (spec.blur_px * spec.blur_px + 1.0 / 12.0).sqrt() * k,
             polarity: spec.polarity,
+            fine: false,
         };
         draw(shape, &fine_spec, fine_spec.size)
     });
@@ -254,6 +255,7 @@ mod tests {
                 um_per_px: [[10.0, 0.0], [0.0, 10.0]],
                 blur_px: 0.7,
                 polarity: Polarity::DarkOnClear,
+                fine: false,
             },
         );
         assert_eq!(t.size(), 71);
