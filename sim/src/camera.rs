@@ -395,6 +395,8 @@ pub struct FrameSource {
     /// Sequence numbers lost on the way (the truth of the drop fault).
     pub dropped: Vec<u64>,
     cache: Option<([f64; 2], Vec<f32>)>,
+    /// Frames taken since the stage last moved (for the repeatable world).
+    here: u64,
 }
 
 impl FrameSource {
@@ -410,6 +412,7 @@ impl FrameSource {
             started: std::time::Instant::now(),
             dropped: vec![],
             cache: None,
+            here: 0,
         }
     }
 
@@ -450,8 +453,12 @@ impl FrameSource {
             };
             // The scene only changes when the stage moves.
             let ideal = match &self.cache {
-                Some((p, img)) if *p == mark_um => img.clone(),
+                Some((p, img)) if *p == mark_um => {
+                    self.here += 1;
+                    img.clone()
+                }
                 _ => {
+                    self.here = 0;
                     let img = render_scene(
                         &self.cfg,
                         &self.world.plate,
@@ -462,7 +469,16 @@ impl FrameSource {
                     img
                 }
             };
-            let data = expose(&self.cfg, &ideal, self.world.seed, seq);
+            // The repeatable world draws a frame's noise from where it was taken and how many
+            // came before it there, not from the stream's sequence number.
+            let noise_seq = if self.world.repeatable {
+                (mark_um[0].to_bits().wrapping_mul(0x9E37_79B9_7F4A_7C15))
+                    ^ mark_um[1].to_bits().rotate_left(29)
+                    ^ self.here.wrapping_mul(0xD6E8_FEB8_6659_FD93)
+            } else {
+                seq
+            };
+            let data = expose(&self.cfg, &ideal, self.world.seed, noise_seq);
             return SimFrame {
                 seq,
                 t_s,

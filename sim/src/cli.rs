@@ -39,9 +39,18 @@ pub struct SimArgs {
     /// host opens it as `--camera sim:PATH`.
     #[arg(long, value_name = "PATH")]
     pub camera_socket: Option<PathBuf>,
-    /// Lay a film (an RC10-like frame with 8 fiducials) on the carriage.
+    /// Lay a film (an RC10-like frame with 8 fiducials and an aerial photo rendered from a
+    /// DEM) on the carriage.
     #[arg(long)]
     pub film: bool,
+    /// Which photo of the 2×2 block the film is: 1, 2 along the first strip (60 % overlap),
+    /// 3, 4 along the second.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=4))]
+    pub photo: u32,
+    /// A perfect stage and frames that depend only on where they were taken (for comparing
+    /// two runs byte for byte).
+    #[arg(long)]
+    pub repeatable: bool,
     /// Smudge dirt over these crosses' centres (comma-separated ids, 1–9).
     #[arg(long, value_name = "IDS", value_delimiter = ',')]
     pub dirty_crosses: Vec<u32>,
@@ -79,6 +88,8 @@ pub fn run(args: SimArgs) -> std::io::Result<()> {
         film: args.film,
         dirty_crosses: args.dirty_crosses,
         missing_fiducials: args.missing_fiducials,
+        photo: args.photo,
+        repeatable: args.repeatable,
     };
     let world = crate::server::World::new(&cfg);
     if !(0.0..=0.5).contains(&args.camera_drop) {

@@ -1,12 +1,14 @@
 //! A film on the carriage: an RC10-like frame (230 mm, fiducial centre as photo origin) with 8
 //! fiducials of two shapes (4 corner rings with a centre dot; 4 mid-side dots with short lines
 //! pointing to the centre), laid on the carriage with an unknown shift, rotation and slight
-//! film deformation, all part of the truth. The picture area carries a procedural texture with
-//! multiplicative grain until the aerial photo rendered from a DEM replaces it (issue 5).
+//! film deformation, all part of the truth. The picture area carries an aerial photo rendered
+//! from a DEM ([`crate::scene`]).
 
 use crate::camera::erf;
 use crate::rng::Rng;
+use crate::scene::AerialPhoto;
 use serde::Serialize;
+use std::sync::Arc;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "snake_case")]
@@ -41,7 +43,10 @@ pub struct Film {
     /// Half-size of the film frame and of the picture area, mm.
     pub frame_half_mm: f64,
     pub picture_half_mm: f64,
-    pub texture_seed: u64,
+    /// Which photo of the block this film is (1–4).
+    pub photo_number: u32,
+    /// The aerial photo in the picture area (none: clear base).
+    pub aerial: Option<Arc<AerialPhoto>>,
 }
 
 const LINE_UM: f64 = 40.0;
@@ -55,28 +60,12 @@ fn disk(r: f64, radius: f64, s: f64) -> f64 {
     0.5 * (1.0 - erf((r - radius) / (std::f64::consts::SQRT_2 * s)))
 }
 
-/// Smooth value noise in [0, 1) on a unit lattice.
-fn value_noise(seed: u64, x: f64, y: f64) -> f64 {
-    let h = |i: i64, j: i64| -> f64 {
-        let mut z = seed
-            ^ (i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
-            ^ (j as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F);
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
-    };
-    let (i, j) = (x.floor() as i64, y.floor() as i64);
-    let (fx, fy) = (x - x.floor(), y - y.floor());
-    let (sx, sy) = (fx * fx * (3.0 - 2.0 * fx), fy * fy * (3.0 - 2.0 * fy));
-    let a = h(i, j) + sx * (h(i + 1, j) - h(i, j));
-    let b = h(i, j + 1) + sx * (h(i + 1, j + 1) - h(i, j + 1));
-    a + sy * (b - a)
-}
-
 impl Film {
-    /// An RC10-like film laid on the middle of the carriage, slightly shifted, rotated and
-    /// deformed.
-    pub fn rc10(rng: &mut Rng) -> Film {
+    /// Photo `number` of an RC10-like camera laid on the middle of the carriage, slightly
+    /// shifted, rotated and deformed. The camera (its fiducials and their certificate) comes
+    /// from `rng`; how the film lies from `rng` and the photo's number, so each photo of a
+    /// block lies differently. The aerial picture is added by [`Film::with_aerial`].
+    pub fn rc10(rng: &mut Rng, number: u32) -> Film {
         let mut fiducials = Vec::new();
         let mut cal = |x: f64, y: f64| [x + 0.005 * rng.normal(), y + 0.005 * rng.normal()];
         for (i, (x, y)) in [
@@ -108,6 +97,19 @@ impl Film {
                 missing: false,
             });
         }
+        // The camera's certificate errors from their own stream: corners σ 0.3 µm, mid-sides
+        // 2 µm (seed 002: the mid-sides "are not so precisely calibrated").
+        let camera_seed = rng.next_u64();
+        let mut cert = Rng::new(camera_seed ^ 0xCE27_1F1C);
+        for f in fiducials.iter_mut() {
+            let s = match f.shape {
+                FiducialShape::RingWithDot => 0.3,
+                FiducialShape::DotWithLine => 2.0,
+            };
+            f.cert_error_um = [s * cert.normal(), s * cert.normal()];
+        }
+        let mut lay = Rng::new(camera_seed ^ (number as u64).wrapping_mul(0xA24B_AED4_963E_E407));
+        let rng = &mut lay;
         let rot = (rng.uniform() - 0.5) * 0.6f64.to_radians();
         let (sx, sy, shear) = (
             1.0 + 2e-4 * rng.normal(),
@@ -130,16 +132,6 @@ impl Film {
             s * a1 + c * b1,
             s * a2 + c * b2,
         ];
-        let texture_seed = rng.next_u64();
-        // The certificate's errors from their own stream: corners σ 0.3 µm, mid-sides 2 µm.
-        let mut cert = Rng::new(texture_seed ^ 0xCE27_1F1C);
-        for f in fiducials.iter_mut() {
-            let s = match f.shape {
-                FiducialShape::RingWithDot => 0.3,
-                FiducialShape::DotWithLine => 2.0,
-            };
-            f.cert_error_um = [s * cert.normal(), s * cert.normal()];
-        }
         Film {
             fiducials,
             photo_to_carriage,
@@ -147,8 +139,20 @@ impl Film {
             mark: 0.08,
             frame_half_mm: 116.0,
             picture_half_mm: 100.0,
-            texture_seed,
+            photo_number: number,
+            aerial: None,
         }
+    }
+
+    /// The same film with its aerial photo rendered over the terrain of the world `seed`.
+    pub fn with_aerial(mut self, seed: u64) -> Film {
+        self.aerial = Some(Arc::new(AerialPhoto::new(
+            crate::scene::jacksboro(),
+            seed,
+            self.photo_number,
+            self.picture_half_mm + 1.0,
+        )));
+        self
     }
 
     pub fn to_carriage(&self, photo_mm: [f64; 2]) -> [f64; 2] {
@@ -169,14 +173,13 @@ impl Film {
         ]
     }
 
-    /// The picture's transmittance (texture, grain) at photo coordinates (mm).
-    fn picture(&self, u: f64, v: f64) -> f64 {
-        let t = 0.5
-            + 0.2 * (u / 3.1).sin() * (v / 2.3).cos()
-            + 0.35 * (value_noise(self.texture_seed, u / 1.7, v / 1.7) - 0.5);
-        let grain =
-            1.0 + 0.06 * (value_noise(self.texture_seed ^ 0x6A, u * 200.0, v * 200.0) - 0.5);
-        (t * grain).clamp(0.05, 0.95)
+    /// The picture's transmittance at photo coordinates (mm): the aerial photo, or the
+    /// clear base where there is none.
+    pub fn picture(&self, u: f64, v: f64) -> f64 {
+        match &self.aerial {
+            Some(a) => self.base * a.transmittance([u, v]),
+            None => self.base,
+        }
     }
 
     /// Transmittance of the film at carriage point `c` (µm), blurred by `s` µm; 1 off the film.
@@ -223,7 +226,7 @@ mod tests {
 
     #[test]
     fn placement_inverts() {
-        let f = Film::rc10(&mut Rng::new(3));
+        let f = Film::rc10(&mut Rng::new(3), 1);
         for p in [[0.0, 0.0], [106.0, -106.0], [-50.5, 77.25]] {
             let q = f.to_photo(f.to_carriage(p));
             assert!((q[0] - p[0]).abs() < 1e-9 && (q[1] - p[1]).abs() < 1e-9);
@@ -237,7 +240,7 @@ mod tests {
 
     #[test]
     fn fiducials_are_dark_at_their_centre_and_clear_around() {
-        let f = Film::rc10(&mut Rng::new(4));
+        let f = Film::rc10(&mut Rng::new(4), 1);
         for fid in &f.fiducials {
             let c = f.to_carriage(fid.photo_mm);
             assert!(f.transmittance(c, 5.0) < 0.15, "{:?} centre", fid.id);

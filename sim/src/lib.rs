@@ -6,6 +6,8 @@
 //! - [`native`] and [`grbl`]: controller firmware for the two dialects;
 //! - [`faults`]: fault injection on the line and on moves;
 //! - [`pty`]: the real pseudo-terminal the host opens;
+//! - [`camera`], [`plate`], [`film`], [`scene`]: what the camera sees: the carriage plate, the
+//!   film and the aerial photo on it, rendered from a DEM;
 //! - [`server`]: the loop that ties them together; [`truth`]: the truth file.
 
 pub mod camera;
@@ -20,6 +22,7 @@ pub mod plate;
 pub mod profile;
 pub mod pty;
 pub mod rng;
+pub mod scene;
 pub mod server;
 pub mod stage;
 pub mod truth;

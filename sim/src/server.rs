@@ -51,6 +51,12 @@ pub struct SimConfig {
     pub dirty_crosses: Vec<u32>,
     /// Fiducials the film lacks (not exposed, torn off); the certificate still lists them.
     pub missing_fiducials: Vec<u32>,
+    /// Which photo of the 2×2 block the film is (1, 2 along the first strip; 3, 4 the second).
+    pub photo: u32,
+    /// A perfect stage (no repeatability noise, switch noise or drift) and frames that depend
+    /// only on where the stage stands and how many were taken there: two runs that visit the
+    /// same places see the same pixels, so a resumed scan can be compared byte for byte.
+    pub repeatable: bool,
 }
 
 impl Default for SimConfig {
@@ -66,6 +72,8 @@ impl Default for SimConfig {
             film: false,
             dirty_crosses: Vec::new(),
             missing_fiducials: Vec::new(),
+            photo: 1,
+            repeatable: false,
         }
     }
 }
@@ -116,6 +124,8 @@ pub struct World {
     pub film: Option<crate::film::Film>,
     pub seed: u64,
     pub time_scale: f64,
+    /// See [`SimConfig::repeatable`].
+    pub repeatable: bool,
 }
 
 impl World {
@@ -126,12 +136,17 @@ impl World {
         } else {
             -1.0
         };
-        let stage_cfg = StageConfig::new(&mut rng, home_dir);
+        let mut stage_cfg = StageConfig::new(&mut rng, home_dir);
+        if cfg.repeatable {
+            stage_cfg.repeat_sigma_um = 0.0;
+            stage_cfg.switch_sigma_um = 0.0;
+            stage_cfg.drift_um_per_h = [0.0; 2];
+        }
         // Drawn after the stage, so the stage of a seed is the same with or without a camera.
         let camera = CameraConfig::new(&mut rng);
         let mut plate = Plate::new(&mut rng);
         // Drawn whether loaded or not, so a seed's world is the same either way.
-        let mut film = crate::film::Film::rc10(&mut rng);
+        let mut film = crate::film::Film::rc10(&mut rng, cfg.photo);
         for id in &cfg.dirty_crosses {
             if let Some(c) = plate.crosses.iter().find(|c| c.id == *id) {
                 // Off the centre, so that it would pull a match that used it.
@@ -143,7 +158,8 @@ impl World {
         for f in film.fiducials.iter_mut() {
             f.missing = cfg.missing_fiducials.contains(&f.id);
         }
-        let film = cfg.film.then_some(film);
+        // Rendering the photo over the terrain takes a moment: only when the film is loaded.
+        let film = cfg.film.then(|| film.with_aerial(cfg.seed));
         let stage = Stage::new(stage_cfg, cfg.faults.clone(), cfg.seed, cfg.start_homed);
         Arc::new(World {
             stage: Mutex::new(stage),
@@ -152,6 +168,7 @@ impl World {
             film,
             seed: cfg.seed,
             time_scale: cfg.time_scale,
+            repeatable: cfg.repeatable,
         })
     }
 
