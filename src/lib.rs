@@ -5,5 +5,6 @@ pub mod calibrate;
 pub mod camera;
 pub mod coords;
 pub mod digitise;
+pub mod scan;
 pub mod stage;
 pub mod targets;

@@ -11,6 +11,7 @@ fn main() {
         Command::Stage(a) => cli::stage_cmd::run(a),
         Command::Camera(a) => cli::camera_cmd::run(a),
         Command::Calibrate(a) => cli::calibrate_cmd::run(a),
+        Command::Scan(a) => cli::scan_cmd::run(a),
         Command::Sim(a) => rig_sim::cli::run(a).map(|_| 0).map_err(anyhow::Error::from),
     };
     match code {

@@ -233,15 +233,19 @@ fn draw_measuring_mark(cfg: &CameraConfig, img: &mut [f32]) {
     }
 }
 
-/// The noiseless image of everything under the lens: the plate and, where it lies, the film,
-/// and the measuring mark over both.
+/// The noiseless image of everything under the lens: the plate or, when one is loaded, the
+/// film in its clear carrier; the measuring mark over either.
 pub fn render_scene(
     cfg: &CameraConfig,
     plate: &Plate,
     film: Option<&crate::film::Film>,
     mark_um: [f64; 2],
 ) -> Vec<f32> {
-    let mut img = render_plate(cfg, plate, mark_um);
+    // The film lies in a carrier of clear glass that takes the calibration plate's place.
+    let mut img = match film {
+        Some(_) => vec![plate.clear as f32; cfg.width * cfg.height],
+        None => render_plate(cfg, plate, mark_um),
+    };
     if let Some(f) = film {
         let af = &cfg.affine;
         // One blur for the film: the mean of the two axes'.
@@ -447,10 +451,14 @@ impl FrameSource {
                 self.dropped.push(seq);
                 continue;
             }
-            let mark_um = {
+            let mut mark_um = {
                 let st = self.world.stage();
                 [st.carriage_true(0), st.carriage_true(1)]
             };
+            if self.world.repeatable {
+                // To the nanometre: two paths to one place may differ in a float's last bit.
+                mark_um = mark_um.map(|v| (v * 1000.0).round() / 1000.0);
+            }
             // The scene only changes when the stage moves.
             let ideal = match &self.cache {
                 Some((p, img)) if *p == mark_um => {
@@ -472,8 +480,9 @@ impl FrameSource {
             // The repeatable world draws a frame's noise from where it was taken and how many
             // came before it there, not from the stream's sequence number.
             let noise_seq = if self.world.repeatable {
-                (mark_um[0].to_bits().wrapping_mul(0x9E37_79B9_7F4A_7C15))
-                    ^ mark_um[1].to_bits().rotate_left(29)
+                let nm = |v: f64| (v * 1000.0).round() as i64 as u64;
+                (nm(mark_um[0]).wrapping_mul(0x9E37_79B9_7F4A_7C15))
+                    ^ nm(mark_um[1]).rotate_left(29)
                     ^ self.here.wrapping_mul(0xD6E8_FEB8_6659_FD93)
             } else {
                 seq

@@ -37,6 +37,8 @@ pub struct PixelOptions {
     pub home: bool,
     /// Also visit every cross of the plate to locate the measuring mark.
     pub all_crosses: bool,
+    /// Take a flat field on clear plate glass first and divide every image by it.
+    pub flat_field: bool,
     pub quality: Quality,
 }
 
@@ -51,6 +53,7 @@ impl Default for PixelOptions {
             look_step_um: 1000.0,
             home: true,
             all_crosses: true,
+            flat_field: true,
             quality: Quality::default(),
         }
     }
@@ -68,6 +71,39 @@ pub enum CalibrateError {
     Fit(#[from] FitError),
     #[error("{0}")]
     NotFound(String),
+    #[error("the flat field at carriage {at} is not clear glass ({dark:.1} % of it is dark): clean the plate there, or calibrate with --no-flat")]
+    FlatNotClear { at: CarriageUm, dark: f64 },
+}
+
+/// The session's flat field, beside its results.
+pub const FLAT: &str = "flat.tiff";
+
+/// The point of the plate farthest from every cross, inside the crosses' bounding box: clear
+/// glass for the flat field.
+fn clear_spot(plate: &PlateCertificate) -> CarriageUm {
+    let (mut lo, mut hi) = ([f64::MAX; 2], [f64::MIN; 2]);
+    for c in &plate.crosses {
+        lo = [lo[0].min(c.x_um), lo[1].min(c.y_um)];
+        hi = [hi[0].max(c.x_um), hi[1].max(c.y_um)];
+    }
+    let mut best = (f64::MIN, CarriageUm::new(lo[0], lo[1]));
+    for j in 0..=40 {
+        for i in 0..=40 {
+            let p = CarriageUm::new(
+                lo[0] + (hi[0] - lo[0]) * i as f64 / 40.0,
+                lo[1] + (hi[1] - lo[1]) * j as f64 / 40.0,
+            );
+            let d = plate
+                .crosses
+                .iter()
+                .map(|c| (c.position() - p).norm())
+                .fold(f64::MAX, f64::min);
+            if d > best.0 + 1e-6 {
+                best = (d, p);
+            }
+        }
+    }
+    best.1
 }
 
 /// One measured position of a cross.
@@ -134,6 +170,9 @@ pub struct Rig<'a> {
     pub session: &'a mut Session,
     /// Progress messages for the operator.
     pub progress: &'a mut dyn FnMut(&str),
+    /// Divides every image taken (dust, the measuring mark): the pixel session takes it, the
+    /// sessions after it reuse it.
+    pub flat: Option<crate::digitise::FlatField>,
 }
 
 impl Rig<'_> {
@@ -144,7 +183,10 @@ impl Rig<'_> {
         frames: u32,
     ) -> Result<(CarriageUm, ImageF32), CalibrateError> {
         let s = self.stage.move_to(at)?;
-        let c = capture(self.camera, frames, true, Duration::from_secs(5), |_| {})?;
+        let mut c = capture(self.camera, frames, true, Duration::from_secs(5), |_| {})?;
+        if let Some(f) = &self.flat {
+            f.apply(&mut c.image);
+        }
         Ok((s, c.image))
     }
 }
@@ -159,6 +201,29 @@ pub fn calibrate_pixel(
         (rig.progress)("homing");
         rig.stage.home()?;
         rig.session.event("homed", json!({}))?;
+    }
+    if opt.flat_field {
+        let at = clear_spot(plate);
+        (rig.progress)("flat field on clear plate glass");
+        rig.flat = None;
+        let (s, img) = rig.look(at, 4 * opt.frames)?;
+        let f = crate::digitise::FlatField::from_image(&img);
+        rig.session.event(
+            "flat",
+            json!({"stage_um": s, "dark_percent": f.dark_percent, "file": FLAT}),
+        )?;
+        if !f.is_clear() {
+            return Err(CalibrateError::FlatNotClear {
+                at: s,
+                dark: f.dark_percent,
+            });
+        }
+        crate::digitise::flat::save_counts(
+            &rig.session.dir.join(FLAT),
+            &img,
+            rig.camera.info().bit_depth,
+        )?;
+        rig.flat = Some(f);
     }
     let central = plate.central();
     let c0 = central.position();

@@ -79,6 +79,21 @@ impl Session {
         })
     }
 
+    /// The session log in `dir`, appended to (created if absent): for work that is resumed
+    /// in the same directory, such as a scan.
+    pub fn append(dir: &Path) -> std::io::Result<Session> {
+        std::fs::create_dir_all(dir)?;
+        let log = OpenOptions::new()
+            .create(true)
+            .append(true)
+            .open(dir.join(LOG))?;
+        Ok(Session {
+            dir: dir.to_path_buf(),
+            log,
+            t0: Instant::now(),
+        })
+    }
+
     fn write(&mut self, mut doc: Value) -> std::io::Result<()> {
         doc["t_s"] = json!(self.t0.elapsed().as_secs_f64());
         let mut line = serde_json::to_vec(&doc)?;

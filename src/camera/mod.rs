@@ -47,6 +47,8 @@ pub struct CameraInfo {
     pub exposure_ms: Option<f64>,
     /// `None` = automatic gain.
     pub gain: Option<f64>,
+    /// Frames per second, where the device says (a scan's time estimate uses it).
+    pub frame_rate_hz: Option<f64>,
 }
 
 #[derive(Debug, thiserror::Error)]

@@ -38,6 +38,7 @@ impl Camera for SimCamera {
             bit_depth: c.bit_depth,
             exposure_ms: Some(c.exposure_ms),
             gain: self.gain,
+            frame_rate_hz: Some(c.frame_rate_hz),
         }
     }
 

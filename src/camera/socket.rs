@@ -39,6 +39,7 @@ impl SocketCamera {
                 bit_depth: 8,
                 exposure_ms: None,
                 gain: None,
+                frame_rate_hz: None,
             },
             seq: SeqTracker::default(),
         };

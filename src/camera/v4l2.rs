@@ -131,6 +131,7 @@ impl Camera for V4l2Camera {
             bit_depth: self.bit_depth,
             exposure_ms: self.exposure_ms,
             gain: self.gain,
+            frame_rate_hz: None,
         }
     }
 

@@ -1,13 +1,12 @@
 //! `rig calibrate`: calibration sessions on the rig or on the simulator.
 
+use super::connect::{connect, Hardware};
 use anyhow::{bail, Context};
 use clap::{Args, Subcommand};
 use rig::calibrate::{
     calibrate_interior, calibrate_pixel, CalibrateError, InteriorOptions, InteriorOrientation,
     PixelCalibration, PixelOptions, PixelTransform, Rig, Session,
 };
-use rig::camera::{Camera, SimCamera};
-use rig::stage::{self, Dialect, DriverOptions, Stage};
 use rig::targets::certificate::{CameraCertificate, PlateCertificate};
 use serde_json::json;
 use std::io::IsTerminal;
@@ -16,49 +15,8 @@ use std::path::PathBuf;
 /// Options of `rig calibrate` (its help text is on `Command::Calibrate`).
 #[derive(Debug, Args)]
 pub struct CalibrateArgs {
-    /// Serial port of the stage controller.
-    #[arg(long, value_name = "PATH", conflicts_with = "sim", global = true)]
-    pub stage: Option<PathBuf>,
-    /// Controller dialect on that port.
-    #[arg(long, value_enum, default_value = "native", global = true)]
-    pub dialect: Dialect,
-    /// Camera: /dev/videoN (needs the `v4l2` build feature) or sim:SOCKET.
-    #[arg(long, value_name = "DEVICE", conflicts_with = "sim", global = true)]
-    pub camera: Option<String>,
-    /// Use the built-in simulator (stage, camera, plate; it writes its own certificates and
-    /// keeps its truth in the session as sim-truth.json).
-    #[arg(long, global = true)]
-    pub sim: bool,
-    /// Simulator: random seed.
-    #[arg(long, default_value_t = 1, requires = "sim", global = true)]
-    pub sim_seed: u64,
-    /// Simulator: wall seconds per simulated second (0 = no waiting).
-    #[arg(
-        long,
-        default_value_t = 0.0,
-        value_name = "S",
-        requires = "sim",
-        global = true
-    )]
-    pub sim_time_scale: f64,
-    /// Simulator: smudge dirt over these crosses' centres (ids, comma-separated).
-    #[arg(
-        long,
-        value_name = "IDS",
-        value_delimiter = ',',
-        requires = "sim",
-        global = true
-    )]
-    pub sim_dirty_crosses: Vec<u32>,
-    /// Simulator: leave these fiducials off the film (ids, comma-separated).
-    #[arg(
-        long,
-        value_name = "IDS",
-        value_delimiter = ',',
-        requires = "sim",
-        global = true
-    )]
-    pub sim_missing_fiducials: Vec<u32>,
+    #[command(flatten)]
+    pub conn: super::connect::ConnectArgs,
     /// Where sessions are kept.
     #[arg(
         long,
@@ -101,6 +59,10 @@ pub enum CalibrateAction {
         /// Only the 5×5 grid: skip the crosses that locate the measuring mark.
         #[arg(long)]
         grid_only: bool,
+        /// No flat field (by default one is taken on clear plate glass first, and every image
+        /// of this session and of the interior sessions that use it is divided by it).
+        #[arg(long)]
+        no_flat: bool,
     },
     /// Compare the newest pixel session with the earlier ones in --store: scales, shears, the
     /// measuring mark's pixel (seed 002, Tables 2 and 3); changes beyond the thresholds are
@@ -142,65 +104,6 @@ pub enum CalibrateAction {
     },
 }
 
-struct Hardware {
-    sim: Option<rig_sim::EmbeddedSim>,
-    stage: Box<dyn Stage>,
-    camera: Box<dyn Camera>,
-}
-
-/// Opens the stage and camera, or starts the simulator (writing its truth to `truth` when it
-/// stops).
-fn connect(a: &CalibrateArgs, truth: Option<PathBuf>, film: bool) -> anyhow::Result<Hardware> {
-    if a.sim {
-        if a.sim_time_scale.is_nan() || a.sim_time_scale < 0.0 {
-            bail!("--sim-time-scale must be 0 or more");
-        }
-        let s = rig_sim::EmbeddedSim::start(rig_sim::SimConfig {
-            time_scale: a.sim_time_scale,
-            seed: a.sim_seed,
-            dialect: match a.dialect {
-                Dialect::Native => rig_sim::Dialect::Native,
-                Dialect::Grbl => rig_sim::Dialect::Grbl,
-            },
-            truth,
-            film,
-            start_homed: false,
-            dirty_crosses: a.sim_dirty_crosses.clone(),
-            missing_fiducials: a.sim_missing_fiducials.clone(),
-            ..Default::default()
-        })
-        .context("starting the built-in simulator")?;
-        let stage = stage::open(
-            &s.port,
-            a.dialect,
-            DriverOptions::default(),
-            &Default::default(),
-        )?;
-        let camera = Box::new(SimCamera::new(s.world.clone(), 0.0));
-        return Ok(Hardware {
-            sim: Some(s),
-            stage,
-            camera,
-        });
-    }
-    let (Some(port), Some(cam)) = (&a.stage, &a.camera) else {
-        bail!("name the stage and the camera (--stage PATH --dialect native|grbl --camera DEVICE), or use --sim");
-    };
-    let stage = stage::open(
-        port,
-        a.dialect,
-        DriverOptions::default(),
-        &Default::default(),
-    )
-    .with_context(|| format!("opening the stage at {}", port.display()))?;
-    let camera = super::camera_cmd::open_device(cam)?;
-    Ok(Hardware {
-        sim: None,
-        stage,
-        camera,
-    })
-}
-
 /// Two positive numbers X,Y (a spacing, a position on the carriage).
 fn parse_pair(s: &str, what: &str) -> anyhow::Result<[f64; 2]> {
     match super::camera_cmd::parse_pair(s, what)? {
@@ -213,6 +116,9 @@ fn parse_pair(s: &str, what: &str) -> anyhow::Result<[f64; 2]> {
 struct Running {
     session: Session,
     hw: Hardware,
+    /// The flat field the session divides its images by (an interior session: its pixel
+    /// session's).
+    flat: Option<rig::digitise::FlatField>,
 }
 
 impl Running {
@@ -227,8 +133,17 @@ impl Running {
             None => Session::new_in_store(&a.store, kind),
         }
         .context("creating the session directory")?;
-        let hw = connect(a, Some(session.dir.join("sim-truth.json")), film)?;
-        Ok(Running { session, hw })
+        let hw = connect(
+            &a.conn,
+            Some(session.dir.join("sim-truth.json")),
+            film,
+            &Default::default(),
+        )?;
+        Ok(Running {
+            session,
+            hw,
+            flat: None,
+        })
     }
 
     /// Runs `body` with the rig, then records the outcome, stops the simulator, and returns
@@ -253,6 +168,7 @@ impl Running {
             camera: self.hw.camera.as_mut(),
             session: &mut self.session,
             progress: &mut progress,
+            flat: self.flat.take(),
         });
         if tty {
             eprintln!();
@@ -270,10 +186,7 @@ impl Running {
             }
         };
         let dir = self.session.dir.clone();
-        if let Some(s) = self.hw.sim.take() {
-            drop(self.hw);
-            s.shutdown().context("stopping the built-in simulator")?;
-        }
+        self.hw.close()?;
         let (c, doc) = result.with_context(|| {
             format!(
                 "calibration failed; the session so far is in {}",
@@ -302,13 +215,14 @@ pub fn run(a: CalibrateArgs) -> anyhow::Result<i32> {
             pixel_um,
             no_home,
             grid_only,
+            no_flat,
         } => {
             check_frames(*frames)?;
             if !(2..=15).contains(grid) {
                 bail!("--grid {grid} is out of range: use 2 to 15");
             }
             let nominal = parse_pair(pixel_um, "--pixel-um")?;
-            if plate_cert.is_none() && !a.sim {
+            if plate_cert.is_none() && !a.conn.sim {
                 bail!("--plate-cert FILE is needed (the carriage plate's certificate; the README shows its format)");
             }
             let mut run = Running::begin(&a, out, "pixel", false)?;
@@ -332,6 +246,7 @@ pub fn run(a: CalibrateArgs) -> anyhow::Result<i32> {
                 nominal_um_per_px: nominal,
                 home: !no_home,
                 all_crosses: !grid_only,
+                flat_field: !no_flat,
                 ..Default::default()
             };
             run.session.start(
@@ -340,7 +255,7 @@ pub fn run(a: CalibrateArgs) -> anyhow::Result<i32> {
                     "plate_certificate": cert_path, "plate": plate.name,
                     "camera": run.hw.camera.info(), "stage": run.hw.stage.info(),
                     "frames": opt.frames, "grid": opt.grid, "patch": opt.patch,
-                    "blur_px": opt.blur_px, "nominal_um_per_px": nominal, "sim": a.sim,
+                    "blur_px": opt.blur_px, "nominal_um_per_px": nominal, "sim": a.conn.sim,
                 }),
             )?;
             let (c, doc, dir) = run.run(&a, "pixel", |rig| calibrate_pixel(rig, &plate, &opt))?;
@@ -399,7 +314,7 @@ pub fn run(a: CalibrateArgs) -> anyhow::Result<i32> {
         } => {
             check_frames(*frames)?;
             let centre = parse_pair(film_centre, "--film-centre")?;
-            if camera_cert.is_none() && !a.sim {
+            if camera_cert.is_none() && !a.conn.sim {
                 bail!("--camera-cert FILE is needed (the film camera's certificate with its fiducials; the README shows its format)");
             }
             let pixel_dir = match pixel_session {
@@ -414,7 +329,16 @@ pub fn run(a: CalibrateArgs) -> anyhow::Result<i32> {
                     })?,
             };
             let pixel = PixelTransform::from_session(&pixel_dir).map_err(anyhow::Error::msg)?;
+            let flat_path = pixel_dir.join(rig::calibrate::pixel::FLAT);
+            let flat = match flat_path.exists() {
+                true => Some(
+                    rig::digitise::FlatField::load(&flat_path)
+                        .with_context(|| format!("reading {}", flat_path.display()))?,
+                ),
+                false => None,
+            };
             let mut run = Running::begin(&a, out, "interior", true)?;
+            run.flat = flat;
             let cert_path = match (camera_cert, &run.hw.sim) {
                 (Some(p), _) => p.clone(),
                 (None, Some(s)) => {
@@ -444,8 +368,9 @@ pub fn run(a: CalibrateArgs) -> anyhow::Result<i32> {
                 json!({
                     "camera_certificate": cert_path, "camera_name": cert.name,
                     "pixel_session": pixel_dir, "pixel_to_carriage": pixel,
+                    "flat_field": run.flat.is_some().then_some(&flat_path),
                     "camera": run.hw.camera.info(), "stage": run.hw.stage.info(),
-                    "frames": opt.frames, "patch": opt.patch, "film_centre_mm": centre, "sim": a.sim,
+                    "frames": opt.frames, "patch": opt.patch, "film_centre_mm": centre, "sim": a.conn.sim,
                 }),
             )?;
             let home = !no_home;

@@ -2,6 +2,8 @@
 
 pub mod calibrate_cmd;
 pub mod camera_cmd;
+pub mod connect;
+pub mod scan_cmd;
 pub mod stage_cmd;
 
 use clap::{Parser, Subcommand};
@@ -68,6 +70,28 @@ pub enum Command {
     /// message says which step and where the session so far was kept).
     #[command(verbatim_doc_comment)]
     Calibrate(calibrate_cmd::CalibrateArgs),
+    /// Scan film by script: plan (nothing moves), run (pause with Ctrl-C, --resume after a
+    /// pause, crash or kill), mosaic again.
+    ///
+    /// Examples:
+    ///   rig scan plan scan.toml
+    ///   rig scan --sim run scan.toml
+    ///   rig scan --sim run scan.toml --resume
+    ///   rig scan mosaic scans/photo-1
+    ///
+    /// The script (TOML; the README documents it) names the film, the interior-orientation
+    /// session (default: the newest in --store), the regions in photo mm, the output
+    /// resolution, overlap, frames per tile, filter and settle time. The scan directory
+    /// holds script.toml, calibration.json, camera-cert.toml, manifest.json (the checkpoint,
+    /// rewritten atomically after every tile), log.jsonl, flat.tiff, tiles/, and per region
+    /// REGION.tiff (16-bit, photo coordinates) with REGION.json (the photo grid, interior
+    /// orientation, camera certificate and sessions): what the matching core reads.
+    ///
+    /// Exit codes: 0 done; 2 bad usage; 3 plan refused (a tile outside the soft limits; nothing
+    /// moved); 4 paused (continue with --resume); 1 any other error (the message says what to
+    /// do; every tile taken is kept).
+    #[command(verbatim_doc_comment)]
+    Scan(scan_cmd::ScanArgs),
     /// Run the simulated stage controller on a pseudo-terminal (same as `rig-sim`).
     ///
     /// Prints the pseudo-terminal's path on its first line (and links it at --stage-link), then

@@ -110,7 +110,7 @@ pub enum Action {
     Estop,
 }
 
-fn parse_limits(s: &str) -> Result<SoftLimits, String> {
+pub fn parse_limits(s: &str) -> Result<SoftLimits, String> {
     let v: Vec<f64> = s
         .split(',')
         .map(|x| {

@@ -4,6 +4,7 @@
 
 mod average;
 pub mod capture;
+pub mod flat;
 mod image;
 mod lowpass;
 pub mod output;
@@ -12,6 +13,7 @@ mod stripes;
 
 pub use average::{average_frames, average_frames_into, Averaged, Averager};
 pub use capture::{capture, CaptureError, Captured};
+pub use flat::FlatField;
 pub use image::ImageF32;
 pub use lowpass::seed_lowpass;
 pub use stretch::{stretch, Stretch};

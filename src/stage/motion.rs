@@ -6,7 +6,7 @@ use crate::coords::CarriageUm;
 use std::time::Duration;
 
 /// Soft limits in carriage coordinates, µm: no motion command outside them is ever sent.
-#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct SoftLimits {
     pub min: CarriageUm,
     pub max: CarriageUm,

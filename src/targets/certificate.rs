@@ -194,7 +194,7 @@ pub struct CertFiducial {
 }
 
 /// An aerial camera's certificate: calibrated fiducial coordinates and their forms.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, Default)]
 pub struct CameraCertificate {
     pub name: String,
     pub focal_length_mm: f64,

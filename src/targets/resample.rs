@@ -67,6 +67,27 @@ pub fn sample(img: &ImageF32, x: f64, y: f64) -> Option<(f64, f64, f64)> {
     Some((v, gx, gy))
 }
 
+/// The image's value at (x, y), or `None` where the 4×4 neighbourhood leaves the image.
+#[inline]
+pub fn value(img: &ImageF32, x: f64, y: f64) -> Option<f64> {
+    let (c0, wx, _) = taps(x);
+    let (r0, wy, _) = taps(y);
+    if c0 < 0 || r0 < 0 || c0 + 4 > img.width as i64 || r0 + 4 > img.height as i64 {
+        return None;
+    }
+    let (c0, r0) = (c0 as usize, r0 as usize);
+    let mut v = 0.0;
+    for j in 0..4 {
+        let row = &img.data[(r0 + j) * img.width + c0..][..4];
+        v += wy[j]
+            * (wx[0] * row[0] as f64
+                + wx[1] * row[1] as f64
+                + wx[2] * row[2] as f64
+                + wx[3] * row[3] as f64);
+    }
+    Some(v)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -87,6 +108,7 @@ mod tests {
             assert!((v - f(x, y)).abs() < 1e-4, "{x},{y}: {v} vs {}", f(x, y));
             assert!((gx - (0.5 + 0.06 * x - 0.02 * y)).abs() < 1e-4);
             assert!((gy - (-0.25 - 0.02 * x)).abs() < 1e-4);
+            assert!((value(&img, x, y).unwrap() - v).abs() < 1e-9);
         }
         // Pixel centres give the pixel back.
         let (v, _, _) = sample(&img, 5.5, 4.5).unwrap();

@@ -1,0 +1,142 @@
+//! The hardware options shared by the commands that drive stage and camera together
+//! (`rig calibrate`, `rig scan run`): the stage's port and dialect and the camera, or the
+//! built-in simulator and its knobs.
+
+use anyhow::{bail, Context};
+use clap::Args;
+use rig::camera::{Camera, SimCamera};
+use rig::stage::{self, Dialect, DriverOptions, LinkOptions, SoftLimits, Stage};
+use std::path::PathBuf;
+
+#[derive(Debug, Args)]
+pub struct ConnectArgs {
+    /// Serial port of the stage controller.
+    #[arg(long, value_name = "PATH", conflicts_with = "sim", global = true)]
+    pub stage: Option<PathBuf>,
+    /// Controller dialect on that port.
+    #[arg(long, value_enum, default_value = "native", global = true)]
+    pub dialect: Dialect,
+    /// Tighter soft limits, mm: XMIN,XMAX,YMIN,YMAX (intersected with the controller's; a scan
+    /// is planned within them too).
+    #[arg(long, value_name = "MM,MM,MM,MM", value_parser = super::stage_cmd::parse_limits, global = true)]
+    pub limits: Option<SoftLimits>,
+    /// Camera: /dev/videoN (needs the `v4l2` build feature) or sim:SOCKET.
+    #[arg(long, value_name = "DEVICE", conflicts_with = "sim", global = true)]
+    pub camera: Option<String>,
+    /// Use the built-in simulator (stage, camera, plate, film; it writes its own
+    /// certificates and keeps its truth beside the results as sim-truth.json).
+    #[arg(long, global = true)]
+    pub sim: bool,
+    /// Simulator: random seed.
+    #[arg(long, default_value_t = 1, requires = "sim", global = true)]
+    pub sim_seed: u64,
+    /// Simulator: wall seconds per simulated second (0 = no waiting).
+    #[arg(
+        long,
+        default_value_t = 0.0,
+        value_name = "S",
+        requires = "sim",
+        global = true
+    )]
+    pub sim_time_scale: f64,
+    /// Simulator: smudge dirt over these crosses' centres (ids, comma-separated).
+    #[arg(
+        long,
+        value_name = "IDS",
+        value_delimiter = ',',
+        requires = "sim",
+        global = true
+    )]
+    pub sim_dirty_crosses: Vec<u32>,
+    /// Simulator: leave these fiducials off the film (ids, comma-separated).
+    #[arg(
+        long,
+        value_name = "IDS",
+        value_delimiter = ',',
+        requires = "sim",
+        global = true
+    )]
+    pub sim_missing_fiducials: Vec<u32>,
+    /// Simulator: which photo of the 2×2 block lies on the carriage (1, 2 along the first
+    /// strip with 60 % overlap; 3, 4 along the second).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=4), requires = "sim", global = true)]
+    pub sim_photo: u32,
+    /// Simulator: a perfect stage and frames that depend only on where they were taken, so
+    /// that two runs can be compared byte for byte.
+    #[arg(long, requires = "sim", global = true)]
+    pub sim_repeatable: bool,
+}
+
+fn driver_options(a: &ConnectArgs) -> DriverOptions {
+    DriverOptions {
+        limits: a.limits,
+        ..Default::default()
+    }
+}
+
+pub struct Hardware {
+    pub sim: Option<rig_sim::EmbeddedSim>,
+    pub stage: Box<dyn Stage>,
+    pub camera: Box<dyn Camera>,
+}
+
+impl Hardware {
+    /// Closes the hardware; the simulator writes its truth file.
+    pub fn close(mut self) -> anyhow::Result<()> {
+        if let Some(s) = self.sim.take() {
+            drop(self);
+            s.shutdown().context("stopping the built-in simulator")?;
+        }
+        Ok(())
+    }
+}
+
+/// Opens the stage and camera, or starts the simulator (with a film on the carriage if
+/// `film`; writing its truth to `truth` when it stops).
+pub fn connect(
+    a: &ConnectArgs,
+    truth: Option<PathBuf>,
+    film: bool,
+    link: &LinkOptions,
+) -> anyhow::Result<Hardware> {
+    if a.sim {
+        if a.sim_time_scale.is_nan() || a.sim_time_scale < 0.0 {
+            bail!("--sim-time-scale must be 0 or more");
+        }
+        let s = rig_sim::EmbeddedSim::start(rig_sim::SimConfig {
+            time_scale: a.sim_time_scale,
+            seed: a.sim_seed,
+            dialect: match a.dialect {
+                Dialect::Native => rig_sim::Dialect::Native,
+                Dialect::Grbl => rig_sim::Dialect::Grbl,
+            },
+            truth,
+            film,
+            start_homed: false,
+            dirty_crosses: a.sim_dirty_crosses.clone(),
+            missing_fiducials: a.sim_missing_fiducials.clone(),
+            photo: a.sim_photo,
+            repeatable: a.sim_repeatable,
+            ..Default::default()
+        })
+        .context("starting the built-in simulator")?;
+        let stage = stage::open(&s.port, a.dialect, driver_options(a), link)?;
+        let camera = Box::new(SimCamera::new(s.world.clone(), 0.0));
+        return Ok(Hardware {
+            sim: Some(s),
+            stage,
+            camera,
+        });
+    }
+    let (Some(port), Some(cam)) = (&a.stage, &a.camera) else {
+        bail!("name the stage and the camera (--stage PATH --dialect native|grbl --camera DEVICE), or use --sim");
+    };
+    let stage = stage::open(port, a.dialect, driver_options(a), link)
+        .with_context(|| format!("opening the stage at {}", port.display()))?;
+    let camera = super::camera_cmd::open_device(cam)?;
+    Ok(Hardware {
+        sim: None,
+        stage,
+        camera,
+    })
+}

@@ -1,0 +1,342 @@
+//! `rig scan`: plan a scripted film scan, run it (pause, resume), mosaic it again.
+
+use super::connect::{connect, ConnectArgs};
+use anyhow::Context;
+use clap::{Args, Subcommand};
+use rig::scan::run::{Outcome, Progress, RunOptions, ScanRig};
+use rig::scan::{plan, Plan, ScanCalibration, ScanDir, ScanScript};
+use serde_json::json;
+use std::io::IsTerminal;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::AtomicBool;
+use std::sync::Arc;
+
+/// Exit code of a scan paused by Ctrl-C.
+pub const EXIT_PAUSED: i32 = 4;
+/// Exit code of a plan refused (soft limits, frame size).
+pub const EXIT_REFUSED: i32 = 3;
+
+#[derive(Debug, Args)]
+pub struct ScanArgs {
+    #[command(flatten)]
+    pub conn: ConnectArgs,
+    /// Where calibration sessions are kept (for the newest interior session when the script
+    /// names none).
+    #[arg(
+        long,
+        value_name = "DIR",
+        default_value = "rig-sessions",
+        global = true
+    )]
+    pub store: PathBuf,
+    /// Print a JSON document on standard output instead of the human summary.
+    #[arg(long, global = true)]
+    pub json: bool,
+    #[command(subcommand)]
+    pub action: ScanAction,
+}
+
+#[derive(Debug, Subcommand)]
+pub enum ScanAction {
+    /// Tile the script's regions, check every stage position against the soft limits, and
+    /// estimate the time and the bytes. Nothing moves; no hardware is needed (the calibration
+    /// sessions recorded the rig).
+    Plan {
+        /// The scan script (TOML; see the README).
+        script: PathBuf,
+    },
+    /// Run the scan: home, flat field, every tile (checkpointed as it is taken), then the
+    /// photos. Ctrl-C pauses at the next tile boundary (a second Ctrl-C quits at once);
+    /// --resume continues a paused, crashed or killed scan where it stopped.
+    Run {
+        /// The scan script (TOML; see the README).
+        script: PathBuf,
+        /// Continue the scan already in the output directory.
+        #[arg(long)]
+        resume: bool,
+        /// Write the scan here instead of the script's [output] dir.
+        #[arg(long, value_name = "DIR")]
+        out: Option<PathBuf>,
+        /// Do not home first (the stage must already be homed).
+        #[arg(long)]
+        no_home: bool,
+    },
+    /// Mosaic the photos again from a scan directory's tiles.
+    Mosaic {
+        /// The scan directory.
+        dir: PathBuf,
+    },
+}
+
+/// The script and its calibration; the operator's --limits tighten the recorded soft limits.
+fn load(a: &ScanArgs, script: &Path) -> anyhow::Result<(ScanScript, ScanCalibration)> {
+    let store = &a.store;
+    let s = ScanScript::load(script)?;
+    let interior = match &s.interior_session {
+        Some(d) => d.clone(),
+        None => rig::calibrate::session::list(store, "interior")?
+            .pop()
+            .with_context(|| {
+                format!(
+                    "{}: [film] names no interior_session and {} has none: run `rig calibrate interior` or name one",
+                    script.display(),
+                    store.display()
+                )
+            })?,
+    };
+    let mut cal = ScanCalibration::load(&interior, s.fiducials)?;
+    if let Some(l) = &a.conn.limits {
+        cal.rig.limits = cal.rig.limits.intersect(l);
+    }
+    Ok((s, cal))
+}
+
+fn duration(s: f64) -> String {
+    let s = s.max(0.0).round() as u64;
+    match s {
+        0..=59 => format!("{s} s"),
+        60..=3599 => format!("{} min {:02} s", s / 60, s % 60),
+        _ => format!("{} h {:02} min", s / 3600, (s % 3600) / 60),
+    }
+}
+
+fn megabytes(b: u64) -> String {
+    format!("{:.1} MB", b as f64 / 1e6)
+}
+
+fn print_plan(s: &ScanScript, cal: &ScanCalibration, p: &Plan) {
+    println!("scan plan: film \"{}\" ({})", s.film_name, s.path.display());
+    println!(
+        "  calibration: interior session {} ({} fiducials, RMS {:.2} µm), pixel session {}",
+        cal.interior_session.display(),
+        cal.version.name(),
+        cal.rms_um,
+        cal.pixel_session.display()
+    );
+    println!(
+        "  tiles: {:.2} × {:.2} mm of the photo each, {:.0} % overlap, {} frames, filter {:?}",
+        2.0 * p.tile_half_mm[0],
+        2.0 * p.tile_half_mm[1],
+        100.0 * s.capture.overlap,
+        s.capture.frames,
+        s.capture.filter
+    );
+    for (ri, r) in p.regions.iter().enumerate() {
+        let e = r.grid.extent_mm();
+        println!(
+            "  region {}: photo x {:.2}…{:.2}, y {:.2}…{:.2} mm → {} × {} px at {} µm; {} × {} = {} tiles",
+            r.name,
+            e[0],
+            e[2],
+            e[1],
+            e[3],
+            r.grid.width,
+            r.grid.height,
+            s.resolution_um,
+            r.cols,
+            r.rows,
+            p.tiles.iter().filter(|t| t.region == ri).count()
+        );
+    }
+    if p.flat_stage_um.is_some() {
+        let [x, y] = s.capture.flat_photo_mm;
+        println!("  flat field: clear film base at photo ({x:.1}, {y:.1}) mm");
+    }
+    let l = &cal.rig.limits;
+    println!(
+        "  soft limits: all {} stage positions inside X {:.1}…{:.1}, Y {:.1}…{:.1} mm",
+        p.tiles.len() + p.flat_stage_um.is_some() as usize,
+        l.min.x_mm(),
+        l.max.x_mm(),
+        l.min.y_mm(),
+        l.max.y_mm()
+    );
+    let e = &p.estimate;
+    println!(
+        "  estimate: {} ({} frames/s{}, stage travel {:.0} mm; processing not included); {} of tiles, {} of photos",
+        duration(e.seconds),
+        e.frame_rate_hz,
+        if e.frame_rate_assumed { ", assumed" } else { "" },
+        e.travel_mm,
+        megabytes(e.tile_bytes),
+        megabytes(e.mosaic_bytes)
+    );
+    println!("  output: {}", s.out_dir.display());
+}
+
+/// Draws the progress line (a bar on a terminal, a line per tile otherwise).
+fn progress_printer(json: bool) -> impl FnMut(Progress) {
+    let tty = std::io::stderr().is_terminal();
+    move |p: Progress| {
+        if json && !tty {
+            return;
+        }
+        let frac = p.done as f64 / p.total.max(1) as f64;
+        if tty {
+            let n = 30;
+            let k = (frac * n as f64).round() as usize;
+            eprint!(
+                "\r\x1b[K[{}{}] {}/{} tiles {:3.0} %  {}  {} left",
+                "#".repeat(k),
+                "-".repeat(n - k),
+                p.done,
+                p.total,
+                100.0 * frac,
+                p.tile,
+                duration(p.eta_s)
+            );
+        } else if !p.tile.is_empty() {
+            eprintln!(
+                "tile {}/{} {} ({} left)",
+                p.done,
+                p.total,
+                p.tile,
+                duration(p.eta_s)
+            );
+        }
+    }
+}
+
+pub fn run(a: ScanArgs) -> anyhow::Result<i32> {
+    match &a.action {
+        ScanAction::Plan { script } => {
+            let (s, cal) = load(&a, script)?;
+            let p = match plan(&s, &cal) {
+                Ok(p) => p,
+                Err(e) => {
+                    eprintln!("rig: plan refused: {e}");
+                    return Ok(EXIT_REFUSED);
+                }
+            };
+            if a.json {
+                println!(
+                    "{}",
+                    json!({"script": s.path, "out": s.out_dir, "calibration": cal, "plan": p})
+                );
+            } else {
+                print_plan(&s, &cal, &p);
+                println!("nothing moved.");
+            }
+            Ok(0)
+        }
+        ScanAction::Run {
+            script,
+            resume,
+            out,
+            no_home,
+        } => {
+            let (mut s, cal) = load(&a, script)?;
+            if let Some(o) = out {
+                s.out_dir = o.clone();
+            }
+            let dir = s.out_dir.clone();
+            let mut sd = if *resume {
+                ScanDir::resume(&dir, s)?
+            } else {
+                let p = match plan(&s, &cal) {
+                    Ok(p) => p,
+                    Err(e) => {
+                        eprintln!("rig: plan refused, nothing moved: {e}");
+                        return Ok(EXIT_REFUSED);
+                    }
+                };
+                ScanDir::create(&dir, s, cal, p)?
+            };
+            let pause = Arc::new(AtomicBool::new(false));
+            // A first Ctrl-C asks for a pause at the next tile boundary; a second quits.
+            signal_hook::flag::register_conditional_shutdown(
+                signal_hook::consts::SIGINT,
+                130,
+                pause.clone(),
+            )?;
+            signal_hook::flag::register(signal_hook::consts::SIGINT, pause.clone())?;
+            let mut hw = connect(
+                &a.conn,
+                Some(dir.join("sim-truth.json")),
+                true,
+                &Default::default(),
+            )?;
+            let tty = std::io::stderr().is_terminal();
+            let mut show = progress_printer(a.json);
+            let r = rig::scan::run::run(
+                &mut sd,
+                &mut ScanRig {
+                    stage: hw.stage.as_mut(),
+                    camera: hw.camera.as_mut(),
+                },
+                &RunOptions {
+                    home: !no_home,
+                    pause: &pause,
+                    frame_timeout: std::time::Duration::from_secs(5),
+                },
+                &mut show,
+            );
+            if tty {
+                eprintln!();
+            }
+            if let Err(e) = &r {
+                let _ = sd.log.stop("failed", Some(&e.to_string()));
+            }
+            hw.close()?;
+            match r.with_context(|| {
+                format!(
+                    "the scan stopped; every tile taken so far is kept in {} — fix the cause and run again with --resume",
+                    dir.display()
+                )
+            })? {
+                Outcome::Complete { photos } => {
+                    if a.json {
+                        println!(
+                            "{}",
+                            json!({"status": "complete", "dir": dir, "photos": photos, "tiles": sd.manifest.tiles.len()})
+                        );
+                    } else {
+                        println!(
+                            "scan complete: {} tiles in {}",
+                            sd.manifest.tiles.len(),
+                            dir.display()
+                        );
+                        for p in photos {
+                            println!("  photo {} (+ .tiff)", p.display());
+                        }
+                    }
+                    Ok(0)
+                }
+                Outcome::Paused { done, total } => {
+                    if a.json {
+                        println!(
+                            "{}",
+                            json!({"status": "paused", "dir": dir, "done": done, "total": total})
+                        );
+                    } else {
+                        println!(
+                            "scan paused after {done} of {total} tiles; continue with: rig scan run {} --resume{}",
+                            script.display(),
+                            out.as_ref()
+                                .map(|o| format!(" --out {}", o.display()))
+                                .unwrap_or_default()
+                        );
+                    }
+                    Ok(EXIT_PAUSED)
+                }
+            }
+        }
+        ScanAction::Mosaic { dir } => {
+            let mut sd = ScanDir::open(dir)?;
+            let (done, total) = (sd.manifest.done(), sd.manifest.tiles.len());
+            if done < total {
+                eprintln!("rig: only {done} of {total} tiles are taken: the photos have holes (nodata 0) where the others belong");
+            }
+            let photos =
+                rig::scan::run::mosaic_all(&mut sd, rig::scan::mosaic::Interpolation::Bicubic)?;
+            if a.json {
+                println!("{}", json!({"dir": dir, "photos": photos}));
+            } else {
+                for p in photos {
+                    println!("photo {} (+ .tiff)", p.display());
+                }
+            }
+            Ok(0)
+        }
+    }
+}

@@ -1,0 +1,265 @@
+//! What a scan takes from the calibration sessions: pixel→carriage (the pixel session, through
+//! the interior session that used it), carriage→photo (the interior session's chosen version),
+//! the camera certificate, and what the sessions recorded about the rig (frame size, soft
+//! limits, speeds) so that a scan can be planned without the hardware.
+
+use super::script::FiducialVersion;
+use crate::calibrate::PixelTransform;
+use crate::coords::{CarriageUm, PhotoMm, PixelXY};
+use crate::stage::SoftLimits;
+use crate::targets::certificate::CameraCertificate;
+use serde::{Deserialize, Serialize};
+use serde_json::Value;
+use std::path::{Path, PathBuf};
+
+#[derive(Debug, thiserror::Error)]
+#[error("{path}: {message}")]
+pub struct CalibrationError {
+    pub path: PathBuf,
+    pub message: String,
+}
+
+/// The rig as the calibration session recorded it.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct RigRecord {
+    pub width: usize,
+    pub height: usize,
+    pub bit_depth: u32,
+    pub frame_rate_hz: Option<f64>,
+    pub limits: SoftLimits,
+    pub max_speed_um_s: f64,
+    pub accel_um_s2: f64,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct ScanCalibration {
+    pub interior_session: PathBuf,
+    pub pixel_session: PathBuf,
+    pub pixel: PixelTransform,
+    pub version: FiducialVersion,
+    /// Carriage µm → photo µm: x = c0 + c1·X + c2·Y, y = c3 + c4·X + c5·Y.
+    pub carriage_to_photo: [f64; 6],
+    pub rms_um: f64,
+    pub fiducials: Vec<u32>,
+    pub camera_certificate: PathBuf,
+    #[serde(skip)]
+    pub certificate: CameraCertificate,
+    pub rig: RigRecord,
+}
+
+fn err(path: &Path, message: impl Into<String>) -> CalibrationError {
+    CalibrationError {
+        path: path.to_path_buf(),
+        message: message.into(),
+    }
+}
+
+fn read_json(path: &Path) -> Result<Value, CalibrationError> {
+    let text = std::fs::read_to_string(path).map_err(|e| err(path, e.to_string()))?;
+    serde_json::from_str(&text).map_err(|e| err(path, format!("not JSON: {e}")))
+}
+
+/// The descriptor document of a session's log (the second line).
+fn descriptor(dir: &Path) -> Result<Value, CalibrationError> {
+    let p = dir.join(crate::calibrate::session::LOG);
+    let text = std::fs::read_to_string(&p).map_err(|e| err(&p, e.to_string()))?;
+    text.lines()
+        .filter_map(|l| serde_json::from_str::<Value>(l).ok())
+        .find(|d| d["doc"] == "descriptor")
+        .map(|d| d["data"].clone())
+        .ok_or_else(|| err(&p, "no descriptor document in the log"))
+}
+
+/// A path a session recorded: as written, or relative to the session's own directory.
+fn recorded_path(session: &Path, v: &Value, fallback_name: &str) -> Option<PathBuf> {
+    let own = session.join(fallback_name);
+    if own.is_file() {
+        return Some(own);
+    }
+    let p = PathBuf::from(v.as_str()?);
+    p.exists().then_some(p)
+}
+
+impl ScanCalibration {
+    pub fn load(interior: &Path, version: FiducialVersion) -> Result<Self, CalibrationError> {
+        let results_path = interior.join(crate::calibrate::session::RESULTS);
+        let results = read_json(&results_path)?;
+        if results["kind"] != "interior" {
+            return Err(err(
+                &results_path,
+                "not an interior-orientation session (run `rig calibrate interior`)",
+            ));
+        }
+        let v = results["calibration"]["versions"]
+            .as_array()
+            .and_then(|vs| vs.iter().find(|v| v["name"] == version.name()))
+            .ok_or_else(|| err(&results_path, "no carriage→photo versions in it"))?;
+        let params: [f64; 6] =
+            serde_json::from_value(v["fit"]["params"].clone()).map_err(|_| {
+                err(
+                    &results_path,
+                    format!(
+                        "the `{}` version has no fit ({}); choose another with [film] fiducials",
+                        version.name(),
+                        v["error"].as_str().unwrap_or("unknown reason")
+                    ),
+                )
+            })?;
+        let d = descriptor(interior)?;
+        let log = interior.join(crate::calibrate::session::LOG);
+        let pixel: PixelTransform = serde_json::from_value(d["pixel_to_carriage"].clone())
+            .map_err(|_| err(&log, "the descriptor lacks pixel_to_carriage"))?;
+        let cert_path = recorded_path(interior, &d["camera_certificate"], "camera-cert.toml")
+            .ok_or_else(|| err(&log, "its camera certificate is not found"))?;
+        let certificate =
+            CameraCertificate::load(&cert_path).map_err(|e| err(&cert_path, e.to_string()))?;
+        let cam = &d["camera"];
+        let st = &d["stage"];
+        let num = |v: &Value, what: &str| {
+            v.as_f64()
+                .ok_or_else(|| err(&log, format!("the descriptor lacks {what}")))
+        };
+        let limits: SoftLimits = serde_json::from_value(st["limits"].clone())
+            .map_err(|_| err(&log, "the descriptor lacks the stage's soft limits"))?;
+        let rig = RigRecord {
+            width: num(&cam["width"], "camera.width")? as usize,
+            height: num(&cam["height"], "camera.height")? as usize,
+            bit_depth: num(&cam["bit_depth"], "camera.bit_depth")? as u32,
+            frame_rate_hz: cam["frame_rate_hz"].as_f64(),
+            limits,
+            max_speed_um_s: num(&st["max_speed_um_s"], "stage.max_speed_um_s")?,
+            accel_um_s2: num(&st["accel_um_s2"], "stage.accel_um_s2")?,
+        };
+        Ok(ScanCalibration {
+            interior_session: interior.to_path_buf(),
+            pixel_session: PathBuf::from(d["pixel_session"].as_str().unwrap_or("")),
+            pixel,
+            version,
+            carriage_to_photo: params,
+            rms_um: v["rms_um"].as_f64().unwrap_or(f64::NAN),
+            fiducials: serde_json::from_value(v["fiducials"].clone()).unwrap_or_default(),
+            camera_certificate: cert_path,
+            certificate,
+            rig,
+        })
+    }
+
+    pub fn photo(&self, c: CarriageUm) -> PhotoMm {
+        let p = &self.carriage_to_photo;
+        PhotoMm::new(
+            (p[0] + p[1] * c.x + p[2] * c.y) / 1000.0,
+            (p[3] + p[4] * c.x + p[5] * c.y) / 1000.0,
+        )
+    }
+
+    pub fn carriage(&self, p: PhotoMm) -> CarriageUm {
+        let c = &self.carriage_to_photo;
+        let det = c[1] * c[5] - c[2] * c[4];
+        let (dx, dy) = (p.x * 1000.0 - c[0], p.y * 1000.0 - c[3]);
+        CarriageUm::new(
+            (c[5] * dx - c[2] * dy) / det,
+            (-c[4] * dx + c[1] * dy) / det,
+        )
+    }
+
+    /// Photo point seen at pixel `q` with the stage at `stage`.
+    pub fn photo_at(&self, stage: CarriageUm, q: PixelXY) -> PhotoMm {
+        self.photo(self.pixel.carriage(stage, q))
+    }
+
+    /// Photo mm → pixel for a tile taken with the stage at `stage`, as an affine
+    /// `q = t + M·p` (t in px, M in px per mm): the inverse of the two calibrations chained.
+    pub fn photo_to_pixel(&self, stage: CarriageUm) -> ([f64; 2], [[f64; 2]; 2]) {
+        // p = photo(stage + a0 + A·q) = P0 + (C·A)·q, with P0 = photo(stage + a0).
+        let a = &self.pixel.params;
+        let c = &self.carriage_to_photo;
+        let p0 = self.photo(stage + CarriageUm::new(a[0], a[3]));
+        // C·A in mm per px.
+        let ca = [
+            [
+                (c[1] * a[1] + c[2] * a[4]) / 1000.0,
+                (c[1] * a[2] + c[2] * a[5]) / 1000.0,
+            ],
+            [
+                (c[4] * a[1] + c[5] * a[4]) / 1000.0,
+                (c[4] * a[2] + c[5] * a[5]) / 1000.0,
+            ],
+        ];
+        let det = ca[0][0] * ca[1][1] - ca[0][1] * ca[1][0];
+        let m = [
+            [ca[1][1] / det, -ca[0][1] / det],
+            [-ca[1][0] / det, ca[0][0] / det],
+        ];
+        let t = [
+            -(m[0][0] * p0.x + m[0][1] * p0.y),
+            -(m[1][0] * p0.x + m[1][1] * p0.y),
+        ];
+        (t, m)
+    }
+
+    /// The stage position that puts photo point `p` at pixel `q`.
+    pub fn stage_for(&self, p: PhotoMm, q: PixelXY) -> CarriageUm {
+        let c = self.carriage(p);
+        c - (self.pixel.carriage(CarriageUm::default(), q))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn cal() -> ScanCalibration {
+        ScanCalibration {
+            interior_session: PathBuf::new(),
+            pixel_session: PathBuf::new(),
+            pixel: PixelTransform {
+                params: [-2430.0, 10.19, 0.09, -2520.0, 0.10, 10.96],
+            },
+            version: FiducialVersion::All,
+            // About a 0.2° turn, the photo centre at carriage (125.3, 124.6) mm.
+            carriage_to_photo: [-125_735.0, 0.99999, 0.0035, -124_164.0, -0.0035, 1.00002],
+            rms_um: 0.0,
+            fiducials: vec![],
+            camera_certificate: PathBuf::new(),
+            certificate: CameraCertificate {
+                name: String::new(),
+                focal_length_mm: 153.0,
+                polarity: Default::default(),
+                fiducials: vec![],
+                path: PathBuf::new(),
+            },
+            rig: RigRecord {
+                width: 512,
+                height: 512,
+                bit_depth: 12,
+                frame_rate_hz: None,
+                limits: SoftLimits {
+                    min: CarriageUm::new(0.0, 0.0),
+                    max: CarriageUm::new(250_000.0, 250_000.0),
+                },
+                max_speed_um_s: 20_000.0,
+                accel_um_s2: 100_000.0,
+            },
+        }
+    }
+
+    #[test]
+    fn photo_to_pixel_inverts_the_chain() {
+        let c = cal();
+        let stage = CarriageUm::new(101_234.5, 150_321.25);
+        let (t, m) = c.photo_to_pixel(stage);
+        for q in [[0.0, 0.0], [511.0, 3.5], [238.3, 229.6]] {
+            let p = c.photo_at(stage, PixelXY::new(q[0], q[1]));
+            let back = [
+                t[0] + m[0][0] * p.x + m[0][1] * p.y,
+                t[1] + m[1][0] * p.x + m[1][1] * p.y,
+            ];
+            assert!((back[0] - q[0]).abs() < 1e-9 && (back[1] - q[1]).abs() < 1e-9);
+        }
+        let want = PhotoMm::new(-12.5, 33.0);
+        let q = PixelXY::new(256.0, 256.0);
+        let s = c.stage_for(want, q);
+        let got = c.photo_at(s, q);
+        assert!((got.x - want.x).abs() < 1e-9 && (got.y - want.y).abs() < 1e-9);
+    }
+}

@@ -1,0 +1,470 @@
+//! Running a scan: the scan directory (script, calibration and camera certificate copied in,
+//! the manifest, the log, the flat field, the tiles, the photos), the capture loop with a
+//! checkpoint after every tile and a pause at the next tile boundary on request, and the
+//! mosaics at the end. A resumed scan skips the tiles the manifest holds (after checking their
+//! bytes) and takes the others exactly as an uninterrupted run would have.
+
+use super::calibration::ScanCalibration;
+use super::grid::PhotoGrid;
+use super::manifest::{fnv64, intact, FileRecord, Manifest, TileRecord};
+use super::mosaic::{self, Interpolation, TileSource};
+use super::plan::Plan;
+use super::script::{Filter, ScanScript};
+use super::sidecar;
+use crate::calibrate::Session;
+use crate::camera::{Camera, CameraError};
+use crate::digitise::capture::{capture, CaptureError};
+use crate::digitise::output::{read_tiff16, write_json, write_tiff16};
+use crate::digitise::{FlatField, ImageF32};
+use crate::stage::{Stage, StageError};
+use serde_json::json;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+pub const SCRIPT_COPY: &str = "script.toml";
+pub const CALIBRATION: &str = "calibration.json";
+pub const CERTIFICATE: &str = "camera-cert.toml";
+pub const FLAT: &str = "flat.tiff";
+pub const TILES: &str = "tiles";
+
+#[derive(Debug, thiserror::Error)]
+pub enum ScanError {
+    #[error("{0}")]
+    Io(#[from] std::io::Error),
+    #[error(transparent)]
+    Stage(#[from] StageError),
+    #[error(transparent)]
+    Camera(#[from] CameraError),
+    #[error(transparent)]
+    Capture(#[from] CaptureError),
+    #[error(
+        "{dir} already holds a scan: continue it with --resume, or give another output directory"
+    )]
+    Exists { dir: PathBuf },
+    #[error("{dir} holds no scan to resume (no manifest.json): start it without --resume")]
+    NothingToResume { dir: PathBuf },
+    #[error("the script {script} changed since the scan in {dir} began: restore it (the original is {dir}/script.toml) or scan into a new directory")]
+    ScriptChanged { script: PathBuf, dir: PathBuf },
+    #[error("the flat field at photo ({x:.1}, {y:.1}) mm is not clear film base ({dark:.1} % of it is darker than 70 % of its mean): set [capture] flat_photo_mm to a clear spot, or flat_field = false")]
+    FlatNotClear { x: f64, y: f64, dark: f64 },
+    #[error("{0}")]
+    Calibration(#[from] super::calibration::CalibrationError),
+}
+
+/// Where the scan stands, for a progress display.
+#[derive(Debug, Clone)]
+pub struct Progress<'a> {
+    pub done: usize,
+    pub total: usize,
+    pub tile: &'a str,
+    /// Seconds left, from this run's pace (the plan's estimate before the first tile).
+    pub eta_s: f64,
+}
+
+pub enum Outcome {
+    Complete {
+        photos: Vec<PathBuf>,
+    },
+    /// Stopped on request at a tile boundary; `--resume` continues.
+    Paused {
+        done: usize,
+        total: usize,
+    },
+}
+
+pub struct ScanDir {
+    pub dir: PathBuf,
+    pub script: ScanScript,
+    pub cal: ScanCalibration,
+    pub manifest: Manifest,
+    pub log: Session,
+}
+
+fn is_empty_dir(d: &Path) -> std::io::Result<bool> {
+    Ok(!d.exists() || std::fs::read_dir(d)?.next().is_none())
+}
+
+impl ScanDir {
+    /// A new scan in `dir` (absent or empty).
+    pub fn create(
+        dir: &Path,
+        script: ScanScript,
+        cal: ScanCalibration,
+        plan: Plan,
+    ) -> Result<ScanDir, ScanError> {
+        if !is_empty_dir(dir)? {
+            return Err(ScanError::Exists {
+                dir: dir.to_path_buf(),
+            });
+        }
+        std::fs::create_dir_all(dir.join(TILES))?;
+        super::manifest::write_atomic(&dir.join(SCRIPT_COPY), script.text.as_bytes())?;
+        super::manifest::write_atomic(
+            &dir.join(CALIBRATION),
+            &serde_json::to_vec_pretty(&cal).map_err(std::io::Error::other)?,
+        )?;
+        std::fs::copy(&cal.camera_certificate, dir.join(CERTIFICATE))?;
+        let manifest = Manifest::new(&script.path, &script.text, plan);
+        manifest.save(dir)?;
+        let mut log = Session::append(dir)?;
+        log.start(
+            "scan",
+            json!({"script": script.path, "film": script.film_name, "calibration": cal,
+                   "capture": script.capture, "resolution_um": script.resolution_um,
+                   "regions": script.regions, "tiles": manifest.plan.tiles.len(),
+                   "estimate": manifest.plan.estimate}),
+        )?;
+        Ok(ScanDir {
+            dir: dir.to_path_buf(),
+            script,
+            cal,
+            manifest,
+            log,
+        })
+    }
+
+    /// The scan in `dir`, to resume with `script` (which must not have changed). Tiles whose
+    /// files are missing or damaged are taken again.
+    pub fn resume(dir: &Path, script: ScanScript) -> Result<ScanDir, ScanError> {
+        let mut sd = Self::open(dir)?;
+        if sd.manifest.script_hash != fnv64(script.text.as_bytes()) {
+            return Err(ScanError::ScriptChanged {
+                script: script.path,
+                dir: dir.to_path_buf(),
+            });
+        }
+        let mut retake = Vec::new();
+        for (t, r) in sd
+            .manifest
+            .plan
+            .tiles
+            .iter()
+            .zip(sd.manifest.tiles.iter_mut())
+        {
+            if r.as_ref().is_some_and(|r| !intact(dir, &r.file)) {
+                retake.push(t.id.clone());
+                *r = None;
+            }
+        }
+        if sd.manifest.flat.as_ref().is_some_and(|f| !intact(dir, f)) {
+            sd.manifest.flat = None;
+            retake.push("flat".into());
+        }
+        sd.script = script;
+        sd.log.event(
+            "resumed",
+            json!({"done": sd.manifest.done(), "total": sd.manifest.tiles.len(), "damaged_retaken": retake}),
+        )?;
+        Ok(sd)
+    }
+
+    /// The scan in `dir` as it is on disk (for mosaicking again, or a status).
+    pub fn open(dir: &Path) -> Result<ScanDir, ScanError> {
+        let manifest = match Manifest::load(dir) {
+            Ok(m) => m,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+                return Err(ScanError::NothingToResume {
+                    dir: dir.to_path_buf(),
+                })
+            }
+            Err(e) => return Err(e.into()),
+        };
+        let script = ScanScript::load(&dir.join(SCRIPT_COPY))
+            .map_err(|e| std::io::Error::other(e.to_string()))?;
+        let cal_path = dir.join(CALIBRATION);
+        let mut cal: ScanCalibration = serde_json::from_slice(&std::fs::read(&cal_path)?)
+            .map_err(|e| std::io::Error::other(format!("{}: {e}", cal_path.display())))?;
+        cal.certificate =
+            crate::targets::certificate::CameraCertificate::load(&dir.join(CERTIFICATE))
+                .map_err(|e| std::io::Error::other(e.to_string()))?;
+        let log = Session::append(dir)?;
+        Ok(ScanDir {
+            dir: dir.to_path_buf(),
+            script,
+            cal,
+            manifest,
+            log,
+        })
+    }
+
+    fn counts_per_dn(&self) -> f64 {
+        crate::digitise::flat::counts_per_dn(self.cal.rig.bit_depth)
+    }
+
+    /// Writes an image in DN as counts, atomically; returns its record (hash of the bytes as
+    /// read back, so the record describes exactly what is on disk).
+    fn write_counts(&self, rel: &str, img: &ImageF32) -> std::io::Result<FileRecord> {
+        let p = self.dir.join(rel);
+        crate::digitise::flat::save_counts(&p, img, self.cal.rig.bit_depth)?;
+        Ok(FileRecord {
+            file: rel.into(),
+            hash: fnv64(&std::fs::read(&p)?),
+        })
+    }
+
+    fn read_counts(&self, rel: &str) -> std::io::Result<ImageF32> {
+        let (w, h, px) = read_tiff16(&self.dir.join(rel))?;
+        Ok(ImageF32 {
+            width: w,
+            height: h,
+            data: px.into_iter().map(|v| v as f32).collect(),
+        })
+    }
+}
+
+/// The stage and camera a scan runs on.
+pub struct ScanRig<'a> {
+    pub stage: &'a mut dyn Stage,
+    pub camera: &'a mut dyn Camera,
+}
+
+pub struct RunOptions<'a> {
+    pub home: bool,
+    /// Set (by Ctrl-C) to pause at the next tile boundary.
+    pub pause: &'a AtomicBool,
+    pub frame_timeout: Duration,
+}
+
+fn take(
+    rig: &mut ScanRig,
+    sd: &ScanDir,
+    at: crate::coords::CarriageUm,
+    frames: u32,
+    timeout: Duration,
+) -> Result<
+    (
+        crate::coords::CarriageUm,
+        crate::digitise::capture::Captured,
+    ),
+    ScanError,
+> {
+    let pos = rig.stage.move_to(at)?;
+    std::thread::sleep(Duration::from_secs_f64(
+        sd.script.capture.settle_ms / 1000.0,
+    ));
+    let c = capture(
+        rig.camera,
+        frames,
+        sd.script.capture.filter == Filter::Stripes,
+        timeout,
+        |_| {},
+    )?;
+    Ok((pos, c))
+}
+
+/// Takes the tiles the manifest lacks (the flat field first), checkpointing after each, then
+/// mosaics every region. Returns early, paused, when `opt.pause` is set.
+pub fn run(
+    sd: &mut ScanDir,
+    rig: &mut ScanRig,
+    opt: &RunOptions,
+    progress: &mut dyn FnMut(Progress),
+) -> Result<Outcome, ScanError> {
+    let total = sd.manifest.tiles.len();
+    if sd.manifest.done() < total {
+        if opt.home {
+            rig.stage.home()?;
+        }
+        rig.camera.set_gain(Some(sd.script.capture.gain))?;
+        if let Some(e) = sd.script.capture.exposure_ms {
+            rig.camera.set_exposure_ms(e)?;
+        }
+    }
+    if let (Some(at), None) = (sd.manifest.plan.flat_stage_um, &sd.manifest.flat) {
+        let (pos, c) = take(rig, sd, at, 4 * sd.script.capture.frames, opt.frame_timeout)?;
+        let rec = sd.write_counts(FLAT, &c.image)?;
+        let f = FlatField::from_image(&sd.read_counts(FLAT)?);
+        sd.log.event(
+            "flat",
+            json!({"stage_um": pos, "dark_percent": f.dark_percent}),
+        )?;
+        if !f.is_clear() {
+            let [x, y] = sd.script.capture.flat_photo_mm;
+            return Err(ScanError::FlatNotClear {
+                x,
+                y,
+                dark: f.dark_percent,
+            });
+        }
+        sd.manifest.flat = Some(rec);
+        sd.manifest.save(&sd.dir)?;
+    }
+    // Always the flat as stored, so a resumed run divides by exactly the same numbers.
+    let flat = match &sd.manifest.flat {
+        Some(f) => Some(FlatField::from_image(&sd.read_counts(&f.file)?)),
+        None => None,
+    };
+    let started = Instant::now();
+    let mut taken = 0usize;
+    let per_tile_plan = sd.manifest.plan.estimate.seconds / total.max(1) as f64;
+    progress(Progress {
+        done: sd.manifest.done(),
+        total,
+        tile: "",
+        eta_s: per_tile_plan * (total - sd.manifest.done()) as f64,
+    });
+    for i in 0..total {
+        if sd.manifest.tiles[i].is_some() {
+            continue;
+        }
+        if opt.pause.load(Ordering::SeqCst) {
+            let done = sd.manifest.done();
+            sd.log
+                .event("paused", json!({"done": done, "total": total}))?;
+            sd.log.stop(
+                "paused",
+                Some("stopped by the operator; --resume continues"),
+            )?;
+            return Ok(Outcome::Paused { done, total });
+        }
+        let tile = sd.manifest.plan.tiles[i].clone();
+        let t0 = Instant::now();
+        let (pos, mut c) = take(
+            rig,
+            sd,
+            tile.stage_um,
+            sd.script.capture.frames,
+            opt.frame_timeout,
+        )?;
+        if let Some(f) = &flat {
+            f.apply(&mut c.image);
+        }
+        let file = sd.write_counts(&format!("{TILES}/{}.tiff", tile.id), &c.image)?;
+        let rec = TileRecord {
+            file,
+            stage_um: pos,
+            dropped_frames: c.dropped,
+            seconds: t0.elapsed().as_secs_f64(),
+        };
+        sd.manifest.tiles[i] = Some(rec.clone());
+        sd.manifest.save(&sd.dir)?;
+        sd.log
+            .event("tile", json!({"id": tile.id, "index": i, "record": rec}))?;
+        taken += 1;
+        let done = sd.manifest.done();
+        let pace = started.elapsed().as_secs_f64() / taken as f64;
+        progress(Progress {
+            done,
+            total,
+            tile: &tile.id,
+            eta_s: pace * (total - done) as f64,
+        });
+    }
+    let photos = mosaic_all(sd, Interpolation::Bicubic)?;
+    sd.manifest.complete = true;
+    sd.manifest.save(&sd.dir)?;
+    sd.log.stop("done", None)?;
+    Ok(Outcome::Complete { photos })
+}
+
+/// Mosaics every region from the tiles on disk; writes `<region>.tiff` and `<region>.json`.
+pub fn mosaic_all(sd: &mut ScanDir, interp: Interpolation) -> Result<Vec<PathBuf>, ScanError> {
+    let mut out = Vec::new();
+    for (ri, region) in sd.manifest.plan.regions.iter().enumerate() {
+        let sources: Vec<TileSource> = sd
+            .manifest
+            .plan
+            .tiles
+            .iter()
+            .zip(&sd.manifest.tiles)
+            .filter(|(t, _)| t.region == ri)
+            .filter_map(|(_, r)| r.as_ref())
+            .map(|r| {
+                let path = sd.dir.join(&r.file.file);
+                TileSource {
+                    stage_um: r.stage_um,
+                    load: Box::new(move || {
+                        let (w, h, px) = read_tiff16(&path)?;
+                        Ok(ImageF32 {
+                            width: w,
+                            height: h,
+                            data: px.into_iter().map(|v| v as f32).collect(),
+                        })
+                    }),
+                }
+            })
+            .collect();
+        let px = mosaic::mosaic(&sd.cal, &region.grid, &sources, interp, &|_, _| {})?;
+        let tiff = sd.dir.join(format!("{}.tiff", region.name));
+        write_tiff16(&tiff, region.grid.width, region.grid.height, &px)?;
+        let side = sidecar_for(sd, &region.name, &region.grid, sources.len(), interp);
+        let json_path = sd.dir.join(format!("{}.json", region.name));
+        write_json(
+            &json_path,
+            &serde_json::to_value(&side).map_err(std::io::Error::other)?,
+        )?;
+        sd.log.event(
+            "photo",
+            json!({"region": region.name, "image": tiff, "sidecar": json_path,
+                   "width": region.grid.width, "height": region.grid.height}),
+        )?;
+        out.push(json_path);
+    }
+    Ok(out)
+}
+
+fn sidecar_for(
+    sd: &ScanDir,
+    region: &str,
+    grid: &PhotoGrid,
+    tiles: usize,
+    interp: Interpolation,
+) -> sidecar::ScannedPhoto {
+    let cal = &sd.cal;
+    sidecar::ScannedPhoto {
+        format: sidecar::FORMAT.into(),
+        image: format!("{region}.tiff"),
+        film: sd.script.film_name.clone(),
+        region: region.into(),
+        grid: *grid,
+        grey: sidecar::Grey {
+            counts_per_dn: sd.counts_per_dn(),
+            camera_bit_depth: cal.rig.bit_depth,
+            nodata: 0,
+            flat_fielded: sd.manifest.flat.is_some(),
+        },
+        interior_orientation: sidecar::InteriorRecord {
+            session: cal.interior_session.clone(),
+            version: cal.version.name().into(),
+            carriage_to_photo: cal.carriage_to_photo,
+            rms_um: cal.rms_um,
+            fiducials: cal.fiducials.clone(),
+        },
+        camera_certificate: sidecar::CertificateRecord {
+            path: cal.camera_certificate.clone(),
+            name: cal.certificate.name.clone(),
+            focal_length_mm: cal.certificate.focal_length_mm,
+            fiducials: cal
+                .certificate
+                .fiducials
+                .iter()
+                .map(|f| sidecar::CertificateFiducial {
+                    id: f.id,
+                    photo_mm: f.photo,
+                })
+                .collect(),
+        },
+        pixel_to_carriage: sidecar::PixelRecord {
+            session: cal.pixel_session.clone(),
+            params: cal.pixel.params,
+        },
+        scan: sidecar::ScanRecord {
+            script: sd.manifest.script.clone(),
+            tiles,
+            frames_per_tile: sd.script.capture.frames,
+            filter: sd.script.capture.filter,
+            overlap: sd.script.capture.overlap,
+            resolution_um: sd.script.resolution_um,
+            interpolation: match interp {
+                Interpolation::Bicubic => "bicubic (Keys, a = -0.5)".into(),
+                Interpolation::Nearest => "nearest".into(),
+            },
+            antialias_sigma_px: match interp {
+                Interpolation::Bicubic => mosaic::antialias_sigma_px(cal, grid.step_mm),
+                Interpolation::Nearest => 0.0,
+            },
+            feather_px: mosaic::FEATHER_PX,
+        },
+    }
+}
