@@ -149,6 +149,27 @@ fn weight(q: [f64; 2], w: f64, h: f64) -> f64 {
     t * t * (3.0 - 2.0 * t)
 }
 
+/// The output columns `[lo, hi)` of a row where tile pixel `a + c·dc` can lie inside the
+/// usable area (a column more on each side; [`weight`] decides).
+fn columns(a: [f64; 2], dc: [f64; 2], tw: f64, th: f64, width: usize) -> (usize, usize) {
+    let (mut lo, mut hi) = (f64::MIN, f64::MAX);
+    for (k, len) in [(0, tw), (1, th)] {
+        let (min, max) = (MOSAIC_MARGIN_PX, len - MOSAIC_MARGIN_PX);
+        if dc[k].abs() < 1e-12 {
+            if a[k] <= min || a[k] >= max {
+                return (0, 0);
+            }
+            continue;
+        }
+        let (c1, c2) = ((min - a[k]) / dc[k], (max - a[k]) / dc[k]);
+        lo = lo.max(c1.min(c2));
+        hi = hi.min(c1.max(c2));
+    }
+    let lo = (lo.floor() - 1.0).clamp(0.0, width as f64) as usize;
+    let hi = (hi.ceil() + 2.0).clamp(0.0, width as f64) as usize;
+    (lo, hi.max(lo))
+}
+
 /// The region's photo on `grid`, in the tiles' grey units; 0 where no tile reached (nodata;
 /// data values are kept ≥ 1).
 pub fn mosaic(
@@ -191,14 +212,14 @@ pub fn mosaic(
             .enumerate()
             .for_each(|(k, row_out)| {
                 let row = (r0 + k) as f64;
-                for (col, o) in row_out.iter_mut().enumerate() {
-                    let c = col as f64;
-                    let (mut sw, mut sv) = (0.0, 0.0);
-                    for (p, img) in &imgs {
-                        let q = [
-                            p.q0[0] + c * p.dc[0] + row * p.dr[0],
-                            p.q0[1] + c * p.dc[1] + row * p.dr[1],
-                        ];
+                let (mut sw, mut sv) = (vec![0.0f64; grid.width], vec![0.0f64; grid.width]);
+                // Tile by tile in a fixed order over the columns each one covers.
+                for (p, img) in &imgs {
+                    let a = [p.q0[0] + row * p.dr[0], p.q0[1] + row * p.dr[1]];
+                    let (lo, hi) = columns(a, p.dc, tw, th, grid.width);
+                    for col in lo..hi {
+                        let c = col as f64;
+                        let q = [a[0] + c * p.dc[0], a[1] + c * p.dc[1]];
                         let w = weight(q, tw, th);
                         if w <= 0.0 {
                             continue;
@@ -214,11 +235,13 @@ pub fn mosaic(
                                 img.data[q[1] as usize * img.width + q[0] as usize] as f64
                             }
                         };
-                        sw += w;
-                        sv += w * v;
+                        sw[col] += w;
+                        sv[col] += w * v;
                     }
-                    if sw > 0.0 {
-                        *o = (sv / sw).round().clamp(1.0, 65535.0) as u16;
+                }
+                for ((o, w), v) in row_out.iter_mut().zip(&sw).zip(&sv) {
+                    if *w > 0.0 {
+                        *o = (v / w).round().clamp(1.0, 65535.0) as u16;
                     }
                 }
             });
