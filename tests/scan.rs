@@ -5,7 +5,7 @@
 mod common;
 
 use common::rig;
-use rig::coords::{PhotoMm, PixelXY};
+use rig::coords::PixelXY;
 use rig::scan::ScannedPhoto;
 use serde_json::Value;
 use std::path::{Path, PathBuf};
@@ -204,25 +204,30 @@ fn measured_shift(
 }
 
 /// Scans `regions` of photo `photo` and checks features against the true picture.
-fn scan_and_check(photo: u32, interior: &Path, region: [f64; 4]) -> f64 {
+fn scan_and_check(photo: u32, interior: &Path, region: [f64; 4], kill: bool) -> f64 {
     let d = tempfile::tempdir().unwrap();
     let regions = format!(
         "[[region]]\nname = \"overlap\"\nphoto_mm = [{}, {}, {}, {}]\n",
         region[0], region[1], region[2], region[3]
     );
     let s = script(d.path(), interior, &regions, "out");
-    let out = ok(rig()
-        .args([
-            "scan",
-            "--sim",
-            "--sim-seed",
-            SEED,
-            "--sim-photo",
-            &photo.to_string(),
-            "--json",
-            "run",
-        ])
-        .arg(&s));
+    let photo_arg = photo.to_string();
+    let sim = ["--sim-photo", photo_arg.as_str()];
+    let out_dir = d.path().join("out");
+    if kill {
+        // Killed half-way and resumed on the ordinary (not repeatable) simulator: the stage
+        // re-homes, the film check passes, the photo must still be right.
+        assert_eq!(interrupt_with(&sim, &s, &out_dir, false, 4, false), None);
+    }
+    let mut cmd = rig();
+    cmd.args(["scan", "--sim", "--sim-seed", SEED])
+        .args(sim)
+        .args(["--json", "run"])
+        .arg(&s);
+    if kill {
+        cmd.arg("--resume");
+    }
+    let out = ok(&mut cmd);
     let v: Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(v["status"], "complete");
     let (side, img) = ScannedPhoto::load(&d.path().join("out").join("overlap.json")).unwrap();
@@ -255,7 +260,6 @@ fn scan_and_check(photo: u32, interior: &Path, region: [f64; 4]) -> f64 {
         worst < 0.1,
         "a feature lies {worst:.3} output px from its true photo position"
     );
-    let _ = PhotoMm::new(0.0, 0.0);
     worst
 }
 
@@ -263,8 +267,8 @@ fn scan_and_check(photo: u32, interior: &Path, region: [f64; 4]) -> f64 {
 fn scanned_photos_of_a_stereo_pair_lie_on_their_true_photo_coordinates() {
     let (_, i1, i2) = calibrated();
     // The same ground in both photos: photo 2 lies about 92 mm along x from photo 1.
-    scan_and_check(1, i1, [40.0, -6.0, 52.0, 6.0]);
-    scan_and_check(2, i2, [-52.0, -6.0, -40.0, 6.0]);
+    scan_and_check(1, i1, [40.0, -6.0, 52.0, 6.0], true);
+    scan_and_check(2, i2, [-52.0, -6.0, -40.0, 6.0], false);
 }
 
 fn done_tiles(dir: &Path) -> usize {
@@ -285,18 +289,24 @@ fn done_tiles(dir: &Path) -> usize {
 /// Starts a repeatable scan into `out` and interrupts it once at least `at` tiles are done:
 /// with SIGKILL, or with SIGINT (a pause). Returns the exit status (None when killed).
 fn interrupt_at(script: &Path, out: &Path, resume: bool, at: usize, sigint: bool) -> Option<i32> {
+    interrupt_with(&["--sim-repeatable"], script, out, resume, at, sigint)
+}
+
+fn interrupt_with(
+    sim: &[&str],
+    script: &Path,
+    out: &Path,
+    resume: bool,
+    at: usize,
+    sigint: bool,
+) -> Option<i32> {
     let mut cmd = rig();
-    cmd.args([
-        "scan",
-        "--sim",
-        "--sim-seed",
-        SEED,
-        "--sim-repeatable",
-        "run",
-    ])
-    .arg(script)
-    .arg("--out")
-    .arg(out);
+    cmd.args(["scan", "--sim", "--sim-seed", SEED])
+        .args(sim)
+        .arg("run")
+        .arg(script)
+        .arg("--out")
+        .arg(out);
     if resume {
         cmd.arg("--resume");
     }
@@ -360,6 +370,30 @@ fn a_scan_killed_and_resumed_is_byte_identical_to_an_uninterrupted_one() {
     let cut = d.path().join("cut");
     assert_eq!(interrupt_at(&s, &cut, false, k1, false), None);
     assert!(!cut.join("a.tiff").exists());
+    // Resuming with another film on the carriage (photo 2 instead of 1) is refused: the tile
+    // taken again does not match the stored one.
+    let before = done_tiles(&cut);
+    let out = rig()
+        .args([
+            "scan",
+            "--sim",
+            "--sim-seed",
+            SEED,
+            "--sim-repeatable",
+            "--sim-photo",
+            "2",
+            "run",
+        ])
+        .arg(&s)
+        .arg("--out")
+        .arg(&cut)
+        .arg("--resume")
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(1));
+    let e = String::from_utf8_lossy(&out.stderr);
+    assert!(e.contains("the film has moved"), "{e}");
+    assert_eq!(done_tiles(&cut), before, "a refused resume takes no tile");
     assert_eq!(interrupt_at(&s, &cut, true, k2, false), None);
     let paused = interrupt_at(&s, &cut, true, k3, true);
     // Ctrl-C pauses at the next tile boundary (exit 4) unless the scan had just finished.

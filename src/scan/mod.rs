@@ -12,6 +12,7 @@ pub mod plan;
 pub mod run;
 pub mod script;
 pub mod sidecar;
+pub mod verify;
 
 pub use calibration::ScanCalibration;
 pub use grid::PhotoGrid;

@@ -48,6 +48,14 @@ pub enum ScanError {
     ScriptChanged { script: PathBuf, dir: PathBuf },
     #[error("the flat field at photo ({x:.1}, {y:.1}) mm is not clear film base ({dark:.1} % of it is darker than 70 % of its mean): set [capture] flat_photo_mm to a clear spot, or flat_field = false")]
     FlatNotClear { x: f64, y: f64, dark: f64 },
+    #[error("the film has moved since the scan began: tile {tile} taken again lies ({dx:+.2}, {dy:+.2}) px from where it was (correlation {correlation:.3}; at most {max} px allowed). Tiles from before and after would not fit: run `rig calibrate interior` again and start a new scan")]
+    FilmMoved {
+        tile: String,
+        dx: f64,
+        dy: f64,
+        correlation: f64,
+        max: f64,
+    },
     #[error("{0}")]
     Calibration(#[from] super::calibration::CalibrationError),
 }
@@ -253,6 +261,44 @@ fn take(
     Ok((pos, c))
 }
 
+/// A resumed scan first takes its last tile again and matches it with the stored one: the
+/// film must not have moved.
+fn check_film(
+    sd: &mut ScanDir,
+    rig: &mut ScanRig,
+    opt: &RunOptions,
+    last: usize,
+    flat: Option<&FlatField>,
+) -> Result<(), ScanError> {
+    let tile = sd.manifest.plan.tiles[last].clone();
+    let rec = sd.manifest.tiles[last].clone().expect("a tile taken");
+    let (_, mut c) = take(
+        rig,
+        sd,
+        tile.stage_um,
+        sd.script.capture.frames,
+        opt.frame_timeout,
+    )?;
+    if let Some(f) = flat {
+        f.apply(&mut c.image);
+    }
+    let before = sd.read_counts(&rec.file.file)?;
+    let check = super::verify::film_shift(&before, &c.image);
+    sd.log
+        .event("film_check", json!({"tile": tile.id, "check": check}))?;
+    let [dx, dy] = check.shift_px;
+    if dx.hypot(dy) > super::verify::MAX_SHIFT_PX || check.correlation < 0.9 {
+        return Err(ScanError::FilmMoved {
+            tile: tile.id,
+            dx,
+            dy,
+            correlation: check.correlation,
+            max: super::verify::MAX_SHIFT_PX,
+        });
+    }
+    Ok(())
+}
+
 /// Takes the tiles the manifest lacks (the flat field first), checkpointing after each, then
 /// mosaics every region. Returns early, paused, when `opt.pause` is set.
 pub fn run(
@@ -295,6 +341,11 @@ pub fn run(
         Some(f) => Some(FlatField::from_image(&sd.read_counts(&f.file)?)),
         None => None,
     };
+    if let Some(last) = (0..total).rev().find(|&i| sd.manifest.tiles[i].is_some()) {
+        if sd.manifest.done() < total {
+            check_film(sd, rig, opt, last, flat.as_ref())?;
+        }
+    }
     let started = Instant::now();
     let mut taken = 0usize;
     let per_tile_plan = sd.manifest.plan.estimate.seconds / total.max(1) as f64;
