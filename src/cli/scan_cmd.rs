@@ -114,12 +114,15 @@ fn print_plan(s: &ScanScript, cal: &ScanCalibration, p: &Plan) {
         cal.pixel_session.display()
     );
     println!(
-        "  tiles: {:.2} × {:.2} mm of the photo each, {:.0} % overlap, {} frames, filter {:?}",
+        "  tiles: {:.2} × {:.2} mm of the photo each, {:.0} % overlap, {} frames, filter {}",
         2.0 * p.tile_half_mm[0],
         2.0 * p.tile_half_mm[1],
         100.0 * s.capture.overlap,
         s.capture.frames,
-        s.capture.filter
+        match s.capture.filter {
+            rig::scan::script::Filter::Stripes => "stripes",
+            rig::scan::script::Filter::None => "none",
+        }
     );
     for (ri, r) in p.regions.iter().enumerate() {
         let e = r.grid.extent_mm();
@@ -297,7 +300,7 @@ pub fn run(a: ScanArgs) -> anyhow::Result<i32> {
                             dir.display()
                         );
                         for p in photos {
-                            println!("  photo {} (+ .tiff)", p.display());
+                            println!("  photo {} (+ .tiff, .png preview)", p.display());
                         }
                     }
                     Ok(0)

@@ -439,6 +439,11 @@ pub fn mosaic_all(sd: &mut ScanDir, interp: Interpolation) -> Result<Vec<PathBuf
         let px = mosaic::mosaic(&sd.cal, &region.grid, &sources, interp, &|_, _| {})?;
         let tiff = sd.dir.join(format!("{}.tiff", region.name));
         write_tiff16(&tiff, region.grid.width, region.grid.height, &px)?;
+        preview(
+            &sd.dir.join(format!("{}.png", region.name)),
+            &region.grid,
+            &px,
+        )?;
         let side = sidecar_for(sd, &region.name, &region.grid, sources.len(), interp);
         let json_path = sd.dir.join(format!("{}.json", region.name));
         write_json(
@@ -453,6 +458,38 @@ pub fn mosaic_all(sd: &mut ScanDir, interp: Interpolation) -> Result<Vec<PathBuf
         out.push(json_path);
     }
     Ok(out)
+}
+
+/// An 8-bit look at the photo for the operator (at most 1600 px across, contrast stretched
+/// over the 0.5–99.5 % range); the TIFF is the data.
+fn preview(path: &Path, grid: &PhotoGrid, px: &[u16]) -> std::io::Result<()> {
+    let k = grid.width.max(grid.height).div_ceil(1600).max(1);
+    let (w, h) = (grid.width / k, grid.height / k);
+    let mut small = ImageF32::new(w.max(1), h.max(1));
+    for r in 0..h {
+        for c in 0..w {
+            let mut s = 0.0;
+            for j in 0..k {
+                for i in 0..k {
+                    s += px[(r * k + j) * grid.width + c * k + i] as f32;
+                }
+            }
+            small.data[r * w + c] = s / (k * k) as f32;
+        }
+    }
+    let (v, _) = crate::digitise::stretch(&small, 0.5, 99.5);
+    let bytes: Vec<u8> = v.iter().map(|&x| (x >> 8) as u8).collect();
+    let tmp = path.with_extension("png.part");
+    image::save_buffer_with_format(
+        &tmp,
+        &bytes,
+        small.width as u32,
+        small.height as u32,
+        image::ExtendedColorType::L8,
+        image::ImageFormat::Png,
+    )
+    .map_err(std::io::Error::other)?;
+    std::fs::rename(&tmp, path)
 }
 
 fn sidecar_for(
