@@ -6,45 +6,13 @@
 mod common;
 
 use criterion::{criterion_group, Criterion};
-use rig::calibrate::PixelTransform;
 use rig::coords::{CarriageUm, PhotoMm, PixelXY};
 use rig::digitise::ImageF32;
-use rig::scan::calibration::{RigRecord, ScanCalibration};
 use rig::scan::mosaic::{mosaic, Interpolation, TileSource};
-use rig::scan::script::FiducialVersion;
 use rig::scan::PhotoGrid;
-use rig::stage::SoftLimits;
+use rig::scan::ScanCalibration;
 use std::hint::black_box;
-use std::path::PathBuf;
 use std::time::Duration;
-
-fn calibration() -> ScanCalibration {
-    ScanCalibration {
-        interior_session: PathBuf::new(),
-        pixel_session: PathBuf::new(),
-        pixel: PixelTransform {
-            params: [-2430.0, 10.19, 0.09, -2520.0, 0.10, 10.96],
-        },
-        version: FiducialVersion::All,
-        carriage_to_photo: [-125_735.0, 0.99999, 0.0035, -124_164.0, -0.0035, 1.00002],
-        rms_um: 0.0,
-        fiducials: vec![],
-        camera_certificate: PathBuf::new(),
-        certificate: Default::default(),
-        rig: RigRecord {
-            width: 512,
-            height: 512,
-            bit_depth: 12,
-            frame_rate_hz: None,
-            limits: SoftLimits {
-                min: CarriageUm::new(0.0, 0.0),
-                max: CarriageUm::new(250_000.0, 250_000.0),
-            },
-            max_speed_um_s: 20_000.0,
-            accel_um_s2: 100_000.0,
-        },
-    }
-}
 
 struct Setup {
     cal: ScanCalibration,
@@ -53,7 +21,7 @@ struct Setup {
 }
 
 fn setup() -> Setup {
-    let cal = calibration();
+    let cal = ScanCalibration::synthetic();
     let centre = PixelXY::new(256.0, 256.0);
     // 4 × 4 tiles 4 mm apart (the usable tile is about 5 × 5.4 mm).
     let mut tiles = Vec::new();

@@ -288,6 +288,26 @@ fn done_tiles(dir: &Path) -> usize {
 
 /// Starts a repeatable scan into `out` and interrupts it once at least `at` tiles are done:
 /// with SIGKILL, or with SIGINT (a pause). Returns the exit status (None when killed).
+/// `rig scan --sim --sim-repeatable run SCRIPT --out OUT [--resume]`.
+fn repeatable_run(script: &Path, out: &Path, resume: bool) -> Command {
+    let mut cmd = rig();
+    cmd.args([
+        "scan",
+        "--sim",
+        "--sim-seed",
+        SEED,
+        "--sim-repeatable",
+        "run",
+    ])
+    .arg(script)
+    .arg("--out")
+    .arg(out);
+    if resume {
+        cmd.arg("--resume");
+    }
+    cmd
+}
+
 fn interrupt_at(script: &Path, out: &Path, resume: bool, at: usize, sigint: bool) -> Option<i32> {
     interrupt_with(&["--sim-repeatable"], script, out, resume, at, sigint)
 }
@@ -340,18 +360,7 @@ fn a_scan_killed_and_resumed_is_byte_identical_to_an_uninterrupted_one() {
     let regions = "[[region]]\nname = \"a\"\nphoto_mm = [-8.0, -5.0, 4.0, 5.0]\n\n[[region]]\nname = \"b\"\nphoto_mm = [2.0, 2.0, 12.0, 9.0]\n";
     let s = script(d.path(), i1, regions, "unused");
     let whole = d.path().join("whole");
-    ok(rig()
-        .args([
-            "scan",
-            "--sim",
-            "--sim-seed",
-            SEED,
-            "--sim-repeatable",
-            "run",
-        ])
-        .arg(&s)
-        .arg("--out")
-        .arg(&whole));
+    ok(&mut repeatable_run(&s, &whole, false));
     let total = {
         let m: Value =
             serde_json::from_slice(&std::fs::read(whole.join("manifest.json")).unwrap()).unwrap();
@@ -405,19 +414,7 @@ fn a_scan_killed_and_resumed_is_byte_identical_to_an_uninterrupted_one() {
         assert!(done_tiles(&cut) < total);
         let log = std::fs::read_to_string(cut.join("log.jsonl")).unwrap();
         assert!(log.contains("\"paused\""));
-        ok(rig()
-            .args([
-                "scan",
-                "--sim",
-                "--sim-seed",
-                SEED,
-                "--sim-repeatable",
-                "run",
-            ])
-            .arg(&s)
-            .arg("--out")
-            .arg(&cut)
-            .arg("--resume"));
+        ok(&mut repeatable_run(&s, &cut, true));
     }
     for f in ["a.tiff", "a.json", "b.tiff", "b.json"] {
         let (x, y) = (

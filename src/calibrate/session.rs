@@ -68,15 +68,7 @@ impl Session {
             ));
         }
         std::fs::create_dir_all(dir.join("crops"))?;
-        let log = OpenOptions::new()
-            .create_new(true)
-            .append(true)
-            .open(dir.join(LOG))?;
-        Ok(Session {
-            dir: dir.to_path_buf(),
-            log,
-            t0: Instant::now(),
-        })
+        Self::append(dir)
     }
 
     /// The session log in `dir`, appended to (created if absent): for work that is resumed

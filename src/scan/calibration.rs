@@ -144,6 +144,37 @@ impl ScanCalibration {
         })
     }
 
+    /// A calibration with seed 002's pixel spacings and shears and a film laid about 0.2°
+    /// turned near the middle of a 250 mm carriage, for benchmarks and tests that need one
+    /// without sessions on disk.
+    pub fn synthetic() -> ScanCalibration {
+        ScanCalibration {
+            interior_session: PathBuf::new(),
+            pixel_session: PathBuf::new(),
+            pixel: PixelTransform {
+                params: [-2430.0, 10.19, 0.09, -2520.0, 0.10, 10.96],
+            },
+            version: FiducialVersion::All,
+            carriage_to_photo: [-125_735.0, 0.99999, 0.0035, -124_164.0, -0.0035, 1.00002],
+            rms_um: 0.0,
+            fiducials: vec![],
+            camera_certificate: PathBuf::new(),
+            certificate: CameraCertificate::default(),
+            rig: RigRecord {
+                width: 512,
+                height: 512,
+                bit_depth: 12,
+                frame_rate_hz: None,
+                limits: SoftLimits {
+                    min: CarriageUm::new(0.0, 0.0),
+                    max: CarriageUm::new(250_000.0, 250_000.0),
+                },
+                max_speed_um_s: 20_000.0,
+                accel_um_s2: 100_000.0,
+            },
+        }
+    }
+
     pub fn photo(&self, c: CarriageUm) -> PhotoMm {
         let p = &self.carriage_to_photo;
         PhotoMm::new(
@@ -209,38 +240,7 @@ mod tests {
     use super::*;
 
     fn cal() -> ScanCalibration {
-        ScanCalibration {
-            interior_session: PathBuf::new(),
-            pixel_session: PathBuf::new(),
-            pixel: PixelTransform {
-                params: [-2430.0, 10.19, 0.09, -2520.0, 0.10, 10.96],
-            },
-            version: FiducialVersion::All,
-            // About a 0.2° turn, the photo centre at carriage (125.3, 124.6) mm.
-            carriage_to_photo: [-125_735.0, 0.99999, 0.0035, -124_164.0, -0.0035, 1.00002],
-            rms_um: 0.0,
-            fiducials: vec![],
-            camera_certificate: PathBuf::new(),
-            certificate: CameraCertificate {
-                name: String::new(),
-                focal_length_mm: 153.0,
-                polarity: Default::default(),
-                fiducials: vec![],
-                path: PathBuf::new(),
-            },
-            rig: RigRecord {
-                width: 512,
-                height: 512,
-                bit_depth: 12,
-                frame_rate_hz: None,
-                limits: SoftLimits {
-                    min: CarriageUm::new(0.0, 0.0),
-                    max: CarriageUm::new(250_000.0, 250_000.0),
-                },
-                max_speed_um_s: 20_000.0,
-                accel_um_s2: 100_000.0,
-            },
-        }
+        ScanCalibration::synthetic()
     }
 
     #[test]

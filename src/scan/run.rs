@@ -234,12 +234,15 @@ pub struct RunOptions<'a> {
     pub frame_timeout: Duration,
 }
 
+/// Moves to `at`, settles, takes `frames` frames, averages and filters them, and divides by
+/// the flat field if there is one.
 fn take(
     rig: &mut ScanRig,
     sd: &ScanDir,
     at: crate::coords::CarriageUm,
     frames: u32,
     timeout: Duration,
+    flat: Option<&FlatField>,
 ) -> Result<
     (
         crate::coords::CarriageUm,
@@ -251,13 +254,16 @@ fn take(
     std::thread::sleep(Duration::from_secs_f64(
         sd.script.capture.settle_ms / 1000.0,
     ));
-    let c = capture(
+    let mut c = capture(
         rig.camera,
         frames,
         sd.script.capture.filter == Filter::Stripes,
         timeout,
         |_| {},
     )?;
+    if let Some(f) = flat {
+        f.apply(&mut c.image);
+    }
     Ok((pos, c))
 }
 
@@ -272,16 +278,14 @@ fn check_film(
 ) -> Result<(), ScanError> {
     let tile = sd.manifest.plan.tiles[last].clone();
     let rec = sd.manifest.tiles[last].clone().expect("a tile taken");
-    let (_, mut c) = take(
+    let (_, c) = take(
         rig,
         sd,
         tile.stage_um,
         sd.script.capture.frames,
         opt.frame_timeout,
+        flat,
     )?;
-    if let Some(f) = flat {
-        f.apply(&mut c.image);
-    }
     let before = sd.read_counts(&rec.file.file)?;
     let check = super::verify::film_shift(&before, &c.image);
     sd.log
@@ -318,7 +322,14 @@ pub fn run(
         }
     }
     if let (Some(at), None) = (sd.manifest.plan.flat_stage_um, &sd.manifest.flat) {
-        let (pos, c) = take(rig, sd, at, 4 * sd.script.capture.frames, opt.frame_timeout)?;
+        let (pos, c) = take(
+            rig,
+            sd,
+            at,
+            4 * sd.script.capture.frames,
+            opt.frame_timeout,
+            None,
+        )?;
         let rec = sd.write_counts(FLAT, &c.image)?;
         let f = FlatField::from_image(&sd.read_counts(FLAT)?);
         sd.log.event(
@@ -371,16 +382,14 @@ pub fn run(
         }
         let tile = sd.manifest.plan.tiles[i].clone();
         let t0 = Instant::now();
-        let (pos, mut c) = take(
+        let (pos, c) = take(
             rig,
             sd,
             tile.stage_um,
             sd.script.capture.frames,
             opt.frame_timeout,
+            flat.as_ref(),
         )?;
-        if let Some(f) = &flat {
-            f.apply(&mut c.image);
-        }
         let file = sd.write_counts(&format!("{TILES}/{}.tiff", tile.id), &c.image)?;
         let rec = TileRecord {
             file,
