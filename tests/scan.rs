@@ -452,8 +452,10 @@ fn bad_scripts_and_plans_outside_the_soft_limits_are_refused_before_anything_mov
             .output()
             .unwrap()
     };
-    let out = plan(&["--json"]);
+    let png = d.path().join("plan.png");
+    let out = plan(&["--json", "--plot", png.to_str().unwrap()]);
     assert!(out.status.success());
+    assert!(std::fs::read(&png).unwrap().starts_with(b"\x89PNG"));
     let v: Value = serde_json::from_slice(&out.stdout).unwrap();
     assert!(v["plan"]["tiles"].as_array().unwrap().len() > 10);
     assert!(v["plan"]["estimate"]["seconds"].as_f64().unwrap() > 0.0);

@@ -31,7 +31,7 @@ fn glyph(c: char) -> [u8; 5] {
     }
 }
 
-fn text(img: &mut RgbImage, x: i64, y: i64, s: &str, scale: i64) {
+pub(crate) fn text(img: &mut RgbImage, x: i64, y: i64, s: &str, scale: i64) {
     for (k, c) in s.chars().enumerate() {
         let g = glyph(c);
         for (r, bits) in g.iter().enumerate() {
@@ -53,13 +53,13 @@ fn text(img: &mut RgbImage, x: i64, y: i64, s: &str, scale: i64) {
     }
 }
 
-fn put(img: &mut RgbImage, x: i64, y: i64, c: Rgb<u8>) {
+pub(crate) fn put(img: &mut RgbImage, x: i64, y: i64, c: Rgb<u8>) {
     if x >= 0 && y >= 0 && x < img.width() as i64 && y < img.height() as i64 {
         img.put_pixel(x as u32, y as u32, c);
     }
 }
 
-fn line(img: &mut RgbImage, a: [f64; 2], b: [f64; 2], c: Rgb<u8>) {
+pub(crate) fn line(img: &mut RgbImage, a: [f64; 2], b: [f64; 2], c: Rgb<u8>) {
     let n = ((b[0] - a[0]).abs().max((b[1] - a[1]).abs()).ceil() as i64).max(1);
     for k in 0..=n {
         let t = k as f64 / n as f64;

@@ -44,6 +44,10 @@ pub enum ScanAction {
     Plan {
         /// The scan script (TOML; see the README).
         script: PathBuf,
+        /// Also draw the plan (frame, fiducials, tiles, the stage's path, regions, the flat
+        /// field's spot) into this PNG.
+        #[arg(long, value_name = "FILE.png")]
+        plot: Option<PathBuf>,
     },
     /// Run the scan: home, flat field, every tile (checkpointed as it is taken), then the
     /// photos. Ctrl-C pauses at the next tile boundary (a second Ctrl-C quits at once);
@@ -202,7 +206,7 @@ fn progress_printer(json: bool) -> impl FnMut(Progress) {
 
 pub fn run(a: ScanArgs) -> anyhow::Result<i32> {
     match &a.action {
-        ScanAction::Plan { script } => {
+        ScanAction::Plan { script, plot } => {
             let (s, cal) = load(&a, script)?;
             let p = match plan(&s, &cal) {
                 Ok(p) => p,
@@ -211,6 +215,10 @@ pub fn run(a: ScanArgs) -> anyhow::Result<i32> {
                     return Ok(EXIT_REFUSED);
                 }
             };
+            if let Some(f) = plot {
+                rig::scan::plan_plot::plan_plot(&p, &cal, s.capture.flat_photo_mm, f)
+                    .with_context(|| format!("writing {}", f.display()))?;
+            }
             if a.json {
                 println!(
                     "{}",

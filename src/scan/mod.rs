@@ -9,6 +9,7 @@ pub mod grid;
 pub mod manifest;
 pub mod mosaic;
 pub mod plan;
+pub mod plan_plot;
 pub mod run;
 pub mod script;
 pub mod sidecar;
