@@ -107,3 +107,18 @@ impl PhotoMm {
         PhotoMm { x, y }
     }
 }
+
+/// A point of the object (ground), metres: X east, Y north, Z up, in the project's local
+/// system.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+pub struct GroundM {
+    pub x: f64,
+    pub y: f64,
+    pub z: f64,
+}
+
+impl GroundM {
+    pub const fn new(x: f64, y: f64, z: f64) -> Self {
+        GroundM { x, y, z }
+    }
+}

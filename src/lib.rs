@@ -5,6 +5,7 @@ pub mod calibrate;
 pub mod camera;
 pub mod coords;
 pub mod digitise;
+pub mod geometry;
 pub mod scan;
 pub mod stage;
 pub mod targets;

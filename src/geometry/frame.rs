@@ -1,0 +1,84 @@
+//! The frame camera: interior orientation (focal length, principal point) and exterior
+//! orientation (ω, φ, κ and the projection centre), the collinearity equations and the ray
+//! through a photo point.
+//!
+//! Rotation R = R_ω·R_φ·R_κ takes image-space vectors to object space; collinearity:
+//! x − x₀ = −c·(r₁₁ΔX + r₂₁ΔY + r₃₁ΔZ)/(r₁₃ΔX + r₂₃ΔY + r₃₃ΔZ), likewise y with the second
+//! column (ΔX = X − X₀ …).
+
+use crate::coords::{GroundM, PhotoMm};
+use nalgebra::{Matrix3, Vector3};
+use serde::{Deserialize, Serialize};
+
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Interior {
+    pub focal_mm: f64,
+    pub principal_point: PhotoMm,
+}
+
+/// Exterior orientation; angles in radians.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Exterior {
+    pub omega: f64,
+    pub phi: f64,
+    pub kappa: f64,
+    pub centre: GroundM,
+}
+
+impl Exterior {
+    pub fn from_degrees(omega: f64, phi: f64, kappa: f64, centre: GroundM) -> Self {
+        Exterior {
+            omega: omega.to_radians(),
+            phi: phi.to_radians(),
+            kappa: kappa.to_radians(),
+            centre,
+        }
+    }
+
+    pub fn rotation(&self) -> Matrix3<f64> {
+        let (so, co) = self.omega.sin_cos();
+        let (sp, cp) = self.phi.sin_cos();
+        let (sk, ck) = self.kappa.sin_cos();
+        let rw = Matrix3::new(1.0, 0.0, 0.0, 0.0, co, -so, 0.0, so, co);
+        let rp = Matrix3::new(cp, 0.0, sp, 0.0, 1.0, 0.0, -sp, 0.0, cp);
+        let rk = Matrix3::new(ck, -sk, 0.0, sk, ck, 0.0, 0.0, 0.0, 1.0);
+        rw * rp * rk
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct FrameCamera {
+    pub interior: Interior,
+    pub exterior: Exterior,
+}
+
+impl FrameCamera {
+    /// Collinearity: where ground point `g` appears in the photo. `None` behind the camera.
+    pub fn project(&self, g: GroundM) -> Option<PhotoMm> {
+        let r = self.exterior.rotation();
+        let c = self.exterior.centre;
+        let v = r.transpose() * Vector3::new(g.x - c.x, g.y - c.y, g.z - c.z);
+        if v.z >= 0.0 {
+            return None;
+        }
+        let f = self.interior.focal_mm;
+        let pp = self.interior.principal_point;
+        Some(PhotoMm::new(pp.x - f * v.x / v.z, pp.y - f * v.y / v.z))
+    }
+
+    /// The ray through photo point `p`: the projection centre and a unit direction.
+    pub fn ray(&self, p: PhotoMm) -> (Vector3<f64>, Vector3<f64>) {
+        let pp = self.interior.principal_point;
+        let d = self.exterior.rotation()
+            * Vector3::new(p.x - pp.x, p.y - pp.y, -self.interior.focal_mm);
+        let c = self.exterior.centre;
+        (Vector3::new(c.x, c.y, c.z), d.normalize())
+    }
+
+    /// Where the ray through `p` reaches height `z`.
+    pub fn at_height(&self, p: PhotoMm, z: f64) -> GroundM {
+        let (o, d) = self.ray(p);
+        let t = (z - o.z) / d.z;
+        GroundM::new(o.x + t * d.x, o.y + t * d.y, z)
+    }
+}
