@@ -6,6 +6,7 @@ pub mod camera;
 pub mod coords;
 pub mod digitise;
 pub mod geometry;
+pub mod matching;
 pub mod scan;
 pub mod stage;
 pub mod targets;

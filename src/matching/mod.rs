@@ -1,0 +1,7 @@
+//! The matching core: elevation models from two or more photos. Here: polynomial mapping
+//! functions and the height sweep along their epipolar lines (seeds 000 and 004).
+
+pub mod pmf;
+pub mod pmf_set;
+
+pub use pmf_set::{PmfSet, RigorousPhoto, StereoPoint};

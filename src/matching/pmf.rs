@@ -1,0 +1,296 @@
+//! Polynomial mapping functions (seed 000 §2.1; seed 004 §4): each coordinate of one space
+//! as a polynomial of up to third order in the coordinates of another and the height h,
+//! `F(x, y, h) = Σ c_t·x^i·y^j·h^k`. Fitted by least squares to ground control points; the
+//! terms are chosen by the check points' RMSE (start from the full form, remove in turn the
+//! term whose removal lowers the check-point RMSE most, until no removal lowers it).
+//!
+//! Variables are centred and scaled to about ±1 over the control points before the powers are
+//! taken, so that third powers of pixel numbers and heights stay well conditioned.
+
+use nalgebra::{DMatrix, DVector};
+use serde::{Deserialize, Serialize};
+
+/// The monomial x^i·y^j·h^k.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Term(pub u8, pub u8, pub u8);
+
+impl Term {
+    pub fn degree(self) -> u8 {
+        self.0 + self.1 + self.2
+    }
+
+    #[inline]
+    fn eval(self, u: [f64; 3]) -> f64 {
+        u[0].powi(self.0 as i32) * u[1].powi(self.1 as i32) * u[2].powi(self.2 as i32)
+    }
+}
+
+impl std::fmt::Display for Term {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let mut s = String::new();
+        for (n, v) in [(self.0, "x"), (self.1, "y"), (self.2, "h")] {
+            match n {
+                0 => {}
+                1 => s.push_str(v),
+                _ => s.push_str(&format!("{v}^{n}")),
+            }
+        }
+        if s.is_empty() {
+            s.push('1');
+        }
+        f.write_str(&s)
+    }
+}
+
+/// Every term of total degree up to `order`, lowest degree first.
+pub fn full_terms(order: u8) -> Vec<Term> {
+    let mut v = Vec::new();
+    for d in 0..=order {
+        for i in (0..=d).rev() {
+            for j in (0..=d - i).rev() {
+                v.push(Term(i, j, d - i - j));
+            }
+        }
+    }
+    v
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Normaliser {
+    pub centre: [f64; 3],
+    pub scale: [f64; 3],
+}
+
+impl Normaliser {
+    /// Centre and half-range of each variable over `pts`.
+    pub fn over(pts: &[[f64; 3]]) -> Normaliser {
+        let mut lo = [f64::MAX; 3];
+        let mut hi = [f64::MIN; 3];
+        for p in pts {
+            for k in 0..3 {
+                lo[k] = lo[k].min(p[k]);
+                hi[k] = hi[k].max(p[k]);
+            }
+        }
+        Normaliser {
+            centre: std::array::from_fn(|k| 0.5 * (lo[k] + hi[k])),
+            scale: std::array::from_fn(|k| (0.5 * (hi[k] - lo[k])).max(1e-9)),
+        }
+    }
+
+    #[inline]
+    pub fn apply(&self, v: [f64; 3]) -> [f64; 3] {
+        std::array::from_fn(|k| (v[k] - self.centre[k]) / self.scale[k])
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Polynomial {
+    pub terms: Vec<Term>,
+    pub coef: Vec<f64>,
+    pub norm: Normaliser,
+}
+
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum PmfError {
+    #[error("{points} control points for {terms} terms: a fit needs more points than terms")]
+    TooFewPoints { points: usize, terms: usize },
+    #[error("the control points do not determine the terms (all in a line or at one height?)")]
+    Singular,
+    #[error("no check points: the terms are chosen by the check points' RMSE")]
+    NoCheckPoints,
+}
+
+/// One sample: the three variables and the value.
+pub type Sample = ([f64; 3], f64);
+
+impl Polynomial {
+    #[inline]
+    pub fn eval(&self, v: [f64; 3]) -> f64 {
+        let u = self.norm.apply(v);
+        self.terms
+            .iter()
+            .zip(&self.coef)
+            .map(|(t, c)| c * t.eval(u))
+            .sum()
+    }
+
+    /// Least-squares coefficients of `terms` over `samples`.
+    pub fn fit(terms: &[Term], norm: &Normaliser, samples: &[Sample]) -> Result<Self, PmfError> {
+        if samples.len() <= terms.len() {
+            return Err(PmfError::TooFewPoints {
+                points: samples.len(),
+                terms: terms.len(),
+            });
+        }
+        let a = DMatrix::from_fn(samples.len(), terms.len(), |r, c| {
+            terms[c].eval(norm.apply(samples[r].0))
+        });
+        let b = DVector::from_iterator(samples.len(), samples.iter().map(|s| s.1));
+        let svd = a.svd(true, true);
+        let smax = svd.singular_values.max();
+        if svd.singular_values.min() < 1e-10 * smax.max(1e-300) {
+            return Err(PmfError::Singular);
+        }
+        let x = svd.solve(&b, 0.0).map_err(|_| PmfError::Singular)?;
+        Ok(Polynomial {
+            terms: terms.to_vec(),
+            coef: x.iter().copied().collect(),
+            norm: norm.clone(),
+        })
+    }
+
+    pub fn rmse(&self, samples: &[Sample]) -> f64 {
+        if samples.is_empty() {
+            return f64::NAN;
+        }
+        (samples
+            .iter()
+            .map(|s| (self.eval(s.0) - s.1).powi(2))
+            .sum::<f64>()
+            / samples.len() as f64)
+            .sqrt()
+    }
+}
+
+/// What the term selection did, for the report (seed 000 Table 2).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Selection {
+    pub poly: Polynomial,
+    pub gcp_rmse: f64,
+    pub cp_rmse: f64,
+    /// The full form's check-point RMSE, and each removal with the RMSE after it.
+    pub start_cp_rmse: f64,
+    pub removed: Vec<(Term, f64)>,
+}
+
+/// The terms, lowest degree first, that the control points can tell apart: a term whose
+/// column is a combination of those before it is left out (at three heights h³ is h, as in
+/// seed 004's 5×5×3 grid).
+fn independent(terms: &[Term], norm: &Normaliser, gcps: &[Sample]) -> Vec<Term> {
+    let mut kept: Vec<Term> = Vec::new();
+    for &t in terms {
+        let mut trial = kept.clone();
+        trial.push(t);
+        let a = DMatrix::from_fn(gcps.len(), trial.len(), |r, c| {
+            trial[c].eval(norm.apply(gcps[r].0))
+        });
+        let sv = a.svd(false, false).singular_values;
+        if sv.min() > 1e-9 * sv.max() {
+            kept = trial;
+        }
+    }
+    kept
+}
+
+/// Seed 000 §2.1: from the full form of `order`, remove in turn the term whose removal lowers
+/// the check points' RMSE most, until no removal lowers it. Coefficients always from the
+/// control points alone.
+pub fn select(order: u8, gcps: &[Sample], cps: &[Sample]) -> Result<Selection, PmfError> {
+    if cps.is_empty() {
+        return Err(PmfError::NoCheckPoints);
+    }
+    let pts: Vec<[f64; 3]> = gcps.iter().map(|s| s.0).collect();
+    let norm = Normaliser::over(&pts);
+    let mut terms = independent(&full_terms(order), &norm, gcps);
+    // Too few points for the full form: the highest terms go first.
+    while terms.len() >= gcps.len() && terms.len() > 1 {
+        terms.pop();
+    }
+    let mut best = Polynomial::fit(&terms, &norm, gcps)?;
+    let mut best_rmse = best.rmse(cps);
+    let start_cp_rmse = best_rmse;
+    let mut removed = Vec::new();
+    while terms.len() > 1 {
+        let mut cand: Option<(usize, Polynomial, f64)> = None;
+        for k in 0..terms.len() {
+            let mut t = terms.clone();
+            t.remove(k);
+            let Ok(p) = Polynomial::fit(&t, &norm, gcps) else {
+                continue;
+            };
+            let r = p.rmse(cps);
+            if cand.as_ref().is_none_or(|c| r < c.2) {
+                cand = Some((k, p, r));
+            }
+        }
+        match cand {
+            Some((k, p, r)) if r < best_rmse => {
+                removed.push((terms[k], r));
+                terms.remove(k);
+                best = p;
+                best_rmse = r;
+            }
+            _ => break,
+        }
+    }
+    Ok(Selection {
+        gcp_rmse: best.rmse(gcps),
+        cp_rmse: best_rmse,
+        poly: best,
+        start_cp_rmse,
+        removed,
+    })
+}
+
+/// Two polynomials of the same variables: a mapping to a 2-D space.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Mapping {
+    pub x: Polynomial,
+    pub y: Polynomial,
+}
+
+impl Mapping {
+    #[inline]
+    pub fn eval(&self, v: [f64; 3]) -> [f64; 2] {
+        [self.x.eval(v), self.y.eval(v)]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn full_forms_have_the_binomial_counts() {
+        assert_eq!(full_terms(1).len(), 4);
+        assert_eq!(full_terms(2).len(), 10);
+        assert_eq!(full_terms(3).len(), 20);
+        assert_eq!(full_terms(2)[0], Term(0, 0, 0));
+        assert_eq!(Term(2, 0, 1).to_string(), "x^2h");
+    }
+
+    #[test]
+    fn selection_keeps_the_true_terms_and_drops_the_others() {
+        // f = 3 + 2x − y·h + 0.5x²: four of the twenty terms, plus small noise.
+        let f = |v: [f64; 3]| 3.0 + 2.0 * v[0] - v[1] * v[2] + 0.5 * v[0] * v[0];
+        let mut s: u64 = 7;
+        let mut noise = || {
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            ((s >> 33) as f64 / (1u64 << 31) as f64 - 0.5) * 1e-3
+        };
+        let mut gcps = Vec::new();
+        let mut cps = Vec::new();
+        for i in 0..6 {
+            for j in 0..6 {
+                for k in 0..3 {
+                    let v = [i as f64 * 100.0, j as f64 * 80.0, 200.0 + k as f64 * 150.0];
+                    let w = [v[0] + 50.0, v[1] + 40.0, v[2] + 75.0];
+                    let n = noise();
+                    gcps.push((v, f([v[0] / 100.0, v[1] / 100.0, v[2] / 100.0]) + n));
+                    cps.push((w, f([w[0] / 100.0, w[1] / 100.0, w[2] / 100.0]) + noise()));
+                }
+            }
+        }
+        let sel = select(3, &gcps, &cps).unwrap();
+        assert!(sel.cp_rmse < 1e-3, "{sel:?}");
+        assert!(sel.cp_rmse <= sel.start_cp_rmse);
+        let kept: Vec<Term> = sel.poly.terms.clone();
+        for t in [Term(0, 0, 0), Term(1, 0, 0), Term(0, 1, 1), Term(2, 0, 0)] {
+            assert!(kept.contains(&t), "{t} dropped: {kept:?}");
+        }
+        assert!(kept.len() < 20, "nothing removed");
+    }
+}
