@@ -5,3 +5,4 @@ pub mod pmf;
 pub mod pmf_set;
 
 pub use pmf_set::{PmfSet, RigorousPhoto, StereoPoint};
+pub mod sweep;

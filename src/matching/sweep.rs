@@ -1,0 +1,295 @@
+//! Height-sweep matching (seed 000 §2.2): for every pixel of the reference (left) photo the
+//! heights from the lowest to the highest are tried in steps; each is mapped into the search
+//! (right) photo by the image→image polynomials, so the search runs along the epipolar line
+//! they describe, and the window there (resampled bilinearly) is compared with the reference
+//! window by normalised cross-correlation. The best above a threshold gives the height,
+//! refined below the step by a parabola through its neighbours' correlations. Optionally the
+//! range is narrowed to the heights already found next to the pixel (widened again when the
+//! best lands on the narrowed range's edge). Bands of rows run in parallel.
+
+use super::pmf::Mapping;
+use crate::digitise::ImageF32;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SweepParams {
+    pub h_min: f64,
+    pub h_max: f64,
+    pub h_step: f64,
+    /// Side of the correlation window, px (odd; seed 000: 9).
+    pub window: usize,
+    /// Lowest correlation accepted (seed 000: 0.5).
+    pub threshold: f64,
+    /// Narrow the range to the neighbours' heights ± `neighbour_steps` steps.
+    pub neighbours: bool,
+    pub neighbour_steps: usize,
+    /// Refine below the height step by a parabola.
+    pub refine: bool,
+    /// Match every `stride`-th pixel in each direction.
+    pub stride: usize,
+}
+
+impl Default for SweepParams {
+    fn default() -> Self {
+        SweepParams {
+            h_min: 0.0,
+            h_max: 1000.0,
+            h_step: 4.0,
+            window: 9,
+            threshold: 0.5,
+            neighbours: true,
+            neighbour_steps: 4,
+            refine: true,
+            stride: 1,
+        }
+    }
+}
+
+/// Heights per matched reference pixel: `h[i + j·cols]` belongs to reference pixel
+/// (`col0 + i·stride`, `row0 + j·stride`); NaN where no height passed the threshold.
+#[derive(Debug, Clone, PartialEq)]
+pub struct HeightMap {
+    pub cols: usize,
+    pub rows: usize,
+    pub col0: usize,
+    pub row0: usize,
+    pub stride: usize,
+    pub h: Vec<f32>,
+    pub corr: Vec<f32>,
+    /// Candidate heights tried in all (for throughput figures).
+    pub candidates: u64,
+}
+
+impl HeightMap {
+    /// The reference pixel's centre (continuous coordinates) of cell (i, j).
+    pub fn pixel(&self, i: usize, j: usize) -> [f64; 2] {
+        [
+            (self.col0 + i * self.stride) as f64 + 0.5,
+            (self.row0 + j * self.stride) as f64 + 0.5,
+        ]
+    }
+
+    pub fn matched(&self) -> usize {
+        self.h.iter().filter(|v| v.is_finite()).count()
+    }
+}
+
+/// Bilinear value at continuous coordinates (pixel centres at +0.5); `None` outside.
+#[inline]
+fn bilinear(img: &ImageF32, x: f64, y: f64) -> Option<f32> {
+    let (u, v) = (x - 0.5, y - 0.5);
+    if u < 0.0 || v < 0.0 {
+        return None;
+    }
+    let (i, j) = (u as usize, v as usize);
+    if i + 1 >= img.width || j + 1 >= img.height {
+        return None;
+    }
+    let (fx, fy) = ((u - i as f64) as f32, (v - j as f64) as f32);
+    let p = &img.data[j * img.width + i..];
+    let q = &img.data[(j + 1) * img.width + i..];
+    let a = p[0] + fx * (p[1] - p[0]);
+    let b = q[0] + fx * (q[1] - q[0]);
+    Some(a + fy * (b - a))
+}
+
+/// The reference window centred (zero mean) and its norm; `None` if flat.
+fn reference(img: &ImageF32, c: usize, r: usize, k: usize) -> Option<(Vec<f32>, f32)> {
+    let mut v = Vec::with_capacity((2 * k + 1) * (2 * k + 1));
+    for rr in r - k..=r + k {
+        v.extend_from_slice(&img.data[rr * img.width + c - k..][..2 * k + 1]);
+    }
+    let m = v.iter().sum::<f32>() / v.len() as f32;
+    let mut ss = 0.0;
+    for x in v.iter_mut() {
+        *x -= m;
+        ss += *x * *x;
+    }
+    (ss > 1e-6).then(|| (v, ss.sqrt()))
+}
+
+/// Correlation of the reference window with the search window centred at (x, y).
+#[inline]
+fn ncc_at(right: &ImageF32, x: f64, y: f64, k: usize, refw: &[f32], refn: f32) -> Option<f32> {
+    let w = 2 * k + 1;
+    let (mut s, mut ss, mut sr) = (0.0f32, 0.0f32, 0.0f32);
+    for dy in 0..w {
+        for dx in 0..w {
+            let v = bilinear(right, x + dx as f64 - k as f64, y + dy as f64 - k as f64)?;
+            s += v;
+            ss += v * v;
+            sr += v * refw[dy * w + dx];
+        }
+    }
+    let n = (w * w) as f32;
+    let var = ss - s * s / n;
+    if var <= 1e-6 {
+        return None;
+    }
+    // Σ(v − mean)·ref = Σ v·ref, the reference having zero mean.
+    Some(sr / (refn * var.sqrt()))
+}
+
+/// One reference pixel being matched: its window and where the candidates go.
+struct Candidates<'a> {
+    right: &'a ImageF32,
+    map: &'a Mapping,
+    p: &'a SweepParams,
+    px: [f64; 2],
+    refw: Vec<f32>,
+    refn: f32,
+}
+
+impl Candidates<'_> {
+    fn corr(&self, i: i64, tried: &mut u64) -> Option<f32> {
+        let h = self.p.h_min + i as f64 * self.p.h_step;
+        let q = self.map.eval([self.px[0], self.px[1], h]);
+        *tried += 1;
+        ncc_at(
+            self.right,
+            q[0],
+            q[1],
+            self.p.window / 2,
+            &self.refw,
+            self.refn,
+        )
+    }
+
+    /// The best over steps `lo..=hi`: (step, correlation, the correlations one step below
+    /// and above it).
+    fn best(
+        &self,
+        lo: i64,
+        hi: i64,
+        tried: &mut u64,
+    ) -> Option<(i64, f32, Option<f32>, Option<f32>)> {
+        let mut best: Option<(i64, f32)> = None;
+        let (mut prev, mut below, mut above) = (None, None, None);
+        let mut after_best = false;
+        for i in lo..=hi {
+            let c = self.corr(i, tried);
+            if after_best {
+                above = c;
+                after_best = false;
+            }
+            if let Some(v) = c {
+                if best.is_none_or(|b| v > b.1) {
+                    best = Some((i, v));
+                    below = prev;
+                    after_best = true;
+                    above = None;
+                }
+            }
+            prev = c;
+        }
+        best.map(|(i, v)| (i, v, below, above))
+    }
+}
+
+/// Matches every `stride`-th reference pixel whose window lies inside `left`.
+pub fn sweep(left: &ImageF32, right: &ImageF32, map: &Mapping, p: &SweepParams) -> HeightMap {
+    let k = p.window / 2;
+    let s = p.stride.max(1);
+    let (c0, r0) = (k, k);
+    let cols = left.width.saturating_sub(2 * k).div_ceil(s);
+    let rows = left.height.saturating_sub(2 * k).div_ceil(s);
+    let n_steps = ((p.h_max - p.h_min) / p.h_step).floor() as i64;
+    const BAND: usize = 16;
+    let bands: Vec<(Vec<f32>, Vec<f32>, u64)> = (0..rows.div_ceil(BAND))
+        .into_par_iter()
+        .map(|b| {
+            let (j0, j1) = (b * BAND, ((b + 1) * BAND).min(rows));
+            let mut h = vec![f32::NAN; (j1 - j0) * cols];
+            let mut corr = vec![f32::NAN; (j1 - j0) * cols];
+            let mut tried = 0u64;
+            for j in j0..j1 {
+                for i in 0..cols {
+                    let (c, r) = (c0 + i * s, r0 + j * s);
+                    let Some((refw, refn)) = reference(left, c, r, k) else {
+                        continue;
+                    };
+                    let px = [c as f64 + 0.5, r as f64 + 0.5];
+                    // The neighbours' heights (left, and above within the band).
+                    let mut near = Vec::new();
+                    if p.neighbours {
+                        let at = |jj: usize, ii: usize| h[(jj - j0) * cols + ii];
+                        if i > 0 && at(j, i - 1).is_finite() {
+                            near.push(at(j, i - 1));
+                        }
+                        if j > j0 && at(j - 1, i).is_finite() {
+                            near.push(at(j - 1, i));
+                        }
+                    }
+                    let full = (0, n_steps);
+                    let range = if near.is_empty() {
+                        full
+                    } else {
+                        let lo = near.iter().cloned().fold(f32::MAX, f32::min) as f64;
+                        let hi = near.iter().cloned().fold(f32::MIN, f32::max) as f64;
+                        let m = p.neighbour_steps as i64;
+                        (
+                            (((lo - p.h_min) / p.h_step).floor() as i64 - m).max(0),
+                            (((hi - p.h_min) / p.h_step).ceil() as i64 + m).min(n_steps),
+                        )
+                    };
+                    let cand = Candidates {
+                        right,
+                        map,
+                        p,
+                        px,
+                        refw,
+                        refn,
+                    };
+                    let mut got = cand.best(range.0, range.1, &mut tried);
+                    let narrowed = range != full;
+                    let poor = got.is_none_or(|g| {
+                        g.1 < p.threshold as f32
+                            || (g.0 == range.0 && range.0 > 0)
+                            || (g.0 == range.1 && range.1 < n_steps)
+                    });
+                    if narrowed && poor {
+                        got = cand.best(0, n_steps, &mut tried);
+                    }
+                    let Some((bi, bc, below, above)) = got else {
+                        continue;
+                    };
+                    if bc < p.threshold as f32 {
+                        continue;
+                    }
+                    let mut hv = p.h_min + bi as f64 * p.h_step;
+                    if p.refine {
+                        if let (Some(a), Some(b)) = (below, above) {
+                            let den = a as f64 - 2.0 * bc as f64 + b as f64;
+                            if den < 0.0 {
+                                let t = 0.5 * (a as f64 - b as f64) / den;
+                                hv += t.clamp(-0.5, 0.5) * p.h_step;
+                            }
+                        }
+                    }
+                    h[(j - j0) * cols + i] = hv as f32;
+                    corr[(j - j0) * cols + i] = bc;
+                }
+            }
+            (h, corr, tried)
+        })
+        .collect();
+    let mut h = Vec::with_capacity(rows * cols);
+    let mut corr = Vec::with_capacity(rows * cols);
+    let mut candidates = 0;
+    for (bh, bc, t) in bands {
+        h.extend(bh);
+        corr.extend(bc);
+        candidates += t;
+    }
+    HeightMap {
+        cols,
+        rows,
+        col0: c0,
+        row0: r0,
+        stride: s,
+        h,
+        corr,
+        candidates,
+    }
+}
