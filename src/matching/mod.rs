@@ -5,4 +5,5 @@ pub mod pmf;
 pub mod pmf_set;
 
 pub use pmf_set::{PmfSet, RigorousPhoto, StereoPoint};
+pub mod regions;
 pub mod sweep;
