@@ -5,5 +5,7 @@ pub mod pmf;
 pub mod pmf_set;
 
 pub use pmf_set::{PmfSet, RigorousPhoto, StereoPoint};
+pub mod grid;
+pub mod output;
 pub mod regions;
 pub mod sweep;
