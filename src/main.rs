@@ -12,7 +12,14 @@ fn main() {
         Command::Camera(a) => cli::camera_cmd::run(a),
         Command::Calibrate(a) => cli::calibrate_cmd::run(a),
         Command::Scan(a) => cli::scan_cmd::run(a),
-        Command::Sim(a) => rig_sim::cli::run(a).map(|_| 0).map_err(anyhow::Error::from),
+        Command::Sim(cli::SimCmd {
+            action: Some(cli::SimAction::Scene(a)),
+            ..
+        }) => cli::scene_cmd::run(&a),
+        Command::Sim(a) => rig_sim::cli::run(a.serve)
+            .map(|_| 0)
+            .map_err(anyhow::Error::from),
+        Command::Dtm(a) => cli::dtm_cmd::run(a),
     };
     match code {
         Ok(c) => std::process::exit(c),

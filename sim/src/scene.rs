@@ -372,6 +372,38 @@ impl AerialPhoto {
     }
 }
 
+impl AerialPhoto {
+    /// The photo as an image: `width × height` pixels of `step_mm` from the top-left corner
+    /// `corner_mm` (x right, y up), each the mean of `k × k` samples of the picture's
+    /// transmittance; rows run down the photo's y axis.
+    pub fn render(
+        &self,
+        corner_mm: [f64; 2],
+        step_mm: f64,
+        width: usize,
+        height: usize,
+        k: usize,
+    ) -> Vec<f32> {
+        use rayon::prelude::*;
+        let k = k.max(1);
+        let mut img = vec![0f32; width * height];
+        img.par_chunks_mut(width).enumerate().for_each(|(r, row)| {
+            for (c, v) in row.iter_mut().enumerate() {
+                let mut s = 0.0;
+                for j in 0..k {
+                    for i in 0..k {
+                        let x = corner_mm[0] + (c as f64 + (i as f64 + 0.5) / k as f64) * step_mm;
+                        let y = corner_mm[1] - (r as f64 + (j as f64 + 0.5) / k as f64) * step_mm;
+                        s += self.transmittance([x, y]);
+                    }
+                }
+                *v = (s / (k * k) as f64) as f32;
+            }
+        });
+        img
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

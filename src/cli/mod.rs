@@ -3,10 +3,29 @@
 pub mod calibrate_cmd;
 pub mod camera_cmd;
 pub mod connect;
+pub mod dtm_cmd;
 pub mod scan_cmd;
+pub mod scene_cmd;
 pub mod stage_cmd;
 
-use clap::{Parser, Subcommand};
+use clap::{Args, Parser, Subcommand};
+
+/// `rig sim`: the simulated controller, or with `scene` a rendered stereo scene.
+#[derive(Debug, Args)]
+#[command(args_conflicts_with_subcommands = true)]
+pub struct SimCmd {
+    #[command(subcommand)]
+    pub action: Option<SimAction>,
+    #[command(flatten)]
+    pub serve: rig_sim::cli::SimArgs,
+}
+
+#[derive(Debug, Subcommand)]
+pub enum SimAction {
+    /// Render a stereo pair of the simulator's terrain (photos 1 and 2 of its block) with
+    /// control and check points, the true elevation model and a matching project.
+    Scene(scene_cmd::SceneArgs),
+}
 
 /// The rig: digitise and calibrate aerial film on a camera over motorised X/Y stages.
 ///
@@ -102,6 +121,17 @@ pub enum Command {
     /// Example:
     ///   rig sim --dialect grbl --time-scale 0 --truth truth.json --stage-link /tmp/stage &
     ///   rig stage --stage /tmp/stage --dialect grbl home
+    ///
+    /// `rig sim scene --out DIR` instead renders a stereo pair of the simulator's terrain
+    /// with control and check points and the true elevation model: a ready matching project.
     #[command(verbatim_doc_comment)]
-    Sim(rig_sim::cli::SimArgs),
+    Sim(SimCmd),
+    /// Elevation models from photos: `rig dtm pmf --project FILE --out DIR` (seed 000).
+    ///
+    /// Example:
+    ///   rig sim scene --out scene && rig dtm pmf --project scene/project.toml --out dtm
+    ///
+    /// Exit codes: 0 done; 2 bad usage; 1 any other error (the message names the file).
+    #[command(verbatim_doc_comment)]
+    Dtm(dtm_cmd::DtmArgs),
 }

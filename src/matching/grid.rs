@@ -79,6 +79,24 @@ impl ElevationGrid {
         }
     }
 
+    /// Bilinear height at ground (x, y); NaN outside or next to nodata.
+    pub fn interpolate(&self, x: f64, y: f64) -> f64 {
+        let fc = (x - self.x0) / self.cell_m;
+        let fr = (self.y0 - y) / self.cell_m;
+        if fc < 0.0 || fr < 0.0 || fc > (self.cols - 1) as f64 || fr > (self.rows - 1) as f64 {
+            return f64::NAN;
+        }
+        let (c, r) = (
+            (fc.floor() as usize).min(self.cols.saturating_sub(2)),
+            (fr.floor() as usize).min(self.rows.saturating_sub(2)),
+        );
+        let (tx, ty) = (fc - c as f64, fr - r as f64);
+        let z = |c: usize, r: usize| self.z[r * self.cols + c] as f64;
+        let a = z(c, r) + tx * (z(c + 1, r) - z(c, r));
+        let b = z(c, r + 1) + tx * (z(c + 1, r + 1) - z(c, r + 1));
+        a + ty * (b - a)
+    }
+
     pub fn filled(&self) -> usize {
         self.z.iter().filter(|v| v.is_finite()).count()
     }

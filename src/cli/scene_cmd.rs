@@ -1,0 +1,330 @@
+//! `rig sim scene`: a stereo pair rendered straight from the simulator's terrain (no film, no
+//! scanning), with control and check points and the true elevation model, as a ready
+//! matching project.
+
+use anyhow::Context;
+use clap::Args;
+use rig::coords::{GroundM, PhotoMm, PixelXY};
+use rig::matching::grid::ElevationGrid;
+use rig::matching::StereoPoint;
+use rig::scan::sidecar::{self, ScannedPhoto};
+use rig::scan::PhotoGrid;
+use rig_sim::scene::{jacksboro, AerialPhoto};
+use serde_json::json;
+use std::path::{Path, PathBuf};
+
+#[derive(Debug, Args)]
+pub struct SceneArgs {
+    /// Directory to write the scene into (created; must be empty).
+    #[arg(long, value_name = "DIR")]
+    pub out: PathBuf,
+    /// Random seed of the block (orientations, texture) — the same as a simulated film's.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// The area of photo 1 to render, photo mm: XMIN,YMIN,XMAX,YMAX (inside the overlap with
+    /// photo 2, which lies about 92 mm along x).
+    #[arg(long, value_name = "MM,MM,MM,MM", default_value = "36,-8,56,8")]
+    pub area: String,
+    /// Pixel size on the film, µm.
+    #[arg(long, default_value_t = 25.0)]
+    pub resolution_um: f64,
+    /// Ground control points and check points to draw.
+    #[arg(long, default_value_t = 20)]
+    pub gcps: usize,
+    #[arg(long, default_value_t = 30)]
+    pub cps: usize,
+    /// Measuring noise (σ) of the points' photo coordinates, µm, and of their ground
+    /// coordinates, m.
+    #[arg(long, default_value_t = 5.0)]
+    pub photo_noise_um: f64,
+    #[arg(long, default_value_t = 0.5)]
+    pub ground_noise_m: f64,
+}
+
+fn parse_area(s: &str) -> anyhow::Result<[f64; 4]> {
+    let v: Vec<f64> = s
+        .split(',')
+        .map(|x| x.trim().parse::<f64>())
+        .collect::<Result<_, _>>()
+        .with_context(|| format!("--area `{s}`: four numbers XMIN,YMIN,XMAX,YMAX"))?;
+    if v.len() != 4 || v[2] <= v[0] || v[3] <= v[1] || v.iter().any(|x| x.abs() > 100.0) {
+        anyhow::bail!(
+            "--area `{s}`: XMIN,YMIN,XMAX,YMAX with the maxima above the minima, inside ±100 mm"
+        );
+    }
+    Ok([v[0], v[1], v[2], v[3]])
+}
+
+/// The rendered photo as a scanned-photo sidecar and TIFF (grey = transmittance × 60 000).
+fn write_photo(
+    dir: &Path,
+    name: &str,
+    photo: &AerialPhoto,
+    grid: &PhotoGrid,
+) -> anyhow::Result<PathBuf> {
+    let img = photo.render(grid.corner_mm, grid.step_mm, grid.width, grid.height, 3);
+    let px: Vec<u16> = img
+        .iter()
+        .map(|v| (v * 60_000.0).round().clamp(1.0, 65535.0) as u16)
+        .collect();
+    let tiff = dir.join(format!("{name}.tiff"));
+    rig::digitise::output::write_tiff16(&tiff, grid.width, grid.height, &px)?;
+    let side = ScannedPhoto {
+        format: sidecar::FORMAT.into(),
+        image: format!("{name}.tiff"),
+        film: format!(
+            "simulated block, photo {} (rendered, not scanned)",
+            photo.number
+        ),
+        region: name.into(),
+        grid: *grid,
+        grey: sidecar::Grey {
+            counts_per_dn: 1.0,
+            camera_bit_depth: 16,
+            nodata: 0,
+            flat_fielded: false,
+        },
+        interior_orientation: sidecar::InteriorRecord {
+            session: PathBuf::new(),
+            version: "none: rendered in photo coordinates".into(),
+            carriage_to_photo: [0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
+            rms_um: 0.0,
+            fiducials: vec![],
+        },
+        camera_certificate: sidecar::CertificateRecord {
+            path: PathBuf::new(),
+            name: "simulated RC10".into(),
+            focal_length_mm: photo.focal_mm,
+            fiducials: vec![],
+        },
+        pixel_to_carriage: sidecar::PixelRecord {
+            session: PathBuf::new(),
+            params: [0.0; 6],
+        },
+        scan: sidecar::ScanRecord {
+            script: PathBuf::new(),
+            tiles: 0,
+            frames_per_tile: 0,
+            filter: rig::scan::script::Filter::None,
+            overlap: 0.0,
+            resolution_um: grid.step_mm * 1000.0,
+            interpolation: "rendered: mean of 3×3 samples per pixel".into(),
+            antialias_sigma_px: 0.0,
+            feather_px: 0.0,
+        },
+    };
+    let p = dir.join(format!("{name}.json"));
+    rig::digitise::output::write_json(&p, &serde_json::to_value(&side)?)?;
+    Ok(p)
+}
+
+/// Ground control and check points of photo 1's area, their ground and their place in
+/// photo 2, all with measuring noise. Control points lie on a jittered grid that reaches the
+/// area's edges (seed 000: "a suitable number of the GCPs must be located near the
+/// perimeter", since polynomials extrapolate badly); check points anywhere inside.
+pub fn draw_points(
+    (a, ga): (&AerialPhoto, &PhotoGrid),
+    (b, gb): (&AerialPhoto, &PhotoGrid),
+    n: usize,
+    prefix: &str,
+    noise: (f64, f64),
+    rng: &mut rig_sim::rng::Rng,
+) -> Vec<StereoPoint> {
+    let (photo_mm, ground_m) = noise;
+    let control = prefix == "gcp";
+    let aspect = ga.width as f64 / ga.height as f64;
+    let cols = ((n as f64 * aspect).sqrt().ceil() as usize).max(2);
+    let rows = n.div_ceil(cols).max(2);
+    let mut v = Vec::new();
+    let mut k = 0;
+    while v.len() < n && k < 100 * n {
+        k += 1;
+        let (u, w) = if control {
+            // Cell (i, j) of the grid, nodes from 2 % to 98 %, jittered by a quarter cell.
+            let (i, j) = ((k - 1) % cols, ((k - 1) / cols) % rows);
+            let f = |t: usize, m: usize, r: f64| {
+                (0.02 + 0.96 * (t as f64 + 0.25 * (r - 0.5)) / (m - 1) as f64).clamp(0.01, 0.99)
+            };
+            (f(i, cols, rng.uniform()), f(j, rows, rng.uniform()))
+        } else {
+            (0.03 + 0.94 * rng.uniform(), 0.03 + 0.94 * rng.uniform())
+        };
+        let q = PixelXY::new(u * ga.width as f64, w * ga.height as f64);
+        let p = ga.photo(q);
+        let g = a.ground_point([p.x, p.y]);
+        let pb = b.project(g);
+        let qb = gb.pixel(PhotoMm::new(pb[0], pb[1]));
+        if qb.col < 0.0 || qb.row < 0.0 || qb.col > gb.width as f64 || qb.row > gb.height as f64 {
+            continue;
+        }
+        let px = |rng: &mut rig_sim::rng::Rng| photo_mm / ga.step_mm * rng.normal();
+        v.push(StereoPoint {
+            id: format!("{prefix}{}", v.len() + 1),
+            left: [q.col + px(rng), q.row + px(rng)],
+            right: [qb.col + px(rng), qb.row + px(rng)],
+            ground: GroundM::new(
+                g[0] + ground_m * rng.normal(),
+                g[1] + ground_m * rng.normal(),
+                g[2] + ground_m * rng.normal(),
+            ),
+        });
+    }
+    v
+}
+
+/// The area of photo 2 that sees photo 1's `area` at heights `lo..hi`, with a 1 mm margin.
+pub fn matching_area(a: &AerialPhoto, b: &AerialPhoto, area: [f64; 4], hs: [f64; 2]) -> [f64; 4] {
+    let (mut lo, mut hi) = ([f64::MAX; 2], [f64::MIN; 2]);
+    for x in [area[0], area[2]] {
+        for y in [area[1], area[3]] {
+            let g = a.ground_point([x, y]);
+            for z in hs {
+                // Along photo 1's ray through the corner, at height z.
+                let e = &a.exterior;
+                let t = (z - e.z0_m) / (g[2] - e.z0_m);
+                let p = [
+                    e.x0_m + t * (g[0] - e.x0_m),
+                    e.y0_m + t * (g[1] - e.y0_m),
+                    z,
+                ];
+                let q = b.project(p);
+                lo = [lo[0].min(q[0]), lo[1].min(q[1])];
+                hi = [hi[0].max(q[0]), hi[1].max(q[1])];
+            }
+        }
+    }
+    [lo[0] - 1.0, lo[1] - 1.0, hi[0] + 1.0, hi[1] + 1.0]
+}
+
+/// Lowest and highest terrain under photo 1's `area` (sampled every half millimetre).
+pub fn terrain_range(a: &AerialPhoto, area: [f64; 4]) -> [f64; 2] {
+    let (mut lo, mut hi) = (f64::MAX, f64::MIN);
+    let n = (((area[2] - area[0]).max(area[3] - area[1])) / 0.5).ceil() as usize;
+    for j in 0..=n {
+        for i in 0..=n {
+            let x = area[0] + (area[2] - area[0]) * i as f64 / n as f64;
+            let y = area[1] + (area[3] - area[1]) * j as f64 / n as f64;
+            let z = a.ground_point([x, y])[2];
+            lo = lo.min(z);
+            hi = hi.max(z);
+        }
+    }
+    [lo, hi]
+}
+
+/// The true DEM resampled (bilinearly) to a square grid over the ground under `area`.
+pub fn truth_grid(a: &AerialPhoto, area: [f64; 4], cell_m: f64) -> ElevationGrid {
+    let (mut lo, mut hi) = ([f64::MAX; 2], [f64::MIN; 2]);
+    for x in [area[0], area[2]] {
+        for y in [area[1], area[3]] {
+            let g = a.ground_point([x, y]);
+            lo = [lo[0].min(g[0]), lo[1].min(g[1])];
+            hi = [hi[0].max(g[0]), hi[1].max(g[1])];
+        }
+    }
+    let m = 5.0 * cell_m;
+    let mut grid = ElevationGrid::covering([lo[0] - m, lo[1] - m, hi[0] + m, hi[1] + m], cell_m);
+    let dem = &a.dem;
+    for r in 0..grid.rows {
+        for c in 0..grid.cols {
+            let [x, y] = grid.node(c, r);
+            grid.z[r * grid.cols + c] = dem.height(x, y) as f32;
+        }
+    }
+    grid
+}
+
+pub fn run(a: &SceneArgs) -> anyhow::Result<i32> {
+    let area = parse_area(&a.area)?;
+    if !(1.0..=200.0).contains(&a.resolution_um) {
+        anyhow::bail!("--resolution-um {}: 1 to 200", a.resolution_um);
+    }
+    if a.out.exists() && std::fs::read_dir(&a.out)?.next().is_some() {
+        anyhow::bail!("{} is not empty: give a new directory", a.out.display());
+    }
+    std::fs::create_dir_all(&a.out)?;
+    let dem = jacksboro();
+    let (p1, p2) = (
+        AerialPhoto::new(dem.clone(), a.seed, 1, 110.0),
+        AerialPhoto::new(dem.clone(), a.seed, 2, 110.0),
+    );
+    let hs = terrain_range(&p1, area);
+    let area2 = matching_area(&p1, &p2, area, [hs[0] - 30.0, hs[1] + 30.0]);
+    let step = a.resolution_um / 1000.0;
+    let (g1, g2) = (
+        PhotoGrid::covering(area, step),
+        PhotoGrid::covering(area2, step),
+    );
+    eprintln!(
+        "rendering photo 1 ({}×{} px) and photo 2 ({}×{} px)…",
+        g1.width, g1.height, g2.width, g2.height
+    );
+    let s1 = write_photo(&a.out, "photo-1", &p1, &g1)?;
+    let s2 = write_photo(&a.out, "photo-2", &p2, &g2)?;
+    let mut rng = rig_sim::rng::Rng::new(a.seed ^ 0x6C9);
+    let noise = (a.photo_noise_um / 1000.0, a.ground_noise_m);
+    let gcps = draw_points((&p1, &g1), (&p2, &g2), a.gcps, "gcp", noise, &mut rng);
+    let cps = draw_points((&p1, &g1), (&p2, &g2), a.cps, "cp", noise, &mut rng);
+    rig::digitise::output::write_json(
+        &a.out.join("points.json"),
+        &json!({"gcps": gcps, "cps": cps}),
+    )?;
+    let truth = truth_grid(&p1, area, 10.0);
+    rig::matching::output::write_geotiff(&a.out.join("truth-dem.tif"), &truth)?;
+    rig::digitise::output::write_json(
+        &a.out.join("truth.json"),
+        &json!({"seed": a.seed, "photos": [p1, p2], "area_mm": [area, area2],
+                "terrain_m": hs, "dem": "tests/data/jacksboro_fault_dem.asc (bilinear, 10 m grid in truth-dem.tif)",
+                "photo_noise_um": a.photo_noise_um, "ground_noise_m": a.ground_noise_m}),
+    )?;
+    let step_m = 2.0;
+    let project = format!(
+        r#"# A matching project made by `rig sim scene` (seed {seed}); run it with
+#   rig dtm pmf --project {dir}/project.toml --out OUT
+[photos]
+left = "photo-1.json"
+right = "photo-2.json"
+
+[points]
+file = "points.json"
+
+[pmf]
+order = 2            # terms chosen from the full second order (seed 000)
+from = "points"      # or "rigorous": resect both photos from the control points, derive (seed 004)
+
+[matching]
+h_min = {lo:.0}
+h_max = {hi:.0}
+h_step = {step_m}
+window = 9
+threshold = 0.5
+neighbours = true
+stride = 1
+
+[regions]
+search_distance = 2
+height_threshold = {thr}
+population_threshold = 200
+
+[grid]
+cell_m = 10.0
+reference = "truth-dem.tif"
+flying_height_m = 6500.0
+"#,
+        seed = a.seed,
+        dir = a.out.display(),
+        lo = hs[0] - 30.0,
+        hi = hs[1] + 30.0,
+        thr = 1.5 * step_m,
+    );
+    std::fs::write(a.out.join("project.toml"), project)?;
+    println!(
+        "scene in {}: {} and {}, {} control and {} check points, truth-dem.tif, project.toml",
+        a.out.display(),
+        s1.display(),
+        s2.display(),
+        gcps.len(),
+        cps.len()
+    );
+    Ok(0)
+}

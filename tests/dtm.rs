@@ -1,0 +1,91 @@
+//! Seed 000's method end to end on a scene rendered by the simulator: `rig sim scene`, then
+//! `rig dtm pmf`, the elevation model against the true DEM.
+
+mod common;
+
+use common::rig;
+use serde_json::Value;
+
+fn run_ok(cmd: &mut std::process::Command) -> std::process::Output {
+    let out = cmd.output().unwrap();
+    assert!(
+        out.status.success(),
+        "{cmd:?}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    out
+}
+
+#[test]
+fn elevation_model_from_a_rendered_pair_meets_half_the_height_step() {
+    let d = tempfile::tempdir().unwrap();
+    let scene = d.path().join("scene");
+    run_ok(
+        rig()
+            .args([
+                "sim",
+                "scene",
+                "--seed",
+                "3",
+                "--area",
+                "38,-6,52,6",
+                "--out",
+            ])
+            .arg(&scene),
+    );
+    let project = std::fs::read_to_string(scene.join("project.toml")).unwrap();
+    for (from, name) in [("points", "dtm-points"), ("rigorous", "dtm-rigorous")] {
+        let p = scene.join(format!("{name}.toml"));
+        std::fs::write(
+            &p,
+            project.replace("from = \"points\"", &format!("from = \"{from}\"")),
+        )
+        .unwrap();
+        let out = d.path().join(name);
+        let o = run_ok(
+            rig()
+                .args(["dtm", "pmf", "--json", "--project"])
+                .arg(&p)
+                .arg("--out")
+                .arg(&out),
+        );
+        let v: Value = serde_json::from_slice(&o.stdout).unwrap();
+        let t = &v["dtm"];
+        let step = t["params"]["sweep"]["h_step"].as_f64().unwrap();
+        let rmse = t["comparison"]["rmse_m"].as_f64().unwrap();
+        let mean = t["comparison"]["mean_m"].as_f64().unwrap();
+        let matched = t["matched_percent"].as_f64().unwrap();
+        let left = t["remaining_percent"].as_f64().unwrap();
+        eprintln!(
+            "PMFs from {from}: matched {matched:.1} %, left {left:.1} %, RMSE {rmse:.2} m (step {step} m), mean {mean:+.2} m, {:.3} ‰ of the flying height",
+            t["rmse_permille_of_flying_height"].as_f64().unwrap()
+        );
+        assert!(matched > 95.0 && left > 90.0);
+        assert!(rmse <= 0.5 * step, "RMSE {rmse} m against a {step} m step");
+        assert!(mean.abs() < 0.3 * step);
+        for f in [
+            "dem.tif",
+            "points.ply",
+            "hillshade.png",
+            "error.png",
+            "report.json",
+        ] {
+            assert!(out.join(f).is_file(), "{f}");
+        }
+        let g = rig::matching::output::read_geotiff(&out.join("dem.tif")).unwrap();
+        assert!(g.filled() > 1000);
+    }
+    // A project with a bad value names the file and the field.
+    let bad = scene.join("bad.toml");
+    std::fs::write(&bad, project.replace("h_step = 2", "h_step = -2")).unwrap();
+    let o = rig()
+        .args(["dtm", "pmf", "--project"])
+        .arg(&bad)
+        .arg("--out")
+        .arg(d.path().join("never"))
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(1));
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert!(e.contains("bad.toml") && e.contains("h_step"), "{e}");
+}
