@@ -20,6 +20,7 @@ fn main() {
             .map(|_| 0)
             .map_err(anyhow::Error::from),
         Command::Dtm(a) => cli::dtm_cmd::run(a),
+        Command::Demo(a) => cli::demo_cmd::run(&a),
     };
     match code {
         Ok(c) => std::process::exit(c),

@@ -89,3 +89,33 @@ fn elevation_model_from_a_rendered_pair_meets_half_the_height_step() {
     let e = String::from_utf8_lossy(&o.stderr);
     assert!(e.contains("bad.toml") && e.contains("h_step"), "{e}");
 }
+
+#[test]
+fn the_demo_runs_the_whole_chain_and_meets_half_the_height_step() {
+    let d = tempfile::tempdir().unwrap();
+    let out = d.path().join("demo");
+    let o = run_ok(
+        rig()
+            .args(["demo", "--quick", "--seed", "2", "--out"])
+            .arg(&out),
+    );
+    let text = String::from_utf8_lossy(&o.stdout);
+    eprintln!("{text}");
+    let v: Value =
+        serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
+    let t = &v["dtm"]["dtm"];
+    let rmse = t["comparison"]["rmse_m"].as_f64().unwrap();
+    let step = t["params"]["sweep"]["h_step"].as_f64().unwrap();
+    assert!(rmse <= 0.5 * step, "demo RMSE {rmse} m, step {step} m");
+    assert!(t["remaining_percent"].as_f64().unwrap() > 90.0);
+    for f in [
+        "scan-photo-1/stereo.tiff",
+        "scan-photo-2/stereo.tiff",
+        "dtm/dem.tif",
+        "dtm/hillshade.png",
+        "project.toml",
+    ] {
+        assert!(out.join(f).is_file(), "{f}");
+    }
+    assert!(text.contains("RMSE"));
+}

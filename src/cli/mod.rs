@@ -3,6 +3,7 @@
 pub mod calibrate_cmd;
 pub mod camera_cmd;
 pub mod connect;
+pub mod demo_cmd;
 pub mod dtm_cmd;
 pub mod scan_cmd;
 pub mod scene_cmd;
@@ -40,6 +41,17 @@ pub struct Cli {
 
 #[derive(Debug, Subcommand)]
 pub enum Command {
+    /// The whole chain on the built-in simulator: calibrate, orient and scan two overlapping
+    /// photos, compute their elevation model, compare it with the true DEM.
+    ///
+    /// Example:
+    ///   rig demo --out demo
+    ///
+    /// Every step is a real `rig` command, printed before it runs; everything lands in --out
+    /// (sessions/, scan-photo-1/, scan-photo-2/, project.toml, dtm/, report.json).
+    /// Exit codes: 0 done; 2 bad usage; 1 a step failed (the message says which).
+    #[command(verbatim_doc_comment)]
+    Demo(demo_cmd::DemoArgs),
     /// Drive the X/Y stages: status, home, move, jog, stop.
     ///
     /// Positions are carriage coordinates in millimetres, 0..travel on both axes, whatever
