@@ -75,6 +75,32 @@ fn elevation_model_from_a_rendered_pair_meets_half_the_height_step() {
         let g = rig::matching::output::read_geotiff(&out.join("dem.tif")).unwrap();
         assert!(g.filled() > 1000);
     }
+    // The mappings given directly (the first run's pmfs.json): the same model, byte for byte.
+    let p = scene.join("dtm-file.toml");
+    let first = d.path().join("dtm-points");
+    std::fs::write(
+        &p,
+        project.replace(
+            "from = \"points\"",
+            &format!(
+                "from = \"file\"\nfile = \"{}\"",
+                first.join("pmfs.json").display()
+            ),
+        ),
+    )
+    .unwrap();
+    let again = d.path().join("dtm-file");
+    run_ok(
+        rig()
+            .args(["dtm", "pmf", "--project"])
+            .arg(&p)
+            .arg("--out")
+            .arg(&again),
+    );
+    assert_eq!(
+        std::fs::read(first.join("dem.tif")).unwrap(),
+        std::fs::read(again.join("dem.tif")).unwrap()
+    );
     // A project with a bad value names the file and the field.
     let bad = scene.join("bad.toml");
     std::fs::write(&bad, project.replace("h_step = 2", "h_step = -2")).unwrap();

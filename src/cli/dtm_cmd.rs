@@ -29,7 +29,8 @@ pub enum DtmAction {
     /// by the height and population criteria, gridding, comparison with a reference.
     ///
     /// Writes into --out: dem.tif (float32 GeoTIFF, nodata −9999), points.ply, hillshade.png,
-    /// error.png (with a reference), report.json.
+    /// error.png (with a reference), report.json, pmfs.json (the mappings, reusable with
+    /// `from = "file"`).
     #[command(verbatim_doc_comment)]
     Pmf {
         /// The project file (TOML; see the README; `rig sim scene` writes one).
@@ -69,6 +70,17 @@ pub fn run_project(p: &Project, out: &Path) -> anyhow::Result<(PmfDtm, serde_jso
                     p.points.file.display()
                 )
             })?
+        }
+        PmfSource::File => {
+            let f = p
+                .pmf
+                .file
+                .as_ref()
+                .expect("checked when the project was read");
+            let text = std::fs::read_to_string(f)
+                .with_context(|| format!("reading the mappings {}", f.display()))?;
+            serde_json::from_str::<PmfSet>(&text)
+                .with_context(|| format!("{}: not a set of mapping functions", f.display()))?
         }
         PmfSource::Rigorous => {
             let orient = |s: &ScannedPhoto, px: &dyn Fn(&StereoPoint) -> [f64; 2]| {
@@ -162,6 +174,7 @@ pub fn run_project(p: &Project, out: &Path) -> anyhow::Result<(PmfDtm, serde_jso
     let doc = json!({"project": p.path, "pmf_from": p.pmf.from, "orientation": orientation,
                      "pmf": pmfs.report, "dtm": r.report});
     rig::digitise::output::write_json(&out.join("report.json"), &doc)?;
+    rig::digitise::output::write_json(&out.join("pmfs.json"), &serde_json::to_value(&pmfs)?)?;
     Ok((r, doc))
 }
 

@@ -44,6 +44,9 @@ pub struct PmfSection {
     /// grid at several heights (seed 004).
     #[serde(default)]
     pub from: PmfSource,
+    /// With `from = "file"`: the mappings as JSON (the `pmfs.json` that `rig dtm pmf` writes,
+    /// or coefficients from elsewhere in that form).
+    pub file: Option<PathBuf>,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Deserialize, Serialize)]
@@ -52,6 +55,7 @@ pub enum PmfSource {
     #[default]
     Points,
     Rigorous,
+    File,
 }
 
 fn two() -> u8 {
@@ -129,6 +133,7 @@ fn default_pmf() -> PmfSection {
     PmfSection {
         order: 2,
         from: PmfSource::Points,
+        file: None,
     }
 }
 
@@ -182,6 +187,12 @@ impl Project {
         p.photos.left = base.join(&p.photos.left);
         p.photos.right = base.join(&p.photos.right);
         p.points.file = base.join(&p.points.file);
+        p.pmf.file = p.pmf.file.map(|f| base.join(f));
+        if p.pmf.from == PmfSource::File && p.pmf.file.is_none() {
+            return Err(bad(
+                "[pmf] from = \"file\" needs file = \"pmfs.json\" (the mappings as `rig dtm pmf` writes them)".into(),
+            ));
+        }
         p.grid.reference = p.grid.reference.map(|r| base.join(r));
         p.path = path.to_path_buf();
         Ok(p)
