@@ -7,9 +7,8 @@
 mod common;
 
 use criterion::{criterion_group, Criterion};
-use rig::coords::{GroundM, PhotoMm};
 use rig::digitise::ImageF32;
-use rig::geometry::{Exterior, FrameCamera, Interior};
+use rig::geometry::FrameCamera;
 use rig::matching::pmf::Mapping;
 use rig::matching::sweep::{sweep, SweepParams};
 use rig::matching::{PmfSet, RigorousPhoto};
@@ -26,20 +25,8 @@ struct Case {
 }
 
 fn photo(a: &AerialPhoto, g: PhotoGrid) -> (RigorousPhoto, ImageF32) {
-    let e = a.exterior;
     let r = RigorousPhoto {
-        camera: FrameCamera {
-            interior: Interior {
-                focal_mm: a.focal_mm,
-                principal_point: PhotoMm::new(0.0, 0.0),
-            },
-            exterior: Exterior::from_degrees(
-                e.omega_deg,
-                e.phi_deg,
-                e.kappa_deg,
-                GroundM::new(e.x0_m, e.y0_m, e.z0_m),
-            ),
-        },
+        camera: FrameCamera::of_simulated(a),
         grid: g,
     };
     let img = ImageF32 {

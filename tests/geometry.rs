@@ -2,23 +2,11 @@
 //! separate implementation): projection, space intersection, space resection.
 
 use rig::coords::{GroundM, PhotoMm};
-use rig::geometry::{intersect, resect, Exterior, FrameCamera, Interior};
+use rig::geometry::{intersect, resect, FrameCamera};
 use rig_sim::scene::{jacksboro, AerialPhoto};
 
 fn camera(p: &AerialPhoto) -> FrameCamera {
-    let e = p.exterior;
-    FrameCamera {
-        interior: Interior {
-            focal_mm: p.focal_mm,
-            principal_point: PhotoMm::new(0.0, 0.0),
-        },
-        exterior: Exterior::from_degrees(
-            e.omega_deg,
-            e.phi_deg,
-            e.kappa_deg,
-            GroundM::new(e.x0_m, e.y0_m, e.z0_m),
-        ),
-    }
+    FrameCamera::of_simulated(p)
 }
 
 fn photos() -> (AerialPhoto, AerialPhoto) {

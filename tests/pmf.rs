@@ -1,27 +1,15 @@
 //! Polynomial mapping functions derived from the rigorous model of two simulated photos
 //! (seed 004 §4), checked against that model at points it was not fitted to.
 
-use rig::coords::{GroundM, PhotoMm};
-use rig::geometry::{Exterior, FrameCamera, Interior};
+use rig::coords::GroundM;
+use rig::geometry::FrameCamera;
 use rig::matching::{PmfSet, RigorousPhoto};
 use rig::scan::PhotoGrid;
 use rig_sim::scene::{jacksboro, AerialPhoto};
 
 fn rigorous(p: &AerialPhoto, area: [f64; 4]) -> RigorousPhoto {
-    let e = p.exterior;
     RigorousPhoto {
-        camera: FrameCamera {
-            interior: Interior {
-                focal_mm: p.focal_mm,
-                principal_point: PhotoMm::new(0.0, 0.0),
-            },
-            exterior: Exterior::from_degrees(
-                e.omega_deg,
-                e.phi_deg,
-                e.kappa_deg,
-                GroundM::new(e.x0_m, e.y0_m, e.z0_m),
-            ),
-        },
+        camera: FrameCamera::of_simulated(p),
         grid: PhotoGrid::covering(area, 0.025),
     }
 }

@@ -1,29 +1,17 @@
 //! Height-sweep matching on two photos rendered by the simulator over the real DEM: heights
 //! against the DEM itself.
 
-use rig::coords::{GroundM, PhotoMm, PixelXY};
+use rig::coords::PixelXY;
 use rig::digitise::ImageF32;
-use rig::geometry::{Exterior, FrameCamera, Interior};
+use rig::geometry::FrameCamera;
 use rig::matching::sweep::{sweep, SweepParams};
 use rig::matching::{PmfSet, RigorousPhoto};
 use rig::scan::PhotoGrid;
 use rig_sim::scene::{jacksboro, AerialPhoto};
 
 fn rigorous(p: &AerialPhoto, grid: PhotoGrid) -> RigorousPhoto {
-    let e = p.exterior;
     RigorousPhoto {
-        camera: FrameCamera {
-            interior: Interior {
-                focal_mm: p.focal_mm,
-                principal_point: PhotoMm::new(0.0, 0.0),
-            },
-            exterior: Exterior::from_degrees(
-                e.omega_deg,
-                e.phi_deg,
-                e.kappa_deg,
-                GroundM::new(e.x0_m, e.y0_m, e.z0_m),
-            ),
-        },
+        camera: FrameCamera::of_simulated(p),
         grid,
     }
 }

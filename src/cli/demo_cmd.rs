@@ -166,44 +166,12 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<i32> {
     )?;
     let truth = super::scene_cmd::truth_grid(&p1, AREA, 10.0);
     rig::matching::output::write_geotiff(&out.join("truth-dem.tif"), &truth)?;
-    let step_m = 2.0;
     std::fs::write(
         out.join("project.toml"),
-        format!(
-            r#"# Written by `rig demo`: the two scanned photos, their control points, seed 000's parameters.
-[photos]
-left = "{l}"
-right = "{r}"
-
-[points]
-file = "points.json"
-
-[pmf]
-order = 2
-from = "points"
-
-[matching]
-h_min = {lo:.0}
-h_max = {hi:.0}
-h_step = {step_m}
-window = 9
-threshold = 0.5
-
-[regions]
-search_distance = 2
-height_threshold = {thr}
-population_threshold = 200
-
-[grid]
-cell_m = 10.0
-reference = "truth-dem.tif"
-flying_height_m = 6500.0
-"#,
-            l = sidecars[0].display(),
-            r = sidecars[1].display(),
-            lo = hs[0] - 30.0,
-            hi = hs[1] + 30.0,
-            thr = 1.5 * step_m
+        super::scene_cmd::project_toml(
+            "# Written by `rig demo`: the two scanned photos, their control points, seed 000's parameters.",
+            [&sidecars[0], &sidecars[1]],
+            hs,
         ),
     )?;
     // 5. The elevation model.
@@ -264,9 +232,10 @@ flying_height_m = 6500.0
         t["remaining_percent"].as_f64().unwrap_or(f64::NAN)
     );
     println!(
-        "  elevation model vs the true DEM: RMSE {:.2} m ({:.3} ‰ of the 6 500 m flying height; height step {step_m} m), mean {:+.2} m, max +{:.2} / {:.2} m over {} nodes",
+        "  elevation model vs the true DEM: RMSE {:.2} m ({:.3} ‰ of the 6 500 m flying height; height step {} m), mean {:+.2} m, max +{:.2} / {:.2} m over {} nodes",
         c["rmse_m"].as_f64().unwrap_or(f64::NAN),
         t["rmse_permille_of_flying_height"].as_f64().unwrap_or(f64::NAN),
+        super::scene_cmd::HEIGHT_STEP_M,
         c["mean_m"].as_f64().unwrap_or(f64::NAN),
         c["max_positive_m"].as_f64().unwrap_or(f64::NAN),
         c["max_negative_m"].as_f64().unwrap_or(f64::NAN),
