@@ -58,6 +58,9 @@ pub fn load_photo(sidecar: &Path) -> anyhow::Result<(ScannedPhoto, ImageF32)> {
 
 /// Runs a project into `out`; returns the result and the report document.
 pub fn run_project(p: &Project, out: &Path) -> anyhow::Result<(PmfDtm, serde_json::Value)> {
+    if out.exists() && std::fs::read_dir(out)?.next().is_some() {
+        anyhow::bail!("{} is not empty: give a new directory", out.display());
+    }
     let (sl, left) = load_photo(&p.photos.left)?;
     let (sr, right) = load_photo(&p.photos.right)?;
     let pts = p.points()?;
@@ -155,9 +158,6 @@ pub fn run_project(p: &Project, out: &Path) -> anyhow::Result<(PmfDtm, serde_jso
         f.as_ref().map(|f| f as &dyn Fn(f64, f64) -> f64),
         p.grid.flying_height_m,
     );
-    if out.exists() && std::fs::read_dir(out)?.next().is_some() {
-        anyhow::bail!("{} is not empty: give a new directory", out.display());
-    }
     std::fs::create_dir_all(out)?;
     write_geotiff(&out.join("dem.tif"), &r.grid)?;
     write_ply(&out.join("points.ply"), &r.points)?;

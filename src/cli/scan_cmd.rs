@@ -236,7 +236,9 @@ pub fn run(a: ScanArgs) -> anyhow::Result<i32> {
             out,
             no_home,
         } => {
-            let (mut s, cal) = load(&a, script)?;
+            // A resumed scan keeps the calibration it began with (calibration.json in its
+            // directory), whatever the sessions hold now.
+            let mut s = ScanScript::load(script)?;
             if let Some(o) = out {
                 s.out_dir = o.clone();
             }
@@ -244,6 +246,7 @@ pub fn run(a: ScanArgs) -> anyhow::Result<i32> {
             let mut sd = if *resume {
                 ScanDir::resume(&dir, s)?
             } else {
+                let (s, cal) = (s, load(&a, script)?.1);
                 let p = match plan(&s, &cal) {
                     Ok(p) => p,
                     Err(e) => {

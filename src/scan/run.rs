@@ -316,9 +316,23 @@ pub fn run(
         if opt.home {
             rig.stage.home()?;
         }
-        rig.camera.set_gain(Some(sd.script.capture.gain))?;
+        // A camera without the control scans on at its own setting; the log says so (with
+        // automatic gain the flat field still evens out what stays fixed, not what drifts).
+        match rig.camera.set_gain(Some(sd.script.capture.gain)) {
+            Err(CameraError::Unsupported(what)) => sd.log.event(
+                "note",
+                json!({"camera": format!("{what} not supported: gain left to the camera")}),
+            )?,
+            r => r?,
+        }
         if let Some(e) = sd.script.capture.exposure_ms {
-            rig.camera.set_exposure_ms(e)?;
+            match rig.camera.set_exposure_ms(e) {
+                Err(CameraError::Unsupported(what)) => sd.log.event(
+                    "note",
+                    json!({"camera": format!("{what} not supported: exposure left to the camera")}),
+                )?,
+                r => r?,
+            }
         }
     }
     if let (Some(at), None) = (sd.manifest.plan.flat_stage_um, &sd.manifest.flat) {
