@@ -84,6 +84,12 @@ pub fn read_geotiff(path: &Path) -> std::io::Result<ElevationGrid> {
             )))
         }
     };
+    if scale.len() < 2 || tie.len() < 6 || scale[0] <= 0.0 || scale[0] != scale[1] {
+        return Err(std::io::Error::other(format!(
+            "{}: needs square cells and a tie point (ModelPixelScale, ModelTiepoint)",
+            path.display()
+        )));
+    }
     let cell = scale[0];
     Ok(ElevationGrid {
         x0: tie[3] + 0.5 * cell,
