@@ -45,6 +45,35 @@ pub struct Fit {
     pub residuals: Vec<Residual>,
 }
 
+/// The inverse of a 2×2 matrix; `None` when it is singular.
+pub fn inv2(m: [[f64; 2]; 2]) -> Option<[[f64; 2]; 2]> {
+    let det = m[0][0] * m[1][1] - m[0][1] * m[1][0];
+    (det.abs() > 1e-12).then(|| {
+        [
+            [m[1][1] / det, -m[0][1] / det],
+            [-m[1][0] / det, m[0][0] / det],
+        ]
+    })
+}
+
+/// `m·v`.
+pub fn mul2(m: [[f64; 2]; 2], v: [f64; 2]) -> [f64; 2] {
+    [
+        m[0][0] * v[0] + m[0][1] * v[1],
+        m[1][0] * v[0] + m[1][1] * v[1],
+    ]
+}
+
+/// The 2×2 part of affine parameters a0, a1, a2, b0, b1, b2.
+pub fn linear_part(p: &[f64; 6]) -> [[f64; 2]; 2] {
+    [[p[1], p[2]], [p[4], p[5]]]
+}
+
+/// The linear part's inverse applied to `d` (NaN when it is singular).
+pub fn solve_linear(p: &[f64; 6], d: [f64; 2]) -> [f64; 2] {
+    inv2(linear_part(p)).map_or([f64::NAN; 2], |m| mul2(m, d))
+}
+
 impl Fit {
     pub fn apply(&self, p: [f64; 2]) -> [f64; 2] {
         let a = &self.params;
@@ -56,12 +85,7 @@ impl Fit {
 
     /// The inverse of the 2×2 part applied to a vector of the target system.
     pub fn inverse_linear(&self, d: [f64; 2]) -> [f64; 2] {
-        let a = &self.params;
-        let det = a[1] * a[5] - a[2] * a[4];
-        [
-            (a[5] * d[0] - a[2] * d[1]) / det,
-            (-a[4] * d[0] + a[1] * d[1]) / det,
-        ]
+        solve_linear(&self.params, d)
     }
 
     /// The RMS of both coordinates' residuals together.

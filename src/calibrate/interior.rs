@@ -32,18 +32,14 @@ impl PixelTransform {
     }
 
     pub fn um_per_px(&self) -> [[f64; 2]; 2] {
-        let a = &self.params;
-        [[a[1], a[2]], [a[4], a[5]]]
+        super::affine_fit::linear_part(&self.params)
     }
 
     /// The pixel that sees the stage position itself.
     pub fn mark(&self) -> PixelXY {
         let a = &self.params;
-        let det = a[1] * a[5] - a[2] * a[4];
-        PixelXY::new(
-            (-a[5] * a[0] + a[2] * a[3]) / det,
-            (a[4] * a[0] - a[1] * a[3]) / det,
-        )
+        let [c, r] = super::affine_fit::solve_linear(a, [-a[0], -a[3]]);
+        PixelXY::new(c, r)
     }
 
     /// From a pixel session's results.json.

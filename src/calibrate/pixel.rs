@@ -8,7 +8,7 @@
 //! carriage C appears where `C − S = A·p + t`; the mark (the pixel that sees S itself) is
 //! `−A⁻¹·t`.
 
-use super::affine_fit::{fit, Fit, FitError, Model};
+use super::affine_fit::{fit, inv2, Fit, FitError, Model};
 use super::measure::{measure, MarkResult, MarkTemplates, Quality};
 use super::session::Session;
 use crate::camera::Camera;
@@ -144,16 +144,6 @@ pub struct PixelCalibration {
     pub linear4: Option<Fit>,
     /// Coarse and fine matching of every cross measured (seed Table 1).
     pub matching: Option<super::measure::MatchTable>,
-}
-
-fn inv2(m: [[f64; 2]; 2]) -> Option<[[f64; 2]; 2]> {
-    let det = m[0][0] * m[1][1] - m[0][1] * m[1][0];
-    (det.abs() > 1e-12).then(|| {
-        [
-            [m[1][1] / det, -m[0][1] / det],
-            [-m[1][0] / det, m[0][0] / det],
-        ]
-    })
 }
 
 fn mul2(m: [[f64; 2]; 2], v: [f64; 2]) -> [f64; 2] {

@@ -4,6 +4,7 @@
 //! limits, speeds) so that a scan can be planned without the hardware.
 
 use super::script::FiducialVersion;
+use crate::calibrate::affine_fit::{inv2, mul2, solve_linear};
 use crate::calibrate::PixelTransform;
 use crate::coords::{CarriageUm, PhotoMm, PixelXY};
 use crate::stage::SoftLimits;
@@ -185,12 +186,8 @@ impl ScanCalibration {
 
     pub fn carriage(&self, p: PhotoMm) -> CarriageUm {
         let c = &self.carriage_to_photo;
-        let det = c[1] * c[5] - c[2] * c[4];
-        let (dx, dy) = (p.x * 1000.0 - c[0], p.y * 1000.0 - c[3]);
-        CarriageUm::new(
-            (c[5] * dx - c[2] * dy) / det,
-            (-c[4] * dx + c[1] * dy) / det,
-        )
+        let [x, y] = solve_linear(c, [p.x * 1000.0 - c[0], p.y * 1000.0 - c[3]]);
+        CarriageUm::new(x, y)
     }
 
     /// Photo point seen at pixel `q` with the stage at `stage`.
@@ -216,15 +213,8 @@ impl ScanCalibration {
                 (c[4] * a[2] + c[5] * a[5]) / 1000.0,
             ],
         ];
-        let det = ca[0][0] * ca[1][1] - ca[0][1] * ca[1][0];
-        let m = [
-            [ca[1][1] / det, -ca[0][1] / det],
-            [-ca[1][0] / det, ca[0][0] / det],
-        ];
-        let t = [
-            -(m[0][0] * p0.x + m[0][1] * p0.y),
-            -(m[1][0] * p0.x + m[1][1] * p0.y),
-        ];
+        let m = inv2(ca).unwrap_or([[f64::NAN; 2]; 2]);
+        let t = mul2(m, [-p0.x, -p0.y]);
         (t, m)
     }
 
