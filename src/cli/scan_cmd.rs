@@ -7,7 +7,7 @@ use rig::scan::run::{Outcome, Progress, RunOptions, ScanRig};
 use rig::scan::{plan, Plan, ScanCalibration, ScanDir, ScanScript};
 use serde_json::json;
 use std::io::IsTerminal;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 
@@ -72,10 +72,9 @@ pub enum ScanAction {
     },
 }
 
-/// The script and its calibration; the operator's --limits tighten the recorded soft limits.
-fn load(a: &ScanArgs, script: &Path) -> anyhow::Result<(ScanScript, ScanCalibration)> {
+/// The script's calibration; the operator's --limits tighten the recorded soft limits.
+fn calibration(a: &ScanArgs, s: &ScanScript) -> anyhow::Result<ScanCalibration> {
     let store = &a.store;
-    let s = ScanScript::load(script)?;
     let interior = match &s.interior_session {
         Some(d) => d.clone(),
         None => rig::calibrate::session::list(store, "interior")?
@@ -83,7 +82,7 @@ fn load(a: &ScanArgs, script: &Path) -> anyhow::Result<(ScanScript, ScanCalibrat
             .with_context(|| {
                 format!(
                     "{}: [film] names no interior_session and {} has none: run `rig calibrate interior` or name one",
-                    script.display(),
+                    s.path.display(),
                     store.display()
                 )
             })?,
@@ -92,7 +91,7 @@ fn load(a: &ScanArgs, script: &Path) -> anyhow::Result<(ScanScript, ScanCalibrat
     if let Some(l) = &a.conn.limits {
         cal.rig.limits = cal.rig.limits.intersect(l);
     }
-    Ok((s, cal))
+    Ok(cal)
 }
 
 fn duration(s: f64) -> String {
@@ -207,7 +206,8 @@ fn progress_printer(json: bool) -> impl FnMut(Progress) {
 pub fn run(a: ScanArgs) -> anyhow::Result<i32> {
     match &a.action {
         ScanAction::Plan { script, plot } => {
-            let (s, cal) = load(&a, script)?;
+            let s = ScanScript::load(script)?;
+            let cal = calibration(&a, &s)?;
             let p = match plan(&s, &cal) {
                 Ok(p) => p,
                 Err(e) => {
@@ -246,7 +246,7 @@ pub fn run(a: ScanArgs) -> anyhow::Result<i32> {
             let mut sd = if *resume {
                 ScanDir::resume(&dir, s)?
             } else {
-                let (s, cal) = (s, load(&a, script)?.1);
+                let cal = calibration(&a, &s)?;
                 let p = match plan(&s, &cal) {
                     Ok(p) => p,
                     Err(e) => {

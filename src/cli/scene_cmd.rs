@@ -5,6 +5,7 @@
 use anyhow::Context;
 use clap::Args;
 use rig::coords::{GroundM, PhotoMm, PixelXY};
+use rig::geometry::FrameCamera;
 use rig::matching::grid::ElevationGrid;
 use rig::matching::StereoPoint;
 use rig::scan::sidecar::{self, ScannedPhoto};
@@ -175,21 +176,16 @@ pub fn draw_points(
 /// The area of photo 2 that sees photo 1's `area` at heights `lo..hi`, with a 1 mm margin.
 pub fn matching_area(a: &AerialPhoto, b: &AerialPhoto, area: [f64; 4], hs: [f64; 2]) -> [f64; 4] {
     let (mut lo, mut hi) = ([f64::MAX; 2], [f64::MIN; 2]);
+    let (ca, cb) = (FrameCamera::of_simulated(a), FrameCamera::of_simulated(b));
     for x in [area[0], area[2]] {
         for y in [area[1], area[3]] {
-            let g = a.ground_point([x, y]);
             for z in hs {
-                // Along photo 1's ray through the corner, at height z.
-                let e = &a.exterior;
-                let t = (z - e.z0_m) / (g[2] - e.z0_m);
-                let p = [
-                    e.x0_m + t * (g[0] - e.x0_m),
-                    e.y0_m + t * (g[1] - e.y0_m),
-                    z,
-                ];
-                let q = b.project(p);
-                lo = [lo[0].min(q[0]), lo[1].min(q[1])];
-                hi = [hi[0].max(q[0]), hi[1].max(q[1])];
+                // Photo 1's ray through the corner, at height z, seen by photo 2.
+                let g = ca.at_height(PhotoMm::new(x, y), z);
+                if let Some(q) = cb.project(g) {
+                    lo = [lo[0].min(q.x), lo[1].min(q.y)];
+                    hi = [hi[0].max(q.x), hi[1].max(q.y)];
+                }
             }
         }
     }

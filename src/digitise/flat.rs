@@ -61,12 +61,7 @@ impl FlatField {
 
     /// Reads a flat saved as a 16-bit TIFF (any grey scale: only ratios matter).
     pub fn load(path: &Path) -> std::io::Result<FlatField> {
-        let (w, h, px) = super::output::read_tiff16(path)?;
-        Ok(Self::from_image(&ImageF32 {
-            width: w,
-            height: h,
-            data: px.into_iter().map(|v| v as f32).collect(),
-        }))
+        Ok(Self::from_image(&super::output::read_tiff16_f32(path)?))
     }
 }
 

@@ -27,6 +27,16 @@ pub fn read_tiff16(path: &Path) -> std::io::Result<(usize, usize, Vec<u16>)> {
     Ok((g.width() as usize, g.height() as usize, g.into_raw()))
 }
 
+/// Reads a 16-bit greyscale TIFF into an image of its counts.
+pub fn read_tiff16_f32(path: &Path) -> std::io::Result<crate::digitise::ImageF32> {
+    let (w, h, px) = read_tiff16(path)?;
+    Ok(crate::digitise::ImageF32 {
+        width: w,
+        height: h,
+        data: px.into_iter().map(|v| v as f32).collect(),
+    })
+}
+
 /// Writes JSON next to an image, atomically.
 pub fn write_json(path: &Path, v: &serde_json::Value) -> std::io::Result<()> {
     let tmp = path.with_extension("json.part");

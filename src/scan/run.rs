@@ -14,7 +14,7 @@ use super::sidecar;
 use crate::calibrate::Session;
 use crate::camera::{Camera, CameraError};
 use crate::digitise::capture::{capture, CaptureError};
-use crate::digitise::output::{read_tiff16, write_json, write_tiff16};
+use crate::digitise::output::{read_tiff16_f32, write_json, write_tiff16};
 use crate::digitise::{FlatField, ImageF32};
 use crate::stage::{Stage, StageError};
 use serde_json::json;
@@ -212,12 +212,7 @@ impl ScanDir {
     }
 
     fn read_counts(&self, rel: &str) -> std::io::Result<ImageF32> {
-        let (w, h, px) = read_tiff16(&self.dir.join(rel))?;
-        Ok(ImageF32 {
-            width: w,
-            height: h,
-            data: px.into_iter().map(|v| v as f32).collect(),
-        })
+        read_tiff16_f32(&self.dir.join(rel))
     }
 }
 
@@ -335,36 +330,38 @@ pub fn run(
             }
         }
     }
-    if let (Some(at), None) = (sd.manifest.plan.flat_stage_um, &sd.manifest.flat) {
-        let (pos, c) = take(
-            rig,
-            sd,
-            at,
-            4 * sd.script.capture.frames,
-            opt.frame_timeout,
-            None,
-        )?;
-        let rec = sd.write_counts(FLAT, &c.image)?;
-        let f = FlatField::from_image(&sd.read_counts(FLAT)?);
-        sd.log.event(
-            "flat",
-            json!({"stage_um": pos, "dark_percent": f.dark_percent}),
-        )?;
-        if !f.is_clear() {
-            let [x, y] = sd.script.capture.flat_photo_mm;
-            return Err(ScanError::FlatNotClear {
-                x,
-                y,
-                dark: f.dark_percent,
-            });
+    // The flat as stored (read back from its file), so that a resumed run divides by exactly
+    // the numbers the first one did.
+    let flat = match (sd.manifest.plan.flat_stage_um, sd.manifest.flat.clone()) {
+        (_, Some(rec)) => Some(FlatField::from_image(&sd.read_counts(&rec.file)?)),
+        (Some(at), None) => {
+            let (pos, c) = take(
+                rig,
+                sd,
+                at,
+                4 * sd.script.capture.frames,
+                opt.frame_timeout,
+                None,
+            )?;
+            let rec = sd.write_counts(FLAT, &c.image)?;
+            let f = FlatField::from_image(&sd.read_counts(FLAT)?);
+            sd.log.event(
+                "flat",
+                json!({"stage_um": pos, "dark_percent": f.dark_percent}),
+            )?;
+            if !f.is_clear() {
+                let [x, y] = sd.script.capture.flat_photo_mm;
+                return Err(ScanError::FlatNotClear {
+                    x,
+                    y,
+                    dark: f.dark_percent,
+                });
+            }
+            sd.manifest.flat = Some(rec);
+            sd.manifest.save(&sd.dir)?;
+            Some(f)
         }
-        sd.manifest.flat = Some(rec);
-        sd.manifest.save(&sd.dir)?;
-    }
-    // Always the flat as stored, so a resumed run divides by exactly the same numbers.
-    let flat = match &sd.manifest.flat {
-        Some(f) => Some(FlatField::from_image(&sd.read_counts(&f.file)?)),
-        None => None,
+        (None, None) => None,
     };
     if let Some(last) = (0..total).rev().find(|&i| sd.manifest.tiles[i].is_some()) {
         if sd.manifest.done() < total {
@@ -448,14 +445,7 @@ pub fn mosaic_all(sd: &mut ScanDir, interp: Interpolation) -> Result<Vec<PathBuf
                 let path = sd.dir.join(&r.file.file);
                 TileSource {
                     stage_um: r.stage_um,
-                    load: Box::new(move || {
-                        let (w, h, px) = read_tiff16(&path)?;
-                        Ok(ImageF32 {
-                            width: w,
-                            height: h,
-                            data: px.into_iter().map(|v| v as f32).collect(),
-                        })
-                    }),
+                    load: Box::new(move || read_tiff16_f32(&path)),
                 }
             })
             .collect();
