@@ -1,6 +1,7 @@
 //! The rig: digitise and calibrate aerial film with a camera over motorised X/Y stages, and
 //! turn the photos into elevation models. See README.md and DESIGN.md.
 
+pub mod atomic;
 pub mod calibrate;
 pub mod camera;
 pub mod coords;

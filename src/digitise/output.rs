@@ -5,18 +5,18 @@ use std::path::Path;
 
 /// Writes `px` (row-major, `width × height`) as a 16-bit greyscale TIFF at `path`, atomically.
 pub fn write_tiff16(path: &Path, width: usize, height: usize, px: &[u16]) -> std::io::Result<()> {
-    let tmp = path.with_extension("tiff.part");
     let bytes: Vec<u8> = px.iter().flat_map(|v| v.to_ne_bytes()).collect();
-    image::save_buffer_with_format(
-        &tmp,
-        &bytes,
-        width as u32,
-        height as u32,
-        image::ExtendedColorType::L16,
-        image::ImageFormat::Tiff,
-    )
-    .map_err(|e| std::io::Error::other(format!("writing {}: {e}", tmp.display())))?;
-    std::fs::rename(&tmp, path)
+    crate::atomic::write_with(path, |w| {
+        image::write_buffer_with_format(
+            w,
+            &bytes,
+            width as u32,
+            height as u32,
+            image::ExtendedColorType::L16,
+            image::ImageFormat::Tiff,
+        )
+        .map_err(std::io::Error::other)
+    })
 }
 
 /// Reads a 16-bit greyscale TIFF back (for tests and for later stages).
@@ -39,9 +39,7 @@ pub fn read_tiff16_f32(path: &Path) -> std::io::Result<crate::digitise::ImageF32
 
 /// Writes JSON next to an image, atomically.
 pub fn write_json(path: &Path, v: &serde_json::Value) -> std::io::Result<()> {
-    let tmp = path.with_extension("json.part");
-    std::fs::write(&tmp, serde_json::to_vec_pretty(v)?)?;
-    std::fs::rename(&tmp, path)
+    crate::atomic::write_json(path, v)
 }
 
 #[cfg(test)]
@@ -54,5 +52,6 @@ mod tests {
         super::write_tiff16(&p, 4, 3, &px).unwrap();
         assert_eq!(super::read_tiff16(&p).unwrap(), (4, 3, px));
         assert!(!p.with_extension("tiff.part").exists());
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
     }
 }

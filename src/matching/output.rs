@@ -20,11 +20,8 @@ fn other<E: std::fmt::Display>(path: &Path) -> impl Fn(E) -> std::io::Error + '_
 /// north-west node's cell corner, square cells; a local projected system in metres (no EPSG
 /// code: the ground system is the project's own). Atomic (temporary file, rename).
 pub fn write_geotiff(path: &Path, grid: &ElevationGrid) -> std::io::Result<()> {
-    let tmp = path.with_extension("tif.part");
-    {
-        let f = std::fs::File::create(&tmp)?;
-        let mut w = std::io::BufWriter::new(f);
-        let mut enc = TiffEncoder::new(&mut w).map_err(other(path))?;
+    crate::atomic::write_with(path, |w| {
+        let mut enc = TiffEncoder::new(w).map_err(other(path))?;
         let mut img = enc
             .new_image::<colortype::Gray32Float>(grid.cols as u32, grid.rows as u32)
             .map_err(other(path))?;
@@ -59,9 +56,8 @@ pub fn write_geotiff(path: &Path, grid: &ElevationGrid) -> std::io::Result<()> {
             .iter()
             .map(|&v| if v.is_finite() { v } else { NODATA })
             .collect();
-        img.write_data(&data).map_err(other(path))?;
-    }
-    std::fs::rename(&tmp, path)
+        img.write_data(&data).map_err(other(path))
+    })
 }
 
 /// Reads a float32 GeoTIFF written by [`write_geotiff`] back into a grid.
@@ -105,9 +101,7 @@ pub fn read_geotiff(path: &Path) -> std::io::Result<ElevationGrid> {
 
 /// Binary little-endian PLY of points (x, y, z as doubles, then the matching correlation).
 pub fn write_ply(path: &Path, pts: &[(GroundM, f32)]) -> std::io::Result<()> {
-    let tmp = path.with_extension("ply.part");
-    {
-        let mut w = std::io::BufWriter::new(std::fs::File::create(&tmp)?);
+    crate::atomic::write_with(path, |w| {
         write!(
             w,
             "ply\nformat binary_little_endian 1.0\ncomment rig matched points, ground metres\nelement vertex {}\nproperty double x\nproperty double y\nproperty double z\nproperty float quality\nend_header\n",
@@ -119,23 +113,22 @@ pub fn write_ply(path: &Path, pts: &[(GroundM, f32)]) -> std::io::Result<()> {
             w.write_all(&p.z.to_le_bytes())?;
             w.write_all(&q.to_le_bytes())?;
         }
-        w.flush()?;
-    }
-    std::fs::rename(&tmp, path)
+        Ok(())
+    })
 }
 
 fn save_rgb(path: &Path, w: usize, h: usize, rgb: Vec<u8>) -> std::io::Result<()> {
-    let tmp = path.with_extension("png.part");
-    image::save_buffer_with_format(
-        &tmp,
-        &rgb,
-        w as u32,
-        h as u32,
-        image::ExtendedColorType::Rgb8,
-        image::ImageFormat::Png,
-    )
-    .map_err(other(path))?;
-    std::fs::rename(&tmp, path)
+    crate::atomic::write_with(path, |f| {
+        image::write_buffer_with_format(
+            f,
+            &rgb,
+            w as u32,
+            h as u32,
+            image::ExtendedColorType::Rgb8,
+            image::ImageFormat::Png,
+        )
+        .map_err(other(path))
+    })
 }
 
 /// Hillshade (sun from the north-west, 45° up) of the grid; nodata in pale blue.

@@ -6,7 +6,6 @@
 use super::plan::Plan;
 use crate::coords::CarriageUm;
 use serde::{Deserialize, Serialize};
-use std::io::Write;
 use std::path::Path;
 
 pub const MANIFEST: &str = "manifest.json";
@@ -53,27 +52,7 @@ pub fn fnv64(bytes: &[u8]) -> String {
     format!("{h:016x}")
 }
 
-/// Writes `bytes` to `path` so that a crash leaves either the old file or the new one.
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
-    let tmp = path.with_extension("part");
-    {
-        let mut f = std::fs::File::create(&tmp)?;
-        f.write_all(bytes)?;
-        f.sync_all()?;
-    }
-    std::fs::rename(&tmp, path)?;
-    if let Some(dir) = path.parent() {
-        // The rename itself must reach the disk too.
-        if let Ok(d) = std::fs::File::open(if dir.as_os_str().is_empty() {
-            Path::new(".")
-        } else {
-            dir
-        }) {
-            let _ = d.sync_all();
-        }
-    }
-    Ok(())
-}
+pub use crate::atomic::write as write_atomic;
 
 impl Manifest {
     pub fn new(script: &Path, script_text: &str, plan: Plan) -> Manifest {
@@ -129,15 +108,5 @@ mod tests {
         assert_eq!(fnv64(b""), "cbf29ce484222325");
         assert_eq!(fnv64(b"a"), "af63dc4c8601ec8c");
         assert_eq!(fnv64(b"foobar"), "85944171f73967e8");
-    }
-
-    #[test]
-    fn atomic_writes_leave_no_part_file() {
-        let d = tempfile::tempdir().unwrap();
-        let p = d.path().join("m.json");
-        write_atomic(&p, b"one").unwrap();
-        write_atomic(&p, b"two").unwrap();
-        assert_eq!(std::fs::read(&p).unwrap(), b"two");
-        assert!(!d.path().join("m.part").exists());
     }
 }

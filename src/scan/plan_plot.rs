@@ -82,8 +82,8 @@ pub fn plan_plot(
             }
         }
     }
-    let tmp = path.with_extension("png.part");
-    img.save_with_format(&tmp, image::ImageFormat::Png)
-        .map_err(std::io::Error::other)?;
-    std::fs::rename(&tmp, path)
+    crate::atomic::write_with(path, |w| {
+        img.write_to(w, image::ImageFormat::Png)
+            .map_err(std::io::Error::other)
+    })
 }

@@ -492,17 +492,17 @@ fn preview(path: &Path, grid: &PhotoGrid, px: &[u16]) -> std::io::Result<()> {
     }
     let (v, _) = crate::digitise::stretch(&small, 0.5, 99.5);
     let bytes: Vec<u8> = v.iter().map(|&x| (x >> 8) as u8).collect();
-    let tmp = path.with_extension("png.part");
-    image::save_buffer_with_format(
-        &tmp,
-        &bytes,
-        small.width as u32,
-        small.height as u32,
-        image::ExtendedColorType::L8,
-        image::ImageFormat::Png,
-    )
-    .map_err(std::io::Error::other)?;
-    std::fs::rename(&tmp, path)
+    crate::atomic::write_with(path, |w| {
+        image::write_buffer_with_format(
+            w,
+            &bytes,
+            small.width as u32,
+            small.height as u32,
+            image::ExtendedColorType::L8,
+            image::ImageFormat::Png,
+        )
+        .map_err(std::io::Error::other)
+    })
 }
 
 fn sidecar_for(
