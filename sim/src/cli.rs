@@ -57,9 +57,31 @@ pub struct SimArgs {
     /// Leave these fiducials off the film (comma-separated ids, 1–8).
     #[arg(long, value_name = "IDS", value_delimiter = ',')]
     pub missing_fiducials: Vec<u32>,
+    /// GRBL only: a setting that differs from the simulated board's defaults, as `N=VALUE`
+    /// (repeatable), e.g. `--grbl-setting 10=0` (WPos reports), `13=1` (inches), `23=3`
+    /// (home toward the − switches; the switches are placed for it).
+    #[arg(long, value_name = "N=VALUE", value_parser = parse_setting)]
+    pub grbl_setting: Vec<(u32, f64)>,
     /// Probability that a camera frame is lost on the way.
     #[arg(long, default_value_t = 0.0, value_name = "P")]
     pub camera_drop: f64,
+}
+
+/// `N=VALUE` with N a setting number and VALUE any number GRBL would store.
+pub fn parse_setting(s: &str) -> Result<(u32, f64), String> {
+    let (k, v) = s
+        .trim_start_matches('$')
+        .split_once('=')
+        .ok_or_else(|| format!("`{s}`: expected N=VALUE, e.g. 23=3"))?;
+    let k: u32 = k
+        .trim()
+        .parse()
+        .map_err(|_| format!("`{s}`: setting number `{k}` is not 0..=4294967295"))?;
+    let v: f64 = v
+        .trim()
+        .parse()
+        .map_err(|_| format!("`{s}`: value `{v}` is not a number"))?;
+    Ok((k, v))
 }
 
 fn parse_faults(s: &str) -> Result<FaultSpec, String> {
@@ -85,6 +107,7 @@ pub fn run(args: SimArgs) -> std::io::Result<()> {
         truth: args.truth,
         stage_link: args.stage_link,
         start_homed: args.start_homed,
+        grbl_settings: args.grbl_setting,
         film: args.film,
         dirty_crosses: args.dirty_crosses,
         missing_fiducials: args.missing_fiducials,

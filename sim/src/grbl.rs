@@ -1,7 +1,14 @@
 //! A GRBL 1.1 controller (the documented interface: `ok`/`error:N`, `ALARM:N`, `<…>` status
 //! reports, the real-time bytes `?` `!` `~` 0x18 0x85, `$H`, `$J=`, `$X`, `$$`, the banner),
-//! on the simulated stage. GRBL reports machine coordinates (MPos) in mm; with homing toward
-//! the + switches, as GRBL does by default, they run from -max travel to 0 after homing.
+//! on the simulated stage. Machine coordinates run from -max travel to 0 after homing, whichever
+//! way the axes home (`$23`): machine zero on a + switch, minus the max travel on a − switch.
+//! As the interface documents, and unlike an eager emulator:
+//! - a status request during a homing cycle is not answered then: GRBL services it once the
+//!   cycle has ended, as one late `<Home|…>` report before the `$H`'s `ok` (requests coalesce);
+//! - `$10` chooses MPos or WPos (WPos = MPos − WCO, with a `WCO:` field every 10th report when
+//!   idle, every 30th when busy, and at once after the offset changed); `$13=1` reports inches;
+//! - an empty line is answered `ok` (hosts use it to sync);
+//! - a reset during homing is ALARM:6, during motion ALARM:3.
 
 use crate::stage::{MotionKind, Stage, StageEvent, StopCause};
 use std::collections::{BTreeMap, VecDeque};
@@ -49,6 +56,21 @@ pub struct GrblFirmware {
     feed_mm_min: Option<f64>,
     pub settings: BTreeMap<u32, f64>,
     pub rx_overflow: u64,
+    /// A `?` arrived during homing: one report is owed when the cycle ends.
+    late_report: bool,
+    /// G54 and G92 offsets, machine µm: WCO = their sum.
+    g54_um: [f64; 2],
+    g92_um: [f64; 2],
+    /// Reports until the next one carries `WCO:` (GRBL's `sys.report_wco_counter`).
+    wco_counter: u32,
+}
+
+/// The `$23` mask of per-axis homing directions (bit set: toward −).
+fn homing_mask(dir: [f64; 2]) -> f64 {
+    (0..2)
+        .filter(|&k| dir[k] < 0.0)
+        .map(|k| (1u32 << k) as f64)
+        .sum()
 }
 
 fn fmt_setting(v: f64) -> String {
@@ -59,8 +81,21 @@ fn fmt_setting(v: f64) -> String {
     }
 }
 
+/// `$23`'s homing direction per axis: a set bit homes that axis toward −.
+pub fn homing_dirs(mask: f64) -> [f64; 2] {
+    let m = if (0.0..256.0).contains(&mask) {
+        mask as u32
+    } else {
+        0
+    };
+    [0, 1].map(|k| if m & (1 << k) != 0 { -1.0 } else { 1.0 })
+}
+
 impl GrblFirmware {
-    pub fn new(stage: &Stage, out: &mut Vec<u8>) -> Self {
+    /// A board with its default settings, then `overrides` (as if an operator had set them
+    /// with `$N=`; not range-checked, as GRBL checks little), booting: banner and, with
+    /// homing enabled, the alarm lock.
+    pub fn new(stage: &Stage, overrides: &[(u32, f64)], out: &mut Vec<u8>) -> Self {
         let c = &stage.cfg;
         let steps_per_mm = 1000.0 / c.step_um;
         let settings: BTreeMap<u32, f64> = [
@@ -78,7 +113,7 @@ impl GrblFirmware {
             (20, 1.0),
             (21, 1.0),
             (22, 1.0),
-            (23, 0.0),
+            (23, homing_mask(c.home_dir)),
             (24, 25.0),
             (25, c.home_speed_um_s * 0.06),
             (26, 250.0),
@@ -101,6 +136,10 @@ impl GrblFirmware {
         ]
         .into_iter()
         .collect();
+        let mut settings = settings;
+        for &(k, v) in overrides {
+            settings.insert(k, v);
+        }
         let mut g = GrblFirmware {
             rx: VecDeque::new(),
             planner: VecDeque::new(),
@@ -113,6 +152,10 @@ impl GrblFirmware {
             feed_mm_min: None,
             settings,
             rx_overflow: 0,
+            late_report: false,
+            g54_um: [0.0; 2],
+            g92_um: [0.0; 2],
+            wco_counter: 0,
         };
         g.boot(stage, out, true);
         g
@@ -135,6 +178,9 @@ impl GrblFirmware {
         self.absolute = true;
         self.inches = false;
         self.feed_mm_min = None;
+        self.late_report = false;
+        self.g92_um = [0.0; 2];
+        self.wco_counter = 0;
         out.extend_from_slice(BANNER.as_bytes());
         if alarm {
             self.mode = Mode::Alarm;
@@ -165,17 +211,48 @@ impl GrblFirmware {
         self.mode_name(stage).to_string()
     }
 
-    fn status_report(&self, stage: &Stage) -> String {
-        let mut s = format!(
-            "<{}|MPos:{:.3},{:.3},0.000|FS:{},0",
-            self.mode_name(stage),
-            mm3(stage.logical(0)),
-            mm3(stage.logical(1)),
-            if stage.is_busy() {
-                self.feed_mm_min.unwrap_or(0.0).round() as i64
+    fn setting_bits(&self, k: u32) -> u32 {
+        let v = self.settings.get(&k).copied().unwrap_or(0.0);
+        if (0.0..65536.0).contains(&v) {
+            v as u32
+        } else {
+            0
+        }
+    }
+
+    fn wco(&self) -> [f64; 2] {
+        [0, 1].map(|k| self.g54_um[k] + self.g92_um[k])
+    }
+
+    /// A status report as `$10` and `$13` ask: MPos or WPos, mm (3 decimals) or inches (4).
+    fn status_report(&mut self, stage: &Stage) -> String {
+        let inch = self.setting_bits(13) & 1 != 0;
+        let fmt = |um: f64| {
+            if inch {
+                format!("{:.4}", um / 25_400.0 + 0.0)
             } else {
-                0
+                format!("{:.3}", mm3(um))
             }
+        };
+        let machine = [stage.logical(0), stage.logical(1)];
+        let wco = self.wco();
+        let (label, pos) = if self.setting_bits(10) & 1 != 0 {
+            ("MPos", machine)
+        } else {
+            ("WPos", [machine[0] - wco[0], machine[1] - wco[1]])
+        };
+        let feed = if stage.is_busy() {
+            self.feed_mm_min.unwrap_or(0.0) / if inch { 25.4 } else { 1.0 }
+        } else {
+            0.0
+        };
+        let mut s = format!(
+            "<{}|{label}:{},{},{}|FS:{},0",
+            self.mode_name(stage),
+            fmt(pos[0]),
+            fmt(pos[1]),
+            fmt(0.0),
+            feed.round() as i64
         );
         let sw = stage.switches();
         if sw != 0 {
@@ -187,12 +264,24 @@ impl GrblFirmware {
                 s.push('Y');
             }
         }
+        if self.wco_counter > 0 {
+            self.wco_counter -= 1;
+        } else {
+            self.wco_counter = if stage.is_busy() { 29 } else { 9 };
+            s.push_str(&format!(
+                "|WCO:{},{},{}",
+                fmt(wco[0]),
+                fmt(wco[1]),
+                fmt(0.0)
+            ));
+        }
         s.push_str(">\r\n");
         s
     }
 
     fn alarm(&mut self, stage: &mut Stage, code: u32, out: &mut Vec<u8>) {
         stage.halt();
+        self.late_report = false;
         self.planner.clear();
         self.current = None;
         self.sync = None;
@@ -204,7 +293,12 @@ impl GrblFirmware {
     pub fn on_bytes(&mut self, bytes: &[u8], stage: &mut Stage, out: &mut Vec<u8>) {
         for &b in bytes {
             match b {
-                b'?' => out.extend_from_slice(self.status_report(stage).as_bytes()),
+                // During homing GRBL's main loop is in the cycle: the request waits.
+                b'?' if self.mode == Mode::Home => self.late_report = true,
+                b'?' => {
+                    let r = self.status_report(stage);
+                    out.extend_from_slice(r.as_bytes())
+                }
                 b'!' => {
                     if matches!(self.mode, Mode::Run | Mode::Jog) {
                         stage.stop();
@@ -240,8 +334,14 @@ impl GrblFirmware {
 
     fn soft_reset(&mut self, stage: &mut Stage, out: &mut Vec<u8>) {
         let moving = stage.is_busy() && !matches!(stage.motion_kind(), Some(MotionKind::Dwell));
+        let homing = self.mode == Mode::Home;
         stage.halt();
-        if moving {
+        if homing {
+            // Homing fail: reset during the cycle; the reference is not set.
+            stage.lose_reference();
+            out.extend_from_slice(b"ALARM:6\r\n");
+            self.mode = Mode::Alarm;
+        } else if moving {
             // Reset while in motion: steps may be lost, so GRBL drops its position.
             stage.lose_reference();
             out.extend_from_slice(b"ALARM:3\r\n");
@@ -277,9 +377,7 @@ impl GrblFirmware {
             };
             let line: Vec<u8> = self.rx.drain(..=nl).collect();
             let line = String::from_utf8_lossy(&line[..nl]).to_string();
-            if line.trim().is_empty() {
-                continue;
-            }
+            // An empty line is answered `ok` (a host's way to sync).
             match self.line(&line, stage, out) {
                 Ok(true) => out.extend_from_slice(b"ok\r\n"),
                 Ok(false) => {} // ok deferred (sync)
@@ -364,19 +462,25 @@ impl GrblFirmware {
     ) -> Result<bool, u32> {
         let mut motion: Option<u32> = None;
         let mut dwell = false;
+        // G53: this block in machine coordinates; G10 L2/L20 P1 and G92: work offsets.
+        let (mut machine, mut g10, mut g92, mut g92_clear) = (false, false, false, false);
         let (mut absolute, mut inches) = (self.absolute, self.inches);
-        let (mut x, mut y, mut f, mut p) = (None, None, None, None);
-        for &(l, v) in words {
-            match l {
+        let (mut x, mut y, mut f, mut p, mut l) = (None, None, None, None, None);
+        for &(letter, v) in words {
+            match letter {
                 'G' => {
                     let g = (v * 10.0).round() as u32;
                     match g {
                         0 | 10 => motion = Some(g / 10),
                         40 => dwell = true,
+                        100 => g10 = true,
                         200 => inches = true,
                         210 => inches = false,
+                        530 => machine = true,
                         900 => absolute = true,
                         910 => absolute = false,
+                        920 => g92 = true,
+                        921 => g92_clear = true,
                         170 | 940 | 540 => {}
                         _ => return Err(20),
                     }
@@ -390,11 +494,12 @@ impl GrblFirmware {
                 'Z' => {} // no Z axis on this stage: accepted, nothing moves
                 'F' => f = Some(v),
                 'P' => p = Some(v),
+                'L' => l = Some(v),
                 'N' | 'S' | 'T' => {}
                 _ => return Err(20),
             }
         }
-        if jog && (dwell || motion.is_some()) {
+        if jog && (dwell || motion.is_some() || g10 || g92 || g92_clear) {
             return Err(16);
         }
         let unit = if inches { 25_400.0 } else { 1000.0 };
@@ -418,18 +523,49 @@ impl GrblFirmware {
             self.sync = Some((Sync::Dwell, Some(s)));
             return Ok(true); // deferred: `ok` after the dwell
         }
+        let here = self.planned_end(stage);
+        if g10 {
+            // G10 L2 P1: the G54 offset itself; G10 L20 P1: the offset that makes the current
+            // position read as the given work position.
+            if p.map(|p| p.round()) != Some(1.0) {
+                return Err(29); // only G54 is modelled
+            }
+            for (k, v) in [(0, x), (1, y)] {
+                if let Some(v) = v {
+                    self.g54_um[k] = match l.map(|l| l.round()) {
+                        Some(2.0) => v * unit,
+                        Some(20.0) => here[k] - self.g92_um[k] - v * unit,
+                        _ => return Err(20),
+                    };
+                }
+            }
+            self.wco_counter = 0;
+            return Ok(false);
+        }
+        if g92 || g92_clear {
+            for (k, v) in [(0, x), (1, y)] {
+                if g92_clear {
+                    self.g92_um[k] = 0.0;
+                } else if let Some(v) = v {
+                    self.g92_um[k] = here[k] - self.g54_um[k] - v * unit;
+                }
+            }
+            self.wco_counter = 0;
+            return Ok(false);
+        }
         let is_motion = jog || (motion.is_some() && (x.is_some() || y.is_some()));
         if !is_motion {
             return Ok(false);
         }
         // (deferred = false: `ok` as soon as the block is planned, as GRBL does)
-        // Target from the end of the queued path, in logical µm.
-        let base = self.planned_end(stage);
+        // Target from the end of the queued path, in logical (machine) µm.
+        let base = here;
+        let wco = if machine { [0.0; 2] } else { self.wco() };
         let mut t = base;
         for (k, v) in [(0, x), (1, y)] {
             if let Some(v) = v {
-                t[k] = if absolute {
-                    v * unit
+                t[k] = if absolute || machine {
+                    v * unit + wco[k]
                 } else {
                     base[k] + v * unit
                 };
@@ -509,7 +645,27 @@ impl GrblFirmware {
                 Ok(true)
             }
             "#" => {
-                out.extend_from_slice(b"[G54:0.000,0.000,0.000]\r\n[G28:0.000,0.000,0.000]\r\n[G30:0.000,0.000,0.000]\r\n[G92:0.000,0.000,0.000]\r\n[TLO:0.000]\r\n[PRB:0.000,0.000,0.000:0]\r\n");
+                // The offsets as they are, in the report unit ($13).
+                let inch = self.setting_bits(13) & 1 != 0;
+                let f = |um: f64| {
+                    if inch {
+                        format!("{:.4}", um / 25_400.0 + 0.0)
+                    } else {
+                        format!("{:.3}", mm3(um))
+                    }
+                };
+                let (a, b) = (self.g54_um, self.g92_um);
+                let z = f(0.0);
+                out.extend_from_slice(
+                    format!(
+                        "[G54:{},{},{z}]\r\n[G28:{z},{z},{z}]\r\n[G30:{z},{z},{z}]\r\n[G92:{},{},{z}]\r\n[TLO:{z}]\r\n[PRB:{z},{z},{z}:0]\r\n",
+                        f(a[0]),
+                        f(a[1]),
+                        f(b[0]),
+                        f(b[1])
+                    )
+                    .as_bytes(),
+                );
                 Ok(true)
             }
             "X" => {
@@ -528,7 +684,21 @@ impl GrblFirmware {
                 }
                 self.mode = Mode::Home;
                 self.sync = Some((Sync::Home, None));
-                stage.start_home();
+                // `$23` picks the switch per axis; machine zero on a + switch, minus the max
+                // travel on a − switch; then the pull-off (`$27`) away from it.
+                let dir = homing_dirs(self.settings[&23]);
+                let trip = [0, 1].map(|k| {
+                    if dir[k] > 0.0 {
+                        0.0
+                    } else {
+                        -self.settings[&(130 + k as u32)] * 1000.0
+                    }
+                });
+                stage.start_home(crate::stage::HomingCycle {
+                    dir,
+                    trip_logical_um: Some(trip),
+                    pulloff_um: Some(self.settings[&27] * 1000.0),
+                });
                 Ok(false)
             }
             _ => {
@@ -573,6 +743,7 @@ impl GrblFirmware {
             StageEvent::MotionDone(kind) => {
                 if kind == MotionKind::HomeSeek {
                     // Homing cut short (a stop during the seek): GRBL's homing failure.
+                    self.late_report = false;
                     self.alarm(stage, 9, out);
                     return;
                 }
@@ -590,6 +761,11 @@ impl GrblFirmware {
                 self.pump(stage, out);
             }
             StageEvent::Homed => {
+                if std::mem::take(&mut self.late_report) {
+                    // The request that waited through the cycle, answered before its `ok`.
+                    let r = self.status_report(stage);
+                    out.extend_from_slice(r.as_bytes());
+                }
                 self.mode = Mode::Idle;
                 if let Some((Sync::Home, _)) = self.sync {
                     self.sync = None;

@@ -261,7 +261,7 @@ impl NativeFirmware {
                 if stage.is_busy() {
                     return nak(NakCode::Busy);
                 }
-                stage.start_home();
+                stage.start_home(crate::stage::HomingCycle::NATIVE);
                 Message::Ack
             }
             Message::MoveAbs {

@@ -45,6 +45,11 @@ pub struct SimConfig {
     pub stage_link: Option<PathBuf>,
     /// Start as if homed before (for one-shot commands against an embedded simulator).
     pub start_homed: bool,
+    /// GRBL settings that differ from the simulated board's defaults (`$N=value`, as an
+    /// operator may have set them: `$10` report mask, `$13` inches, `$23` homing directions,
+    /// or absurd values for hostile tests). `$23` also decides which end the board's homing
+    /// switches are at.
+    pub grbl_settings: Vec<(u32, f64)>,
     /// A film lies on the carriage.
     pub film: bool,
     /// Crosses of the plate with a smudge of dirt over their centre.
@@ -69,6 +74,7 @@ impl Default for SimConfig {
             truth: None,
             stage_link: None,
             start_homed: false,
+            grbl_settings: Vec::new(),
             film: false,
             dirty_crosses: Vec::new(),
             missing_fiducials: Vec::new(),
@@ -131,12 +137,17 @@ pub struct World {
 impl World {
     pub fn new(cfg: &SimConfig) -> Arc<World> {
         let mut rng = Rng::new(cfg.seed);
-        let home_dir = if cfg.dialect == Dialect::Grbl {
-            1.0
+        let mut stage_cfg = if cfg.dialect == Dialect::Grbl {
+            let mask = cfg
+                .grbl_settings
+                .iter()
+                .rev()
+                .find(|(k, _)| *k == 23)
+                .map_or(0.0, |(_, v)| *v);
+            StageConfig::grbl(&mut rng, crate::grbl::homing_dirs(mask))
         } else {
-            -1.0
+            StageConfig::native(&mut rng)
         };
-        let mut stage_cfg = StageConfig::new(&mut rng, home_dir);
         if cfg.repeatable {
             stage_cfg.repeat_sigma_um = 0.0;
             stage_cfg.switch_sigma_um = 0.0;
@@ -254,7 +265,7 @@ pub fn serve(
         Dialect::Native => {
             Firmware::Native(NativeFirmware::new(&stage, (cfg.seed as u32) ^ 0x5151))
         }
-        Dialect::Grbl => Firmware::Grbl(GrblFirmware::new(&stage, &mut out)),
+        Dialect::Grbl => Firmware::Grbl(GrblFirmware::new(&stage, &cfg.grbl_settings, &mut out)),
     };
     ready(&pty.as_ref().unwrap().slave_path);
 

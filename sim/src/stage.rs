@@ -24,8 +24,11 @@ pub struct StageConfig {
     pub home_speed_um_s: f64,
     /// Physical positions of the min and max limit switches per axis.
     pub switch_um: [[f64; 2]; 2],
-    /// Homing direction: -1 toward the min switch, +1 toward the max switch.
-    pub home_dir: f64,
+    /// Homing direction per axis: -1 toward the min switch, +1 toward the max switch.
+    pub home_dir: [f64; 2],
+    /// A GRBL board (machine zero on the homing switch, coordinates -travel..0) rather than the
+    /// rig's own firmware (the carriage frame itself).
+    pub grbl: bool,
     /// Distance moved back off the switch after homing.
     pub pulloff_um: f64,
     /// σ of the switch's trip point.
@@ -36,9 +39,31 @@ pub struct StageConfig {
 }
 
 impl StageConfig {
-    pub fn new(rng: &mut Rng, home_dir: f64) -> Self {
+    /// The rig's own firmware: homes to the min switches, 0.5 mm pull-off, a following-error
+    /// check on the encoders.
+    pub fn native(rng: &mut Rng) -> Self {
+        Self::build(rng, [-1.0, -1.0], false)
+    }
+
+    /// A GRBL board homing toward + (`home_dir[k] > 0`) or − per axis (`$23`). The switch it
+    /// homes on sits at the end of the 0..travel carriage frame (so a correctly homed board's
+    /// machine coordinates plus the travel are the carriage frame), the other switch 0.5 mm
+    /// beyond the far end of the travel.
+    pub fn grbl(rng: &mut Rng, home_dir: [f64; 2]) -> Self {
+        Self::build(rng, home_dir, true)
+    }
+
+    fn build(rng: &mut Rng, home_dir: [f64; 2], grbl: bool) -> Self {
         let travel = [250_000.0, 250_000.0];
-        let max_sw = |t: f64| if home_dir > 0.0 { t } else { t + 500.0 };
+        let switches = |k: usize| {
+            if !grbl {
+                [-500.0, travel[k] + 500.0]
+            } else if home_dir[k] > 0.0 {
+                [-500.0, travel[k]]
+            } else {
+                [0.0, travel[k] + 500.0]
+            }
+        };
         StageConfig {
             travel_um: travel,
             step_um: 0.25,
@@ -48,13 +73,35 @@ impl StageConfig {
             max_speed_um_s: 20_000.0,
             accel_um_s2: 100_000.0,
             home_speed_um_s: 10_000.0,
-            switch_um: [[-500.0, max_sw(travel[0])], [-500.0, max_sw(travel[1])]],
+            switch_um: [switches(0), switches(1)],
             home_dir,
-            pulloff_um: if home_dir > 0.0 { 1000.0 } else { 500.0 },
+            grbl,
+            pulloff_um: if grbl { 1000.0 } else { 500.0 },
             switch_sigma_um: 0.2,
-            following_tol_um: if home_dir > 0.0 { 0.0 } else { 20.0 },
+            following_tol_um: if grbl { 0.0 } else { 20.0 },
         }
     }
+}
+
+/// How a controller takes its reference in a homing cycle.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct HomingCycle {
+    /// -1 toward the min switch, +1 toward the max switch, per axis.
+    pub dir: [f64; 2],
+    /// The logical position given to each switch's trip point; `None`: the carriage frame
+    /// itself (the native firmware's logical position is the carriage's).
+    pub trip_logical_um: Option<[f64; 2]>,
+    /// After the trip, move this far back off the switch; `None`: go to logical 0.
+    pub pulloff_um: Option<f64>,
+}
+
+impl HomingCycle {
+    /// The rig's own firmware: min switches, pull off to the carriage frame's origin.
+    pub const NATIVE: HomingCycle = HomingCycle {
+        dir: [-1.0, -1.0],
+        trip_logical_um: None,
+        pulloff_um: None,
+    };
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
@@ -128,9 +175,13 @@ pub struct Stage {
     /// Carriage of a stalled axis, frozen.
     stalled: [Option<f64>; 2],
     reference: [f64; 2],
+    /// Where logical 0 lies in the carriage frame (set by homing): 0 for the native firmware,
+    /// the machine zero for GRBL.
+    zero_um: [f64; 2],
     pub homed: bool,
     motion: Option<Motion>,
     home_next: Option<MotionKind>,
+    homing: Option<HomingCycle>,
     pub faults: FaultSpec,
     pub injected: Vec<InjectedFault>,
     /// Every target the controller accepted, in logical µm.
@@ -148,6 +199,7 @@ impl Stage {
         for k in 0..2 {
             motor[k] = (0.2 + 0.6 * rng.uniform()) * cfg.travel_um[k];
         }
+        let zero_um = if cfg.grbl { cfg.travel_um } else { [0.0; 2] };
         let mut s = Stage {
             cfg,
             rng,
@@ -158,9 +210,11 @@ impl Stage {
             slip: [0.0; 2],
             stalled: [None; 2],
             reference: [-motor[0], -motor[1]],
+            zero_um,
             homed: false,
             motion: None,
             home_next: None,
+            homing: None,
             faults,
             injected: Vec::new(),
             accepted_targets: Vec::new(),
@@ -210,14 +264,10 @@ impl Stage {
         self.motor[k] + self.reference[k]
     }
 
-    /// Offset from a homed controller's logical frame to carriage coordinates: 0 for a
-    /// controller that homes to the min switch, the max switch's position for GRBL.
+    /// Offset from a homed controller's logical frame to carriage coordinates: 0 for the
+    /// native firmware, where GRBL's machine zero lies for GRBL (set by its homing).
     pub fn logical_to_carriage(&self, k: usize) -> f64 {
-        if self.cfg.home_dir > 0.0 {
-            self.cfg.switch_um[k][1]
-        } else {
-            0.0
-        }
+        self.zero_um[k]
     }
 
     pub fn is_busy(&self) -> bool {
@@ -351,9 +401,9 @@ impl Stage {
         });
     }
 
-    /// Homing: seek the switch in the configured direction on both axes, take the reference
-    /// at its trip point, pull off.
-    pub fn start_home(&mut self) {
+    /// Homing: seek the switch in `cycle.dir` on both axes, take the reference at its trip
+    /// point, pull off.
+    pub fn start_home(&mut self, cycle: HomingCycle) {
         self.homed = false;
         // The jam is cleared: the carriage stays where it froze while the motor ran on.
         for k in 0..2 {
@@ -361,10 +411,10 @@ impl Stage {
                 self.slip[k] += c - self.mechanism(k);
             }
         }
-        let d = self.cfg.home_dir;
         // Motor distance until each switch trips: first the play, then the carriage travel.
         let mut delta = [0.0; 2];
         for k in 0..2 {
+            let d = cycle.dir[k];
             let sw = self.cfg.switch_um[k][if d > 0.0 { 1 } else { 0 }];
             let play_take = if d > 0.0 {
                 self.play[k]
@@ -376,6 +426,7 @@ impl Stage {
         // Axes seek independently; model as one straight motion (both switches trip at the end).
         self.begin(MotionKind::HomeSeek, delta, self.cfg.home_speed_um_s, None);
         self.home_next = Some(MotionKind::HomePulloff);
+        self.homing = Some(cycle);
     }
 
     /// Decelerating stop.
@@ -401,6 +452,7 @@ impl Stage {
     pub fn halt(&mut self) {
         self.motion = None;
         self.home_next = None;
+        self.homing = None;
     }
 
     /// After a power cycle the controller counts from 0 wherever the carriage is.
@@ -563,24 +615,28 @@ impl Stage {
             match (m.kind, self.home_next.take()) {
                 (MotionKind::HomeSeek, Some(MotionKind::HomePulloff)) => {
                     // Reference at the trip point. The carriage sits on the switch: pin it there
-                    // exactly (the slip absorbs any lost steps). After a + approach the carriage
-                    // is motor + slip, so a reference of slip makes logical = carriage for the
-                    // native dialect (zero at the min end); GRBL puts machine zero on the max
-                    // switch, so its logical is carriage - switch. Plus the switch's scatter.
+                    // exactly (the slip absorbs any lost steps), and give the trip point the
+                    // logical position the controller wants there (native: the carriage frame's
+                    // own; GRBL: 0 on a + switch, minus the max travel on a − switch). Plus
+                    // the switch's scatter.
+                    let cycle = self.homing.unwrap_or(HomingCycle {
+                        dir: self.cfg.home_dir,
+                        trip_logical_um: None,
+                        pulloff_um: None,
+                    });
                     for k in 0..2 {
                         let noise = self.cfg.switch_sigma_um * self.rng.normal();
-                        let sw = self.cfg.switch_um[k][if self.cfg.home_dir > 0.0 { 1 } else { 0 }];
+                        let sw = self.cfg.switch_um[k][if cycle.dir[k] > 0.0 { 1 } else { 0 }];
                         self.settle[k] = 0.0;
                         self.slip[k] = sw - self.motor[k] - self.play[k];
-                        self.reference[k] =
-                            self.slip[k] + noise - if self.cfg.home_dir > 0.0 { sw } else { 0.0 };
+                        let trip = cycle.trip_logical_um.map_or(sw, |t| t[k]);
+                        self.zero_um[k] = sw - trip;
+                        self.reference[k] = self.slip[k] + noise - self.zero_um[k];
                     }
-                    let d = -self.cfg.home_dir * self.cfg.pulloff_um;
-                    let delta = if self.cfg.home_dir > 0.0 {
-                        [d, d]
-                    } else {
+                    let delta = match cycle.pulloff_um {
+                        Some(p) => [-cycle.dir[0] * p, -cycle.dir[1] * p],
                         // Native: pull off to logical 0 (the carriage frame's origin).
-                        [-self.logical(0), -self.logical(1)]
+                        None => [-self.logical(0), -self.logical(1)],
                     };
                     let end = [
                         self.snap(self.motor[0] + delta[0]),
@@ -610,9 +666,20 @@ impl Stage {
 mod tests {
     use super::*;
 
+    /// GRBL's default cycle: + switches, machine zero on them, 1 mm pull-off.
+    const GRBL_PLUS: HomingCycle = HomingCycle {
+        dir: [1.0, 1.0],
+        trip_logical_um: Some([0.0, 0.0]),
+        pulloff_um: Some(1000.0),
+    };
+
     fn stage(home_dir: f64, homed: bool) -> Stage {
         let mut rng = Rng::new(5);
-        let mut cfg = StageConfig::new(&mut rng, home_dir);
+        let mut cfg = if home_dir > 0.0 {
+            StageConfig::grbl(&mut rng, [home_dir; 2])
+        } else {
+            StageConfig::native(&mut rng)
+        };
         cfg.repeat_sigma_um = 0.0;
         cfg.switch_sigma_um = 0.0;
         Stage::new(cfg, FaultSpec::default(), 5, homed)
@@ -656,7 +723,7 @@ mod tests {
     fn homing_frames_of_both_dialects() {
         // Native: min switches, origin at 0, last motion upward (no backlash showing).
         let mut s = stage(-1.0, false);
-        s.start_home();
+        s.start_home(HomingCycle::NATIVE);
         let ev = run(&mut s);
         assert_eq!(ev, vec![StageEvent::Homed]);
         assert!(s.homed);
@@ -671,12 +738,37 @@ mod tests {
         // GRBL: max switches, machine zero on the switch, pulled off downward by 1 mm, so the
         // carriage sits a backlash above what the controller reports.
         let mut s = stage(1.0, false);
-        s.start_home();
+        s.start_home(GRBL_PLUS);
         run(&mut s);
         for k in 0..2 {
             assert!((s.logical(k) + 1000.0).abs() < 1e-6);
             let reported = s.logical(k) + s.logical_to_carriage(k);
             assert!((s.carriage(k) - reported - s.cfg.backlash_um[k]).abs() < 1e-6);
+        }
+    }
+
+    #[test]
+    fn grbl_homing_toward_the_minus_switches() {
+        // $23=3: the switches are at the 0 end; the trip point is machine −travel; the 1 mm
+        // pull-off upward first takes up the backlash left by the downward seek, so the carriage
+        // ends 1 mm less the backlash in, and machine + travel is the carriage frame.
+        let mut rng = Rng::new(5);
+        let mut cfg = StageConfig::grbl(&mut rng, [-1.0, -1.0]);
+        cfg.repeat_sigma_um = 0.0;
+        cfg.switch_sigma_um = 0.0;
+        let mut s = Stage::new(cfg, FaultSpec::default(), 5, false);
+        let travel = s.cfg.travel_um;
+        s.start_home(HomingCycle {
+            dir: [-1.0, -1.0],
+            trip_logical_um: Some([-travel[0], -travel[1]]),
+            pulloff_um: Some(1000.0),
+        });
+        assert_eq!(run(&mut s), vec![StageEvent::Homed]);
+        for k in 0..2 {
+            let c = 1000.0 - s.cfg.backlash_um[k];
+            assert!((s.carriage(k) - c).abs() < 1e-6, "{}", s.carriage(k));
+            assert!((s.logical(k) - (c - travel[k])).abs() < 1e-6);
+            assert!((s.logical(k) + s.logical_to_carriage(k) - s.carriage(k)).abs() < 1e-6);
         }
     }
 
@@ -737,7 +829,7 @@ mod tests {
     #[test]
     fn after_a_stall_homing_restores_carriage_and_encoder() {
         let mut rng = Rng::new(5);
-        let mut cfg = StageConfig::new(&mut rng, -1.0);
+        let mut cfg = StageConfig::native(&mut rng);
         cfg.repeat_sigma_um = 0.0;
         cfg.switch_sigma_um = 0.0;
         let mut s = Stage::new(cfg, FaultSpec::parse("stall=y:1").unwrap(), 5, true);
@@ -753,7 +845,7 @@ mod tests {
         // Steps were lost on Y: the carriage is not where the motor count says.
         assert!((s.carriage(1) - (s.logical(1))).abs() > 10.0);
         s.faults = FaultSpec::default();
-        s.start_home();
+        s.start_home(HomingCycle::NATIVE);
         assert_eq!(run(&mut s), vec![StageEvent::Homed]);
         s.start_move([50_000.0, 60_000.0], 20_000.0);
         run(&mut s);

@@ -44,6 +44,10 @@ pub struct StageArgs {
     /// Simulator: write its truth file here when done.
     #[arg(long, value_name = "PATH", requires = "sim", global = true)]
     pub sim_truth: Option<PathBuf>,
+    /// Simulator (GRBL): a board setting other than the default, `N=VALUE`, repeatable
+    /// (e.g. `10=0` WPos reports, `13=1` inches, `23=3` homing toward the − switches).
+    #[arg(long, value_name = "N=VALUE", value_parser = rig_sim::cli::parse_setting, requires = "sim", global = true)]
+    pub sim_grbl_setting: Vec<(u32, f64)>,
     /// Print one JSON object on standard output instead of text.
     #[arg(long, global = true)]
     pub json: bool,
@@ -69,6 +73,10 @@ pub struct StageArgs {
     /// Seconds added to every motion timeout.
     #[arg(long, default_value_t = 2.0, value_name = "S", global = true)]
     pub timeout_margin: f64,
+    /// Absolute cap on any one wait, s (a motion, a homing cycle): whatever the controller's
+    /// rates say, no wait is longer (and none is longer than its expected time plus 60 s).
+    #[arg(long, default_value_t = 600.0, value_name = "S", global = true)]
+    pub timeout: f64,
     /// Record every byte on the line, both ways, as JSON Lines.
     #[arg(long, value_name = "FILE", global = true)]
     pub wire_log: Option<PathBuf>,
@@ -104,8 +112,14 @@ pub enum Action {
         #[arg(long = "jog-speed", default_value_t = 2.0, value_name = "MM_S")]
         jog_speed: f64,
     },
-    /// Decelerate to a stop and report where the carriage rests.
+    /// Stop the stages and say how: a decelerating stop (GRBL: feed hold), escalated to a
+    /// reset (position lost) if the controller does not confirm it in time. Exit 9 if even that
+    /// is not confirmed.
     Stop,
+    /// Read the controller's settings and say what to change for the rig (GRBL: `$22=1`
+    /// homing, `$20=1` soft limits, `$21=1` hard limits, …). Moves nothing.
+    #[command(visible_alias = "doctor")]
+    CheckSetup,
     /// Stop at once (the position may be lost: home afterwards).
     Estop,
 }
@@ -165,6 +179,12 @@ fn options(a: &StageArgs) -> Result<DriverOptions, String> {
             "0 to 3600 s",
         ),
         (
+            "--timeout",
+            a.timeout,
+            a.timeout >= 1.0 && a.timeout <= 86_400.0,
+            "1 to 86400 s",
+        ),
+        (
             "--speed",
             a.speed.unwrap_or(1.0),
             a.speed.is_none_or(|v| v > 0.0 && v < 10_000.0),
@@ -181,9 +201,11 @@ fn options(a: &StageArgs) -> Result<DriverOptions, String> {
             direction: [dir, dir],
             overshoot_um: a.overshoot_um,
         },
+        // Both range-checked above.
         timeouts: TimeoutPolicy {
             factor: a.timeout_factor,
             margin: Duration::from_secs_f64(a.timeout_margin),
+            cap: Duration::from_secs_f64(a.timeout),
         },
         tolerance_um: a.tolerance_um,
         speed_um_s: a.speed.map(|s| s * 1000.0),
@@ -290,11 +312,50 @@ fn act(stage: &mut dyn Stage, action: &Action) -> Result<Outcome, StageError> {
             }
         }
         Action::Stop => {
-            let p = stage.stop()?;
-            let st = stage.status()?;
+            let stopped = stage.stop()?;
+            let mut j = json!({"action": stopped.action, "done": stopped.action.describe()});
+            if let Some(p) = stopped.position {
+                j["x_mm"] = json!(p.x_mm());
+                j["y_mm"] = json!(p.y_mm());
+            }
             Outcome {
-                text: format!("stopped at {p}"),
-                json: status_json(&st),
+                text: match stopped.position {
+                    Some(p) => format!("{}; at {p}", stopped.action.describe()),
+                    None => stopped.action.describe().to_string(),
+                },
+                json: j,
+            }
+        }
+        Action::CheckSetup => {
+            let i = stage.info().clone();
+            let mut text = format!("{} ({})\n", i.identity, i.dialect);
+            for (k, v) in &i.settings {
+                text.push_str(&format!("  {k:<5} = {v}\n"));
+            }
+            if i.advice.is_empty() {
+                text.push_str("nothing to change: the set-up is what the rig needs");
+            } else {
+                for a in &i.advice {
+                    text.push_str(&format!("{}: now {}; {}\n", a.setting, a.now, a.todo));
+                }
+            }
+            if i.dialect == "grbl" {
+                text.push_str(
+                    "\nBuild options (config.h) the rig needs: HOMING_CYCLE_0 homes X and Y only \
+                     (no Z switch: GRBL's default cycle starts with Z and fails with ALARM:9), \
+                     HOMING_FORCE_SET_ORIGIN off (machine zero on the homing switch).",
+                );
+            }
+            for n in &i.notes {
+                text.push_str(&format!("\nnote: {n}"));
+            }
+            let json = json!({
+                "identity": i.identity, "dialect": i.dialect, "settings": i.settings,
+                "advice": i.advice, "notes": i.notes,
+            });
+            Outcome {
+                text: text.trim_end().to_string(),
+                json,
             }
         }
         Action::Estop => {
@@ -401,6 +462,7 @@ pub fn run(a: StageArgs) -> anyhow::Result<i32> {
             truth: a.sim_truth.clone(),
             stage_link: None,
             start_homed: true,
+            grbl_settings: a.sim_grbl_setting.clone(),
             ..Default::default()
         };
         let s = rig_sim::EmbeddedSim::start(cfg).context("starting the built-in simulator")?;
@@ -426,13 +488,24 @@ pub fn run(a: StageArgs) -> anyhow::Result<i32> {
         let r = act(s.as_mut(), &a.action);
         if matches!(r, Err(StageError::Cancelled)) {
             // Wait for the deceleration to end before letting go of the line.
-            let _ = s.stop();
+            if let Err(e) = s.stop() {
+                return Err(StageError::StopFailed {
+                    cause: Box::new(StageError::Cancelled),
+                    why: e.to_string(),
+                });
+            }
         }
         r
     });
     drop(progress);
+    // The command's own error comes first; the simulator's shutdown only adds to it.
     if let Some(s) = sim {
-        s.shutdown().context("stopping the built-in simulator")?;
+        if let Err(e) = s.shutdown() {
+            if result.is_ok() {
+                return Err(e).context("stopping the built-in simulator");
+            }
+            eprintln!("rig stage: note: stopping the built-in simulator also failed: {e}");
+        }
     }
     match result {
         Ok(o) => {

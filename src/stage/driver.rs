@@ -1,7 +1,10 @@
 //! The safety policy over any [`Controller`].
 
-use super::motion::{move_duration, Approach, SoftLimits, TimeoutPolicy};
-use super::{Controller, ControllerInfo, Result, Stage, StageError, StageState, StageStatus};
+use super::motion::{move_duration, secs, Approach, SoftLimits, TimeoutPolicy};
+use super::{
+    Controller, ControllerInfo, FaultKind, Result, Stage, StageError, StageState, StageStatus,
+    StopAction, Stopped,
+};
 use crate::coords::CarriageUm;
 use std::time::Duration;
 
@@ -37,9 +40,49 @@ pub struct Driver<C: Controller> {
 
 impl<C: Controller> Driver<C> {
     pub fn new(ctl: C, opts: DriverOptions) -> Self {
-        let own = ctl.info().limits;
+        // The controller's own limits, never beyond its travel, narrowed by the operator's.
+        let info = ctl.info();
+        let travel = SoftLimits {
+            min: crate::coords::CarriageUm::new(0.0, 0.0),
+            max: info.travel,
+        };
+        let own = info.limits.intersect(&travel);
         let limits = opts.limits.map_or(own, |l| l.intersect(&own));
         Driver { ctl, opts, limits }
+    }
+
+    /// A homed controller's position must lie within its travel (give or take 5 mm or 5 %):
+    /// anything else is a garbled report, wrong settings or a lost reference, and is a fault,
+    /// never shown as a good position.
+    fn plausible(&self, st: StageStatus) -> Result<StageStatus> {
+        let t = self.ctl.info().travel;
+        let slack = |v: f64| (0.05 * v).max(5000.0);
+        let out = |p: f64, t: f64| !(p >= -slack(t) && p <= t + slack(t));
+        if st.homed && (out(st.position.x, t.x) || out(st.position.y, t.y)) {
+            return Err(StageError::Fault {
+                kind: FaultKind::ImplausiblePosition {
+                    x_mm: st.position.x_mm(),
+                    y_mm: st.position.y_mm(),
+                    travel_x_mm: t.x_mm(),
+                    travel_y_mm: t.y_mm(),
+                },
+                position: None,
+            });
+        }
+        Ok(st)
+    }
+
+    /// Stops the stages after `cause`; a stop that was not confirmed turns the error into
+    /// [`StageError::StopFailed`], so no message claims the stages stopped when they may not
+    /// have.
+    fn stop_after(&mut self, cause: StageError) -> StageError {
+        match self.ctl.stop() {
+            Ok(_) => cause,
+            Err(e) => StageError::StopFailed {
+                cause: Box::new(cause),
+                why: e.to_string(),
+            },
+        }
     }
 
     fn speed(&self) -> f64 {
@@ -51,15 +94,20 @@ impl<C: Controller> Driver<C> {
     /// On any error but a refusal before sending, stop the stages (best effort: the link may
     /// be what failed) and pass the error on.
     fn guard<T>(&mut self, r: Result<T>) -> Result<T> {
-        if let Err(e) = &r {
-            if !matches!(
-                e,
-                StageError::OutOfLimits { .. } | StageError::NotHomed | StageError::Disconnected(_)
-            ) {
-                let _ = self.ctl.stop();
+        match r {
+            Err(e)
+                if !matches!(
+                    e,
+                    StageError::OutOfLimits { .. }
+                        | StageError::NotHomed
+                        | StageError::Disconnected(_)
+                        | StageError::BadSetting { .. }
+                ) =>
+            {
+                Err(self.stop_after(e))
             }
+            r => r,
         }
-        r
     }
 
     fn fault_of(st: &StageStatus) -> StageError {
@@ -82,7 +130,8 @@ impl<C: Controller> Driver<C> {
         if st.state == StageState::Fault {
             return Err(Self::fault_of(&st));
         }
-        Ok(st)
+        let r = self.plausible(st);
+        self.guard(r)
     }
 
     /// One straight leg: check, send, wait, check for faults, check the reported position
@@ -103,12 +152,11 @@ impl<C: Controller> Driver<C> {
         // wrong side with the backlash unseen.
         let err = st.position - to;
         if err.x.abs() > tol_um[0] || err.y.abs() > tol_um[1] {
-            let _ = self.ctl.stop();
-            return Err(StageError::PositionMismatch {
+            return Err(self.stop_after(StageError::PositionMismatch {
                 target: to,
                 actual: st.position,
                 tolerance_um: tol_um[0].max(tol_um[1]),
-            });
+            }));
         }
         Ok(st)
     }
@@ -140,7 +188,8 @@ impl<C: Controller> Stage for Driver<C> {
     }
 
     fn status(&mut self) -> Result<StageStatus> {
-        self.ctl.status()
+        let st = self.ctl.status()?;
+        self.plausible(st)
     }
 
     fn home(&mut self) -> Result<CarriageUm> {
@@ -148,9 +197,7 @@ impl<C: Controller> Stage for Driver<C> {
         if st.state == StageState::Fault {
             self.ctl.clear_fault()?;
         }
-        let info = self.ctl.info();
-        let far = info.travel.x.max(info.travel.y) * 1.2 + 5000.0;
-        let expected = move_duration(far, info.home_speed_um_s, info.accel_um_s2) * 2;
+        let expected = self.ctl.homing_duration();
         let st = self.run(|c| c.start_home(), expected)?;
         if !st.homed {
             return Err(StageError::Protocol(format!(
@@ -196,15 +243,22 @@ impl<C: Controller> Stage for Driver<C> {
         Ok(st.position)
     }
 
-    fn stop(&mut self) -> Result<CarriageUm> {
-        self.ctl.stop()?;
-        let info = self.ctl.info();
-        // From full speed a stop takes v/a.
-        let expected = Duration::from_secs_f64(info.max_speed_um_s / info.accel_um_s2);
-        Ok(self
-            .ctl
-            .wait_done(self.opts.timeouts.for_duration(expected))?
-            .position)
+    fn stop(&mut self) -> Result<Stopped> {
+        let action = self.ctl.stop()?;
+        let position = match action {
+            StopAction::Nothing | StopAction::Decelerated => {
+                let info = self.ctl.info();
+                // From full speed a stop takes v/a.
+                let expected = secs(info.max_speed_um_s / info.accel_um_s2);
+                let st = self
+                    .ctl
+                    .wait_done(self.opts.timeouts.for_duration(expected))?;
+                Some(self.plausible(st)?.position)
+            }
+            // The reference is gone: whatever the controller counts is not a carriage position.
+            StopAction::Reset | StopAction::HomingAborted => None,
+        };
+        Ok(Stopped { action, position })
     }
 
     fn emergency_stop(&mut self) -> Result<()> {

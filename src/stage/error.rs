@@ -7,7 +7,7 @@ fn at(p: &Option<CarriageUm>) -> String {
 }
 
 /// Why the controller stopped or refuses to move.
-#[derive(Debug, Clone, PartialEq, Eq, serde::Serialize)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum FaultKind {
     EmergencyStop,
@@ -24,6 +24,14 @@ pub enum FaultKind {
         code: u32,
         meaning: String,
     },
+    /// The controller reported a position far outside its own travel: a garbled report, a
+    /// wrong setting or a lost reference; nothing it says about position can be trusted.
+    ImplausiblePosition {
+        x_mm: f64,
+        y_mm: f64,
+        travel_x_mm: f64,
+        travel_y_mm: f64,
+    },
 }
 
 impl std::fmt::Display for FaultKind {
@@ -37,6 +45,17 @@ impl std::fmt::Display for FaultKind {
             FaultKind::Stall => write!(f, "axis stalled (following error)"),
             FaultKind::Reset => write!(f, "controller reset"),
             FaultKind::Alarm { code, meaning } => write!(f, "ALARM:{code} ({meaning})"),
+            FaultKind::ImplausiblePosition {
+                x_mm,
+                y_mm,
+                travel_x_mm,
+                travel_y_mm,
+            } => write!(
+                f,
+                "the controller reports X {x_mm:.3} Y {y_mm:.3} mm, far outside its travel \
+                 0..{travel_x_mm} x 0..{travel_y_mm} mm (a garbled report, a wrong travel or \
+                 homing setting, or a lost reference)"
+            ),
         }
     }
 }
@@ -91,6 +110,26 @@ pub enum StageError {
     Cancelled,
     #[error("motion did not finish within {after:?} (its expected duration with margin); stages stopped")]
     MotionTimeout { after: Duration },
+    #[error("{dialect} setting {setting} = {value} is outside the allowed range {allowed}; nothing was moved. Fix it on the controller ({fix}), then connect again")]
+    BadSetting {
+        dialect: &'static str,
+        setting: String,
+        value: String,
+        allowed: String,
+        fix: String,
+    },
+    /// The stop that should have followed `cause` was not confirmed: the stages may still be
+    /// moving. Never reported as stopped.
+    #[error("{} — and the stop was NOT confirmed: {why}. The stages may still be moving: use the emergency stop switch", unstopped(cause))]
+    StopFailed { cause: Box<StageError>, why: String },
+}
+
+/// What `e` says, without its claim that the stages were stopped.
+fn unstopped(e: &StageError) -> String {
+    e.to_string()
+        .replace("; stages stopped", "")
+        .replace(", stages stopped", "")
+        .replace(" stages stopped", "")
 }
 
 impl StageError {
@@ -104,8 +143,14 @@ impl StageError {
             StageError::Open { .. } | StageError::PortBusy { .. } | StageError::Disconnected(_) => {
                 7
             }
-            StageError::Rejected { .. } | StageError::Protocol(_) | StageError::Version { .. } => 8,
+            StageError::Rejected { .. }
+            | StageError::Protocol(_)
+            | StageError::Version { .. }
+            | StageError::BadSetting { .. } => 8,
             StageError::Cancelled => 130,
+            // The worst outcome: the motion may go on. Its own code, so scripts cannot take it
+            // for the error that caused the stop.
+            StageError::StopFailed { .. } => 9,
         }
     }
 
@@ -125,6 +170,8 @@ impl StageError {
             StageError::PositionMismatch { .. } => "position_mismatch",
             StageError::MotionTimeout { .. } => "motion_timeout",
             StageError::Cancelled => "cancelled",
+            StageError::BadSetting { .. } => "bad_setting",
+            StageError::StopFailed { .. } => "stop_failed",
         }
     }
 }

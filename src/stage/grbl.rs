@@ -1,14 +1,30 @@
-//! Client for GRBL 1.1 controllers.
+//! Client for GRBL 1.1 controllers, built to GRBL's interface documents rather than to any
+//! emulator.
 //!
-//! Millimetre units (`G21`), absolute moves (`G90`), character-counting streaming (never more
-//! than the 128-byte receive buffer in flight), `G4 P0.01` as the motion-sync point (GRBL
-//! answers it only when the planner is empty), alarms mapped to typed faults. GRBL reports
-//! machine coordinates that are negative after homing toward the + switches; the host maps
-//! them to carriage coordinates `0..travel` by adding the max travel (`$130`, `$131`).
+//! - Millimetre units (`G21`), moves in machine coordinates (`G53`, so a work offset set by
+//!   other software changes nothing), character-counting streaming (never more than the
+//!   128-byte receive buffer in flight), `G4 P0.01` as the motion-sync point (GRBL answers it
+//!   only when the planner is empty), alarms mapped to typed faults.
+//! - Homing: `$H` is answered `ok` only when the cycle has ended (`ALARM:n` when it failed), and
+//!   GRBL may leave `?` unanswered meanwhile, so the host does not ask; it waits for the answer
+//!   within a bound from the board's own travel, seek and locate rates and pull-off. A `?`
+//!   that went unanswered may be answered late (after the cycle): no report is believed until a
+//!   line reply has arrived after it, so a late report never answers a later question.
+//! - Connecting never resets the board (that would abort a homing cycle in progress); a silent
+//!   board is reported as such.
+//! - A stop always acts: a feed hold at once, then a soft reset if the board does not report
+//!   Hold or Idle in time; what was done is reported, and a stop that was not confirmed is an
+//!   error, never "stopped".
+//! - Reports in MPos or WPos (`$10`; WPos + WCO), in mm or inches (`$13`); the homing switch at
+//!   either end per axis (`$23`). Machine coordinates run from −max travel to 0 whichever way the
+//!   board homes; the host's carriage coordinates are machine + max travel (`$130`, `$131`).
+//! - Every setting used is range-checked first ([`GrblSettings::from_raw`]).
 
+use super::grbl_report::{self, Report};
+use super::grbl_settings::GrblSettings;
 use super::{
-    Controller, ControllerInfo, FaultKind, LinkOptions, Port, Result, SoftLimits, StageError,
-    StageState, StageStatus,
+    Controller, ControllerInfo, FaultKind, LinkOptions, Port, Result, SetupAdvice, StageError,
+    StageState, StageStatus, StopAction,
 };
 use crate::coords::CarriageUm;
 use std::collections::{BTreeMap, VecDeque};
@@ -20,6 +36,9 @@ const RX_BUFFER: usize = 128;
 const REPLY_TIMEOUT: Duration = Duration::from_millis(500);
 const QUERY_TRIES: usize = 4;
 const POLL: Duration = Duration::from_millis(25);
+/// How long a board that was just opened may take to answer (an Arduino that resets on DTR
+/// boots in about 1.5 s).
+const CONNECT_WAIT: Duration = Duration::from_millis(2500);
 
 /// GRBL 1.1's alarm codes.
 pub fn alarm_meaning(code: u32) -> &'static str {
@@ -63,6 +82,20 @@ enum Reply {
     Error(u32),
 }
 
+/// Up to 80 bytes of what the line said, printable (for "does not speak GRBL" messages).
+fn heard(bytes: &[u8]) -> String {
+    let mut s: String = bytes
+        .iter()
+        .take(80)
+        .flat_map(|&b| std::ascii::escape_default(b))
+        .map(char::from)
+        .collect();
+    if bytes.len() > 80 {
+        s.push('…');
+    }
+    s
+}
+
 pub struct GrblController {
     port: Port,
     rx: Vec<u8>,
@@ -75,19 +108,30 @@ pub struct GrblController {
     new_alarm: bool,
     /// A boot banner arrived (reset) that no wait has reported yet.
     reset_seen: bool,
-    last_status: Option<String>,
+    last_report: Option<String>,
     /// `[…]` and `$N=` lines since the last command.
     info_lines: Vec<String>,
     /// GRBL does not report whether it is homed: the host tracks it.
     homed: bool,
     /// A `$H` is under way.
     homing: bool,
-    pub settings: BTreeMap<u32, f64>,
+    /// The settings as read (`$$`) and as checked.
+    pub raw_settings: BTreeMap<u32, f64>,
+    settings: Option<GrblSettings>,
     info: ControllerInfo,
     /// Lines that were neither replies nor reports (line noise).
     pub garbage_lines: u64,
     /// Whether the last motion we started was a jog (no `G4` sync for those).
     jogging: bool,
+    /// The last work coordinate offset, in report units (for WPos reports).
+    wco: Option<[f64; 2]>,
+    /// A `?` went unanswered, so a late report may still come: reports are not believed until
+    /// a line reply, an alarm or a banner has arrived after it.
+    stale_reports: bool,
+    /// Reports discarded as possibly late.
+    pub late_reports: u64,
+    /// The first bytes heard on the line, for messages.
+    heard: Vec<u8>,
 }
 
 impl GrblController {
@@ -101,53 +145,132 @@ impl GrblController {
             alarm: None,
             new_alarm: false,
             reset_seen: false,
-            last_status: None,
+            last_report: None,
             info_lines: Vec::new(),
             homed: false,
             homing: false,
-            settings: BTreeMap::new(),
+            raw_settings: BTreeMap::new(),
+            settings: None,
             info: ControllerInfo::unknown("grbl"),
             garbage_lines: 0,
             jogging: false,
+            wco: None,
+            stale_reports: false,
+            late_reports: 0,
+            heard: Vec::new(),
         };
-        c.sync_line()?;
-        // A boot banner that raced our purge is not a reset during our session.
-        c.reset_seen = false;
-        c.new_alarm = false;
+        c.find_grbl()?;
+        c.clear_partial_line()?;
+        let alarm_at_connect = c.alarm.take();
         c.read_settings()?;
         c.identify();
+        if !c.settings().reports_mpos {
+            c.read_wco()?;
+        }
         // With homing enabled GRBL boots locked in Alarm until homed; idle means it was homed
         // (or unlocked by hand, which the operator then answers for).
-        let state = c.status()?.controller_state;
-        c.homed = state != "Alarm" && c.settings.get(&22) == Some(&1.0);
+        let (report, _) = c.raw_status()?;
+        let alarm_state = report.state.starts_with("Alarm");
+        c.homed = !alarm_state && c.settings().homing;
+        if alarm_state {
+            c.alarm = alarm_at_connect;
+            c.info.notes.push(match alarm_at_connect {
+                Some(code) => format!(
+                    "GRBL reported ALARM:{code} ({}) and is locked in Alarm: clear the cause, then `rig stage home`",
+                    alarm_meaning(code)
+                ),
+                None => "GRBL is locked in Alarm (after power-up, a reset or an alarm before this \
+                         connection): `rig stage home` references and unlocks it"
+                    .into(),
+            });
+        } else if let Some(code) = alarm_at_connect {
+            c.info.notes.push(format!(
+                "GRBL reported ALARM:{code} ({}) as the rig connected",
+                alarm_meaning(code)
+            ));
+        }
         c.new_alarm = false;
         c.reset_seen = false;
         Ok(c)
     }
 
-    /// Finds a GRBL on the line: a status report answers `?` at once; failing that, a soft
-    /// reset and its banner.
-    fn sync_line(&mut self) -> Result<()> {
+    fn settings(&self) -> &GrblSettings {
+        self.settings
+            .as_ref()
+            .expect("settings are read before any use")
+    }
+
+    /// Finds a GRBL on the line without resetting it (a reset would abort a homing cycle in
+    /// progress): a status report answers `?` at once, or a board that was reset by the opening
+    /// of the port prints its banner. Silence is reported as such.
+    fn find_grbl(&mut self) -> Result<()> {
         self.port.purge()?;
         self.rx.clear();
-        if self.raw_status().is_ok() {
-            return Ok(());
-        }
-        self.reset_seen = false;
-        self.port.write_all(&[0x18])?;
-        let deadline = Instant::now() + Duration::from_secs(2);
+        let start = Instant::now();
+        let deadline = start + CONNECT_WAIT;
+        let mut asked = 0;
+        let mut next_ask = start;
         while Instant::now() < deadline {
-            self.pump(deadline)?;
+            if Instant::now() >= next_ask {
+                self.port.write_all(b"?")?;
+                asked += 1;
+                next_ask = Instant::now() + REPLY_TIMEOUT;
+            }
+            self.pump(deadline.min(Instant::now() + POLL))?;
             if self.reset_seen {
-                self.inflight.clear();
-                self.replies.clear();
+                // Booted just now: ask again once it is up.
+                self.reset_seen = false;
+                next_ask = Instant::now() + Duration::from_millis(100);
+            }
+            if self
+                .last_report
+                .take()
+                .is_some_and(|l| grbl_report::parse(&l).is_some())
+            {
+                // More than one question may still be answered: believe nothing until a line
+                // reply (the partial-line sync that follows) has come.
+                self.stale_reports = asked > 1;
                 return Ok(());
             }
         }
-        Err(StageError::Protocol(format!(
-            "no GRBL status report or banner on {}",
-            self.port.path.display()
-        )))
+        let path = self.port.path.display().to_string();
+        Err(StageError::Protocol(if self.heard.is_empty() {
+            format!(
+                "no answer on {path} within {CONNECT_WAIT:?}: nothing at all was heard. A GRBL \
+                 in a homing cycle is silent until the cycle ends: wait and connect again. \
+                 Otherwise check the port, the baud rate (115200), the cable and the power. No \
+                 reset was sent, so nothing in progress was aborted"
+            )
+        } else {
+            format!(
+                "{path} does not answer like GRBL 1.1: heard \"{}\" but no status report. Is it \
+                 another controller (try --dialect native) or another baud rate than 115200?",
+                heard(&self.heard)
+            )
+        }))
+    }
+
+    /// An earlier program (or a connection attempt in another dialect) may have left half a
+    /// line in GRBL's receive buffer, which would spoil our first command: an empty line ends
+    /// it, and its answer (`ok`, or `error:n` for the junk) is discarded.
+    fn clear_partial_line(&mut self) -> Result<()> {
+        self.replies.clear();
+        self.send_line("")?;
+        let deadline = Instant::now() + REPLY_TIMEOUT * 4;
+        while self.replies.is_empty() && Instant::now() < deadline {
+            self.pump(deadline.min(Instant::now() + POLL))?;
+        }
+        if self.replies.is_empty() {
+            self.inflight.clear();
+            return Err(StageError::Protocol(format!(
+                "GRBL on {} answers `?` but not an empty line within {:?}: it is busy with \
+                 earlier commands. Wait for it, or stop it (`rig stage --dialect grbl estop`)",
+                self.port.path.display(),
+                REPLY_TIMEOUT * 4
+            )));
+        }
+        self.replies.clear();
+        Ok(())
     }
 
     fn identify(&mut self) {
@@ -162,64 +285,105 @@ impl GrblController {
     }
 
     /// `$$`, until two complete dumps agree: a doubled digit in `$131=200` would otherwise
-    /// make a 2 m travel of it, and every limit and coordinate with it.
+    /// make a 2 m travel of it, and every limit and coordinate with it. A dump answered
+    /// `error:n` (a garbled command) is asked again like one that timed out.
     fn read_settings(&mut self) -> Result<()> {
         let mut prev: Option<BTreeMap<u32, f64>> = None;
+        let mut last_err = None;
         for _ in 0..QUERY_TRIES * 2 {
             let lines = match self.command("$$", REPLY_TIMEOUT * 2) {
                 Ok(l) => l,
-                Err(StageError::Timeout { .. }) => continue,
+                Err(e @ (StageError::Timeout { .. } | StageError::Rejected { .. })) => {
+                    last_err = Some(e);
+                    continue;
+                }
                 Err(e) => return Err(e),
             };
-            let mut s = BTreeMap::new();
-            for l in &lines {
-                if let Some((k, v)) = l.strip_prefix('$').and_then(|r| r.split_once('=')) {
-                    if let (Ok(k), Ok(v)) = (k.parse::<u32>(), v.parse::<f64>()) {
-                        s.insert(k, v);
-                    }
-                }
-            }
-            let need = [27, 110, 111, 120, 121, 130, 131];
-            if !need.iter().all(|k| s.contains_key(k)) {
+            let s = GrblSettings::parse_lines(&lines);
+            if !super::grbl_settings::REQUIRED
+                .iter()
+                .all(|k| s.contains_key(k))
+            {
                 continue;
             }
             if prev.as_ref() == Some(&s) {
-                self.settings = s;
-                self.apply_settings();
+                let checked = GrblSettings::from_raw(&s)?;
+                self.raw_settings = s;
+                self.apply_settings(checked);
                 return Ok(());
             }
             prev = Some(s);
         }
-        Err(StageError::Protocol(
-            "could not read two complete, agreeing `$$` settings lists from GRBL".into(),
-        ))
+        Err(StageError::Protocol(format!(
+            "could not read two complete, agreeing `$$` settings lists from GRBL{}",
+            last_err.map_or(String::new(), |e| format!(" (last: {e})"))
+        )))
     }
 
-    fn apply_settings(&mut self) {
-        let s = &self.settings;
-        let travel = CarriageUm::new(s[&130] * 1000.0, s[&131] * 1000.0);
-        let pulloff = s[&27] * 1000.0;
-        self.info.travel = travel;
-        // Machine zero sits on the + switches: keep a pull-off away from them.
-        self.info.limits = SoftLimits {
-            min: CarriageUm::new(0.0, 0.0),
-            max: CarriageUm::new((travel.x - pulloff).max(0.0), (travel.y - pulloff).max(0.0)),
-        };
-        self.info.max_speed_um_s = s[&110].min(s[&111]) * 1000.0 / 60.0;
-        self.info.accel_um_s2 = s[&120].min(s[&121]) * 1000.0;
-        self.info.home_speed_um_s = s.get(&25).copied().unwrap_or(s[&110]) * 1000.0 / 60.0;
-        self.info.resolution_um = s.get(&100).map_or(1.0, |spm| 1000.0 / spm);
+    fn apply_settings(&mut self, s: GrblSettings) {
+        self.info.travel = s.travel();
+        self.info.limits = s.soft_limits();
+        self.info.max_speed_um_s = s.max_speed_um_s();
+        self.info.accel_um_s2 = s.accel_um_s2();
+        self.info.home_speed_um_s = s.seek_mm_min * 1000.0 / 60.0;
+        self.info.resolution_um = 1000.0 / s.steps_per_mm[0].max(s.steps_per_mm[1]);
+        self.info.homing_bound_s = s.homing_bound_s();
         self.info.notes.clear();
-        if s.get(&20) != Some(&1.0) {
+        if !s.soft_limits {
             self.info.notes.push(
                 "GRBL's own soft limits ($20) are off: only the host's limits protect the stage"
                     .into(),
             );
         }
-        if s.get(&22) != Some(&1.0) {
+        if !s.homing {
             self.info
                 .notes
                 .push("GRBL homing ($22) is off: positions are not referenced".into());
+        }
+        self.info.advice = s
+            .advice()
+            .into_iter()
+            .map(|(setting, now, todo)| SetupAdvice { setting, now, todo })
+            .collect();
+        self.info.settings = [
+            10, 13, 20, 21, 22, 23, 24, 25, 27, 110, 111, 120, 121, 130, 131,
+        ]
+        .iter()
+        .filter_map(|k| {
+            self.raw_settings.get(k).map(|v| {
+                (
+                    format!("${k}"),
+                    format!("{v} ({})", super::grbl_settings::meaning(*k)),
+                )
+            })
+        })
+        .collect();
+        self.settings = Some(s);
+    }
+
+    /// The work offset (WCO = G54 + G92) from `$#`, for boards that report WPos.
+    fn read_wco(&mut self) -> Result<()> {
+        let lines = self.command("$#", REPLY_TIMEOUT * 2)?;
+        let get = |tag: &str| -> Option<[f64; 2]> {
+            let l = lines.iter().find(|l| l.starts_with(tag))?;
+            let body = l.strip_prefix(tag)?.strip_suffix(']')?;
+            let v: Vec<f64> = body
+                .split(',')
+                .take(2)
+                .map(|x| x.parse().ok())
+                .collect::<Option<_>>()?;
+            (v.len() == 2 && v.iter().all(|x| x.is_finite())).then(|| [v[0], v[1]])
+        };
+        match (get("[G54:"), get("[G92:")) {
+            (Some(a), Some(b)) => {
+                self.wco = Some([a[0] + b[0], a[1] + b[1]]);
+                Ok(())
+            }
+            _ => Err(StageError::Protocol(
+                "GRBL reports WPos ($10) but its `$#` gives no G54/G92 offsets to turn them \
+                 into machine positions; set `$10=1`"
+                    .into(),
+            )),
         }
     }
 
@@ -235,6 +399,9 @@ impl GrblController {
     fn pump(&mut self, deadline: Instant) -> Result<()> {
         let mut bytes = Vec::new();
         self.port.read_until(deadline, &mut bytes)?;
+        if self.heard.len() < 200 {
+            self.heard.extend_from_slice(&bytes[..bytes.len().min(200)]);
+        }
         self.rx.extend_from_slice(&bytes);
         while let Some(nl) = self.rx.iter().position(|&b| b == b'\n') {
             let raw: Vec<u8> = self.rx.drain(..=nl).collect();
@@ -251,6 +418,11 @@ impl GrblController {
     fn classify(&mut self, line: String) {
         if line.is_empty() {
             return;
+        }
+        let is_reply = line == "ok" || line.starts_with("error:");
+        if is_reply || line.starts_with("ALARM:") || line.starts_with("Grbl ") {
+            // Whatever a late report would have been, it came before this.
+            self.stale_reports = false;
         }
         if line == "ok" {
             self.inflight.pop_front();
@@ -269,8 +441,13 @@ impl GrblController {
             self.reset_seen = true;
             self.inflight.clear();
             self.jogging = false;
+            self.wco = None;
         } else if line.starts_with('<') && line.ends_with('>') {
-            self.last_status = Some(line);
+            if self.stale_reports {
+                self.late_reports += 1;
+            } else {
+                self.last_report = Some(line);
+            }
         } else if line.starts_with('[') || line.starts_with('$') {
             self.info_lines.push(line);
         } else {
@@ -374,30 +551,88 @@ impl GrblController {
         }
     }
 
-    /// `?` until a well-formed report arrives: (state, machine position mm, pins).
-    fn raw_status(&mut self) -> Result<(String, (f64, f64), String)> {
-        for _ in 0..QUERY_TRIES {
-            self.last_status = None;
+    /// Before a report may be believed after an unanswered `?`: a line reply must arrive. With
+    /// nothing in flight, an empty line (answered `ok` at once by an idle GRBL) asks for one.
+    fn resync_reports(&mut self) -> Result<()> {
+        if !self.stale_reports {
+            return Ok(());
+        }
+        if self.inflight.is_empty() {
+            self.send_line("")?;
+        }
+        let deadline = Instant::now() + REPLY_TIMEOUT * 2;
+        while self.stale_reports && Instant::now() < deadline {
+            self.pump(deadline.min(Instant::now() + POLL))?;
+        }
+        // The marker's `ok` is no answer to anything else.
+        self.replies.retain(|r| !matches!(r, Reply::Ok));
+        if self.stale_reports {
+            return Err(StageError::Timeout {
+                what: "GRBL (silent: a homing cycle in progress?)".into(),
+                after: REPLY_TIMEOUT * 2,
+            });
+        }
+        Ok(())
+    }
+
+    /// `?` until a well-formed report arrives, up to `tries` questions: the report and the
+    /// machine position in mm.
+    fn query(&mut self, tries: usize) -> Result<(Report, (f64, f64))> {
+        for _ in 0..tries {
+            self.resync_reports()?;
+            self.last_report = None;
             self.port.write_all(b"?")?;
             let deadline = Instant::now() + REPLY_TIMEOUT;
-            while Instant::now() < deadline && self.last_status.is_none() {
+            while Instant::now() < deadline && self.last_report.is_none() {
                 self.pump(deadline.min(Instant::now() + POLL))?;
             }
-            if let Some(parsed) = self.last_status.take().and_then(|l| parse_status(&l)) {
-                return Ok(parsed);
+            match self.last_report.take() {
+                None => self.stale_reports = true, // it may yet come, late
+                Some(l) => {
+                    if let Some(r) = grbl_report::parse(&l) {
+                        if let Some(m) = self.machine_mm(&r) {
+                            return Ok((r, m));
+                        }
+                    }
+                }
             }
         }
         Err(StageError::Timeout {
             what: "GRBL status report (`?`)".into(),
-            after: REPLY_TIMEOUT * QUERY_TRIES as u32,
+            after: REPLY_TIMEOUT * tries as u32,
         })
     }
 
-    fn to_status(&self, state: &str, mpos: (f64, f64), pins: &str) -> StageStatus {
+    fn raw_status(&mut self) -> Result<(Report, (f64, f64))> {
+        self.query(QUERY_TRIES)
+    }
+
+    /// The machine position of a report in mm: WPos + WCO when the board reports WPos, inches
+    /// converted. `None` for WPos while the offset is unknown.
+    fn machine_mm(&mut self, r: &Report) -> Option<(f64, f64)> {
+        if let Some(w) = r.wco {
+            self.wco = Some(w);
+        }
+        let unit = if self.settings.as_ref().is_some_and(|s| s.report_inches) {
+            25.4
+        } else {
+            1.0
+        };
+        let p = if r.machine {
+            r.pos
+        } else {
+            let w = self.wco?;
+            [r.pos[0] + w[0], r.pos[1] + w[1]]
+        };
+        Some((p[0] * unit, p[1] * unit))
+    }
+
+    fn to_status(&self, r: &Report, mpos: (f64, f64)) -> StageStatus {
         let position = CarriageUm::new(
             mpos.0 * 1000.0 + self.info.travel.x,
             mpos.1 * 1000.0 + self.info.travel.y,
         );
+        let state = r.state.as_str();
         let critical = matches!(self.alarm, Some(1) | Some(2));
         let (st, fault) = match state.split(':').next().unwrap_or("") {
             "Idle" | "Check" | "Sleep" => (
@@ -428,7 +663,7 @@ impl GrblController {
             state: st,
             position,
             homed: self.homed,
-            limit_switches: pins.chars().filter(|c| matches!(c, 'X' | 'Y')).collect(),
+            limit_switches: r.pins.chars().filter(|c| matches!(c, 'X' | 'Y')).collect(),
             fault,
             controller_state: state.to_string(),
         }
@@ -451,8 +686,8 @@ impl GrblController {
 
     /// One report, for polling; decisions use [`Controller::status`].
     fn status_once(&mut self) -> Result<StageStatus> {
-        let (s, p, pins) = self.raw_status()?;
-        Ok(self.to_status(&s, p, &pins))
+        let (r, m) = self.raw_status()?;
+        Ok(self.to_status(&r, m))
     }
 
     /// Waits for a boot banner after a soft reset.
@@ -463,7 +698,7 @@ impl GrblController {
         while !self.reset_seen {
             if Instant::now() >= deadline {
                 return Err(StageError::Timeout {
-                    what: "GRBL banner after a reset".into(),
+                    what: "GRBL banner after a soft reset (0x18)".into(),
                     after: Duration::from_secs(2),
                 });
             }
@@ -471,41 +706,61 @@ impl GrblController {
         }
         self.reset_seen = false;
         self.new_alarm = false;
+        self.homing = false;
         self.inflight.clear();
         self.replies.clear();
         Ok(())
     }
-}
 
-/// Parses `<Idle|MPos:-1.000,-2.000,0.000|FS:0,0|Pn:XY>`.
-fn parse_status(line: &str) -> Option<(String, (f64, f64), String)> {
-    let body = line.strip_prefix('<')?.strip_suffix('>')?;
-    let mut fields = body.split('|');
-    let state = fields.next()?.to_string();
-    if ![
-        "Idle", "Run", "Hold", "Jog", "Alarm", "Door", "Check", "Home", "Sleep",
-    ]
-    .contains(&state.split(':').next()?)
-    {
-        return None;
-    }
-    let mut mpos = None;
-    let mut pins = String::new();
-    for f in fields {
-        if let Some(p) = f.strip_prefix("MPos:") {
-            let v: Vec<f64> = p
-                .split(',')
-                .map(|x| x.parse().ok())
-                .collect::<Option<_>>()?;
-            if v.len() < 2 || v.iter().any(|x| !x.is_finite()) {
-                return None;
+    /// The homing wait: GRBL answers `$H` when the cycle has ended and may say nothing before,
+    /// so nothing is asked; `ok`, `error:n`, `ALARM:n` or a banner end it.
+    fn wait_homed(&mut self, timeout: Duration) -> Result<StageStatus> {
+        let deadline = Instant::now() + timeout;
+        match self.wait_reply(deadline)? {
+            Some(Reply::Ok) => {}
+            Some(Reply::Error(n)) => {
+                self.homing = false;
+                return Err(StageError::Rejected {
+                    command: "$H".into(),
+                    reason: format!("error:{n} ({})", error_meaning(n)),
+                });
             }
-            mpos = Some((v[0], v[1]));
-        } else if let Some(p) = f.strip_prefix("Pn:") {
-            pins = p.to_string();
+            // Stopping (a reset, which alone ends a homing cycle) is the driver's decision.
+            None => return Err(StageError::MotionTimeout { after: timeout }),
         }
+        self.homing = false;
+        self.inflight.clear();
+        let first = self.status_once()?;
+        let st = self.agreed_status(first)?;
+        if st.controller_state != "Idle" {
+            return Err(StageError::Protocol(format!(
+                "homing answered `ok` but GRBL is {}",
+                st.controller_state
+            )));
+        }
+        // Referenced again, old alarms void.
+        self.homed = true;
+        self.alarm = None;
+        // GRBL 1.1 sets the position after the pull-off to −$27 (+ switch) or −$130 + $27 (−
+        // switch): anything else means the board's frame is not the documented one.
+        let want = self.settings().home_position();
+        let off = st.position - want;
+        if off.x.abs() > 50.0 || off.y.abs() > 50.0 {
+            self.homed = false;
+            return Err(StageError::Protocol(format!(
+                "after homing GRBL reports {}, where GRBL 1.1 puts the carriage at {want} \
+                 ($23 homing directions, $27 pull-off, $130/$131 travel). A board built with \
+                 HOMING_FORCE_SET_ORIGIN, or whose settings do not match its switches, cannot be \
+                 used: see `rig stage check-setup`",
+                st.position
+            )));
+        }
+        Ok(StageStatus {
+            homed: true,
+            state: StageState::Idle,
+            ..st
+        })
     }
-    Some((state, mpos?, pins))
 }
 
 impl Controller for GrblController {
@@ -525,7 +780,7 @@ impl Controller for GrblController {
         self.jogging = false;
         let (x, y) = self.to_machine_mm(target);
         let f = (speed_um_s * 60.0 / 1000.0).max(1.0);
-        let line = format!("G90 G21 G1 X{x:.4} Y{y:.4} F{f:.1}");
+        let line = format!("G21 G90 G53 G1 X{x:.4} Y{y:.4} F{f:.1}");
         self.send_line(&line)?;
         match self.wait_reply(Instant::now() + REPLY_TIMEOUT)? {
             Some(Reply::Ok) => {}
@@ -559,10 +814,11 @@ impl Controller for GrblController {
     fn start_home(&mut self) -> Result<()> {
         self.settle_line()?;
         self.jogging = false;
-        if self.settings.get(&22) != Some(&1.0) {
+        if !self.settings().homing {
             return Err(StageError::Rejected {
                 command: "$H".into(),
-                reason: "homing is disabled on this GRBL ($22=0)".into(),
+                reason: "homing is disabled on this GRBL ($22=0); see `rig stage check-setup`"
+                    .into(),
             });
         }
         self.homed = false;
@@ -596,11 +852,14 @@ impl Controller for GrblController {
     }
 
     fn wait_done(&mut self, timeout: Duration) -> Result<StageStatus> {
+        if self.homing {
+            return self.wait_homed(timeout);
+        }
         let deadline = Instant::now() + timeout;
         let mut idle_with_inflight: Option<Instant> = None;
         let mut error_reply = None;
         loop {
-            // Replies: the dwell's `ok` (or `$H`'s) is the fast path; an error is remembered.
+            // Replies: the dwell's `ok` is the fast path; an error is remembered.
             while let Some(r) = self.replies.pop_front() {
                 if let Reply::Error(n) = r {
                     error_reply = Some(n);
@@ -608,6 +867,15 @@ impl Controller for GrblController {
             }
             if let Some(e) = self.take_fault() {
                 return Err(e);
+            }
+            if Instant::now() >= deadline {
+                // Stopping is the driver's decision (it stops on every error).
+                return Err(StageError::MotionTimeout { after: timeout });
+            }
+            if self.stale_reports && !self.inflight.is_empty() {
+                // A question went unanswered: no report is believed until the next reply.
+                self.pump(deadline.min(Instant::now() + POLL * 4))?;
+                continue;
             }
             // GRBL answers `?` at once, ahead of lines still waiting in its buffer: only a
             // report requested after the last answer arrived speaks for those lines.
@@ -647,56 +915,65 @@ impl Controller for GrblController {
                                 reason: format!("error:{n} ({})", error_meaning(n)),
                             });
                         }
-                        if std::mem::take(&mut self.homing) && st.controller_state == "Idle" {
-                            // `$H` answered and GRBL idle: referenced again, old alarms void.
-                            self.homed = true;
-                            self.alarm = None;
-                            return Ok(StageStatus {
-                                homed: true,
-                                state: StageState::Idle,
-                                ..st
-                            });
-                        }
                         return Ok(st);
                     }
                 }
-            }
-            if Instant::now() >= deadline {
-                // Stopping is the driver's decision (it stops on every error).
-                return Err(StageError::MotionTimeout { after: timeout });
             }
             self.pump(Instant::now() + POLL * 4)?;
         }
     }
 
-    fn stop(&mut self) -> Result<()> {
-        let (state, _, _) = self.raw_status()?;
-        let kind = state.split(':').next().unwrap_or("").to_string();
-        match kind.as_str() {
-            "Alarm" => return Ok(()), // already stopped, and GRBL takes nothing else
-            "Idle" if self.inflight.is_empty() => return Ok(()),
-            "Jog" => {
-                self.port.write_all(&[0x85])?;
-                return Ok(());
-            }
-            _ => {}
+    /// A feed hold at once (GRBL acts on it without a question first), then a soft reset to
+    /// empty the planner once the board holds still; if it does not report Hold or Idle within
+    /// the time a stop from full speed takes, a soft reset anyway (position lost). A homing
+    /// cycle ignores a feed hold: only a reset ends it (ALARM:6).
+    fn stop(&mut self) -> Result<StopAction> {
+        if self.homing {
+            self.reset_and_wait()?;
+            self.homed = false;
+            return Ok(StopAction::HomingAborted);
+        }
+        if self.jogging {
+            self.port.write_all(&[0x85])?;
         }
         self.port.write_all(b"!")?;
-        let deadline = Instant::now() + Duration::from_secs(3);
-        loop {
-            let (s, _, _) = self.raw_status()?;
-            if s == "Hold:0" || s == "Idle" || s.starts_with("Alarm") {
-                break;
+        // From full speed a stop takes v/a; the settings are range-checked, the wait capped.
+        let v_a = (self.info.max_speed_um_s / self.info.accel_um_s2).min(30.0);
+        let deadline = Instant::now() + Duration::from_secs_f64(v_a) + Duration::from_secs(1);
+        let mut held = None;
+        while Instant::now() < deadline {
+            match self.query(1) {
+                Ok((r, _)) => {
+                    let s = r.state.as_str();
+                    if s == "Hold:0" || s == "Idle" || s.starts_with("Alarm") {
+                        held = Some(r.state);
+                        break;
+                    }
+                }
+                Err(StageError::Timeout { .. }) => {}
+                Err(e) => return Err(e),
             }
-            if Instant::now() >= deadline {
-                return Err(StageError::Timeout {
-                    what: "feed hold".into(),
-                    after: Duration::from_secs(3),
-                });
+            std::thread::sleep(POLL);
+        }
+        match held.as_deref() {
+            Some(s) if s.starts_with("Alarm") => Ok(StopAction::Nothing), // GRBL stopped itself
+            Some("Idle") if self.inflight.is_empty() => {
+                self.jogging = false;
+                Ok(StopAction::Nothing)
+            }
+            Some(_) => {
+                // Holding still: a reset empties the planner and keeps the position.
+                self.reset_and_wait()?;
+                self.jogging = false;
+                Ok(StopAction::Decelerated)
+            }
+            None => {
+                self.reset_and_wait()?;
+                self.homed = false;
+                self.jogging = false;
+                Ok(StopAction::Reset)
             }
         }
-        // A reset from a finished hold flushes the planner and keeps the position.
-        self.reset_and_wait()
     }
 
     fn emergency_stop(&mut self) -> Result<()> {
@@ -715,28 +992,5 @@ impl Controller for GrblController {
             self.alarm = None;
         }
         Ok(())
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::parse_status;
-
-    #[test]
-    fn parses_reports() {
-        let (s, p, pins) = parse_status("<Idle|MPos:-1.000,-2.500,0.000|FS:0,0|Pn:XY>").unwrap();
-        assert_eq!((s.as_str(), p, pins.as_str()), ("Idle", (-1.0, -2.5), "XY"));
-        assert_eq!(
-            parse_status("<Hold:0|MPos:0.000,0.000,0.000|FS:0,0>")
-                .unwrap()
-                .0,
-            "Hold:0"
-        );
-        assert!(
-            parse_status("<Idle|WPos:0,0,0>").is_none(),
-            "needs MPos ($10=1)"
-        );
-        assert!(parse_status("<Idxe|MPos:0,0,0>").is_none());
-        assert!(parse_status("<Idle|MPos:0,x,0>").is_none());
     }
 }

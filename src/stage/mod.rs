@@ -10,13 +10,16 @@
 mod driver;
 mod error;
 pub mod grbl;
+mod grbl_report;
+pub mod grbl_settings;
+mod limits_check;
 mod motion;
 pub mod native;
 mod port;
 
 pub use driver::{Driver, DriverOptions};
 pub use error::{FaultKind, Result, StageError};
-pub use motion::{move_duration, Approach, SoftLimits, TimeoutPolicy};
+pub use motion::{move_duration, secs, Approach, SoftLimits, TimeoutPolicy};
 pub use port::{LinkOptions, Port};
 
 use crate::coords::CarriageUm;
@@ -75,8 +78,60 @@ pub struct ControllerInfo {
     pub home_speed_um_s: f64,
     /// Smallest position increment the controller reports (step or encoder count).
     pub resolution_um: f64,
-    /// Things the operator should know (e.g. the controller's own soft limits are off).
+    /// Things the operator should know (e.g. the controller's own soft limits are off, or it
+    /// was in Alarm when the rig connected).
     pub notes: Vec<String>,
+    /// The longest a homing cycle may take, from the controller's own rates and travel.
+    pub homing_bound_s: f64,
+    /// What the controller's set-up should change for the rig (`rig stage check-setup`).
+    pub advice: Vec<SetupAdvice>,
+    /// The controller settings the rig uses, as read (name, value and meaning).
+    pub settings: Vec<(String, String)>,
+}
+
+/// One change the controller's set-up needs, or would benefit from.
+#[derive(Debug, Clone, Serialize)]
+pub struct SetupAdvice {
+    pub setting: String,
+    pub now: String,
+    pub todo: String,
+}
+
+/// What a stop did.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum StopAction {
+    /// Nothing was moving (or the controller had already stopped itself in an alarm).
+    Nothing,
+    /// A decelerating stop (native Stop; GRBL feed hold, then a reset of the emptied planner);
+    /// the position is kept.
+    Decelerated,
+    /// The controller did not confirm a decelerating stop in time and was reset: the motors
+    /// stopped at once and the position is lost (home again).
+    Reset,
+    /// A homing cycle was ended by a reset: not homed.
+    HomingAborted,
+}
+
+impl StopAction {
+    pub fn describe(self) -> &'static str {
+        match self {
+            StopAction::Nothing => "nothing was moving",
+            StopAction::Decelerated => "decelerated to a stop; position kept",
+            StopAction::Reset => {
+                "the controller did not confirm a feed hold in time and was reset: stopped at once, position lost (home again)"
+            }
+            StopAction::HomingAborted => "homing cycle ended by a reset: home again",
+        }
+    }
+}
+
+/// Where a stop left the carriage, and how it was stopped.
+#[derive(Debug, Clone, Serialize)]
+pub struct Stopped {
+    pub action: StopAction,
+    /// The position after the stop, when the controller still knows it.
+    pub position: Option<CarriageUm>,
 }
 
 impl ControllerInfo {
@@ -95,6 +150,9 @@ impl ControllerInfo {
             home_speed_um_s: 1.0,
             resolution_um: 1.0,
             notes: vec![],
+            homing_bound_s: 0.0,
+            advice: vec![],
+            settings: vec![],
         }
     }
 }
@@ -111,8 +169,18 @@ pub trait Controller {
     fn start_jog(&mut self, delta: CarriageUm, speed_um_s: f64) -> Result<()>;
     /// Waits for the motion to end, up to `timeout`; a fault during the wait is an error.
     fn wait_done(&mut self, timeout: Duration) -> Result<StageStatus>;
-    /// Decelerating stop; returns when the controller has acknowledged it.
-    fn stop(&mut self) -> Result<()>;
+    /// Stops whatever moves, escalating until the controller confirms it; says what it did.
+    /// An error means the stop was not confirmed.
+    fn stop(&mut self) -> Result<StopAction>;
+    /// The longest a homing cycle may take (the wait's bound before its margin).
+    fn homing_duration(&self) -> Duration {
+        let info = self.info();
+        if info.homing_bound_s > 0.0 {
+            return secs(info.homing_bound_s);
+        }
+        let far = info.travel.x.max(info.travel.y) * 1.2 + 5000.0;
+        move_duration(far, info.home_speed_um_s, info.accel_um_s2) * 2
+    }
     /// Immediate stop.
     fn emergency_stop(&mut self) -> Result<()>;
     /// Leaves the fault or alarm state (the stage is then unhomed).
@@ -140,8 +208,9 @@ pub trait Stage {
     /// Jogs by `delta` at `speed_um_s`, clipped to the soft limits (a jog is for looking
     /// around, not for measuring: no approach, no position check).
     fn jog(&mut self, delta: CarriageUm, speed_um_s: f64) -> Result<CarriageUm>;
-    /// Decelerating stop; returns where the carriage came to rest.
-    fn stop(&mut self) -> Result<CarriageUm>;
+    /// Stops the stages (decelerating where the controller confirms it, at once where it does
+    /// not); says what was done and where the carriage rests. An error: not confirmed.
+    fn stop(&mut self) -> Result<Stopped>;
     fn emergency_stop(&mut self) -> Result<()>;
     /// Waits for the current motion to end, with a timeout from the expected duration.
     fn wait_motion(&mut self, expected: Duration) -> Result<StageStatus>;

@@ -95,38 +95,69 @@ impl Approach {
     }
 }
 
+/// The longest wait the rig ever computes: a day. Anything longer (or not a number) is a
+/// wrong input, and the absolute cap of [`TimeoutPolicy`] applies anyway.
+pub const LONGEST_WAIT: Duration = Duration::from_secs(86_400);
+
+/// Seconds as a `Duration` that never panics: negative is zero, NaN, infinite or longer than
+/// [`LONGEST_WAIT`] is [`LONGEST_WAIT`].
+pub fn secs(t: f64) -> Duration {
+    if t.is_nan() {
+        return LONGEST_WAIT;
+    }
+    Duration::try_from_secs_f64(t.max(0.0)).map_or(LONGEST_WAIT, |d| d.min(LONGEST_WAIT))
+}
+
 /// Duration of a point-to-point move of length `d` with a trapezoidal profile (speed `v`,
 /// acceleration `a`): `d/v + v/a` when the cruise speed is reached, `2·sqrt(d/a)` otherwise.
+/// Zero, negative or non-finite speeds and accelerations (a controller's bad settings) give
+/// [`LONGEST_WAIT`], never a panic.
 pub fn move_duration(d_um: f64, v_um_s: f64, a_um_s2: f64) -> Duration {
     let d = d_um.abs();
+    if !(v_um_s > 0.0 && a_um_s2 > 0.0) {
+        return LONGEST_WAIT;
+    }
     let t = if d * a_um_s2 >= v_um_s * v_um_s {
         d / v_um_s + v_um_s / a_um_s2
     } else {
         2.0 * (d / a_um_s2).sqrt()
     };
-    Duration::from_secs_f64(t)
+    secs(t)
 }
 
-/// How long to wait for a move before declaring it stuck: the expected duration times a
-/// factor, plus a fixed margin for the link and settling.
+/// How long to wait for a motion before declaring it stuck: the expected duration (from the
+/// controller's own configured rates) times a factor, plus a fixed margin for the link and
+/// settling; never more than the expected duration plus a minute, and never more than the
+/// operator's absolute cap.
 #[derive(Debug, Clone, Copy, serde::Serialize)]
 pub struct TimeoutPolicy {
     pub factor: f64,
     pub margin: Duration,
+    /// The absolute cap on any one wait (`--timeout`).
+    pub cap: Duration,
 }
+
+/// Beyond the expected duration, no wait is longer than this.
+pub const MOST_OVER_EXPECTED: Duration = Duration::from_secs(60);
 
 impl Default for TimeoutPolicy {
     fn default() -> Self {
         TimeoutPolicy {
             factor: 1.5,
             margin: Duration::from_secs(2),
+            cap: Duration::from_secs(600),
         }
     }
 }
 
 impl TimeoutPolicy {
     pub fn for_duration(&self, expected: Duration) -> Duration {
-        expected.mul_f64(self.factor) + self.margin
+        let expected = expected.min(LONGEST_WAIT);
+        let scaled = secs(expected.as_secs_f64() * self.factor) + self.margin;
+        scaled
+            .min(expected + MOST_OVER_EXPECTED)
+            .max(self.margin)
+            .min(self.cap)
     }
 }
 
@@ -186,6 +217,40 @@ mod tests {
         assert!(Approach::NONE
             .pre_position(CarriageUm::new(500.0, 0.0), CarriageUm::new(0.0, 0.0), &l)
             .is_none());
+    }
+
+    #[test]
+    fn absurd_rates_never_panic_and_every_wait_is_capped() {
+        for (v, a) in [
+            (0.0, 1.0),
+            (-1.0, 1.0),
+            (1.0, 0.0),
+            (f64::INFINITY, 1.0),
+            (f64::NAN, 1.0),
+            (1.0, f64::NAN),
+            (1e-300, 1e-300),
+        ] {
+            let d = move_duration(250_000.0, v, a);
+            assert!(d <= LONGEST_WAIT, "{v} {a}: {d:?}");
+        }
+        // 1 µm/s over 250 mm is 69 hours as computed; the wait is the operator's cap.
+        let p = TimeoutPolicy {
+            cap: Duration::from_secs(600),
+            ..TimeoutPolicy::default()
+        };
+        let expected = move_duration(250_000.0, 1.0, 1000.0);
+        assert_eq!(p.for_duration(expected), Duration::from_secs(600));
+        // A short move: factor and margin; a long one: at most a minute over the expected.
+        assert_eq!(
+            p.for_duration(Duration::from_secs(2)),
+            Duration::from_secs(5)
+        );
+        assert_eq!(
+            p.for_duration(Duration::from_secs(200)),
+            Duration::from_secs(260)
+        );
+        assert_eq!(secs(f64::NAN), LONGEST_WAIT);
+        assert_eq!(secs(-3.0), Duration::ZERO);
     }
 
     #[test]

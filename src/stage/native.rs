@@ -5,9 +5,10 @@
 //! status is read back, and only if it proves the request was not executed is it sent once
 //! more.
 
+use super::limits_check::{check, Range};
 use super::{
     Controller, ControllerInfo, FaultKind, LinkOptions, Port, Result, SoftLimits, StageError,
-    StageState, StageStatus,
+    StageState, StageStatus, StopAction,
 };
 use crate::coords::CarriageUm;
 use firmware_protocol::{
@@ -104,14 +105,51 @@ impl NativeController {
                 firmware & 0xff
             );
         }
-        let mut s = |id| c.setting(id);
-        let travel = CarriageUm::new(um(s(SettingId::TravelX)?), um(s(SettingId::TravelY)?));
-        let limits = SoftLimits {
-            min: CarriageUm::new(um(s(SettingId::SoftMinX)?), um(s(SettingId::SoftMinY)?)),
-            max: CarriageUm::new(um(s(SettingId::SoftMaxX)?), um(s(SettingId::SoftMaxY)?)),
+        // Settings are input, not truth: each is range-checked before a limit, a speed or a
+        // wait is computed from it, and the soft limits never reach beyond the travel.
+        let mut s = |id, range: &Range| -> Result<f64> {
+            let v = c.setting(id)? as f64;
+            check(
+                "native",
+                &format!("{id:?}"),
+                v,
+                range,
+                "the controller's configuration",
+            )
         };
-        let max_speed = s(SettingId::MaxSpeed)? as f64;
-        let accel = s(SettingId::Accel)? as f64;
+        // Travel and limits in nm (1 mm to the i32 range), speed in µm/s, acceleration in µm/s².
+        let travel_nm = Range::closed(1e6, i32::MAX as f64);
+        let um = |nm: f64| nm / 1000.0;
+        let travel = CarriageUm::new(
+            um(s(SettingId::TravelX, &travel_nm)?),
+            um(s(SettingId::TravelY, &travel_nm)?),
+        );
+        let pos = Range::closed(i32::MIN as f64, i32::MAX as f64);
+        let limits = SoftLimits {
+            min: CarriageUm::new(
+                um(s(SettingId::SoftMinX, &pos)?),
+                um(s(SettingId::SoftMinY, &pos)?),
+            ),
+            max: CarriageUm::new(
+                um(s(SettingId::SoftMaxX, &pos)?),
+                um(s(SettingId::SoftMaxY, &pos)?),
+            ),
+        }
+        .intersect(&SoftLimits {
+            min: CarriageUm::new(0.0, 0.0),
+            max: travel,
+        });
+        if !(limits.min.x < limits.max.x && limits.min.y < limits.max.y) {
+            return Err(StageError::BadSetting {
+                dialect: "native",
+                setting: "SoftMin/SoftMax".into(),
+                value: format!("{}..{}", limits.min, limits.max),
+                allowed: format!("a non-empty box inside the travel 0..{travel}"),
+                fix: "the controller's configuration".into(),
+            });
+        }
+        let max_speed = s(SettingId::MaxSpeed, &Range::closed(10.0, 2_000_000.0))?;
+        let accel = s(SettingId::Accel, &Range::closed(100.0, 100_000_000.0))?;
         c.info.travel = travel;
         c.info.limits = limits;
         c.info.max_speed_um_s = max_speed;
@@ -438,11 +476,23 @@ impl Controller for NativeController {
         }
     }
 
-    fn stop(&mut self) -> Result<()> {
-        match self.query(Message::Stop)? {
-            Message::Ack => Ok(()),
-            other => Err(StageError::Protocol(format!(
-                "unexpected answer to Stop: {other:?}"
+    /// A decelerating Stop; if it is not acknowledged, the emergency stop (the motors stop at
+    /// once, the position is lost); if that is not acknowledged either, an error: the stop was
+    /// not confirmed.
+    fn stop(&mut self) -> Result<StopAction> {
+        let first = match self.query(Message::Stop) {
+            Ok(Message::Ack) => return Ok(StopAction::Decelerated),
+            Ok(other) => format!("unexpected answer to Stop: {other:?}"),
+            Err(StageError::Disconnected(e)) => return Err(StageError::Disconnected(e)),
+            Err(e) => e.to_string(),
+        };
+        match self.query(Message::EStop) {
+            Ok(Message::Ack) => Ok(StopAction::Reset),
+            Ok(other) => Err(StageError::Protocol(format!(
+                "{first}; then unexpected answer to EStop: {other:?}"
+            ))),
+            Err(e) => Err(StageError::Protocol(format!(
+                "{first}; then the emergency stop was not acknowledged: {e}"
             ))),
         }
     }

@@ -44,13 +44,19 @@ fn drive(fw: &mut dyn Firmware, stage: &mut Stage, data: &[u8]) {
 }
 
 fuzz_target!(|data: &[u8]| {
-    for home_dir in [-1.0, 1.0] {
-        let cfg = StageConfig::new(&mut Rng::new(1), home_dir);
+    // The native firmware, then GRBL homing toward + and toward − ($23=3).
+    for case in 0..3 {
+        let cfg = match case {
+            0 => StageConfig::native(&mut Rng::new(1)),
+            1 => StageConfig::grbl(&mut Rng::new(1), [1.0, 1.0]),
+            _ => StageConfig::grbl(&mut Rng::new(1), [-1.0, -1.0]),
+        };
         let mut stage = Stage::new(cfg, FaultSpec::default(), 1, true);
-        if home_dir < 0.0 {
+        if case == 0 {
             drive(&mut NativeFirmware::new(&stage, 1), &mut stage, data);
         } else {
-            let mut fw = GrblFirmware::new(&stage, &mut Vec::new());
+            let mask = if case == 2 { vec![(23, 3.0)] } else { vec![] };
+            let mut fw = GrblFirmware::new(&stage, &mask, &mut Vec::new());
             drive(&mut fw, &mut stage, data);
         }
         for k in 0..2 {
