@@ -152,3 +152,68 @@ pub fn open_nonblocking(path: &Path) -> std::fs::File {
     }
     f
 }
+
+/// How a hostile input ended.
+pub struct Hostile {
+    /// The exit code; `None` if a signal ended it (an abort, or our kill after a hang).
+    pub code: Option<i32>,
+    pub stdout: String,
+    pub stderr: String,
+}
+
+/// Runs the rig on a hostile input with an address-space limit of `mem_gib` GiB (an attempt to
+/// allocate far more is then an abort, not a slow swap) and a wall-clock bound of `secs` (then
+/// it is killed). Asserts the properties every hostile case shares: it ended by itself, with an
+/// exit code (no abort, no signal), without a panic, within the bound.
+pub fn run_hostile(cmd: &mut Command, mem_gib: u64, secs: u64) -> Hostile {
+    use std::os::unix::process::CommandExt;
+    let limit = mem_gib << 30;
+    // SAFETY: setrlimit is async-signal-safe; it only lowers this child's own limit.
+    unsafe {
+        cmd.pre_exec(move || {
+            let r = libc::rlimit {
+                rlim_cur: limit,
+                rlim_max: limit,
+            };
+            libc::setrlimit(libc::RLIMIT_AS, &r);
+            Ok(())
+        });
+    }
+    let mut child = cmd
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    // Drained as they fill, so a chatty child never blocks on a full pipe.
+    let drain = |mut r: Box<dyn std::io::Read + Send>| {
+        std::thread::spawn(move || {
+            let mut v = Vec::new();
+            let _ = r.read_to_end(&mut v);
+            String::from_utf8_lossy(&v).to_string()
+        })
+    };
+    let out_t = drain(Box::new(child.stdout.take().unwrap()));
+    let err_t = drain(Box::new(child.stderr.take().unwrap()));
+    let deadline = Instant::now() + Duration::from_secs(secs);
+    let status = loop {
+        if let Some(s) = child.try_wait().unwrap() {
+            break Some(s);
+        }
+        if Instant::now() > deadline {
+            let _ = child.kill();
+            let _ = child.wait();
+            break None;
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    let h = Hostile {
+        code: status.and_then(|s| s.code()),
+        stdout: out_t.join().unwrap_or_default(),
+        stderr: err_t.join().unwrap_or_default(),
+    };
+    let what = format!("{cmd:?}\nstdout: {}\nstderr: {}", h.stdout, h.stderr);
+    assert!(status.is_some(), "hung (killed after {secs} s): {what}");
+    assert!(h.code.is_some(), "ended by a signal (abort?): {what}");
+    assert!(!h.stderr.contains("panicked"), "panicked: {what}");
+    h
+}
