@@ -61,9 +61,9 @@ fn raw_exchange(f: &mut std::fs::File, bytes: &[u8], dur: Duration) -> String {
 
 #[test]
 fn emulator_is_silent_while_homing_and_answers_once_before_its_ok() {
-    // Real time: a seek of 50-150 mm at 10 mm/s takes 5-15 s, so the questions below all
+    // Half real time: seed 1's seek (168 mm at 10 mm/s) takes 8 s, so the questions below all
     // fall inside the cycle.
-    let sim = grbl(1.0, false, &[]);
+    let sim = grbl(0.5, false, &[]);
     let mut f = common::open_nonblocking(&sim.port);
     raw_exchange(&mut f, b"", Duration::from_millis(100));
     assert_eq!(
@@ -199,7 +199,8 @@ fn alarm_at_connect_is_reported_not_hidden() {
 
 #[test]
 fn connecting_never_aborts_a_homing_cycle() {
-    let sim = grbl(1.0, false, &[]);
+    // Seed 1's cycle (8 s at half real time) outlasts the connection attempt (2.5 s).
+    let sim = grbl(0.5, false, &[]);
     {
         let mut f = common::open_nonblocking(&sim.port);
         raw_exchange(&mut f, b"$H\n", Duration::from_millis(50));
@@ -404,8 +405,9 @@ fn a_silent_line_is_reported_as_silence_without_a_reset() {
     assert_eq!(fake.seen().resets, 0, "connecting must not reset the board");
 }
 
-#[test]
-fn check_setup_says_what_to_change() {
+/// `rig stage --sim --dialect grbl --sim-grbl-setting SETTING ACTION`: exit code, stdout,
+/// stderr.
+fn grbl_cli(setting: &str, action: &str) -> (i32, String, String) {
     let out = common::rig()
         .args([
             "stage",
@@ -414,35 +416,27 @@ fn check_setup_says_what_to_change() {
             "grbl",
             "--sim-time-scale",
             "0",
-            "--sim-grbl-setting",
-            "20=0",
-            "check-setup",
         ])
+        .args(["--sim-grbl-setting", setting, action])
         .output()
         .unwrap();
-    let (code, _, err) = common::parse(out.clone());
-    let text = String::from_utf8_lossy(&out.stdout);
+    (
+        out.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&out.stdout).to_string(),
+        String::from_utf8_lossy(&out.stderr).to_string(),
+    )
+}
+
+#[test]
+fn check_setup_says_what_to_change() {
+    let (code, text, err) = grbl_cli("20=0", "check-setup");
     assert_eq!(code, 0, "{err}");
     assert!(
         text.contains("$20: now 0") && text.contains("`$20=1`"),
         "{text}"
     );
     assert!(text.contains("HOMING_CYCLE_0"), "{text}");
-    let out = common::rig()
-        .args([
-            "stage",
-            "--sim",
-            "--dialect",
-            "grbl",
-            "--sim-time-scale",
-            "0",
-            "--sim-grbl-setting",
-            "110=0",
-            "status",
-        ])
-        .output()
-        .unwrap();
-    let (code, _, err) = common::parse(out);
+    let (code, _, err) = grbl_cli("110=0", "status");
     assert_eq!(code, 8, "{err}");
     assert!(err.contains("$110 (X max rate"), "{err}");
     assert!(!err.contains("panicked"));

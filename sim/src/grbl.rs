@@ -224,16 +224,18 @@ impl GrblFirmware {
         [0, 1].map(|k| self.g54_um[k] + self.g92_um[k])
     }
 
-    /// A status report as `$10` and `$13` ask: MPos or WPos, mm (3 decimals) or inches (4).
+    /// A coordinate in the report unit `$13` asks for: mm with 3 decimals or inches with 4.
+    fn coord(&self, um: f64) -> String {
+        if self.setting_bits(13) & 1 != 0 {
+            format!("{:.4}", um / 25_400.0 + 0.0)
+        } else {
+            format!("{:.3}", mm3(um))
+        }
+    }
+
+    /// A status report as `$10` and `$13` ask: MPos or WPos, mm or inches.
     fn status_report(&mut self, stage: &Stage) -> String {
         let inch = self.setting_bits(13) & 1 != 0;
-        let fmt = |um: f64| {
-            if inch {
-                format!("{:.4}", um / 25_400.0 + 0.0)
-            } else {
-                format!("{:.3}", mm3(um))
-            }
-        };
         let machine = [stage.logical(0), stage.logical(1)];
         let wco = self.wco();
         let (label, pos) = if self.setting_bits(10) & 1 != 0 {
@@ -249,9 +251,9 @@ impl GrblFirmware {
         let mut s = format!(
             "<{}|{label}:{},{},{}|FS:{},0",
             self.mode_name(stage),
-            fmt(pos[0]),
-            fmt(pos[1]),
-            fmt(0.0),
+            self.coord(pos[0]),
+            self.coord(pos[1]),
+            self.coord(0.0),
             feed.round() as i64
         );
         let sw = stage.switches();
@@ -268,12 +270,8 @@ impl GrblFirmware {
             self.wco_counter -= 1;
         } else {
             self.wco_counter = if stage.is_busy() { 29 } else { 9 };
-            s.push_str(&format!(
-                "|WCO:{},{},{}",
-                fmt(wco[0]),
-                fmt(wco[1]),
-                fmt(0.0)
-            ));
+            let wco = [self.coord(wco[0]), self.coord(wco[1]), self.coord(0.0)];
+            s.push_str(&format!("|WCO:{}", wco.join(",")));
         }
         s.push_str(">\r\n");
         s
@@ -646,14 +644,7 @@ impl GrblFirmware {
             }
             "#" => {
                 // The offsets as they are, in the report unit ($13).
-                let inch = self.setting_bits(13) & 1 != 0;
-                let f = |um: f64| {
-                    if inch {
-                        format!("{:.4}", um / 25_400.0 + 0.0)
-                    } else {
-                        format!("{:.3}", mm3(um))
-                    }
-                };
+                let f = |um: f64| self.coord(um);
                 let (a, b) = (self.g54_um, self.g92_um);
                 let z = f(0.0);
                 out.extend_from_slice(
