@@ -81,3 +81,21 @@ fn absurd_controller_settings_are_refused_by_name() {
         );
     }
 }
+
+#[test]
+fn absurd_native_settings_are_refused_by_name() {
+    for (setting, name) in [
+        ("MaxSpeed=0", "MaxSpeed"),
+        ("MaxSpeed=-5", "MaxSpeed"),
+        ("Accel=0", "Accel"),
+        ("TravelX=0", "TravelX"),
+        ("TravelY=-1000", "TravelY"),
+        ("SoftMaxX=0", "SoftMin/SoftMax"),
+    ] {
+        case(
+            &["--sim-native-setting", setting, "status"],
+            8,
+            &[name, "allowed range"],
+        );
+    }
+}

@@ -62,6 +62,11 @@ pub struct SimArgs {
     /// (home toward the − switches; the switches are placed for it).
     #[arg(long, value_name = "N=VALUE", value_parser = parse_setting)]
     pub grbl_setting: Vec<(u32, f64)>,
+    /// Native only: report a setting as this value whatever the controller does, `NAME=VALUE`
+    /// (repeatable; names as in PROTOCOL.md, e.g. `MaxSpeed=0`, `TravelX=0`): a misconfigured
+    /// controller, for testing the host.
+    #[arg(long, value_name = "NAME=VALUE", value_parser = parse_native_setting)]
+    pub native_setting: Vec<(firmware_protocol::SettingId, i32)>,
     /// Probability that a camera frame is lost on the way.
     #[arg(long, default_value_t = 0.0, value_name = "P")]
     pub camera_drop: f64,
@@ -82,6 +87,26 @@ pub fn parse_setting(s: &str) -> Result<(u32, f64), String> {
         .parse()
         .map_err(|_| format!("`{s}`: value `{v}` is not a number"))?;
     Ok((k, v))
+}
+
+/// `NAME=VALUE` with NAME a native setting (`MaxSpeed`, `SoftMinX`, …) and VALUE an i32.
+pub fn parse_native_setting(s: &str) -> Result<(firmware_protocol::SettingId, i32), String> {
+    use firmware_protocol::SettingId;
+    let (k, v) = s
+        .split_once('=')
+        .ok_or_else(|| format!("`{s}`: expected NAME=VALUE, e.g. MaxSpeed=0"))?;
+    let id = SettingId::ALL
+        .iter()
+        .find(|id| format!("{id:?}").eq_ignore_ascii_case(k.trim()))
+        .ok_or_else(|| {
+            let names: Vec<String> = SettingId::ALL.iter().map(|i| format!("{i:?}")).collect();
+            format!("`{k}` is not a native setting; one of {}", names.join(", "))
+        })?;
+    let v: i32 = v
+        .trim()
+        .parse()
+        .map_err(|_| format!("`{v}` is not an integer in -2147483648..=2147483647"))?;
+    Ok((*id, v))
 }
 
 fn parse_faults(s: &str) -> Result<FaultSpec, String> {
@@ -108,6 +133,7 @@ pub fn run(args: SimArgs) -> std::io::Result<()> {
         stage_link: args.stage_link,
         start_homed: args.start_homed,
         grbl_settings: args.grbl_setting,
+        native_settings: args.native_setting,
         film: args.film,
         dirty_crosses: args.dirty_crosses,
         missing_fiducials: args.missing_fiducials,

@@ -23,6 +23,9 @@ pub struct NativeFirmware {
     trigger_count: u32,
     serial: u32,
     pub bad_frames: u64,
+    /// What a misconfigured controller reports for these settings, whatever it does itself
+    /// (for hostile tests: a zero speed, a travel of nothing, inverted limits).
+    pub reported: Vec<(SettingId, i32)>,
 }
 
 fn nm(um: f64) -> i32 {
@@ -46,6 +49,7 @@ impl NativeFirmware {
             trigger_count: 0,
             serial,
             bad_frames: 0,
+            reported: Vec::new(),
         }
     }
 
@@ -144,6 +148,9 @@ impl NativeFirmware {
     }
 
     fn setting(&self, stage: &Stage, id: SettingId) -> i32 {
+        if let Some(&(_, v)) = self.reported.iter().rev().find(|(k, _)| *k == id) {
+            return v;
+        }
         match id {
             SettingId::SoftMinX => nm(self.soft[0][0]),
             SettingId::SoftMaxX => nm(self.soft[0][1]),
@@ -439,7 +446,9 @@ impl NativeFirmware {
                 // A reset forgets everything: the handshake, the settings, the reference.
                 let serial = self.serial;
                 stage.power_on_reference();
+                let reported = std::mem::take(&mut self.reported);
                 *self = NativeFirmware::new(stage, serial);
+                self.reported = reported;
                 self.event(Message::Reset { cause: 2 }, out);
             }
             StageEvent::Disconnect => {}

@@ -50,6 +50,9 @@ pub struct SimConfig {
     /// or absurd values for hostile tests). `$23` also decides which end the board's homing
     /// switches are at.
     pub grbl_settings: Vec<(u32, f64)>,
+    /// Native controller settings reported as these values instead of the real ones (hostile
+    /// tests: `MaxSpeed` 0, `TravelX` 0, inverted soft limits).
+    pub native_settings: Vec<(firmware_protocol::SettingId, i32)>,
     /// A film lies on the carriage.
     pub film: bool,
     /// Crosses of the plate with a smudge of dirt over their centre.
@@ -75,6 +78,7 @@ impl Default for SimConfig {
             stage_link: None,
             start_homed: false,
             grbl_settings: Vec::new(),
+            native_settings: Vec::new(),
             film: false,
             dirty_crosses: Vec::new(),
             missing_fiducials: Vec::new(),
@@ -263,7 +267,9 @@ pub fn serve(
     let mut out = Vec::new();
     let mut fw = match cfg.dialect {
         Dialect::Native => {
-            Firmware::Native(NativeFirmware::new(&stage, (cfg.seed as u32) ^ 0x5151))
+            let mut fw = NativeFirmware::new(&stage, (cfg.seed as u32) ^ 0x5151);
+            fw.reported = cfg.native_settings.clone();
+            Firmware::Native(fw)
         }
         Dialect::Grbl => Firmware::Grbl(GrblFirmware::new(&stage, &cfg.grbl_settings, &mut out)),
     };

@@ -48,6 +48,10 @@ pub struct StageArgs {
     /// (e.g. `10=0` WPos reports, `13=1` inches, `23=3` homing toward the − switches).
     #[arg(long, value_name = "N=VALUE", value_parser = rig_sim::cli::parse_setting, requires = "sim", global = true)]
     pub sim_grbl_setting: Vec<(u32, f64)>,
+    /// Simulator (native): report a setting as this value, `NAME=VALUE`, repeatable (e.g.
+    /// `MaxSpeed=0`): a misconfigured controller.
+    #[arg(long, value_name = "NAME=VALUE", value_parser = rig_sim::cli::parse_native_setting, requires = "sim", global = true)]
+    pub sim_native_setting: Vec<(firmware_protocol::SettingId, i32)>,
     /// Print one JSON object on standard output instead of text.
     #[arg(long, global = true)]
     pub json: bool,
@@ -463,6 +467,7 @@ pub fn run(a: StageArgs) -> anyhow::Result<i32> {
             stage_link: None,
             start_homed: true,
             grbl_settings: a.sim_grbl_setting.clone(),
+            native_settings: a.sim_native_setting.clone(),
             ..Default::default()
         };
         let s = rig_sim::EmbeddedSim::start(cfg).context("starting the built-in simulator")?;

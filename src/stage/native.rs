@@ -114,7 +114,7 @@ impl NativeController {
                 &format!("{id:?}"),
                 v,
                 range,
-                "the controller's configuration",
+                &format!("set {id:?} in its configuration"),
             )
         };
         // Travel and limits in nm (1 mm to the i32 range), speed in µm/s, acceleration in µm/s².
@@ -145,7 +145,7 @@ impl NativeController {
                 setting: "SoftMin/SoftMax".into(),
                 value: format!("{}..{}", limits.min, limits.max),
                 allowed: format!("a non-empty box inside the travel 0..{travel}"),
-                fix: "the controller's configuration".into(),
+                fix: "set SoftMin/SoftMax inside the travel in its configuration".into(),
             });
         }
         let max_speed = s(SettingId::MaxSpeed, &Range::closed(10.0, 2_000_000.0))?;
