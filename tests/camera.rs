@@ -128,3 +128,50 @@ fn the_camera_sees_each_fiducial_where_the_film_lies() {
         );
     }
 }
+
+/// Largest absolute difference of two images, DN: where a cross moved, it is the cross's
+/// contrast; between two averages at one place, the noise's extreme.
+fn mad(a: &rig::digitise::ImageF32, b: &rig::digitise::ImageF32) -> f64 {
+    a.data
+        .iter()
+        .zip(&b.data)
+        .map(|(x, y)| (x - y).abs() as f64)
+        .fold(0.0, f64::max)
+}
+
+#[test]
+fn frames_queued_during_a_move_never_enter_an_average() {
+    use rig::digitise::capture::capture;
+    let s = sim(false);
+    let mut st = open_stage(&s);
+    let mut cam = SimCamera::new(s.world.clone(), 0.0);
+    let c = s.world.plate.crosses[4].nominal_um;
+    let a = CarriageUm::new(c[0], c[1]);
+    let b = CarriageUm::new(c[0] + 1500.0, c[1] + 1000.0);
+    let t = Duration::from_secs(1);
+    let take = |cam: &mut SimCamera, n: u32, fresh: bool| {
+        let now = fresh.then(|| cam.now().unwrap());
+        capture(cam, n, false, t, now, |_| {}).unwrap()
+    };
+    st.move_to(a).unwrap();
+    let at_a = take(&mut cam, 8, true);
+    // Two averages at one place differ by their noise only.
+    let noise = mad(&at_a.image, &take(&mut cam, 8, true).image).max(0.1);
+    // Negative control: taken the old way, right after a move, the average holds frames the
+    // driver's buffers filled at A. (If the simulated camera did not queue like V4L2, this
+    // test could not tell the fix from no fix.)
+    st.move_to(b).unwrap();
+    let old_way = take(&mut cam, 4, false);
+    let at_b = take(&mut cam, 16, true);
+    let contaminated = mad(&old_way.image, &at_b.image);
+    assert!(
+        contaminated > 5.0 * noise,
+        "{contaminated} vs noise {noise}"
+    );
+    // The fix: back at A, frames from before the stage stood still are set aside.
+    st.move_to(a).unwrap();
+    let fresh = take(&mut cam, 4, true);
+    assert_eq!(fresh.stale, rig_sim::camera::BUFFERS as u64 - 1);
+    let off = mad(&fresh.image, &at_a.image);
+    assert!(off < 3.0 * noise, "{off} vs noise {noise}");
+}

@@ -376,7 +376,9 @@ mod tests {
 #[derive(Debug, Clone)]
 pub struct SimFrame {
     pub seq: u64,
-    /// Simulated seconds since the stream started.
+    /// When it was captured, on the simulated world's clock (seconds), the clock
+    /// [`FrameSource::now_s`] reads: as a V4L2 buffer's timestamp is on the host's monotonic
+    /// clock.
     pub t_s: f64,
     pub width: usize,
     pub height: usize,
@@ -386,9 +388,17 @@ pub struct SimFrame {
     pub mark_um: [f64; 2],
 }
 
+/// Buffers the simulated driver streams into, as a V4L2 mmap stream does.
+pub const BUFFERS: usize = 4;
+
 /// A stream of frames from the simulated camera, looking at the world's plate wherever the
 /// world's stage really is. Frames come at the camera's frame rate (time-scaled; never waits at
 /// time scale 0); with `drop_p` > 0 frames are lost on the way, leaving gaps in `seq`.
+///
+/// Like a V4L2 driver streaming into [`BUFFERS`] mmap buffers, the source fills every free
+/// buffer as soon as it can and hands out the oldest filled one: after the stage has moved, the
+/// first frames dequeued were captured before or during the move, with their capture times.
+/// A host must drop them by timestamp (frames before the end of its settle).
 pub struct FrameSource {
     world: std::sync::Arc<crate::server::World>,
     cfg: CameraConfig,
@@ -401,6 +411,8 @@ pub struct FrameSource {
     cache: Option<([f64; 2], Vec<f32>)>,
     /// Frames taken since the stage last moved (for the repeatable world).
     here: u64,
+    /// Filled buffers not yet handed out, oldest first.
+    queue: std::collections::VecDeque<SimFrame>,
 }
 
 impl FrameSource {
@@ -417,7 +429,23 @@ impl FrameSource {
             dropped: vec![],
             cache: None,
             here: 0,
+            queue: std::collections::VecDeque::new(),
         }
+    }
+
+    /// The clock of the frames' `t_s`: the simulated world's time, seconds.
+    pub fn now_s(&self) -> f64 {
+        self.world.stage().t
+    }
+
+    /// The next frame: the oldest filled buffer, after every free buffer has been filled with
+    /// a frame captured now.
+    pub fn next_frame(&mut self) -> SimFrame {
+        while self.queue.len() < BUFFERS {
+            let f = self.capture();
+            self.queue.push_back(f);
+        }
+        self.queue.pop_front().expect("just filled")
     }
 
     pub fn config(&self) -> &CameraConfig {
@@ -434,15 +462,15 @@ impl FrameSource {
         self.cfg.gain = gain.unwrap_or(1.0);
     }
 
-    /// The next frame that arrives.
-    pub fn next_frame(&mut self) -> SimFrame {
+    /// Captures the next frame where the stage is now (after the frame period, time-scaled).
+    fn capture(&mut self) -> SimFrame {
         loop {
             let seq = self.next_seq;
             self.next_seq += 1;
-            let t_s = seq as f64 / self.cfg.frame_rate_hz;
             let ts = self.world.time_scale;
             if ts > 0.0 {
-                let due = std::time::Duration::from_secs_f64(t_s * ts);
+                let due =
+                    std::time::Duration::from_secs_f64(seq as f64 / self.cfg.frame_rate_hz * ts);
                 if let Some(wait) = due.checked_sub(self.started.elapsed()) {
                     std::thread::sleep(wait);
                 }
@@ -451,9 +479,9 @@ impl FrameSource {
                 self.dropped.push(seq);
                 continue;
             }
-            let mut mark_um = {
+            let (mut mark_um, t_s) = {
                 let st = self.world.stage();
-                [st.carriage_true(0), st.carriage_true(1)]
+                ([st.carriage_true(0), st.carriage_true(1)], st.t)
             };
             if self.world.repeatable {
                 // To the nanometre: two paths to one place may differ in a float's last bit.

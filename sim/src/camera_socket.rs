@@ -110,6 +110,9 @@ fn serve_client(conn: UnixStream, mut src: FrameSource) -> std::io::Result<()> {
                     )?,
                 },
             },
+            Some("now") => {
+                writeln!(out, "{}", json!({"ok": true, "t_s": src.now_s()}))?;
+            }
             Some("frame") => {
                 let f = src.next_frame();
                 let bytes: Vec<u8> = f.data.iter().flat_map(|v| v.to_le_bytes()).collect();
@@ -123,7 +126,7 @@ fn serve_client(conn: UnixStream, mut src: FrameSource) -> std::io::Result<()> {
             other => writeln!(
                 out,
                 "{}",
-                json!({"ok": false, "error": format!("unknown cmd {other:?} (info, exposure, gain, frame)")})
+                json!({"ok": false, "error": format!("unknown cmd {other:?} (info, exposure, gain, now, frame)")})
             )?,
         }
         out.flush()?;

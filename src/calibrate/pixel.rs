@@ -173,7 +173,16 @@ impl Rig<'_> {
         frames: u32,
     ) -> Result<(CarriageUm, ImageF32), CalibrateError> {
         let s = self.stage.move_to(at)?;
-        let mut c = capture(self.camera, frames, true, Duration::from_secs(5), |_| {})?;
+        // Frames captured before the stage stood still are set aside.
+        let settled = self.camera.now().map_err(CaptureError::from)?;
+        let mut c = capture(
+            self.camera,
+            frames,
+            true,
+            Duration::from_secs(5),
+            Some(settled),
+            |_| {},
+        )?;
         if let Some(f) = &self.flat {
             f.apply(&mut c.image);
         }

@@ -74,10 +74,25 @@ pub trait Camera {
     fn set_exposure_ms(&mut self, ms: f64) -> Result<()>;
     /// `None` = automatic gain.
     fn set_gain(&mut self, gain: Option<f64>) -> Result<()>;
-    /// The next frame of the stream (the stream starts on first use).
+    /// The next frame of the stream (the stream starts on first use). Streams are buffered:
+    /// a frame may have been captured well before it is handed out (while the stage was still
+    /// moving); its `timestamp` says when.
     fn next_frame(&mut self, timeout: Duration) -> Result<Frame>;
+    /// The current time on the clock of the frames' timestamps (V4L2: the host's monotonic
+    /// clock), so that frames captured before a moment can be told apart.
+    fn now(&mut self) -> Result<Duration>;
     /// Frames missing from the sequence so far.
     fn dropped(&self) -> u64;
+}
+
+/// Seconds from a device or a socket as a `Duration`: `None` for negative, NaN, infinite or
+/// absurd (over a year) values, which are never a camera's clock.
+pub fn secs(t: f64) -> Option<Duration> {
+    if (0.0..=3.2e7).contains(&t) {
+        Duration::try_from_secs_f64(t).ok()
+    } else {
+        None
+    }
 }
 
 /// Counts gaps in a stream's sequence numbers.

@@ -77,6 +77,10 @@ impl Camera for SimCamera {
         })
     }
 
+    fn now(&mut self) -> Result<Duration> {
+        Ok(Duration::from_secs_f64(self.src.now_s().max(0.0)))
+    }
+
     fn dropped(&self) -> u64 {
         self.seq.dropped
     }

@@ -44,15 +44,24 @@ impl SocketCamera {
             seq: SeqTracker::default(),
         };
         let r = c.request(json!({"cmd": "info"}))?;
-        let num = |k: &str| {
+        // What the camera says of itself is input: sizes, depth and rate in their ranges.
+        let num = |k: &str, lo: u64, hi: u64| {
             r[k].as_u64()
-                .ok_or_else(|| CameraError::Io(format!("camera info without {k}: {r}")))
+                .filter(|v| (lo..=hi).contains(v))
+                .ok_or_else(|| {
+                    CameraError::Io(format!("camera info: {k} = {} is not in {lo}..={hi}", r[k]))
+                })
         };
-        c.info.width = num("width")? as usize;
-        c.info.height = num("height")? as usize;
-        c.info.bit_depth = num("bit_depth")? as u32;
-        c.info.exposure_ms = r["exposure_ms"].as_f64();
-        c.info.gain = r["gain"].as_f64();
+        c.info.width = num("width", 1, 16_384)? as usize;
+        c.info.height = num("height", 1, 16_384)? as usize;
+        c.info.bit_depth = num("bit_depth", 1, 16)? as u32;
+        c.info.exposure_ms = r["exposure_ms"]
+            .as_f64()
+            .filter(|v| v.is_finite() && *v > 0.0);
+        c.info.gain = r["gain"].as_f64().filter(|v| v.is_finite() && *v > 0.0);
+        c.info.frame_rate_hz = r["frame_rate_hz"]
+            .as_f64()
+            .filter(|v| v.is_finite() && *v > 0.0 && *v < 100_000.0);
         Ok(c)
     }
 
@@ -124,17 +133,23 @@ impl Camera for SocketCamera {
             h[k].as_u64()
                 .ok_or_else(|| CameraError::Io(format!("frame header without {k}: {h}")))
         };
-        let (seq, width, height, bytes) = (
-            get("seq")?,
-            get("width")? as usize,
-            get("height")? as usize,
-            get("bytes")? as usize,
-        );
-        if bytes != width * height * 2 {
+        let (seq, width, height, bytes) =
+            (get("seq")?, get("width")?, get("height")?, get("bytes")?);
+        // The camera said its size when it was opened: a frame of another size (or a header
+        // asking for gigabytes) is refused before anything is allocated.
+        if (width, height) != (self.info.width as u64, self.info.height as u64)
+            || Some(bytes) != width.checked_mul(height).and_then(|n| n.checked_mul(2))
+        {
             return Err(CameraError::Io(format!(
-                "frame {seq}: {bytes} bytes for {width}×{height} pixels"
+                "frame {seq}: {bytes} bytes for {width}×{height} pixels; the camera is {}×{}",
+                self.info.width, self.info.height
             )));
         }
+        let (width, height, bytes) = (self.info.width, self.info.height, bytes as usize);
+        let t_s = h["t_s"].as_f64().unwrap_or(f64::NAN);
+        let timestamp = super::secs(t_s).ok_or_else(|| {
+            CameraError::Io(format!("frame {seq}: timestamp {t_s} is not a time"))
+        })?;
         let mut buf = vec![0u8; bytes];
         self.reader
             .read_exact(&mut buf)
@@ -142,7 +157,7 @@ impl Camera for SocketCamera {
         self.seq.see(seq);
         Ok(Frame {
             seq,
-            timestamp: Duration::from_secs_f64(h["t_s"].as_f64().unwrap_or(0.0)),
+            timestamp,
             width,
             height,
             bit_depth: get("bit_depth")? as u32,
@@ -151,6 +166,13 @@ impl Camera for SocketCamera {
                 .map(|p| u16::from_le_bytes([p[0], p[1]]))
                 .collect(),
         })
+    }
+
+    fn now(&mut self) -> Result<Duration> {
+        let r = self.request(json!({"cmd": "now"}))?;
+        let t_s = r["t_s"].as_f64().unwrap_or(f64::NAN);
+        super::secs(t_s)
+            .ok_or_else(|| CameraError::Io(format!("the camera's clock says {t_s}: not a time")))
     }
 
     fn dropped(&self) -> u64 {

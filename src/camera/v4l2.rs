@@ -199,15 +199,43 @@ impl Camera for V4l2Camera {
             .map_err(|e| CameraError::Io(e.to_string()))?;
         let seq = meta.sequence as u64;
         self.seq.see(seq);
+        // V4L2 stamps buffers on the monotonic clock (V4L2_BUF_FLAG_TIMESTAMP_MONOTONIC, what
+        // UVC and most capture drivers use), the clock `now` reads.
+        // time_t and suseconds_t are 32 bits on some targets.
+        #[allow(clippy::unnecessary_cast)]
+        let (sec, usec) = (meta.timestamp.sec as i64, meta.timestamp.usec as i64);
+        if sec < 0 || !(0..1_000_000).contains(&usec) {
+            return Err(CameraError::Io(format!(
+                "frame {seq}: timestamp {sec} s {usec} µs is not a time"
+            )));
+        }
         Ok(Frame {
             seq,
-            timestamp: Duration::from_secs(meta.timestamp.sec as u64)
-                + Duration::from_micros(meta.timestamp.usec as u64),
+            timestamp: Duration::from_secs(sec as u64) + Duration::from_micros(usec as u64),
             width: self.width,
             height: self.height,
             bit_depth,
             data,
         })
+    }
+
+    /// CLOCK_MONOTONIC, the clock of V4L2's buffer timestamps.
+    fn now(&mut self) -> Result<Duration> {
+        let mut ts = libc::timespec {
+            tv_sec: 0,
+            tv_nsec: 0,
+        };
+        // SAFETY: clock_gettime writes one timespec we own.
+        let r = unsafe { libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut ts) };
+        if r != 0 || ts.tv_sec < 0 {
+            return Err(CameraError::Io(
+                "clock_gettime(CLOCK_MONOTONIC) failed".into(),
+            ));
+        }
+        Ok(Duration::new(
+            ts.tv_sec as u64,
+            ts.tv_nsec.clamp(0, 999_999_999) as u32,
+        ))
     }
 
     fn dropped(&self) -> u64 {

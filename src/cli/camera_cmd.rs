@@ -264,11 +264,14 @@ pub fn run(a: CameraArgs) -> anyhow::Result<i32> {
             }
             let info = cam.info();
             let tty = !a.json && std::io::IsTerminal::is_terminal(&std::io::stderr());
+            // Frames from before the command (or before the stage stood at --at) are set aside.
+            let settled = cam.now()?;
             let cap = capture(
                 cam.as_mut(),
                 *frames,
                 !*no_filter,
                 Duration::from_secs(5),
+                Some(settled),
                 |i| {
                     if tty {
                         eprint!("\rframes {i}/{frames}");

@@ -249,11 +249,14 @@ fn take(
     std::thread::sleep(Duration::from_secs_f64(
         sd.script.capture.settle_ms / 1000.0,
     ));
+    // Frames the camera captured before now (during the move or the settle) are set aside.
+    let settled = rig.camera.now()?;
     let mut c = capture(
         rig.camera,
         frames,
         sd.script.capture.filter == Filter::Stripes,
         timeout,
+        Some(settled),
         |_| {},
     )?;
     if let Some(f) = flat {
