@@ -8,7 +8,7 @@ use rig::matching::output::{read_geotiff, write_geotiff};
 #[test]
 fn gdalinfo_reads_the_elevation_model() {
     let d = tempfile::tempdir().unwrap();
-    let mut g = ElevationGrid::covering([5000.0, 7000.0, 5100.0, 7060.0], 5.0);
+    let mut g = ElevationGrid::covering([5000.0, 7000.0, 5100.0, 7060.0], 5.0, 64).unwrap();
     g.z = (0..g.z.len())
         .map(|i| {
             if i % 5 == 0 {

@@ -164,7 +164,7 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<i32> {
         &out.join("points.json"),
         &json!({"gcps": gcps, "cps": cps}),
     )?;
-    let truth = super::scene_cmd::truth_grid(&p1, AREA, 10.0);
+    let truth = super::scene_cmd::truth_grid(&p1, AREA, 10.0)?;
     rig::matching::output::write_geotiff(&out.join("truth-dem.tif"), &truth)?;
     std::fs::write(
         out.join("project.toml"),

@@ -6,7 +6,7 @@ use rig::coords::{PhotoMm, PixelXY};
 use rig::digitise::ImageF32;
 use rig::geometry::{resect, FrameCamera, Interior};
 use rig::matching::output::{write_error_map, write_geotiff, write_hillshade, write_ply};
-use rig::matching::pmf_dtm::{pmf_dtm, PmfDtm, PmfDtmParams};
+use rig::matching::pmf_dtm::{pmf_dtm, Budget, PmfDtm, PmfDtmParams};
 use rig::matching::project::PmfSource;
 use rig::matching::project::Project;
 use rig::matching::regions::{RegionParams, RegionStats};
@@ -30,15 +30,24 @@ pub enum DtmAction {
     ///
     /// Writes into --out: dem.tif (float32 GeoTIFF, nodata −9999), points.ply, hillshade.png,
     /// error.png (with a reference), report.json, pmfs.json (the mappings, reusable with
-    /// `from = "file"`).
+    /// `from = "file"`). Each file is written whole or not at all; a run that was killed can
+    /// be run again into the same directory.
+    ///
+    /// Memory and work are estimated first and the run refused above [limits] in the
+    /// project (max_memory_mb, default 4096; max_candidates_g, default 20) or --max-memory.
     #[command(verbatim_doc_comment)]
     Pmf {
         /// The project file (TOML; see the README; `rig sim scene` writes one).
         #[arg(long, value_name = "FILE")]
         project: PathBuf,
-        /// Output directory (created; must be empty).
+        /// Output directory (created; empty, or holding only an earlier run's outputs, which
+        /// are replaced).
         #[arg(long, value_name = "DIR")]
         out: PathBuf,
+        /// Most memory the run may take, MiB (overrides the project's [limits]
+        /// max_memory_mb).
+        #[arg(long, value_name = "MIB", value_parser = clap::value_parser!(u64).range(16..=1_048_576))]
+        max_memory: Option<u64>,
         /// Print the report as JSON.
         #[arg(long)]
         json: bool,
@@ -56,11 +65,49 @@ pub fn load_photo(sidecar: &Path) -> anyhow::Result<(ScannedPhoto, ImageF32)> {
     Ok((s, img))
 }
 
-/// Runs a project into `out`; returns the result and the report document.
-pub fn run_project(p: &Project, out: &Path) -> anyhow::Result<(PmfDtm, serde_json::Value)> {
-    if out.exists() && std::fs::read_dir(out)?.next().is_some() {
-        anyhow::bail!("{} is not empty: give a new directory", out.display());
+/// The files `rig dtm pmf` writes (and their temporary `.part` names while it writes them).
+const OUTPUTS: [&str; 6] = [
+    "dem.tif",
+    "points.ply",
+    "hillshade.png",
+    "error.png",
+    "report.json",
+    "pmfs.json",
+];
+
+/// An output directory must be new, empty, or hold only an earlier run's outputs (a run that
+/// was killed half way left some of them, or `.part` files): anything else is not ours to
+/// replace.
+fn check_out_dir(out: &Path) -> anyhow::Result<()> {
+    if !out.exists() {
+        return Ok(());
     }
+    let mut foreign = Vec::new();
+    for e in std::fs::read_dir(out).with_context(|| format!("reading {}", out.display()))? {
+        let name = e?.file_name().to_string_lossy().to_string();
+        let base = name.strip_suffix(".part").unwrap_or(&name);
+        if !OUTPUTS.contains(&base) {
+            foreign.push(name);
+        }
+    }
+    if !foreign.is_empty() {
+        foreign.sort();
+        anyhow::bail!(
+            "{} holds files that are not a `rig dtm pmf` run's ({}): give a new or empty directory",
+            out.display(),
+            foreign.join(", ")
+        );
+    }
+    Ok(())
+}
+
+/// Runs a project into `out`; returns the result and the report document.
+pub fn run_project(
+    p: &Project,
+    out: &Path,
+    max_memory_mb: Option<u64>,
+) -> anyhow::Result<(PmfDtm, serde_json::Value)> {
+    check_out_dir(out)?;
     let (sl, left) = load_photo(&p.photos.left)?;
     let (sr, right) = load_photo(&p.photos.right)?;
     let pts = p.points()?;
@@ -150,15 +197,25 @@ pub fn run_project(p: &Project, out: &Path) -> anyhow::Result<(PmfDtm, serde_jso
     let f = reference
         .as_ref()
         .map(|g| move |x: f64, y: f64| g.interpolate(x, y));
+    let budget = Budget {
+        max_memory_mb: max_memory_mb.unwrap_or(p.limits.max_memory_mb),
+        max_candidates: p.limits.max_candidates_g * 1e9,
+    };
     let r = pmf_dtm(
         &left,
         &right,
         &pmfs,
         &params,
+        &budget,
         f.as_ref().map(|f| f as &dyn Fn(f64, f64) -> f64),
         p.grid.flying_height_m,
-    );
+    )
+    .with_context(|| format!("project {}", p.path.display()))?;
     std::fs::create_dir_all(out)?;
+    // A rerun replaces an earlier run's files; one without a reference leaves no old error map.
+    if p.grid.reference.is_none() {
+        let _ = std::fs::remove_file(out.join("error.png"));
+    }
     write_geotiff(&out.join("dem.tif"), &r.grid)?;
     write_ply(&out.join("points.ply"), &r.points)?;
     write_hillshade(&out.join("hillshade.png"), &r.grid)?;
@@ -240,9 +297,14 @@ pub fn print_report(pmf: &serde_json::Value, r: &PmfDtm) {
 
 pub fn run(a: DtmArgs) -> anyhow::Result<i32> {
     match a.action {
-        DtmAction::Pmf { project, out, json } => {
+        DtmAction::Pmf {
+            project,
+            out,
+            json,
+            max_memory,
+        } => {
             let p = Project::load(&project)?;
-            let (r, doc) = run_project(&p, &out)?;
+            let (r, doc) = run_project(&p, &out, max_memory)?;
             if json {
                 println!("{doc}");
             } else {

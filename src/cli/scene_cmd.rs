@@ -209,7 +209,11 @@ pub fn terrain_range(a: &AerialPhoto, area: [f64; 4]) -> [f64; 2] {
 }
 
 /// The true DEM resampled (bilinearly) to a square grid over the ground under `area`.
-pub fn truth_grid(a: &AerialPhoto, area: [f64; 4], cell_m: f64) -> ElevationGrid {
+pub fn truth_grid(
+    a: &AerialPhoto,
+    area: [f64; 4],
+    cell_m: f64,
+) -> Result<ElevationGrid, rig::matching::grid::GridError> {
     let (mut lo, mut hi) = ([f64::MAX; 2], [f64::MIN; 2]);
     for x in [area[0], area[2]] {
         for y in [area[1], area[3]] {
@@ -219,7 +223,11 @@ pub fn truth_grid(a: &AerialPhoto, area: [f64; 4], cell_m: f64) -> ElevationGrid
         }
     }
     let m = 5.0 * cell_m;
-    let mut grid = ElevationGrid::covering([lo[0] - m, lo[1] - m, hi[0] + m, hi[1] + m], cell_m);
+    let mut grid = ElevationGrid::covering(
+        [lo[0] - m, lo[1] - m, hi[0] + m, hi[1] + m],
+        cell_m,
+        rig::matching::project::default_memory_mb(),
+    )?;
     let dem = &a.dem;
     for r in 0..grid.rows {
         for c in 0..grid.cols {
@@ -227,7 +235,7 @@ pub fn truth_grid(a: &AerialPhoto, area: [f64; 4], cell_m: f64) -> ElevationGrid
             grid.z[r * grid.cols + c] = dem.height(x, y) as f32;
         }
     }
-    grid
+    Ok(grid)
 }
 
 /// Height step of the projects the scene and the demo write, m (about twice the accuracy
@@ -313,7 +321,7 @@ pub fn run(a: &SceneArgs) -> anyhow::Result<i32> {
         &a.out.join("points.json"),
         &json!({"gcps": gcps, "cps": cps}),
     )?;
-    let truth = truth_grid(&p1, area, 10.0);
+    let truth = truth_grid(&p1, area, 10.0)?;
     rig::matching::output::write_geotiff(&a.out.join("truth-dem.tif"), &truth)?;
     rig::digitise::output::write_json(
         &a.out.join("truth.json"),

@@ -31,22 +31,60 @@ pub struct Comparison {
     pub rmse_m: f64,
 }
 
+/// A grid that cannot be made.
+#[derive(Debug, thiserror::Error)]
+pub enum GridError {
+    #[error("the points' extent {extent:?} or the cell {cell_m} m is not a number")]
+    NotFinite { extent: [f64; 4], cell_m: f64 },
+    #[error("a grid of {cols:.0} × {rows:.0} nodes of {cell_m} m would take {mib:.0} MiB; the limit is {limit_mib} MiB: use a larger [grid] cell_m, or raise [limits] max_memory_mb (or --max-memory)")]
+    TooLarge {
+        cols: f64,
+        rows: f64,
+        cell_m: f64,
+        mib: f64,
+        limit_mib: u64,
+    },
+}
+
+/// Bytes a grid node takes while it is made (the heights, and the sums and counts of `fill`).
+pub const BYTES_PER_NODE: f64 = 4.0 + 8.0 + 4.0;
+
 impl ElevationGrid {
     /// An empty grid covering `[x_min, y_min, x_max, y_max]` with nodes on multiples of
-    /// `cell_m`.
-    pub fn covering(extent: [f64; 4], cell_m: f64) -> ElevationGrid {
+    /// `cell_m`, refused (before anything is allocated) if it would take more than
+    /// `limit_mib`.
+    pub fn covering(
+        extent: [f64; 4],
+        cell_m: f64,
+        limit_mib: u64,
+    ) -> Result<ElevationGrid, GridError> {
+        if !(extent.iter().all(|v| v.is_finite()) && cell_m.is_finite() && cell_m > 0.0) {
+            return Err(GridError::NotFinite { extent, cell_m });
+        }
         let x0 = (extent[0] / cell_m).ceil() * cell_m;
         let y0 = (extent[3] / cell_m).floor() * cell_m;
-        let cols = (((extent[2] - x0) / cell_m).floor() as usize) + 1;
-        let rows = (((y0 - extent[1]) / cell_m).floor() as usize) + 1;
-        ElevationGrid {
+        let cols = ((extent[2] - x0) / cell_m).floor().max(0.0) + 1.0;
+        let rows = ((y0 - extent[1]) / cell_m).floor().max(0.0) + 1.0;
+        let mib = cols * rows * BYTES_PER_NODE / (1u64 << 20) as f64;
+        if mib.is_nan() || mib > limit_mib as f64 {
+            return Err(GridError::TooLarge {
+                cols,
+                rows,
+                cell_m,
+                mib,
+                limit_mib,
+            });
+        }
+        // Both below 2^40 here (the product is within the limit).
+        let (cols, rows) = (cols as usize, rows as usize);
+        Ok(ElevationGrid {
             x0,
             y0,
             cell_m,
             cols,
             rows,
             z: vec![f32::NAN; cols * rows],
-        }
+        })
     }
 
     pub fn node(&self, c: usize, r: usize) -> [f64; 2] {
@@ -63,7 +101,9 @@ impl ElevationGrid {
         for p in pts {
             let c = ((p.x - self.x0) / self.cell_m).round();
             let r = ((self.y0 - p.y) / self.cell_m).round();
-            if c < 0.0 || r < 0.0 || c >= self.cols as f64 || r >= self.rows as f64 {
+            // Written so that NaN (a point from a degenerate mapping) falls outside too.
+            let inside = c >= 0.0 && r >= 0.0 && c < self.cols as f64 && r < self.rows as f64;
+            if !inside || !p.z.is_finite() {
                 continue;
             }
             let i = r as usize * self.cols + c as usize;
@@ -79,11 +119,17 @@ impl ElevationGrid {
         }
     }
 
-    /// Bilinear height at ground (x, y); NaN outside or next to nodata.
+    /// Bilinear height at ground (x, y); NaN outside, next to nodata, or on a grid of fewer
+    /// than 2 × 2 nodes (nothing to interpolate between).
     pub fn interpolate(&self, x: f64, y: f64) -> f64 {
+        if self.cols < 2 || self.rows < 2 || self.z.len() < self.cols * self.rows {
+            return f64::NAN;
+        }
         let fc = (x - self.x0) / self.cell_m;
         let fr = (self.y0 - y) / self.cell_m;
-        if fc < 0.0 || fr < 0.0 || fc > (self.cols - 1) as f64 || fr > (self.rows - 1) as f64 {
+        let inside =
+            fc >= 0.0 && fr >= 0.0 && fc <= (self.cols - 1) as f64 && fr <= (self.rows - 1) as f64;
+        if !inside {
             return f64::NAN;
         }
         let (c, r) = (
@@ -135,8 +181,44 @@ mod tests {
     use super::*;
 
     #[test]
+    fn degenerate_grids_and_points_are_refused_or_skipped_never_a_panic() {
+        // One node: nothing to interpolate between.
+        let one = ElevationGrid {
+            x0: 0.0,
+            y0: 0.0,
+            cell_m: 1.0,
+            cols: 1,
+            rows: 1,
+            z: vec![5.0],
+        };
+        assert!(one.interpolate(0.0, 0.0).is_nan());
+        // Points that are not numbers fall outside.
+        let mut g = ElevationGrid::covering([0.0, 0.0, 10.0, 10.0], 5.0, 64).unwrap();
+        g.fill(&[
+            GroundM::new(f64::NAN, 5.0, 1.0),
+            GroundM::new(5.0, f64::NAN, 1.0),
+            GroundM::new(5.0, 5.0, f64::NAN),
+            GroundM::new(5.0, 5.0, 7.0),
+        ]);
+        assert_eq!(g.filled(), 1);
+        assert_eq!(g.z[4], 7.0);
+        // 1 µm cells over 100 m: 1e16 nodes, refused before allocation; NaN extents too.
+        assert!(matches!(
+            ElevationGrid::covering([0.0, 0.0, 100.0, 100.0], 1e-6, 4096),
+            Err(GridError::TooLarge { .. })
+        ));
+        assert!(matches!(
+            ElevationGrid::covering([0.0, f64::NAN, 100.0, 100.0], 1.0, 4096),
+            Err(GridError::NotFinite { .. })
+        ));
+        // At the limit, exactly: 1024 × 1024 nodes of 16 bytes is 16 MiB.
+        assert!(ElevationGrid::covering([0.0, 0.0, 1023.0, 1023.0], 1.0, 16).is_ok());
+        assert!(ElevationGrid::covering([0.0, 0.0, 1024.0, 1023.0], 1.0, 16).is_err());
+    }
+
+    #[test]
     fn points_average_on_their_nearest_node_and_compare_in_closed_form() {
-        let mut g = ElevationGrid::covering([0.0, 0.0, 10.0, 10.0], 5.0);
+        let mut g = ElevationGrid::covering([0.0, 0.0, 10.0, 10.0], 5.0, 64).unwrap();
         assert_eq!((g.cols, g.rows, g.x0, g.y0), (3, 3, 0.0, 10.0));
         g.fill(&[
             GroundM::new(0.4, 9.6, 100.0),

@@ -193,7 +193,7 @@ mod tests {
     #[test]
     fn geotiff_round_trip_keeps_heights_nodata_and_georeference() {
         let d = tempfile::tempdir().unwrap();
-        let mut g = ElevationGrid::covering([1000.0, 2000.0, 1040.0, 2030.0], 2.0);
+        let mut g = ElevationGrid::covering([1000.0, 2000.0, 1040.0, 2030.0], 2.0, 64).unwrap();
         g.z = (0..g.z.len())
             .map(|i| {
                 if i % 7 == 3 {

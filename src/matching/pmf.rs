@@ -99,6 +99,10 @@ pub enum PmfError {
     Singular,
     #[error("no check points: the terms are chosen by the check points' RMSE")]
     NoCheckPoints,
+    #[error("a control or check point has a coordinate that is not a number")]
+    NotFinite,
+    #[error("the control points do not determine the first-order term(s) {missing}: they lie on a line, at one place or at one height; spread them over the photo and the terrain's heights")]
+    Degenerate { missing: String },
 }
 
 /// One sample: the three variables and the value.
@@ -190,9 +194,36 @@ pub fn select(order: u8, gcps: &[Sample], cps: &[Sample]) -> Result<Selection, P
     if cps.is_empty() {
         return Err(PmfError::NoCheckPoints);
     }
+    // Even a first-order mapping (x, y and the height, and a constant) needs more points than
+    // its four terms; with fewer there is nothing to fit or to choose from.
+    if gcps.len() < 5 {
+        return Err(PmfError::TooFewPoints {
+            points: gcps.len(),
+            terms: 4,
+        });
+    }
+    if gcps
+        .iter()
+        .chain(cps)
+        .any(|s| !(s.1.is_finite() && s.0.iter().all(|v| v.is_finite())))
+    {
+        return Err(PmfError::NotFinite);
+    }
     let pts: Vec<[f64; 3]> = gcps.iter().map(|s| s.0).collect();
     let norm = Normaliser::over(&pts);
     let mut terms = independent(&full_terms(order), &norm, gcps);
+    // Without the first-order terms the mapping cannot follow the image or the height at all
+    // (points on a line, or all at one height): refuse rather than fit a constant.
+    let missing: Vec<String> = [Term(1, 0, 0), Term(0, 1, 0), Term(0, 0, 1)]
+        .into_iter()
+        .filter(|t| !terms.contains(t))
+        .map(|t| t.to_string())
+        .collect();
+    if !missing.is_empty() {
+        return Err(PmfError::Degenerate {
+            missing: missing.join(", "),
+        });
+    }
     // Too few points for the full form: the highest terms go first.
     while terms.len() >= gcps.len() && terms.len() > 1 {
         terms.pop();

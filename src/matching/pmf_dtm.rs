@@ -2,7 +2,7 @@
 //! reference photo along the image→image PMFs, removal of wrong heights, ground coordinates
 //! by the image→ground PMFs, gridding, and — given a reference model — the comparison.
 
-use super::grid::{Comparison, ElevationGrid};
+use super::grid::{Comparison, ElevationGrid, GridError};
 use super::pmf_set::PmfSet;
 use super::regions::{remove_wrong_heights, RegionParams, RegionStats};
 use super::sweep::{sweep, HeightMap, SweepParams};
@@ -17,6 +17,66 @@ pub struct PmfDtmParams {
     pub regions: RegionParams,
     /// Cell of the elevation model, m.
     pub cell_m: f64,
+}
+
+/// What a run may take; estimated before it starts (see [`estimate`]).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Budget {
+    pub max_memory_mb: u64,
+    /// Candidate heights the sweep may try.
+    pub max_candidates: f64,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum DtmError {
+    #[error("the sweep would try up to {candidates:.3e} candidate heights ({pixels} pixels × {heights} heights); the limit is {limit:.3e}: narrow h_min … h_max, take a larger h_step or stride, or raise [limits] max_candidates_g")]
+    TooMuchWork {
+        candidates: f64,
+        pixels: u64,
+        heights: u64,
+        limit: f64,
+    },
+    #[error("the run would hold about {mib:.0} MiB (photos, height map, points); the limit is {limit_mib} MiB: take a larger stride, or raise [limits] max_memory_mb (or --max-memory)")]
+    TooMuchMemory { mib: f64, limit_mib: u64 },
+    #[error(transparent)]
+    Grid(#[from] GridError),
+}
+
+/// The sweep's worst-case candidates and the run's memory, from the photos' sizes and the
+/// parameters alone; refused above `budget` before anything is matched.
+pub fn estimate(
+    left: (usize, usize),
+    right: (usize, usize),
+    p: &PmfDtmParams,
+    budget: &Budget,
+) -> Result<(f64, f64), DtmError> {
+    let s = p.sweep.stride.max(1) as u64;
+    let pixels = (left.0 as u64).div_ceil(s) * (left.1 as u64).div_ceil(s);
+    let heights = ((p.sweep.h_max - p.sweep.h_min) / p.sweep.h_step).floor() + 1.0;
+    let heights = if heights.is_finite() && heights >= 1.0 {
+        heights
+    } else {
+        f64::INFINITY
+    };
+    let candidates = pixels as f64 * heights;
+    if candidates.is_nan() || candidates > budget.max_candidates {
+        return Err(DtmError::TooMuchWork {
+            candidates,
+            pixels,
+            heights: heights.min(u64::MAX as f64) as u64,
+            limit: budget.max_candidates,
+        });
+    }
+    // Photos as f32, the height map (height, correlation), a point and its ground position.
+    let bytes = 4.0 * (left.0 * left.1 + right.0 * right.1) as f64 + pixels as f64 * (8.0 + 40.0);
+    let mib = bytes / (1u64 << 20) as f64;
+    if mib.is_nan() || mib > budget.max_memory_mb as f64 {
+        return Err(DtmError::TooMuchMemory {
+            mib,
+            limit_mib: budget.max_memory_mb,
+        });
+    }
+    Ok((candidates, mib))
 }
 
 /// Seed 000 Tables 3–5 in one document.
@@ -47,15 +107,23 @@ pub struct PmfDtm {
     pub report: PmfDtmReport,
 }
 
-/// Runs the method; `reference` (a height at ground x, y) gives the comparison.
+/// Runs the method within `budget` (checked first, see [`estimate`]); `reference` (a height at
+/// ground x, y) gives the comparison.
 pub fn pmf_dtm(
     left: &ImageF32,
     right: &ImageF32,
     pmfs: &PmfSet,
     p: &PmfDtmParams,
+    budget: &Budget,
     reference: Option<&dyn Fn(f64, f64) -> f64>,
     flying_height_m: Option<f64>,
-) -> PmfDtm {
+) -> Result<PmfDtm, DtmError> {
+    estimate(
+        (left.width, left.height),
+        (right.width, right.height),
+        p,
+        budget,
+    )?;
     let t = Instant::now();
     let mut heights = sweep(left, right, &pmfs.left_to_right, &p.sweep);
     let secs = t.elapsed().as_secs_f64();
@@ -72,7 +140,10 @@ pub fn pmf_dtm(
             }
             let px = heights.pixel(i, j);
             let g = pmfs.left_to_ground.eval([px[0], px[1], h as f64]);
-            points.push((GroundM::new(g[0], g[1], h as f64), heights.corr[k]));
+            // A mapping that is not a number here (a degenerate fit) gives no point.
+            if g.iter().all(|v| v.is_finite()) {
+                points.push((GroundM::new(g[0], g[1], h as f64), heights.corr[k]));
+            }
         }
     }
     let (mut lo, mut hi) = ([f64::MAX; 2], [f64::MIN; 2]);
@@ -81,9 +152,9 @@ pub fn pmf_dtm(
         hi = [hi[0].max(g.x), hi[1].max(g.y)];
     }
     let mut grid = if points.is_empty() {
-        ElevationGrid::covering([0.0, 0.0, 0.0, 0.0], p.cell_m)
+        ElevationGrid::covering([0.0, 0.0, 0.0, 0.0], p.cell_m, budget.max_memory_mb)?
     } else {
-        ElevationGrid::covering([lo[0], lo[1], hi[0], hi[1]], p.cell_m)
+        ElevationGrid::covering([lo[0], lo[1], hi[0], hi[1]], p.cell_m, budget.max_memory_mb)?
     };
     let pts: Vec<GroundM> = points.iter().map(|(g, _)| *g).collect();
     grid.fill(&pts);
@@ -109,10 +180,10 @@ pub fn pmf_dtm(
         flying_height_m,
         rmse_permille_of_flying_height: rmse_permille,
     };
-    PmfDtm {
+    Ok(PmfDtm {
         heights,
         points,
         grid,
         report,
-    }
+    })
 }

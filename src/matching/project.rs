@@ -115,6 +115,35 @@ pub struct GridSection {
     pub flying_height_m: Option<f64>,
 }
 
+/// What a run may take before it starts: memory and work are estimated first and the run is
+/// refused above these (raise them here or with `rig dtm pmf --max-memory`).
+#[derive(Debug, Clone, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct Limits {
+    /// Memory for images, height maps, points and the grid, MiB.
+    #[serde(default = "default_memory_mb")]
+    pub max_memory_mb: u64,
+    /// Candidate heights the sweep may try (matched pixels × heights), billions.
+    #[serde(default = "default_work_g")]
+    pub max_candidates_g: f64,
+}
+
+pub fn default_memory_mb() -> u64 {
+    4096
+}
+fn default_work_g() -> f64 {
+    20.0
+}
+
+impl Default for Limits {
+    fn default() -> Self {
+        Limits {
+            max_memory_mb: default_memory_mb(),
+            max_candidates_g: default_work_g(),
+        }
+    }
+}
+
 #[derive(Debug, Clone, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct Project {
@@ -125,9 +154,16 @@ pub struct Project {
     pub matching: Matching,
     pub regions: Regions,
     pub grid: GridSection,
+    #[serde(default)]
+    pub limits: Limits,
     #[serde(skip)]
     pub path: PathBuf,
 }
+
+/// Heights above or below any terrain on Earth (and any aircraft), m.
+pub const HEIGHT_RANGE: std::ops::RangeInclusive<f64> = -12_000.0..=100_000.0;
+/// Most heights one sweep may try.
+pub const MAX_HEIGHTS: f64 = 100_000.0;
 
 fn default_pmf() -> PmfSection {
     PmfSection {
@@ -155,34 +191,7 @@ impl Project {
         };
         let mut p: Project =
             toml::from_str(&text).map_err(|e| bad(e.to_string().trim_end().to_string()))?;
-        let m = &p.matching;
-        if !(m.h_step > 0.0 && m.h_max > m.h_min) {
-            return Err(bad(format!(
-                "[matching] h_min {} … h_max {} by h_step {}: the range must be increasing and the step positive",
-                m.h_min, m.h_max, m.h_step
-            )));
-        }
-        if m.window < 3 || m.window.is_multiple_of(2) {
-            return Err(bad(format!(
-                "[matching] window {}: an odd number of pixels, 3 or more (seed 000: 9)",
-                m.window
-            )));
-        }
-        if !(0.0..1.0).contains(&m.threshold) {
-            return Err(bad(format!(
-                "[matching] threshold {}: a correlation between 0 and 1 (seed 000: 0.5)",
-                m.threshold
-            )));
-        }
-        if !(1..=3).contains(&p.pmf.order) {
-            return Err(bad(format!("[pmf] order {}: 1, 2 or 3", p.pmf.order)));
-        }
-        if p.grid.cell_m.is_nan() || p.grid.cell_m <= 0.0 {
-            return Err(bad(format!(
-                "[grid] cell_m {}: a positive size",
-                p.grid.cell_m
-            )));
-        }
+        p.check().map_err(bad)?;
         let base = path.parent().unwrap_or(Path::new("."));
         p.photos.left = base.join(&p.photos.left);
         p.photos.right = base.join(&p.photos.right);
@@ -198,16 +207,122 @@ impl Project {
         Ok(p)
     }
 
+    /// Every number of the project in its range; the message names the field and the range.
+    fn check(&self) -> Result<(), String> {
+        let m = &self.matching;
+        let in_heights = |v: f64| HEIGHT_RANGE.contains(&v);
+        if !(in_heights(m.h_min) && in_heights(m.h_max) && m.h_max > m.h_min) {
+            return Err(format!(
+                "[matching] h_min {} … h_max {}: an increasing range within {} … {} m",
+                m.h_min,
+                m.h_max,
+                HEIGHT_RANGE.start(),
+                HEIGHT_RANGE.end()
+            ));
+        }
+        let steps = (m.h_max - m.h_min) / m.h_step;
+        if !(m.h_step.is_finite() && m.h_step > 0.0 && steps <= MAX_HEIGHTS) {
+            return Err(format!(
+                "[matching] h_step {}: positive, and at most {MAX_HEIGHTS} steps from h_min to h_max (here {steps:.3e})",
+                m.h_step
+            ));
+        }
+        if m.window < 3 || m.window > 101 || m.window.is_multiple_of(2) {
+            return Err(format!(
+                "[matching] window {}: an odd number of pixels from 3 to 101 (seed 000: 9)",
+                m.window
+            ));
+        }
+        if !(0.0..1.0).contains(&m.threshold) {
+            return Err(format!(
+                "[matching] threshold {}: a correlation from 0 up to (not including) 1 (seed 000: 0.5)",
+                m.threshold
+            ));
+        }
+        if !(1..=1000).contains(&m.stride) {
+            return Err(format!("[matching] stride {}: 1 to 1000 pixels", m.stride));
+        }
+        if !(1..=3).contains(&self.pmf.order) {
+            return Err(format!("[pmf] order {}: 1, 2 or 3", self.pmf.order));
+        }
+        let r = &self.regions;
+        if !(1..=100).contains(&r.search_distance) {
+            return Err(format!(
+                "[regions] search_distance {}: 1 to 100 grid steps (seed 000: 2)",
+                r.search_distance
+            ));
+        }
+        if r.population_threshold > 1_000_000_000 {
+            return Err(format!(
+                "[regions] population_threshold {}: 0 to 1000000000 points",
+                r.population_threshold
+            ));
+        }
+        if let Some(h) = r.height_threshold {
+            if !(h.is_finite() && h > 0.0 && h <= 100_000.0) {
+                return Err(format!(
+                    "[regions] height_threshold {h}: above 0, at most 100000 m"
+                ));
+            }
+        }
+        let g = &self.grid;
+        if !(g.cell_m.is_finite() && (0.001..=100_000.0).contains(&g.cell_m)) {
+            return Err(format!("[grid] cell_m {}: 0.001 to 100000 m", g.cell_m));
+        }
+        if let Some(h) = g.flying_height_m {
+            if !(h.is_finite() && h > 0.0 && h <= 1_000_000.0) {
+                return Err(format!(
+                    "[grid] flying_height_m {h}: above 0, at most 1000000 m"
+                ));
+            }
+        }
+        let l = &self.limits;
+        if !(16..=1_048_576).contains(&l.max_memory_mb) {
+            return Err(format!(
+                "[limits] max_memory_mb {}: 16 to 1048576 MiB",
+                l.max_memory_mb
+            ));
+        }
+        if !(l.max_candidates_g.is_finite()
+            && l.max_candidates_g > 0.0
+            && l.max_candidates_g <= 1e6)
+        {
+            return Err(format!(
+                "[limits] max_candidates_g {}: above 0, at most 1000000 (billions)",
+                l.max_candidates_g
+            ));
+        }
+        Ok(())
+    }
+
+    /// The control and check points; every number finite, ids given.
     pub fn points(&self) -> Result<PointFile, ProjectError> {
         let f = &self.points.file;
         let text = std::fs::read_to_string(f).map_err(|source| ProjectError::Read {
             path: f.clone(),
             source,
         })?;
-        serde_json::from_str(&text).map_err(|e| ProjectError::Invalid {
+        let bad = |message: String| ProjectError::Invalid {
             path: f.clone(),
-            message: e.to_string(),
-        })
+            message,
+        };
+        let pts: PointFile = serde_json::from_str(&text).map_err(|e| bad(e.to_string()))?;
+        for (list, v) in [("gcps", &pts.gcps), ("cps", &pts.cps)] {
+            for (i, p) in v.iter().enumerate() {
+                let px = p.left.iter().chain(&p.right);
+                let ok = px.clone().all(|v| v.is_finite() && v.abs() < 1e7)
+                    && [p.ground.x, p.ground.y, p.ground.z]
+                        .iter()
+                        .all(|v| v.is_finite() && v.abs() < 1e9);
+                if !ok {
+                    return Err(bad(format!(
+                        "{list}[{i}] (id {:?}): pixels must be finite and within ±1e7 px, ground coordinates finite and within ±1e9 m",
+                        p.id
+                    )));
+                }
+            }
+        }
+        Ok(pts)
     }
 
     pub fn height_threshold(&self) -> f64 {
