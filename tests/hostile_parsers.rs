@@ -1,5 +1,5 @@
 //! Mutation fuzzing in CI: every parser of a file an operator or another program writes (scan
-//! scripts, plate and camera certificates) is fed thousands of deterministic mutations of good
+//! scripts, plate and camera certificates, matching projects) is fed thousands of deterministic mutations of good
 //! files — hostile numbers (0, −0, NaN, ±inf, 1e308, 1e-308, 2^32, 2^63), deleted, doubled and
 //! truncated lines, flipped bytes — and must end every one with a value or a typed error within
 //! seconds, never a panic. The cargo-fuzz targets in `fuzz/` run the same parsers for longer.
@@ -176,5 +176,15 @@ fn certificates_survive_mutation() {
     let camera = rig_sim::certificates::camera_certificate(&film, 1);
     survive("camera certificate", camera, 3000, |t| {
         CameraCertificate::parse(t, Path::new("camera.toml")).is_ok()
+    });
+}
+
+#[test]
+fn matching_projects_survive_mutation() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let f = "fuzz/seeds/project/project.toml";
+    let seed = std::fs::read_to_string(root.join(f)).unwrap();
+    survive(f, seed, 3000, |t| {
+        rig::matching::project::Project::parse(t, Path::new("hostile.toml")).is_ok()
     });
 }

@@ -500,3 +500,300 @@ fn bad_scripts_and_plans_outside_the_soft_limits_are_refused_before_anything_mov
     }
     std::fs::write(&s, text).unwrap();
 }
+
+/// A copy of scan directory `from` at `to` (files and the tiles folder).
+fn copy_scan(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to.join("tiles")).unwrap();
+    for sub in ["", "tiles"] {
+        for e in std::fs::read_dir(from.join(sub)).unwrap() {
+            let e = e.unwrap();
+            if e.file_type().unwrap().is_file() {
+                std::fs::copy(e.path(), to.join(sub).join(e.file_name())).unwrap();
+            }
+        }
+    }
+}
+
+fn edit_json(path: &Path, f: impl FnOnce(&mut Value)) {
+    let mut v: Value = serde_json::from_slice(&std::fs::read(path).unwrap()).unwrap();
+    f(&mut v);
+    std::fs::write(path, serde_json::to_vec_pretty(&v).unwrap()).unwrap();
+}
+
+/// Every file under `d` with its bytes, to show that a refused command changed nothing.
+fn snapshot(d: &Path) -> Vec<(PathBuf, Vec<u8>)> {
+    let mut v = Vec::new();
+    let mut stack = vec![d.to_path_buf()];
+    while let Some(p) = stack.pop() {
+        for e in std::fs::read_dir(&p).unwrap() {
+            let e = e.unwrap().path();
+            if e.is_dir() {
+                stack.push(e);
+            } else if e.file_name().is_some_and(|n| n != "log.jsonl") {
+                v.push((e.clone(), std::fs::read(&e).unwrap()));
+            }
+        }
+    }
+    v.sort();
+    v
+}
+
+/// A hand-made 8-bit greyscale TIFF (little-endian, uncompressed) of `w` × `h` pixels.
+fn tiff8(w: u16, h: u16) -> Vec<u8> {
+    let tags: [(u16, u16, u32); 9] = [
+        (256, 3, w as u32),
+        (257, 3, h as u32),
+        (258, 3, 8),
+        (259, 3, 1),
+        (262, 3, 1),
+        (273, 4, 8 + 2 + 9 * 12 + 4),
+        (277, 3, 1),
+        (278, 3, h as u32),
+        (279, 4, w as u32 * h as u32),
+    ];
+    let mut b = b"II*\0".to_vec();
+    b.extend_from_slice(&8u32.to_le_bytes());
+    b.extend_from_slice(&(tags.len() as u16).to_le_bytes());
+    for (tag, typ, v) in tags {
+        b.extend_from_slice(&tag.to_le_bytes());
+        b.extend_from_slice(&typ.to_le_bytes());
+        b.extend_from_slice(&1u32.to_le_bytes());
+        b.extend_from_slice(&v.to_le_bytes());
+    }
+    b.extend_from_slice(&0u32.to_le_bytes());
+    b.extend(std::iter::repeat_n(128u8, w as usize * h as usize));
+    b
+}
+
+/// Nothing in a scan directory is trusted: a manifest, calibration or tile that was edited,
+/// swapped or replaced is refused with a message naming it, before anything is read outside
+/// the directory, allocated beyond the plan, moved or written; and the directory is left as it
+/// was.
+#[test]
+fn damaged_or_edited_scan_directories_are_refused_and_left_unchanged() {
+    use common::run_hostile;
+    let (_, i1, _) = calibrated();
+    let d = tempfile::tempdir().unwrap();
+    let region = "[[region]]\nname = \"r\"\nphoto_mm = [0.0, 0.0, 8.0, 5.0]\n";
+    let s = script(d.path(), i1, region, "unused");
+    let good = d.path().join("good");
+    ok(&mut repeatable_run(&s, &good, false));
+    let tiles: Vec<String> = {
+        let m: Value =
+            serde_json::from_slice(&std::fs::read(good.join("manifest.json")).unwrap()).unwrap();
+        m["tiles"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|t| t["file"]["file"].as_str().unwrap().to_string())
+            .collect()
+    };
+    assert!(tiles.len() >= 2, "{tiles:?}");
+    let manifest = |dir: &Path| dir.join("manifest.json");
+    type Damage<'a> = Box<dyn Fn(&Path) + 'a>;
+    let cases: Vec<(&str, Damage, &str)> = vec![
+        (
+            "region name that climbs out of the directory",
+            Box::new(|p: &Path| {
+                edit_json(&manifest(p), |m| {
+                    m["plan"]["regions"][0]["name"] = "../escape".into()
+                })
+            }),
+            "does not agree",
+        ),
+        (
+            "tile file outside the directory",
+            Box::new(|p: &Path| {
+                edit_json(&manifest(p), |m| {
+                    m["tiles"][0]["file"]["file"] = "../../escape.tiff".into()
+                })
+            }),
+            "is recorded as `../../escape.tiff`",
+        ),
+        (
+            "grid of width 0",
+            Box::new(|p: &Path| {
+                edit_json(&manifest(p), |m| {
+                    m["plan"]["regions"][0]["grid"]["width"] = 0.into()
+                })
+            }),
+            "region `r` differs",
+        ),
+        (
+            "grid of 10^6 × 10^6 px",
+            Box::new(|p: &Path| {
+                edit_json(&manifest(p), |m| {
+                    m["plan"]["regions"][0]["grid"]["width"] = 1_000_000.into();
+                    m["plan"]["regions"][0]["grid"]["height"] = 1_000_000.into();
+                })
+            }),
+            "region `r` differs",
+        ),
+        (
+            "a tile dropped from the plan",
+            Box::new(|p: &Path| {
+                edit_json(&manifest(p), |m| {
+                    m["plan"]["tiles"].as_array_mut().unwrap().pop();
+                    m["tiles"].as_array_mut().unwrap().pop();
+                })
+            }),
+            "tiles planned",
+        ),
+        (
+            "a tile's stage position",
+            Box::new(|p: &Path| {
+                edit_json(&manifest(p), |m| {
+                    m["tiles"][0]["stage_um"]["x"] = 1e300.into()
+                })
+            }),
+            "from its planned",
+        ),
+        (
+            "a truncated manifest",
+            Box::new(|p: &Path| {
+                let b = std::fs::read(manifest(p)).unwrap();
+                std::fs::write(manifest(p), &b[..b.len() / 2]).unwrap();
+            }),
+            "manifest.json",
+        ),
+        (
+            "two tiles swapped on disk",
+            Box::new(|p: &Path| {
+                let (a, b) = (p.join(&tiles[0]), p.join(&tiles[1]));
+                let tmp = p.join("swap");
+                std::fs::rename(&a, &tmp).unwrap();
+                std::fs::rename(&b, &a).unwrap();
+                std::fs::rename(&tmp, &b).unwrap();
+            }),
+            "changed on disk",
+        ),
+        (
+            "a tile replaced by an 8-bit TIFF, its hash updated",
+            Box::new(|p: &Path| {
+                let b = tiff8(64, 64);
+                std::fs::write(p.join(&tiles[0]), &b).unwrap();
+                edit_json(&manifest(p), |m| {
+                    m["tiles"][0]["file"]["hash"] = rig::scan::manifest::fnv64(&b).into()
+                });
+            }),
+            "16-bit unsigned",
+        ),
+        (
+            "a calibration with a pixel of 1e-9 µm",
+            Box::new(|p: &Path| {
+                edit_json(&p.join("calibration.json"), |c| {
+                    for k in [1, 2, 4, 5] {
+                        c["pixel"]["params"][k] = 1e-9.into();
+                    }
+                })
+            }),
+            "calibration.json",
+        ),
+        (
+            "the scan's copy of the script names a reserved region",
+            Box::new(|p: &Path| {
+                let t = std::fs::read_to_string(p.join("script.toml")).unwrap();
+                std::fs::write(p.join("script.toml"), t.replace("\"r\"", "\"manifest\"")).unwrap();
+            }),
+            "scan's own files",
+        ),
+    ];
+    for (k, (what, damage, want)) in cases.iter().enumerate() {
+        let dir = d.path().join(format!("case-{k}"));
+        copy_scan(&good, &dir);
+        damage(&dir);
+        let before = snapshot(d.path());
+        let h = run_hostile(rig().args(["scan", "mosaic"]).arg(&dir), 4, 60);
+        assert_ne!(h.code, Some(0), "{what}: accepted\n{}", h.stdout);
+        assert!(
+            h.stderr.contains(want),
+            "{what}: wanted `{want}` in\n{}",
+            h.stderr
+        );
+        assert!(snapshot(d.path()) == before, "{what}: files changed");
+        assert!(
+            !d.path().join("escape.tiff").exists()
+                && !d.path().parent().unwrap().join("escape.tiff").exists()
+        );
+    }
+    // A resume re-checks the plan against the operator's soft limits before anything moves.
+    let dir = d.path().join("limits");
+    copy_scan(&good, &dir);
+    edit_json(&manifest(&dir), |m| m["tiles"][0] = Value::Null);
+    let before = snapshot(&dir);
+    let h = run_hostile(
+        rig()
+            .args(["scan", "--sim", "--limits", "0,20,0,20", "run"])
+            .arg(&s)
+            .arg("--out")
+            .arg(&dir)
+            .arg("--resume"),
+        4,
+        60,
+    );
+    assert_eq!(h.code, Some(3), "{}", h.stderr);
+    assert!(
+        h.stderr.contains("resume refused") && h.stderr.contains("soft limits"),
+        "{}",
+        h.stderr
+    );
+    assert!(snapshot(&dir) == before);
+}
+
+/// A scan whose disk fills (here: a file-size limit, so every tile write fails) reports the
+/// write that failed, not the simulator's shutdown; leaves a manifest that describes what is on
+/// disk and no partial file; and a resume then completes it byte for byte as an uninterrupted
+/// scan.
+#[test]
+fn a_full_disk_stops_the_scan_with_the_first_error_and_a_resume_completes_it() {
+    use std::os::unix::process::CommandExt;
+    let (_, i1, _) = calibrated();
+    let d = tempfile::tempdir().unwrap();
+    let region = "[[region]]\nname = \"r\"\nphoto_mm = [0.0, 0.0, 8.0, 5.0]\n";
+    let s = script(d.path(), i1, region, "unused");
+    let whole = d.path().join("whole");
+    ok(&mut repeatable_run(&s, &whole, false));
+    let full = d.path().join("full");
+    let mut cmd = repeatable_run(&s, &full, false);
+    // SAFETY: setrlimit and signal only change this child's own limits and dispositions.
+    unsafe {
+        cmd.pre_exec(|| {
+            let r = libc::rlimit {
+                rlim_cur: 64 << 10,
+                rlim_max: 64 << 10,
+            };
+            libc::setrlimit(libc::RLIMIT_FSIZE, &r);
+            libc::signal(libc::SIGXFSZ, libc::SIG_IGN);
+            Ok(())
+        });
+    }
+    let h = common::run_hostile(&mut cmd, 4, 120);
+    assert_eq!(h.code, Some(1), "{}", h.stderr);
+    assert!(
+        h.stderr.contains("writing") && h.stderr.contains("flat.tiff"),
+        "{}",
+        h.stderr
+    );
+    assert!(
+        !h.stderr.contains("stopping the built-in simulator"),
+        "{}",
+        h.stderr
+    );
+    let m: Value =
+        serde_json::from_slice(&std::fs::read(full.join("manifest.json")).unwrap()).unwrap();
+    assert!(m["flat"].is_null() && m["tiles"].as_array().unwrap().iter().all(|t| t.is_null()));
+    let parts: Vec<_> = snapshot(&full)
+        .into_iter()
+        .filter(|(p, _)| p.to_string_lossy().ends_with(".part"))
+        .collect();
+    assert!(
+        parts.is_empty(),
+        "partial files left: {:?}",
+        parts.iter().map(|p| &p.0).collect::<Vec<_>>()
+    );
+    ok(&mut repeatable_run(&s, &full, true));
+    assert!(
+        std::fs::read(whole.join("r.tiff")).unwrap() == std::fs::read(full.join("r.tiff")).unwrap(),
+        "the resumed scan differs from the uninterrupted one"
+    );
+}

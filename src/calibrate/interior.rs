@@ -210,7 +210,8 @@ pub fn calibrate_interior(
     let mut found: Vec<(CarriageUm, [f64; 2])> = Vec::new();
     let mut obs = Vec::new();
     for (k, f) in order.iter().enumerate() {
-        let tpl = MarkTemplates::new(&f.shape, cert.polarity, a, opt.patch, opt.blur_px);
+        let tpl = MarkTemplates::new(&f.shape, cert.polarity, a, opt.patch, opt.blur_px)
+            .map_err(|e| CalibrateError::NotFound(format!("fiducial {}: {e}", f.id)))?;
         let pred = predictor(&found, opt.film_centre)([f.photo.x, f.photo.y]);
         let rings = if found.len() < 2 { opt.search_rings } else { 1 };
         let mut hit = None;
@@ -337,6 +338,17 @@ pub fn calibrate_interior(
         "carriage_to_image",
         serde_json::to_value(&versions).unwrap_or_default(),
     )?;
+    // A session that fitted nothing must not become the newest interior orientation a scan
+    // picks up: it fails (its log keeps every mark it saw and why the others were missed).
+    if versions.iter().all(|v| v.fit.is_none()) {
+        return Err(CalibrateError::NotFound(format!(
+            "no carriage→photo affine could be fitted: {} of {} fiducials measured ({}). \
+             Is the film on the carriage, lit, and the camera certificate the film's?",
+            found.len(),
+            obs.len(),
+            versions[0].error.as_deref().unwrap_or("no fit")
+        )));
+    }
     Ok(InteriorOrientation {
         matching: super::measure::match_table(obs.iter().filter_map(|o| o.result.as_ref())),
         fiducials: obs,

@@ -15,17 +15,34 @@ pub struct MarkTemplates {
     pub patch: Template,
 }
 
+/// Largest template side drawn (px): a mark bigger than this in the image means the pixel size
+/// or the certificate is wrong, and drawing it would take minutes and gigabytes.
+pub const MAX_TEMPLATE_PX: usize = 1025;
+
 impl MarkTemplates {
     /// `um_per_px`: the 2×2 of the pixel→carriage transformation as far as it is known.
+    /// Refused (with what to check) when the mark would be larger than [`MAX_TEMPLATE_PX`].
     pub fn new(
         shape: &MarkShape,
         polarity: Polarity,
         um_per_px: [[f64; 2]; 2],
         patch: usize,
         blur_px: f64,
-    ) -> Self {
+    ) -> Result<Self, String> {
         let px = um_per_px[0][0].abs().min(um_per_px[1][1].abs());
-        let whole = (2.0 * shape.reach_um() / px).ceil() as usize + 12;
+        let side = 2.0 * shape.reach_um() / px + 12.0;
+        if !side.is_finite() || side > MAX_TEMPLATE_PX as f64 || patch > MAX_TEMPLATE_PX {
+            return Err(format!(
+                "a mark reaching {:.0} µm at {px:.4} µm/px would need a template of {side:.0} px \
+                 (patch {patch} px; at most {MAX_TEMPLATE_PX}): check the certificate's mark sizes \
+                 and the pixel size (--pixel-um)",
+                shape.reach_um()
+            ));
+        }
+        if !(blur_px.is_finite() && (0.0..=50.0).contains(&blur_px)) {
+            return Err(format!("blur {blur_px} px: 0 to 50 px"));
+        }
+        let whole = side.ceil() as usize;
         let spec = |size, fine| TemplateSpec {
             size,
             um_per_px,
@@ -33,10 +50,10 @@ impl MarkTemplates {
             polarity,
             fine,
         };
-        MarkTemplates {
+        Ok(MarkTemplates {
             whole: render(&shape.for_coarse(), &spec(whole, false)),
             patch: render(shape, &spec(patch, true)),
-        }
+        })
     }
 }
 

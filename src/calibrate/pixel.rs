@@ -238,7 +238,8 @@ pub fn calibrate_pixel(
         nominal,
         opt.patch,
         opt.blur_px,
-    );
+    )
+    .map_err(CalibrateError::NotFound)?;
     let q = &opt.quality;
     let mut seen = Vec::new();
     for d in [[0.0, 0.0], [opt.look_step_um, 0.0], [0.0, opt.look_step_um]] {
@@ -288,7 +289,8 @@ pub fn calibrate_pixel(
         })?;
     rig.session
         .event("first_look", json!({"um_per_px": a, "seen": seen}))?;
-    let tpl = MarkTemplates::new(&plate.shape, plate.polarity, a, opt.patch, opt.blur_px);
+    let tpl = MarkTemplates::new(&plate.shape, plate.polarity, a, opt.patch, opt.blur_px)
+        .map_err(CalibrateError::NotFound)?;
     let (p0, s0) = (seen[0].1, seen[0].0);
 
     // The 5×5 grid of image positions.

@@ -186,13 +186,19 @@ impl Running {
             }
         };
         let dir = self.session.dir.clone();
-        self.hw.close()?;
+        // The calibration's own error comes first; a failure to close the hardware after it is
+        // reported as well, never instead.
+        let closed = self.hw.close();
+        if let (Err(_), Err(c)) = (&result, &closed) {
+            eprintln!("rig: also, closing the hardware failed: {c:#}");
+        }
         let (c, doc) = result.with_context(|| {
             format!(
-                "calibration failed; the session so far is in {}",
+                "calibration failed (stored as failed, not used as the latest); the session so far is in {}",
                 dir.display()
             )
         })?;
+        closed?;
         Ok((c, doc, dir))
     }
 }

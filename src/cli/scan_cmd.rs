@@ -3,7 +3,7 @@
 use super::connect::{connect, ConnectArgs};
 use anyhow::Context;
 use clap::{Args, Subcommand};
-use rig::scan::run::{Outcome, Progress, RunOptions, ScanRig};
+use rig::scan::run::{Outcome, Progress, Reopen, RunOptions, ScanRig};
 use rig::scan::{plan, Plan, ScanCalibration, ScanDir, ScanScript};
 use serde_json::json;
 use std::io::IsTerminal;
@@ -32,6 +32,11 @@ pub struct ScanArgs {
     /// Print a JSON document on standard output instead of the human summary.
     #[arg(long, global = true)]
     pub json: bool,
+    /// Refuse a region whose mosaic would need more memory than this (MiB): the plan says
+    /// how much each needs before anything is allocated.
+    #[arg(long, value_name = "MIB", global = true, default_value_t = rig::scan::plan::DEFAULT_MAX_MEMORY_MIB,
+          value_parser = clap::value_parser!(u64).range(16..=1_048_576))]
+    pub max_memory: u64,
     #[command(subcommand)]
     pub action: ScanAction,
 }
@@ -159,13 +164,15 @@ fn print_plan(s: &ScanScript, cal: &ScanCalibration, p: &Plan) {
     );
     let e = &p.estimate;
     println!(
-        "  estimate: {} ({} frames/s{}, stage travel {:.0} mm; processing not included); {} of tiles, {} of photos",
+        "  estimate: {} (homing and the drive to the first stop {}, {} frames/s{}, stage travel {:.0} mm; processing not included); {} of tiles, {} of photos; mosaicking takes up to {} MiB of memory",
         duration(e.seconds),
+        duration(e.homing_s),
         e.frame_rate_hz,
         if e.frame_rate_assumed { ", assumed" } else { "" },
         e.travel_mm,
         megabytes(e.tile_bytes),
-        megabytes(e.mosaic_bytes)
+        megabytes(e.mosaic_bytes),
+        e.mosaic_mib
     );
     println!("  output: {}", s.out_dir.display());
 }
@@ -208,7 +215,7 @@ pub fn run(a: ScanArgs) -> anyhow::Result<i32> {
         ScanAction::Plan { script, plot } => {
             let s = ScanScript::load(script)?;
             let cal = calibration(&a, &s)?;
-            let p = match plan(&s, &cal) {
+            let p = match plan(&s, &cal, a.max_memory) {
                 Ok(p) => p,
                 Err(e) => {
                     eprintln!("rig: plan refused: {e}");
@@ -244,10 +251,21 @@ pub fn run(a: ScanArgs) -> anyhow::Result<i32> {
             }
             let dir = s.out_dir.clone();
             let mut sd = if *resume {
-                ScanDir::resume(&dir, s)?
+                let check = Reopen {
+                    limits: a.conn.limits,
+                    max_memory_mib: a.max_memory,
+                };
+                match ScanDir::resume(&dir, s, &check) {
+                    Ok(sd) => sd,
+                    Err(rig::scan::ScanError::Plan(e)) => {
+                        eprintln!("rig: resume refused, nothing moved: {e}");
+                        return Ok(EXIT_REFUSED);
+                    }
+                    Err(e) => return Err(e.into()),
+                }
             } else {
                 let cal = calibration(&a, &s)?;
-                let p = match plan(&s, &cal) {
+                let p = match plan(&s, &cal, a.max_memory) {
                     Ok(p) => p,
                     Err(e) => {
                         eprintln!("rig: plan refused, nothing moved: {e}");
@@ -291,13 +309,20 @@ pub fn run(a: ScanArgs) -> anyhow::Result<i32> {
             if let Err(e) = &r {
                 let _ = sd.log.stop("failed", Some(&e.to_string()));
             }
-            hw.close()?;
-            match r.with_context(|| {
+            // The scan's own error comes first: a failure to shut the simulator down after it
+            // is reported as well, never instead.
+            let closed = hw.close();
+            if let (Err(_), Err(c)) = (&r, &closed) {
+                eprintln!("rig: also, closing the hardware failed: {c:#}");
+            }
+            let outcome = r.with_context(|| {
                 format!(
                     "the scan stopped; every tile taken so far is kept in {} — fix the cause and run again with --resume",
                     dir.display()
                 )
-            })? {
+            })?;
+            closed?;
+            match outcome {
                 Outcome::Complete { photos } => {
                     if a.json {
                         println!(
@@ -336,7 +361,13 @@ pub fn run(a: ScanArgs) -> anyhow::Result<i32> {
             }
         }
         ScanAction::Mosaic { dir } => {
-            let mut sd = ScanDir::open(dir)?;
+            let mut sd = ScanDir::open(
+                dir,
+                &Reopen {
+                    limits: None,
+                    max_memory_mib: a.max_memory,
+                },
+            )?;
             let (done, total) = (sd.manifest.done(), sd.manifest.tiles.len());
             if done < total {
                 eprintln!("rig: only {done} of {total} tiles are taken: the photos have holes (nodata 0) where the others belong");

@@ -185,12 +185,18 @@ impl Project {
             path: path.to_path_buf(),
             source,
         })?;
+        Self::parse(&text, path)
+    }
+
+    /// The project in `text`, as if read from `path` (its relative paths are resolved against
+    /// `path`'s directory; nothing is read).
+    pub fn parse(text: &str, path: &Path) -> Result<Project, ProjectError> {
         let bad = |message: String| ProjectError::Invalid {
             path: path.to_path_buf(),
             message,
         };
         let mut p: Project =
-            toml::from_str(&text).map_err(|e| bad(e.to_string().trim_end().to_string()))?;
+            toml::from_str(text).map_err(|e| bad(e.to_string().trim_end().to_string()))?;
         p.check().map_err(bad)?;
         let base = path.parent().unwrap_or(Path::new("."));
         p.photos.left = base.join(&p.photos.left);

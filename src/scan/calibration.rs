@@ -30,6 +30,51 @@ pub struct RigRecord {
     pub limits: SoftLimits,
     pub max_speed_um_s: f64,
     pub accel_um_s2: f64,
+    /// The longest homing takes on this controller, s (its own bound, recorded at calibration).
+    #[serde(default)]
+    pub homing_s: Option<f64>,
+}
+
+impl RigRecord {
+    /// Every number a plan is computed from, range-checked (they come from files).
+    fn check(&self) -> Result<(), String> {
+        let pos = |v: f64, what: &str, max: f64| {
+            if v.is_finite() && v > 0.0 && v <= max {
+                Ok(())
+            } else {
+                Err(format!("{what} {v}: from above 0 to {max}"))
+            }
+        };
+        if !(16..=65_536).contains(&self.width) || !(16..=65_536).contains(&self.height) {
+            return Err(format!(
+                "camera frame {} × {} px: 16 to 65536 px a side",
+                self.width, self.height
+            ));
+        }
+        if !(1..=16).contains(&self.bit_depth) {
+            return Err(format!("camera bit_depth {}: 1 to 16", self.bit_depth));
+        }
+        if let Some(r) = self.frame_rate_hz {
+            pos(r, "camera frame_rate_hz", 10_000.0)?;
+        }
+        pos(self.max_speed_um_s, "stage max_speed_um_s", 1e7)?;
+        pos(self.accel_um_s2, "stage accel_um_s2", 1e9)?;
+        if let Some(h) = self.homing_s {
+            pos(h, "stage homing_s", 3600.0)?;
+        }
+        let l = &self.limits;
+        let ok = |v: f64| v.is_finite() && v.abs() <= 1e7;
+        if !(ok(l.min.x) && ok(l.min.y) && ok(l.max.x) && ok(l.max.y))
+            || l.min.x >= l.max.x
+            || l.min.y >= l.max.y
+        {
+            return Err(format!(
+                "stage soft limits {} … {}: finite, within ±10 m, min below max",
+                l.min, l.max
+            ));
+        }
+        Ok(())
+    }
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -122,16 +167,39 @@ impl ScanCalibration {
         };
         let limits: SoftLimits = serde_json::from_value(st["limits"].clone())
             .map_err(|_| err(&log, "the descriptor lacks the stage's soft limits"))?;
+        let count = |v: &Value, what: &str| {
+            v.as_u64().filter(|&n| n <= 65_536).ok_or_else(|| {
+                err(
+                    &log,
+                    format!("the descriptor's {what} is not a count up to 65536"),
+                )
+            })
+        };
+        let max_speed_um_s = num(&st["max_speed_um_s"], "stage.max_speed_um_s")?;
+        let accel_um_s2 = num(&st["accel_um_s2"], "stage.accel_um_s2")?;
+        let homing_s = {
+            let mut info = crate::stage::ControllerInfo::unknown("recorded");
+            info.max_speed_um_s = max_speed_um_s;
+            info.accel_um_s2 = accel_um_s2;
+            info.home_speed_um_s = st["home_speed_um_s"].as_f64().unwrap_or(max_speed_um_s);
+            info.homing_bound_s = st["homing_bound_s"].as_f64().unwrap_or(0.0);
+            info.travel =
+                serde_json::from_value(st["travel"].clone()).unwrap_or(limits.max - limits.min);
+            let s = info.homing_duration().as_secs_f64();
+            (s.is_finite() && s > 0.0).then_some(s.min(3600.0))
+        };
         let rig = RigRecord {
-            width: num(&cam["width"], "camera.width")? as usize,
-            height: num(&cam["height"], "camera.height")? as usize,
-            bit_depth: num(&cam["bit_depth"], "camera.bit_depth")? as u32,
+            width: count(&cam["width"], "camera.width")? as usize,
+            height: count(&cam["height"], "camera.height")? as usize,
+            bit_depth: count(&cam["bit_depth"], "camera.bit_depth")? as u32,
             frame_rate_hz: cam["frame_rate_hz"].as_f64(),
             limits,
-            max_speed_um_s: num(&st["max_speed_um_s"], "stage.max_speed_um_s")?,
-            accel_um_s2: num(&st["accel_um_s2"], "stage.accel_um_s2")?,
+            max_speed_um_s,
+            accel_um_s2,
+            homing_s,
         };
-        Ok(ScanCalibration {
+        rig.check().map_err(|m| err(&log, m))?;
+        let cal = ScanCalibration {
             interior_session: interior.to_path_buf(),
             pixel_session: PathBuf::from(d["pixel_session"].as_str().unwrap_or("")),
             pixel,
@@ -142,7 +210,35 @@ impl ScanCalibration {
             camera_certificate: cert_path,
             certificate,
             rig,
-        })
+        };
+        cal.check().map_err(|m| err(&results_path, m))?;
+        Ok(cal)
+    }
+
+    /// The calibration's numbers are usable: the rig record in range, both affines finite and
+    /// invertible (a scan directory's copy is read back from a file).
+    pub fn check(&self) -> Result<(), String> {
+        self.rig.check()?;
+        let finite = |v: &[f64]| v.iter().all(|x| x.is_finite());
+        let (t, m) = self.photo_to_pixel(CarriageUm::default());
+        if !finite(&self.pixel.params)
+            || !finite(&self.carriage_to_photo)
+            || !finite(&t)
+            || !finite(&[m[0][0], m[0][1], m[1][0], m[1][1]])
+        {
+            return Err(
+                "the pixel→carriage or carriage→photo affine is not finite or not invertible"
+                    .into(),
+            );
+        }
+        let um = self.pixel.um_per_px();
+        let px = um[0][0].hypot(um[1][0]).min(um[0][1].hypot(um[1][1]));
+        if !(0.1..=1000.0).contains(&px) {
+            return Err(format!(
+                "pixel spacing {px} µm on the carriage: 0.1 to 1000 µm expected"
+            ));
+        }
+        Ok(())
     }
 
     /// A calibration with seed 002's pixel spacings and shears and a film laid about 0.2°
@@ -172,6 +268,7 @@ impl ScanCalibration {
                 },
                 max_speed_um_s: 20_000.0,
                 accel_um_s2: 100_000.0,
+                homing_s: Some(20.0),
             },
         }
     }

@@ -42,7 +42,39 @@ pub enum PlanError {
         "the camera frame ({width}×{height} px) is too small for the margins the mosaic needs"
     )]
     FrameTooSmall { width: usize, height: usize },
+    #[error("{script}:{line}: region `{region}` needs {cols} × {rows} tiles (at most {MAX_TILES} in a scan): check the calibration's pixel size, or scan a smaller region")]
+    TooManyTiles {
+        script: String,
+        line: usize,
+        region: String,
+        cols: f64,
+        rows: f64,
+    },
+    #[error("{script}:{line}: region `{region}` makes a {width} × {height} px photo, which needs about {need_mib} MiB to mosaic; the limit is {max_mib} MiB: raise it with --max-memory, scan a smaller region or at a coarser resolution_um")]
+    TooMuchMemory {
+        script: String,
+        line: usize,
+        region: String,
+        width: usize,
+        height: usize,
+        need_mib: u64,
+        max_mib: u64,
+    },
+    #[error("{script}:{line}: region `{region}` is `whole = true`, but the certificate's innermost fiducial is {reach_mm:.1} mm from the centre: no picture area 6 mm inside it; give photo_mm instead")]
+    NoPicture {
+        script: String,
+        line: usize,
+        region: String,
+        reach_mm: f64,
+    },
+    #[error("the calibration cannot be planned with: {0}")]
+    Calibration(String),
 }
+
+/// Most tiles one scan may take (its manifest lists them all).
+pub const MAX_TILES: usize = 100_000;
+/// The default of `--max-memory`, MiB.
+pub const DEFAULT_MAX_MEMORY_MIB: u64 = 4096;
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Tile {
@@ -73,6 +105,13 @@ pub struct Estimate {
     pub frame_rate_hz: f64,
     /// The session did not record the frame rate: [`ASSUMED_FRAME_RATE_HZ`] was used.
     pub frame_rate_assumed: bool,
+    /// Of [`Estimate::seconds`]: the homing cycle (the controller's bound) and the drive from
+    /// the home corner to the flat field or first tile.
+    #[serde(default)]
+    pub homing_s: f64,
+    /// The largest region's mosaic, MiB of memory.
+    #[serde(default)]
+    pub mosaic_mib: u64,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -85,6 +124,59 @@ pub struct Plan {
     /// Where the stage stands for the flat field (taken first), if one is taken.
     pub flat_stage_um: Option<CarriageUm>,
     pub estimate: Estimate,
+}
+
+impl Plan {
+    /// Whether `other` (a plan as stored in a manifest) lays out the same scan as this one (the
+    /// plan made again from the script and calibration): the same regions, grids, tiles and
+    /// stage positions, to well below a micrometre (JSON may round the last digit). `Err`
+    /// names the first difference. The estimate is not compared.
+    pub fn same_layout(&self, other: &Plan) -> Result<(), String> {
+        let near = |a: f64, b: f64, tol: f64| (a - b).abs() <= tol;
+        let stage = |a: CarriageUm, b: CarriageUm| near(a.x, b.x, 1e-3) && near(a.y, b.y, 1e-3);
+        if self.regions.len() != other.regions.len() {
+            return Err(format!(
+                "{} regions planned, {} stored",
+                self.regions.len(),
+                other.regions.len()
+            ));
+        }
+        for (a, b) in self.regions.iter().zip(&other.regions) {
+            let g = (&a.grid, &b.grid);
+            if a.name != b.name
+                || (a.cols, a.rows) != (b.cols, b.rows)
+                || (g.0.width, g.0.height) != (g.1.width, g.1.height)
+                || !near(g.0.step_mm, g.1.step_mm, 1e-12)
+                || !near(g.0.corner_mm[0], g.1.corner_mm[0], 1e-9)
+                || !near(g.0.corner_mm[1], g.1.corner_mm[1], 1e-9)
+            {
+                return Err(format!(
+                    "region `{}` differs from the stored `{}`",
+                    a.name, b.name
+                ));
+            }
+        }
+        if self.tiles.len() != other.tiles.len() {
+            return Err(format!(
+                "{} tiles planned, {} stored",
+                self.tiles.len(),
+                other.tiles.len()
+            ));
+        }
+        for (a, b) in self.tiles.iter().zip(&other.tiles) {
+            if a.id != b.id || a.region != b.region || !stage(a.stage_um, b.stage_um) {
+                return Err(format!(
+                    "tile {} at {} differs from the stored tile {} at {}",
+                    a.id, a.stage_um, b.id, b.stage_um
+                ));
+            }
+        }
+        match (self.flat_stage_um, other.flat_stage_um) {
+            (None, None) => Ok(()),
+            (Some(a), Some(b)) if stage(a, b) => Ok(()),
+            _ => Err("the flat field's stage position differs".into()),
+        }
+    }
 }
 
 /// Half-sizes (mm) of the largest photo-axis-aligned box around the frame's centre whose image
@@ -103,36 +195,75 @@ fn usable_half_mm(cal: &ScanCalibration) -> Result<[f64; 2], PlanError> {
     let (a0, b0) = (lx / m[0][0].abs(), ly / m[1][1].abs());
     let t = (lx / (m[0][0].abs() * a0 + m[0][1].abs() * b0))
         .min(ly / (m[1][0].abs() * a0 + m[1][1].abs() * b0));
-    Ok([t * a0, t * b0])
+    let half = [t * a0, t * b0];
+    if half.iter().any(|h| !h.is_finite() || *h <= 0.0) {
+        return Err(PlanError::Calibration(
+            "the photo→pixel affine gives no usable tile area".into(),
+        ));
+    }
+    Ok(half)
+}
+
+/// How many tiles [`centres`] lays along one axis (a float, to be checked before use).
+fn count(lo: f64, hi: f64, half: f64, overlap: f64) -> f64 {
+    let span = hi - lo;
+    if span <= 2.0 * half {
+        return 1.0;
+    }
+    let step = 2.0 * half * (1.0 - overlap);
+    ((span - 2.0 * half) / step - 1e-9).ceil() + 1.0
 }
 
 /// Tile centres along one axis covering [lo, hi] with tiles of half-size `half`, neighbours
 /// overlapping by `overlap` of a tile: evenly spread, the outer ones flush with the ends.
+/// The count ([`count`]) must have been checked.
 fn centres(lo: f64, hi: f64, half: f64, overlap: f64) -> Vec<f64> {
-    let span = hi - lo;
-    if span <= 2.0 * half {
+    let n = count(lo, hi, half, overlap) as usize;
+    if n <= 1 {
         return vec![0.5 * (lo + hi)];
     }
-    let step = 2.0 * half * (1.0 - overlap);
-    let n = ((span - 2.0 * half) / step - 1e-9).ceil() as usize + 1;
+    let span = hi - lo;
     let d = (span - 2.0 * half) / (n - 1) as f64;
     (0..n).map(|k| lo + half + k as f64 * d).collect()
 }
 
 /// The square inside the camera's fiducials, for `whole = true`: 6 mm in from the innermost
-/// fiducial, clear of the marks and the frame's edge.
-fn whole_picture(cal: &ScanCalibration) -> [f64; 4] {
-    let h = cal
+/// fiducial, clear of the marks and the frame's edge. `Err` with the innermost fiducial's
+/// reach when that leaves less than a millimetre.
+fn whole_picture(cal: &ScanCalibration) -> Result<[f64; 4], f64> {
+    let reach = cal
         .certificate
         .fiducials
         .iter()
         .map(|f| f.photo.x.abs().max(f.photo.y.abs()))
-        .fold(f64::MAX, f64::min);
-    let h = if h.is_finite() { h - 6.0 } else { 100.0 };
-    [-h, -h, h, h]
+        .fold(f64::INFINITY, f64::min);
+    let h = if reach.is_finite() {
+        reach - 6.0
+    } else {
+        100.0
+    };
+    if h < 1.0 {
+        return Err(reach);
+    }
+    Ok([-h, -h, h, h])
 }
 
-pub fn plan(script: &ScanScript, cal: &ScanCalibration) -> Result<Plan, PlanError> {
+/// Memory (bytes) the mosaic of a `grid` takes: the 16-bit output, and the tiles of two bands
+/// held as 32-bit images twice (as read and smoothed).
+fn mosaic_bytes(grid: &PhotoGrid, cols: usize, cal: &ScanCalibration) -> u64 {
+    let out = 2 * grid.width as u64 * grid.height as u64;
+    let tile = 4 * cal.rig.width as u64 * cal.rig.height as u64;
+    out + 2 * 2 * (cols as u64 + 1) * tile
+}
+
+/// Plans the scan; refuses (before anything large is allocated) more than [`MAX_TILES`]
+/// tiles or a mosaic above `max_memory_mib`.
+pub fn plan(
+    script: &ScanScript,
+    cal: &ScanCalibration,
+    max_memory_mib: u64,
+) -> Result<Plan, PlanError> {
+    cal.check().map_err(PlanError::Calibration)?;
     let half = usable_half_mm(cal)?;
     let centre_px = PixelXY::new(0.5 * cal.rig.width as f64, 0.5 * cal.rig.height as f64);
     let step_mm = script.resolution_um / 1000.0;
@@ -154,10 +285,54 @@ pub fn plan(script: &ScanScript, cal: &ScanCalibration) -> Result<Plan, PlanErro
     };
     let mut regions = Vec::new();
     let mut tiles = Vec::new();
+    let mut biggest = 0u64;
+    let mut planned = 0.0;
     for (ri, r) in script.regions.iter().enumerate() {
-        let area = r.photo_mm.unwrap_or_else(|| whole_picture(cal));
+        let where_ = || (script.path.display().to_string(), r.line, r.name.clone());
+        let area = match r.photo_mm {
+            Some(a) => a,
+            None => whole_picture(cal).map_err(|reach_mm| {
+                let (script, line, region) = where_();
+                PlanError::NoPicture {
+                    script,
+                    line,
+                    region,
+                    reach_mm,
+                }
+            })?,
+        };
+        // The script bounds the area (±120 mm) and the step (≥ 1 µm): at most 240 000 px.
         let grid = PhotoGrid::covering(area, step_mm);
         let e = grid.extent_mm();
+        let (nc, nr) = (
+            count(e[0], e[2], half[0], script.capture.overlap),
+            count(e[1], e[3], half[1], script.capture.overlap),
+        );
+        planned += nc * nr;
+        if planned.is_nan() || planned > MAX_TILES as f64 {
+            let (script, line, region) = where_();
+            return Err(PlanError::TooManyTiles {
+                script,
+                line,
+                region,
+                cols: nc,
+                rows: nr,
+            });
+        }
+        let bytes = mosaic_bytes(&grid, nc as usize, cal);
+        if bytes > max_memory_mib << 20 {
+            let (script, line, region) = where_();
+            return Err(PlanError::TooMuchMemory {
+                script,
+                line,
+                region,
+                width: grid.width,
+                height: grid.height,
+                need_mib: bytes.div_ceil(1 << 20),
+                max_mib: max_memory_mib,
+            });
+        }
+        biggest = biggest.max(bytes);
         let xs = centres(e[0], e[2], half[0], script.capture.overlap);
         let mut ys = centres(e[1], e[3], half[1], script.capture.overlap);
         ys.reverse();
@@ -204,7 +379,8 @@ pub fn plan(script: &ScanScript, cal: &ScanCalibration) -> Result<Plan, PlanErro
             rows: ys.len(),
         });
     }
-    let estimate = estimate(script, cal, &regions, &tiles, flat_stage_um);
+    let mut estimate = estimate(script, cal, &regions, &tiles, flat_stage_um);
+    estimate.mosaic_mib = biggest.div_ceil(1 << 20);
     Ok(Plan {
         regions,
         tiles,
@@ -225,32 +401,49 @@ fn estimate(
         Some(r) if r > 0.0 => (r, false),
         _ => (ASSUMED_FRAME_RATE_HZ, true),
     };
-    let mut seconds = 0.0;
+    let l = &cal.rig.limits;
+    let first = flat.or(tiles.first().map(|t| t.stage_um));
+    // Homing leaves the carriage at a corner of the travel ($23 decides which on GRBL): the
+    // estimate starts from the corner farthest from the first stop, so it is not too short.
+    let mut at = [
+        l.min,
+        l.max,
+        CarriageUm::new(l.min.x, l.max.y),
+        CarriageUm::new(l.max.x, l.min.y),
+    ]
+    .into_iter()
+    .max_by(|a, b| {
+        let f = first.unwrap_or(*a);
+        (*a - f).norm().total_cmp(&(*b - f).norm())
+    })
+    .unwrap_or(l.min);
+    let homing = cal.rig.homing_s.unwrap_or(0.0);
+    let mut seconds = homing;
     let mut travel = 0.0;
-    // From the middle of the travel (where homing leaves it is the controller's business).
-    let mut at = CarriageUm::new(
-        0.5 * (cal.rig.limits.min.x + cal.rig.limits.max.x),
-        0.5 * (cal.rig.limits.min.y + cal.rig.limits.max.y),
-    );
     // The flat field: four times a tile's frames.
     let stops = flat
         .map(|f| (f, 4 * script.capture.frames))
         .into_iter()
         .chain(tiles.iter().map(|t| (t.stage_um, script.capture.frames)));
-    for (to, frames) in stops {
+    let mut homing_s = homing;
+    for (k, (to, frames)) in stops.enumerate() {
         let d = (to - at).norm();
         travel += d;
-        seconds += crate::stage::move_duration(d, cal.rig.max_speed_um_s, cal.rig.accel_um_s2)
+        let drive = crate::stage::move_duration(d, cal.rig.max_speed_um_s, cal.rig.accel_um_s2)
             .as_secs_f64();
+        if k == 0 {
+            homing_s += drive;
+        }
+        seconds += drive;
         seconds += script.capture.settle_ms / 1000.0;
         seconds += frames as f64 / rate;
         at = to;
     }
     // 16-bit TIFF: the pixels plus a few hundred bytes of header.
-    let tile_bytes = tiles.len() as u64 * (cal.rig.width * cal.rig.height * 2 + 512) as u64;
+    let tile_bytes = tiles.len() as u64 * (cal.rig.width as u64 * cal.rig.height as u64 * 2 + 512);
     let mosaic_bytes = regions
         .iter()
-        .map(|r| (r.grid.width * r.grid.height * 2 + 512) as u64)
+        .map(|r| r.grid.width as u64 * r.grid.height as u64 * 2 + 512)
         .sum();
     Estimate {
         seconds,
@@ -259,6 +452,8 @@ fn estimate(
         mosaic_bytes,
         frame_rate_hz: rate,
         frame_rate_assumed: assumed,
+        homing_s,
+        mosaic_mib: 0,
     }
 }
 

@@ -58,7 +58,34 @@ pub enum ScanError {
     },
     #[error("{0}")]
     Calibration(#[from] super::calibration::CalibrationError),
+    #[error(transparent)]
+    Plan(#[from] super::plan::PlanError),
+    #[error("{dir}/manifest.json does not agree with the scan's script and calibration: {detail}. The manifest was edited or belongs to another scan: restore it, or scan into a new directory")]
+    Manifest { dir: PathBuf, detail: String },
+    #[error("{path}: {detail}. The tile changed on disk since it was taken: run `rig scan run SCRIPT --resume` to take it again")]
+    TileChanged { path: PathBuf, detail: String },
 }
+
+/// What a scan directory is checked against when it is opened again: the operator's soft
+/// limits (a resume moves the stage) and the memory a mosaic may take.
+#[derive(Debug, Clone, Copy)]
+pub struct Reopen {
+    pub limits: Option<crate::stage::SoftLimits>,
+    pub max_memory_mib: u64,
+}
+
+impl Default for Reopen {
+    fn default() -> Self {
+        Reopen {
+            limits: None,
+            max_memory_mib: super::plan::DEFAULT_MAX_MEMORY_MIB,
+        }
+    }
+}
+
+/// How far (µm) a recorded stage position may lie from the planned one: the stage stops
+/// within micrometres of its target, so more means a manifest that was edited.
+const MAX_RECORDED_OFFSET_UM: f64 = 1000.0;
 
 /// Where the scan stands, for a progress display.
 #[derive(Debug, Clone)]
@@ -134,8 +161,8 @@ impl ScanDir {
 
     /// The scan in `dir`, to resume with `script` (which must not have changed). Tiles whose
     /// files are missing or damaged are taken again.
-    pub fn resume(dir: &Path, script: ScanScript) -> Result<ScanDir, ScanError> {
-        let mut sd = Self::open(dir)?;
+    pub fn resume(dir: &Path, script: ScanScript, check: &Reopen) -> Result<ScanDir, ScanError> {
+        let mut sd = Self::open(dir, check)?;
         if sd.manifest.script_hash != fnv64(script.text.as_bytes()) {
             return Err(ScanError::ScriptChanged {
                 script: script.path,
@@ -167,8 +194,12 @@ impl ScanDir {
         Ok(sd)
     }
 
-    /// The scan in `dir` as it is on disk (for mosaicking again, or a status).
-    pub fn open(dir: &Path) -> Result<ScanDir, ScanError> {
+    /// The scan in `dir` as it is on disk (for mosaicking again, or a status). Nothing in the
+    /// manifest is trusted: the plan is made again from the scan's copies of the script and
+    /// calibration (with `check`'s soft limits) and must agree with the stored one, and every
+    /// record must name its own file and a position near the planned one, so that no file is
+    /// read or written outside the directory and no move goes where the script did not ask.
+    pub fn open(dir: &Path, check: &Reopen) -> Result<ScanDir, ScanError> {
         let manifest = match Manifest::load(dir) {
             Ok(m) => m,
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
@@ -186,6 +217,45 @@ impl ScanDir {
         cal.certificate =
             crate::targets::certificate::CameraCertificate::load(&dir.join(CERTIFICATE))
                 .map_err(|e| std::io::Error::other(e.to_string()))?;
+        cal.check()
+            .map_err(|m| super::calibration::CalibrationError {
+                path: cal_path.clone(),
+                message: m,
+            })?;
+        if let Some(l) = &check.limits {
+            cal.rig.limits = cal.rig.limits.intersect(l);
+        }
+        let mismatch = |detail: String| ScanError::Manifest {
+            dir: dir.to_path_buf(),
+            detail,
+        };
+        let again = super::plan::plan(&script, &cal, check.max_memory_mib)?;
+        again.same_layout(&manifest.plan).map_err(mismatch)?;
+        for (t, r) in again.tiles.iter().zip(&manifest.tiles) {
+            let Some(r) = r else { continue };
+            let want = tile_file(&t.id);
+            if r.file.file != want {
+                return Err(mismatch(format!(
+                    "tile {} is recorded as `{}`, not `{want}`",
+                    t.id, r.file.file
+                )));
+            }
+            let off = (r.stage_um - t.stage_um).norm();
+            if off.is_nan() || off > MAX_RECORDED_OFFSET_UM {
+                return Err(mismatch(format!(
+                    "tile {} is recorded at {}, {off:.0} µm from its planned {}",
+                    t.id, r.stage_um, t.stage_um
+                )));
+            }
+        }
+        if let Some(f) = &manifest.flat {
+            if f.file != FLAT {
+                return Err(mismatch(format!(
+                    "the flat field is recorded as `{}`, not `{FLAT}`",
+                    f.file
+                )));
+            }
+        }
         let log = Session::append(dir)?;
         Ok(ScanDir {
             dir: dir.to_path_buf(),
@@ -214,6 +284,28 @@ impl ScanDir {
     fn read_counts(&self, rel: &str) -> std::io::Result<ImageF32> {
         read_tiff16_f32(&self.dir.join(rel))
     }
+}
+
+/// A tile's file, relative to the scan directory.
+fn tile_file(id: &str) -> String {
+    format!("{TILES}/{id}.tiff")
+}
+
+/// Reads a tile and checks its bytes against the hash recorded when it was taken.
+fn read_recorded(dir: &Path, r: &FileRecord) -> Result<ImageF32, ScanError> {
+    let path = dir.join(&r.file);
+    let bytes = std::fs::read(&path)
+        .map_err(|e| std::io::Error::new(e.kind(), format!("{}: {e}", path.display())))?;
+    let hash = fnv64(&bytes);
+    if hash != r.hash {
+        return Err(ScanError::TileChanged {
+            path,
+            detail: format!("its bytes hash to {hash}, the manifest recorded {}", r.hash),
+        });
+    }
+    Ok(crate::digitise::output::to_f32(
+        crate::digitise::output::decode_tiff16(std::io::Cursor::new(bytes), &path)?,
+    ))
 }
 
 /// The stage and camera a scan runs on.
@@ -284,7 +376,7 @@ fn check_film(
         opt.frame_timeout,
         flat,
     )?;
-    let before = sd.read_counts(&rec.file.file)?;
+    let before = read_recorded(&sd.dir, &rec.file)?;
     let check = super::verify::film_shift(&before, &c.image);
     sd.log
         .event("film_check", json!({"tile": tile.id, "check": check}))?;
@@ -336,7 +428,7 @@ pub fn run(
     // The flat as stored (read back from its file), so that a resumed run divides by exactly
     // the numbers the first one did.
     let flat = match (sd.manifest.plan.flat_stage_um, sd.manifest.flat.clone()) {
-        (_, Some(rec)) => Some(FlatField::from_image(&sd.read_counts(&rec.file)?)),
+        (_, Some(rec)) => Some(FlatField::from_image(&read_recorded(&sd.dir, &rec)?)),
         (Some(at), None) => {
             let (pos, c) = take(
                 rig,
@@ -404,7 +496,7 @@ pub fn run(
             opt.frame_timeout,
             flat.as_ref(),
         )?;
-        let file = sd.write_counts(&format!("{TILES}/{}.tiff", tile.id), &c.image)?;
+        let file = sd.write_counts(&tile_file(&tile.id), &c.image)?;
         let rec = TileRecord {
             file,
             stage_um: pos,
@@ -445,10 +537,18 @@ pub fn mosaic_all(sd: &mut ScanDir, interp: Interpolation) -> Result<Vec<PathBuf
             .filter(|(t, _)| t.region == ri)
             .filter_map(|(_, r)| r.as_ref())
             .map(|r| {
-                let path = sd.dir.join(&r.file.file);
+                let dir = sd.dir.clone();
+                let rec = r.file.clone();
                 TileSource {
                     stage_um: r.stage_um,
-                    load: Box::new(move || read_tiff16_f32(&path)),
+                    load: Box::new(move || {
+                        read_recorded(&dir, &rec).map_err(|e| match e {
+                            ScanError::Io(e) => e,
+                            e => {
+                                std::io::Error::new(std::io::ErrorKind::InvalidData, e.to_string())
+                            }
+                        })
+                    }),
                 }
             })
             .collect();

@@ -176,6 +176,21 @@ pub struct ScanScript {
     pub text: String,
 }
 
+/// Names a region may not take: the region's photo is written as `<name>.tiff`, `.json` and
+/// `.png` beside these files of the scan directory (compared without case, for file systems
+/// that ignore it).
+pub const RESERVED_NAMES: &[&str] = &[
+    "manifest",
+    "calibration",
+    "flat",
+    "sim-truth",
+    "script",
+    "camera-cert",
+    "tiles",
+    "log",
+    "plan",
+];
+
 /// Line (1-based) of byte offset `at` in `text`.
 fn line_of(text: &str, at: usize) -> usize {
     text[..at.min(text.len())].matches('\n').count() + 1
@@ -305,7 +320,30 @@ impl ScanScript {
                     format!("`{name}`: letters, digits, - and _ only (it names the output files)"),
                 ));
             }
-            if regions.iter().any(|r: &Region| r.name == name) {
+            if let Some(taken) = RESERVED_NAMES
+                .iter()
+                .find(|r| r.eq_ignore_ascii_case(&name))
+            {
+                return Err(bad(
+                    rr.name.span(),
+                    &field("name"),
+                    format!(
+                        "`{name}` is the name of one of the scan's own files ({taken}.*): choose another (reserved: {})",
+                        RESERVED_NAMES.join(", ")
+                    ),
+                ));
+            }
+            if name.len() > 64 {
+                return Err(bad(
+                    rr.name.span(),
+                    &field("name"),
+                    format!("{} characters: at most 64", name.len()),
+                ));
+            }
+            if regions
+                .iter()
+                .any(|r: &Region| r.name.eq_ignore_ascii_case(&name))
+            {
                 return Err(bad(
                     rr.name.span(),
                     &field("name"),
@@ -452,6 +490,19 @@ whole = true
         assert!(e.contains("line 11") && e.contains("frams"), "{e}");
         let e = err(&GOOD.replace("frames = 8", "frames = \"eight\""));
         assert!(e.contains("line 11"), "{e}");
+        for name in ["manifest", "Calibration", "FLAT", "sim-truth", "tiles"] {
+            let e = err(&GOOD.replace("name = \"all\"", &format!("name = \"{name}\"")));
+            assert!(
+                e.contains("region[2].name") && e.contains("scan's own files"),
+                "{e}"
+            );
+        }
+        for name in ["../x", "a/b", "..", "", "a.b"] {
+            let e = err(&GOOD.replace("name = \"all\"", &format!("name = \"{name}\"")));
+            assert!(e.contains("region[2].name"), "{name}: {e}");
+        }
+        let e = err(&GOOD.replace("name = \"all\"", "name = \"LEFT\""));
+        assert!(e.contains("used twice"), "{e}");
         let e = err(&GOOD.replace("whole = true", ""));
         assert!(e.contains("region[2].photo_mm: missing"), "{e}");
     }

@@ -135,6 +135,16 @@ pub struct Stopped {
 }
 
 impl ControllerInfo {
+    /// The longest a homing cycle may take: the controller's own bound when it has one, else
+    /// a seek over 1.2 × the travel and back at the homing speed.
+    pub fn homing_duration(&self) -> Duration {
+        if self.homing_bound_s > 0.0 {
+            return secs(self.homing_bound_s);
+        }
+        let far = self.travel.x.max(self.travel.y) * 1.2 + 5000.0;
+        move_duration(far, self.home_speed_um_s, self.accel_um_s2) * 2
+    }
+
     /// Before the controller has been asked: nothing known but the dialect.
     pub fn unknown(dialect: &'static str) -> Self {
         ControllerInfo {
@@ -174,12 +184,7 @@ pub trait Controller {
     fn stop(&mut self) -> Result<StopAction>;
     /// The longest a homing cycle may take (the wait's bound before its margin).
     fn homing_duration(&self) -> Duration {
-        let info = self.info();
-        if info.homing_bound_s > 0.0 {
-            return secs(info.homing_bound_s);
-        }
-        let far = info.travel.x.max(info.travel.y) * 1.2 + 5000.0;
-        move_duration(far, info.home_speed_um_s, info.accel_um_s2) * 2
+        self.info().homing_duration()
     }
     /// Immediate stop.
     fn emergency_stop(&mut self) -> Result<()>;

@@ -76,16 +76,28 @@ impl PlateCertificate {
             path: path.to_path_buf(),
             message,
         };
-        if !(f.plate.arm_um > 0.0 && f.plate.line_um > 0.0 && f.plate.line_um < f.plate.arm_um) {
+        mark_size(path, "[plate] arm_um", f.plate.arm_um)?;
+        mark_size(path, "[plate] line_um", f.plate.line_um)?;
+        if f.plate.line_um >= f.plate.arm_um {
             return Err(bad(format!(
-                "[plate] arm_um {} and line_um {} must be positive, the line narrower than the arm",
-                f.plate.arm_um, f.plate.line_um
+                "[plate] line_um {} must be narrower than arm_um {}",
+                f.plate.line_um, f.plate.arm_um
+            )));
+        }
+        if f.cross.len() > MAX_MARKS {
+            return Err(bad(format!(
+                "{} crosses listed; at most {MAX_MARKS}",
+                f.cross.len()
             )));
         }
         let mut seen = BTreeMap::new();
         for c in &f.cross {
-            if !(c.x_um.is_finite() && c.y_um.is_finite()) {
-                return Err(bad(format!("cross {}: coordinates must be numbers", c.id)));
+            let ok = |v: f64| v.is_finite() && v.abs() <= MAX_PLATE_UM;
+            if !(ok(c.x_um) && ok(c.y_um)) {
+                return Err(bad(format!(
+                    "cross {}: x_um {} and y_um {} must be numbers within ±{MAX_PLATE_UM} µm",
+                    c.id, c.x_um, c.y_um
+                )));
             }
             if seen.insert(c.id, ()).is_some() {
                 return Err(bad(format!("cross {} is listed twice", c.id)));
@@ -215,15 +227,62 @@ impl CameraCertificate {
             path: path.to_path_buf(),
             message,
         };
-        if f.camera.focal_length_mm.is_nan() || f.camera.focal_length_mm <= 0.0 {
+        let fl = f.camera.focal_length_mm;
+        if !(fl.is_finite() && (1.0..=5000.0).contains(&fl)) {
             return Err(bad(format!(
-                "[camera] focal_length_mm {} must be positive",
-                f.camera.focal_length_mm
+                "[camera] focal_length_mm {fl}: give the calibrated focal length, 1 to 5000 mm"
             )));
+        }
+        if f.fiducial.len() > MAX_MARKS {
+            return Err(bad(format!(
+                "{} fiducials listed; at most {MAX_MARKS}",
+                f.fiducial.len()
+            )));
+        }
+        for (name, spec) in &f.shapes {
+            let sizes: &[(&str, f64)] = match *spec {
+                ShapeSpec::RingWithDot {
+                    ring_radius_um,
+                    dot_radius_um,
+                    line_um,
+                } => &[
+                    ("ring_radius_um", ring_radius_um),
+                    ("dot_radius_um", dot_radius_um),
+                    ("line_um", line_um),
+                ],
+                ShapeSpec::DotWithLine {
+                    dot_radius_um,
+                    line_um,
+                    from_um,
+                    to_um,
+                } => {
+                    if from_um.is_nan() || to_um.is_nan() || from_um < 0.0 || to_um <= from_um {
+                        return Err(bad(format!(
+                            "[shapes.{name}] from_um {from_um} and to_um {to_um}: the line runs from from_um ≥ 0 to a larger to_um"
+                        )));
+                    }
+                    &[
+                        ("dot_radius_um", dot_radius_um),
+                        ("line_um", line_um),
+                        ("to_um", to_um),
+                    ]
+                }
+                ShapeSpec::Cross { arm_um, line_um } => &[("arm_um", arm_um), ("line_um", line_um)],
+            };
+            for (field, v) in sizes {
+                mark_size(path, &format!("[shapes.{name}] {field}"), *v)?;
+            }
         }
         let mut fiducials = Vec::new();
         let mut seen = BTreeMap::new();
         for s in &f.fiducial {
+            let ok = |v: f64| v.is_finite() && v.abs() <= MAX_PHOTO_MM;
+            if !(ok(s.x_mm) && ok(s.y_mm)) {
+                return Err(bad(format!(
+                    "fiducial {}: x_mm {} and y_mm {} must lie within ±{MAX_PHOTO_MM} mm of the photo centre",
+                    s.id, s.x_mm, s.y_mm
+                )));
+            }
             if seen.insert(s.id, ()).is_some() {
                 return Err(bad(format!("fiducial {} is listed twice", s.id)));
             }
@@ -289,6 +348,27 @@ impl CameraCertificate {
             path: path.to_path_buf(),
         })
     }
+}
+
+/// Largest mark dimension accepted, µm: fiducials and plate crosses are a few mm at most.
+pub const MAX_MARK_UM: f64 = 10_000.0;
+/// Smallest, µm: below a micrometre no film or plate carries a line.
+pub const MIN_MARK_UM: f64 = 1.0;
+/// Fiducials lie inside a 230 mm frame; a little more for wider formats.
+pub const MAX_PHOTO_MM: f64 = 150.0;
+/// Plate crosses lie on a carriage of at most a metre.
+pub const MAX_PLATE_UM: f64 = 1_000_000.0;
+/// Crosses or fiducials in one certificate.
+pub const MAX_MARKS: usize = 10_000;
+
+fn mark_size(path: &Path, field: &str, v: f64) -> Result<(), CertificateError> {
+    if v.is_finite() && (MIN_MARK_UM..=MAX_MARK_UM).contains(&v) {
+        return Ok(());
+    }
+    Err(CertificateError::Invalid {
+        path: path.to_path_buf(),
+        message: format!("{field} {v}: a mark dimension from {MIN_MARK_UM} to {MAX_MARK_UM} µm"),
+    })
 }
 
 fn read(path: &Path) -> Result<String, CertificateError> {
