@@ -256,4 +256,41 @@ fn interior_orientation_finds_every_fiducial_and_fits_the_corners_within_a_micro
     assert!(mids["fit"].is_null() && mids["error"].as_str().unwrap().contains("3 points"));
     assert!(out.join("crops").join("fiducial-1.png").is_file());
     assert!(out.join("camera-cert.toml").is_file());
+    // A session that finds too few fiducials for any fit fails, is kept with its log, and is
+    // never taken as the newest interior orientation (a scan would otherwise use it).
+    let failed = rig()
+        .args([
+            "calibrate",
+            "interior",
+            "--sim",
+            "--sim-seed",
+            "4",
+            "--sim-missing-fiducials",
+            "4,5,6,7,8",
+            "--frames",
+            "8",
+            "--store",
+        ])
+        .arg(store.path())
+        .output()
+        .unwrap();
+    let e = String::from_utf8_lossy(&failed.stderr);
+    assert_eq!(failed.status.code(), Some(1), "{e}");
+    assert!(
+        e.contains("no carriage→photo affine could be fitted: 3 of 8 fiducials")
+            && e.contains("stored as failed"),
+        "{e}"
+    );
+    let sessions: Vec<_> = std::fs::read_dir(store.path())
+        .unwrap()
+        .map(|d| d.unwrap().path())
+        .filter(|p| p.to_string_lossy().ends_with("-interior"))
+        .collect();
+    assert_eq!(sessions.len(), 1, "{sessions:?}");
+    let log = std::fs::read_to_string(sessions[0].join("log.jsonl")).unwrap();
+    assert!(log.contains("\"status\":\"failed\""), "{log}");
+    assert!(!sessions[0].join("results.json").exists());
+    assert!(rig::calibrate::session::list(store.path(), "interior")
+        .unwrap()
+        .is_empty());
 }

@@ -225,9 +225,11 @@ pub fn run(a: CameraArgs) -> anyhow::Result<i32> {
                     Some(
                         g.parse::<f64>()
                             .ok()
-                            .filter(|v| *v > 0.0)
+                            .filter(|v| v.is_finite() && *v > 0.0 && *v <= 1000.0)
                             .with_context(|| {
-                                format!("--gain `{g}`: a positive number or `auto`")
+                                format!(
+                                    "--gain `{g}`: a number above 0 and at most 1000, or `auto`"
+                                )
                             })?,
                     )
                 };
