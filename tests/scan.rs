@@ -501,11 +501,14 @@ fn bad_scripts_and_plans_outside_the_soft_limits_are_refused_before_anything_mov
     std::fs::write(&s, text).unwrap();
 }
 
-/// A copy of scan directory `from` at `to` (files and the tiles folder).
+/// A copy of scan or session directory `from` at `to` (its files and its tiles folder).
 fn copy_scan(from: &Path, to: &Path) {
     std::fs::create_dir_all(to.join("tiles")).unwrap();
     for sub in ["", "tiles"] {
-        for e in std::fs::read_dir(from.join(sub)).unwrap() {
+        let Ok(entries) = std::fs::read_dir(from.join(sub)) else {
+            continue;
+        };
+        for e in entries {
             let e = e.unwrap();
             if e.file_type().unwrap().is_file() {
                 std::fs::copy(e.path(), to.join(sub).join(e.file_name())).unwrap();
@@ -796,4 +799,67 @@ fn a_full_disk_stops_the_scan_with_the_first_error_and_a_resume_completes_it() {
         std::fs::read(whole.join("r.tiff")).unwrap() == std::fs::read(full.join("r.tiff")).unwrap(),
         "the resumed scan differs from the uninterrupted one"
     );
+}
+
+/// A calibration session edited or damaged on disk (its certificate, its descriptor) is refused
+/// by `scan plan` with the file and the range, within seconds and bounded memory: nothing is
+/// tiled from a fiducial a kilometre away or a camera of one-pixel frames.
+#[test]
+fn a_damaged_calibration_session_refuses_the_plan() {
+    use common::run_hostile;
+    let (store, i1, _) = calibrated();
+    let d = tempfile::tempdir().unwrap();
+    let cases: [(&str, &str, &str, &str); 4] = [
+        ("camera-cert.toml", "x_mm = ", "x_mm = 1e9", "±150 mm"),
+        (
+            "camera-cert.toml",
+            "ring_radius_um = 300.0",
+            "ring_radius_um = 1e9",
+            "a mark dimension from 1 to 10000 µm",
+        ),
+        (
+            "log.jsonl",
+            "\"width\":",
+            "\"width\":1e12,\"w\":",
+            "camera.width",
+        ),
+        (
+            "log.jsonl",
+            "\"max_speed_um_s\":",
+            "\"max_speed_um_s\":-1,\"m\":",
+            "max_speed_um_s",
+        ),
+    ];
+    for (k, (file, from, to, want)) in cases.iter().enumerate() {
+        let session = d.path().join(format!("interior-{k}"));
+        copy_scan(i1, &session);
+        let p = session.join(file);
+        let text = std::fs::read_to_string(&p).unwrap();
+        assert!(text.contains(from), "{file} lacks `{from}`");
+        // The first fiducial's x, as a whole line.
+        let edited = if from.starts_with("x_mm") {
+            let mut lines: Vec<String> = text.lines().map(String::from).collect();
+            let i = lines.iter().position(|l| l.starts_with("x_mm")).unwrap();
+            lines[i] = "x_mm = 1e9".into();
+            lines.join("\n")
+        } else {
+            text.replacen(from, to, 1)
+        };
+        std::fs::write(&p, edited).unwrap();
+        let region = "[[region]]\nname = \"all\"\nwhole = true\n";
+        let s = script(d.path(), &session, region, "out");
+        let h = run_hostile(
+            rig()
+                .args(["scan", "--store", store.to_str().unwrap(), "plan"])
+                .arg(&s),
+            2,
+            30,
+        );
+        assert_ne!(h.code, Some(0), "{file} `{to}` accepted:\n{}", h.stdout);
+        assert!(
+            h.stderr.contains(want) && h.stderr.contains(&session.display().to_string()),
+            "{file} `{to}`: wanted `{want}` and the session in\n{}",
+            h.stderr
+        );
+    }
 }

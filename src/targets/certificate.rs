@@ -239,17 +239,26 @@ impl CameraCertificate {
                 f.fiducial.len()
             )));
         }
+        // Each shape checked once and drawn as a mark; a line's direction is set per fiducial.
+        let mut shapes = BTreeMap::new();
         for (name, spec) in &f.shapes {
-            let sizes: &[(&str, f64)] = match *spec {
+            let (shape, sizes): (MarkShape, Vec<(&str, f64)>) = match *spec {
                 ShapeSpec::RingWithDot {
                     ring_radius_um,
                     dot_radius_um,
                     line_um,
-                } => &[
-                    ("ring_radius_um", ring_radius_um),
-                    ("dot_radius_um", dot_radius_um),
-                    ("line_um", line_um),
-                ],
+                } => (
+                    MarkShape::RingWithDot {
+                        ring_radius_um,
+                        dot_radius_um,
+                        line_um,
+                    },
+                    vec![
+                        ("ring_radius_um", ring_radius_um),
+                        ("dot_radius_um", dot_radius_um),
+                        ("line_um", line_um),
+                    ],
+                ),
                 ShapeSpec::DotWithLine {
                     dot_radius_um,
                     line_um,
@@ -261,17 +270,30 @@ impl CameraCertificate {
                             "[shapes.{name}] from_um {from_um} and to_um {to_um}: the line runs from from_um ≥ 0 to a larger to_um"
                         )));
                     }
-                    &[
-                        ("dot_radius_um", dot_radius_um),
-                        ("line_um", line_um),
-                        ("to_um", to_um),
-                    ]
+                    (
+                        MarkShape::DotWithLine {
+                            dot_radius_um,
+                            line_um,
+                            from_um,
+                            to_um,
+                            direction: [0.0, 0.0],
+                        },
+                        vec![
+                            ("dot_radius_um", dot_radius_um),
+                            ("line_um", line_um),
+                            ("to_um", to_um),
+                        ],
+                    )
                 }
-                ShapeSpec::Cross { arm_um, line_um } => &[("arm_um", arm_um), ("line_um", line_um)],
+                ShapeSpec::Cross { arm_um, line_um } => (
+                    MarkShape::Cross { arm_um, line_um },
+                    vec![("arm_um", arm_um), ("line_um", line_um)],
+                ),
             };
             for (field, v) in sizes {
-                mark_size(path, &format!("[shapes.{name}] {field}"), *v)?;
+                mark_size(path, &format!("[shapes.{name}] {field}"), v)?;
             }
+            shapes.insert(name.clone(), shape);
         }
         let mut fiducials = Vec::new();
         let mut seen = BTreeMap::new();
@@ -286,7 +308,7 @@ impl CameraCertificate {
             if seen.insert(s.id, ()).is_some() {
                 return Err(bad(format!("fiducial {} is listed twice", s.id)));
             }
-            let spec = f.shapes.get(&s.shape).ok_or_else(|| {
+            let mut shape = shapes.get(&s.shape).cloned().ok_or_else(|| {
                 bad(format!(
                     "fiducial {}: shape `{}` is not among [shapes] ({})",
                     s.id,
@@ -294,39 +316,16 @@ impl CameraCertificate {
                     f.shapes.keys().cloned().collect::<Vec<_>>().join(", ")
                 ))
             })?;
-            let shape = match *spec {
-                ShapeSpec::RingWithDot {
-                    ring_radius_um,
-                    dot_radius_um,
-                    line_um,
-                } => MarkShape::RingWithDot {
-                    ring_radius_um,
-                    dot_radius_um,
-                    line_um,
-                },
-                ShapeSpec::Cross { arm_um, line_um } => MarkShape::Cross { arm_um, line_um },
-                ShapeSpec::DotWithLine {
-                    dot_radius_um,
-                    line_um,
-                    from_um,
-                    to_um,
-                } => {
-                    let n = s.x_mm.hypot(s.y_mm);
-                    if n < 1.0 {
-                        return Err(bad(format!(
-                            "fiducial {}: a line toward the centre needs a fiducial away from it",
-                            s.id
-                        )));
-                    }
-                    MarkShape::DotWithLine {
-                        dot_radius_um,
-                        line_um,
-                        from_um,
-                        to_um,
-                        direction: [-s.x_mm / n, -s.y_mm / n],
-                    }
+            if let MarkShape::DotWithLine { direction, .. } = &mut shape {
+                let n = s.x_mm.hypot(s.y_mm);
+                if n < 1.0 {
+                    return Err(bad(format!(
+                        "fiducial {}: a line toward the centre needs a fiducial away from it",
+                        s.id
+                    )));
                 }
-            };
+                *direction = [-s.x_mm / n, -s.y_mm / n];
+            }
             fiducials.push(CertFiducial {
                 id: s.id,
                 photo: PhotoMm::new(s.x_mm, s.y_mm),
