@@ -65,7 +65,7 @@ pub enum CalibrateError {
     Stage(#[from] StageError),
     #[error(transparent)]
     Capture(#[from] CaptureError),
-    #[error("session store: {0}")]
+    #[error("session store")]
     Io(#[from] std::io::Error),
     #[error(transparent)]
     Fit(#[from] FitError),

@@ -132,7 +132,12 @@ impl Running {
             Some(d) => Session::create(d),
             None => Session::new_in_store(&a.store, kind),
         }
-        .context("creating the session directory")?;
+        .with_context(|| {
+            format!(
+                "creating the session directory in {}",
+                out.as_deref().unwrap_or(&a.store).display()
+            )
+        })?;
         let hw = connect(
             &a.conn,
             Some(session.dir.join("sim-truth.json")),

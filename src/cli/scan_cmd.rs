@@ -164,9 +164,10 @@ fn print_plan(s: &ScanScript, cal: &ScanCalibration, p: &Plan) {
     );
     let e = &p.estimate;
     println!(
-        "  estimate: {} (homing and the drive to the first stop {}, {} frames/s{}, stage travel {:.0} mm; processing not included); {} of tiles, {} of photos; mosaicking takes up to {} MiB of memory",
+        "  estimate: {} (homing at most {}, the drive from the home corner {}, {} frames/s{}, stage travel {:.0} mm; processing not included); {} of tiles, {} of photos; mosaicking takes up to {} MiB of memory",
         duration(e.seconds),
         duration(e.homing_s),
+        duration(e.first_drive_s),
         e.frame_rate_hz,
         if e.frame_rate_assumed { ", assumed" } else { "" },
         e.travel_mm,

@@ -105,10 +105,14 @@ pub struct Estimate {
     pub frame_rate_hz: f64,
     /// The session did not record the frame rate: [`ASSUMED_FRAME_RATE_HZ`] was used.
     pub frame_rate_assumed: bool,
-    /// Of [`Estimate::seconds`]: the homing cycle (the controller's bound) and the drive from
-    /// the home corner to the flat field or first tile.
+    /// Of [`Estimate::seconds`]: the homing cycle, at most (the controller's own bound,
+    /// recorded at calibration; the cycle is usually shorter).
     #[serde(default)]
     pub homing_s: f64,
+    /// Of [`Estimate::seconds`]: the drive from the home corner to the flat field or the first
+    /// tile.
+    #[serde(default)]
+    pub first_drive_s: f64,
     /// The largest region's mosaic, MiB of memory.
     #[serde(default)]
     pub mosaic_mib: u64,
@@ -425,14 +429,14 @@ fn estimate(
         .map(|f| (f, 4 * script.capture.frames))
         .into_iter()
         .chain(tiles.iter().map(|t| (t.stage_um, script.capture.frames)));
-    let mut homing_s = homing;
+    let mut first_drive_s = 0.0;
     for (k, (to, frames)) in stops.enumerate() {
         let d = (to - at).norm();
         travel += d;
         let drive = crate::stage::move_duration(d, cal.rig.max_speed_um_s, cal.rig.accel_um_s2)
             .as_secs_f64();
         if k == 0 {
-            homing_s += drive;
+            first_drive_s = drive;
         }
         seconds += drive;
         seconds += script.capture.settle_ms / 1000.0;
@@ -452,7 +456,8 @@ fn estimate(
         mosaic_bytes,
         frame_rate_hz: rate,
         frame_rate_assumed: assumed,
-        homing_s,
+        homing_s: homing,
+        first_drive_s,
         mosaic_mib: 0,
     }
 }
@@ -471,5 +476,35 @@ mod tests {
             assert!(w[1] - w[0] <= 4.0 + 1e-9, "{c:?}");
         }
         assert_eq!(centres(0.0, 3.0, 2.5, 0.2), vec![1.5]);
+    }
+
+    #[test]
+    fn the_estimate_includes_homing_and_the_drive_from_the_home_corner() {
+        let text = "[film]\nname = \"f\"\n[output]\ndir = \"o\"\nresolution_um = 25.0\n\
+                    [[region]]\nname = \"r\"\nphoto_mm = [0.0, 0.0, 8.0, 5.0]\n";
+        let script = ScanScript::parse(text, std::path::Path::new("s.toml")).unwrap();
+        let mut cal = ScanCalibration::synthetic();
+        let with = plan(&script, &cal, DEFAULT_MAX_MEMORY_MIB).unwrap();
+        cal.rig.homing_s = None;
+        let without = plan(&script, &cal, DEFAULT_MAX_MEMORY_MIB).unwrap();
+        let (e, e0) = (&with.estimate, &without.estimate);
+        assert_eq!(e.homing_s, 20.0);
+        assert!((e.seconds - e0.seconds - 20.0).abs() < 1e-9);
+        // The first stop is the flat field; the farthest corner of 0…250 mm from it, driven at
+        // 20 mm/s with 100 mm/s² (a long move: d/v + v/a, the trapezoid's closed form).
+        let f = with.flat_stage_um.unwrap();
+        let far = [0.0, 250_000.0]
+            .iter()
+            .flat_map(|&x| [0.0, 250_000.0].map(|y| (f.x - x).hypot(f.y - y)))
+            .fold(0.0, f64::max);
+        let want = far / 20_000.0 + 20_000.0 / 100_000.0;
+        assert!(
+            (e.first_drive_s - want).abs() < 1e-6,
+            "{} vs {want}",
+            e.first_drive_s
+        );
+        // Homing, the drive, the settles and the frames all counted.
+        let frames = (4 * 8 + 8 * with.tiles.len()) as f64 / ASSUMED_FRAME_RATE_HZ;
+        assert!(e.seconds > 20.0 + want + frames);
     }
 }

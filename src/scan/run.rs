@@ -30,7 +30,7 @@ pub const TILES: &str = "tiles";
 
 #[derive(Debug, thiserror::Error)]
 pub enum ScanError {
-    #[error("{0}")]
+    #[error(transparent)]
     Io(#[from] std::io::Error),
     #[error(transparent)]
     Stage(#[from] StageError),
@@ -42,7 +42,7 @@ pub enum ScanError {
         "{dir} already holds a scan: continue it with --resume, or give another output directory"
     )]
     Exists { dir: PathBuf },
-    #[error("{dir} holds no scan to resume (no manifest.json): start it without --resume")]
+    #[error("{dir} holds no scan (no manifest.json): start one with `rig scan run SCRIPT`, without --resume")]
     NothingToResume { dir: PathBuf },
     #[error("the script {script} changed since the scan in {dir} began: restore it (the original is {dir}/script.toml) or scan into a new directory")]
     ScriptChanged { script: PathBuf, dir: PathBuf },
@@ -56,7 +56,7 @@ pub enum ScanError {
         correlation: f64,
         max: f64,
     },
-    #[error("{0}")]
+    #[error(transparent)]
     Calibration(#[from] super::calibration::CalibrationError),
     #[error(transparent)]
     Plan(#[from] super::plan::PlanError),
