@@ -700,6 +700,15 @@ fn damaged_or_edited_scan_directories_are_refused_and_left_unchanged() {
             }),
             "scan's own files",
         ),
+        (
+            "the scan's copy of the script edited",
+            Box::new(|p: &Path| {
+                let t = std::fs::read_to_string(p.join("script.toml")).unwrap();
+                std::fs::write(p.join("script.toml"), t.replace("frames = 8", "frames = 9"))
+                    .unwrap();
+            }),
+            "not the script the scan began with",
+        ),
     ];
     for (k, (what, damage, want)) in cases.iter().enumerate() {
         let dir = d.path().join(format!("case-{k}"));

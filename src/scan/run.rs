@@ -229,6 +229,11 @@ impl ScanDir {
             dir: dir.to_path_buf(),
             detail,
         };
+        if fnv64(script.text.as_bytes()) != manifest.script_hash {
+            return Err(mismatch(format!(
+                "{SCRIPT_COPY} is not the script the scan began with (its hash differs)"
+            )));
+        }
         let again = super::plan::plan(&script, &cal, check.max_memory_mib)?;
         again.same_layout(&manifest.plan).map_err(mismatch)?;
         for (t, r) in again.tiles.iter().zip(&manifest.tiles) {
