@@ -301,6 +301,41 @@ fn a_late_report_never_answers_a_later_question() {
     );
 }
 
+/// A noisy line can lose `$H`'s `ok` (or its ALARM): the wait then learns from a status report
+/// that the cycle is over, within seconds, instead of waiting out the homing bound.
+#[test]
+fn a_lost_homing_answer_is_recovered_from_the_board_state() {
+    for (state, homed) in [("Idle", true), ("Alarm", false)] {
+        let fake = FakeGrbl::start(Script {
+            lost_home_answer: Some(state.into()),
+            ..Script::default()
+        });
+        // The homing bound of these settings is over a minute; waiting for the lost answer
+        // would end in a motion timeout at this 10 s cap.
+        let mut d = Driver::new(
+            GrblController::open(&fake.port, &Default::default()).unwrap(),
+            DriverOptions {
+                timeouts: TimeoutPolicy {
+                    cap: Duration::from_secs(10),
+                    ..TimeoutPolicy::default()
+                },
+                ..DriverOptions::default()
+            },
+        );
+        match (d.home(), homed) {
+            (Ok(p), true) => {
+                // Machine −1, −1 mm with the + switches: 1 mm inside the 250 mm travel.
+                assert_eq!(p, CarriageUm::from_mm(249.0, 249.0), "{state}");
+            }
+            (Err(e), false) => {
+                assert!(matches!(e, StageError::Fault { .. }), "{state}: {e}");
+                assert!(e.to_string().contains("Alarm"), "{e}");
+            }
+            (r, _) => panic!("{state}: {r:?}"),
+        }
+    }
+}
+
 #[test]
 fn a_stop_acts_at_once_and_escalates_to_a_reset() {
     let fake = FakeGrbl::start(Script {

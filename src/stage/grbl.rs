@@ -36,6 +36,10 @@ const RX_BUFFER: usize = 128;
 const REPLY_TIMEOUT: Duration = Duration::from_millis(500);
 const QUERY_TRIES: usize = 4;
 const POLL: Duration = Duration::from_millis(25);
+/// During a homing wait, the first `?` (GRBL may ignore it while the cycle runs) …
+const HOMING_PROBE_AFTER: Duration = Duration::from_secs(2);
+/// … and the next ones.
+const HOMING_PROBE_EVERY: Duration = Duration::from_secs(1);
 /// How long a board that was just opened may take to answer (an Arduino that resets on DTR
 /// boots in about 1.5 s).
 const CONNECT_WAIT: Duration = Duration::from_millis(2500);
@@ -690,6 +694,25 @@ impl GrblController {
         Ok(self.to_status(&r, m))
     }
 
+    /// One `?` during a homing wait: the state of a report that arrives within the reply time,
+    /// if it is not `Home` (the cycle is over); `None` when GRBL is silent or still homing.
+    fn homing_probe(&mut self) -> Result<Option<String>> {
+        self.last_report = None;
+        self.port.write_all(b"?")?;
+        let deadline = Instant::now() + REPLY_TIMEOUT;
+        while Instant::now() < deadline && self.last_report.is_none() && self.replies.is_empty() {
+            self.pump(deadline.min(Instant::now() + POLL))?;
+        }
+        let Some(line) = self.last_report.take() else {
+            // Ignored, or it may yet be answered late: later reports need a resync first.
+            self.stale_reports = true;
+            return Ok(None);
+        };
+        Ok(grbl_report::parse(&line)
+            .map(|r| r.state)
+            .filter(|s| !s.starts_with("Home")))
+    }
+
     /// Waits for a boot banner after a soft reset.
     fn reset_and_wait(&mut self) -> Result<()> {
         self.reset_seen = false;
@@ -712,21 +735,48 @@ impl GrblController {
         Ok(())
     }
 
-    /// The homing wait: GRBL answers `$H` when the cycle has ended and may say nothing before,
-    /// so nothing is asked; `ok`, `error:n`, `ALARM:n` or a banner end it.
+    /// The homing wait: GRBL answers `$H` when the cycle has ended and may say nothing before;
+    /// `ok`, `error:n`, `ALARM:n` or a banner end it. A noisy line can lose that answer, so
+    /// after [`HOMING_PROBE_AFTER`] a `?` is sent every [`HOMING_PROBE_EVERY`]: GRBL may ignore
+    /// it during the cycle (or answer it late, still `Home`), but a report in any other state
+    /// means the cycle is over — `Idle` homed (its `ok` was lost), `Alarm` failed.
     fn wait_homed(&mut self, timeout: Duration) -> Result<StageStatus> {
-        let deadline = Instant::now() + timeout;
-        match self.wait_reply(deadline)? {
-            Some(Reply::Ok) => {}
-            Some(Reply::Error(n)) => {
+        let start = Instant::now();
+        let deadline = start + timeout;
+        let mut probe_at = start + HOMING_PROBE_AFTER;
+        let over = loop {
+            match self.wait_reply(deadline.min(probe_at))? {
+                Some(Reply::Ok) => break None,
+                Some(Reply::Error(n)) => {
+                    self.homing = false;
+                    return Err(StageError::Rejected {
+                        command: "$H".into(),
+                        reason: format!("error:{n} ({})", error_meaning(n)),
+                    });
+                }
+                // Stopping (a reset, which alone ends a homing cycle) is the driver's decision.
+                None if Instant::now() >= deadline => {
+                    return Err(StageError::MotionTimeout { after: timeout })
+                }
+                None => {}
+            }
+            probe_at = Instant::now() + HOMING_PROBE_EVERY;
+            if let Some(state) = self.homing_probe()? {
+                break Some(state);
+            }
+        };
+        if let Some(state) = over {
+            if state.starts_with("Alarm") {
                 self.homing = false;
-                return Err(StageError::Rejected {
-                    command: "$H".into(),
-                    reason: format!("error:{n} ({})", error_meaning(n)),
+                return Err(StageError::Fault {
+                    kind: FaultKind::Alarm {
+                        code: self.alarm.unwrap_or(0),
+                        meaning: "the homing cycle ended in Alarm (its ALARM line was lost)".into(),
+                    },
+                    position: None,
                 });
             }
-            // Stopping (a reset, which alone ends a homing cycle) is the driver's decision.
-            None => return Err(StageError::MotionTimeout { after: timeout }),
+            // Idle: the `ok` was lost on the line; the checks below decide as for an `ok`.
         }
         self.homing = false;
         self.inflight.clear();

@@ -30,6 +30,9 @@ pub struct Script {
     pub deaf: bool,
     /// This many `$$` are answered `error:3` first (a garbled command).
     pub settings_errors: u32,
+    /// `$H`'s answer is lost on the line: no `ok`; afterwards the board reports this state at
+    /// the homed position (machine −$27, −$27 = −1, −1 mm).
+    pub lost_home_answer: Option<String>,
 }
 
 impl Default for Script {
@@ -46,6 +49,7 @@ impl Default for Script {
             ignore_reset: false,
             deaf: false,
             settings_errors: 0,
+            lost_home_answer: None,
         }
     }
 }
@@ -232,6 +236,13 @@ fn serve(pty: Pty, script: Arc<Mutex<Script>>, seen: Arc<Mutex<Seen>>, stop: Arc
                         send("[G54:0.000,0.000,0.000]\r\n[G92:0.000,0.000,0.000]\r\n");
                     } else if l.contains("G1") && sc.hang_on_move {
                         moving = true;
+                    } else if l == "$H" {
+                        if let Some(state) = &sc.lost_home_answer {
+                            let mut s = script.lock().unwrap();
+                            s.state = state.clone();
+                            s.pos = "MPos:-1.000,-1.000,0.000".into();
+                            continue;
+                        }
                     }
                     send("ok\r\n");
                 }
