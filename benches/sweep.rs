@@ -8,7 +8,6 @@ mod common;
 
 use criterion::{criterion_group, Criterion};
 use rig::digitise::ImageF32;
-use rig::geometry::FrameCamera;
 use rig::matching::pmf::Mapping;
 use rig::matching::sweep::{sweep, SweepParams};
 use rig::matching::{PmfSet, RigorousPhoto};
@@ -26,7 +25,7 @@ struct Case {
 
 fn photo(a: &AerialPhoto, g: PhotoGrid) -> (RigorousPhoto, ImageF32) {
     let r = RigorousPhoto {
-        camera: FrameCamera::of_simulated(a),
+        camera: rig::sim_scene::frame_camera(a),
         grid: g,
     };
     let img = ImageF32 {

@@ -6,7 +6,7 @@ use rig::geometry::{intersect, resect, FrameCamera};
 use rig_sim::scene::{jacksboro, AerialPhoto};
 
 fn camera(p: &AerialPhoto) -> FrameCamera {
-    FrameCamera::of_simulated(p)
+    rig::sim_scene::frame_camera(p)
 }
 
 fn photos() -> (AerialPhoto, AerialPhoto) {

@@ -2,14 +2,13 @@
 //! (seed 004 §4), checked against that model at points it was not fitted to.
 
 use rig::coords::GroundM;
-use rig::geometry::FrameCamera;
 use rig::matching::{PmfSet, RigorousPhoto};
 use rig::scan::PhotoGrid;
 use rig_sim::scene::{jacksboro, AerialPhoto};
 
 fn rigorous(p: &AerialPhoto, area: [f64; 4]) -> RigorousPhoto {
     RigorousPhoto {
-        camera: FrameCamera::of_simulated(p),
+        camera: rig::sim_scene::frame_camera(p),
         grid: PhotoGrid::covering(area, 0.025),
     }
 }

@@ -3,7 +3,6 @@
 
 use rig::coords::PixelXY;
 use rig::digitise::ImageF32;
-use rig::geometry::FrameCamera;
 use rig::matching::sweep::{sweep, SweepParams};
 use rig::matching::{PmfSet, RigorousPhoto};
 use rig::scan::PhotoGrid;
@@ -11,7 +10,7 @@ use rig_sim::scene::{jacksboro, AerialPhoto};
 
 fn rigorous(p: &AerialPhoto, grid: PhotoGrid) -> RigorousPhoto {
     RigorousPhoto {
-        camera: FrameCamera::of_simulated(p),
+        camera: rig::sim_scene::frame_camera(p),
         grid,
     }
 }

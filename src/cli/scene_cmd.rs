@@ -5,7 +5,6 @@
 use anyhow::Context;
 use clap::Args;
 use rig::coords::{GroundM, PhotoMm, PixelXY};
-use rig::geometry::FrameCamera;
 use rig::matching::grid::ElevationGrid;
 use rig::matching::StereoPoint;
 use rig::scan::sidecar::{self, ScannedPhoto};
@@ -176,7 +175,10 @@ pub fn draw_points(
 /// The area of photo 2 that sees photo 1's `area` at heights `lo..hi`, with a 1 mm margin.
 pub fn matching_area(a: &AerialPhoto, b: &AerialPhoto, area: [f64; 4], hs: [f64; 2]) -> [f64; 4] {
     let (mut lo, mut hi) = ([f64::MAX; 2], [f64::MIN; 2]);
-    let (ca, cb) = (FrameCamera::of_simulated(a), FrameCamera::of_simulated(b));
+    let (ca, cb) = (
+        rig::sim_scene::frame_camera(a),
+        rig::sim_scene::frame_camera(b),
+    );
     for x in [area[0], area[2]] {
         for y in [area[1], area[3]] {
             for z in hs {

@@ -5,16 +5,15 @@
 mod average;
 pub mod capture;
 pub mod flat;
-mod image;
 mod lowpass;
 pub mod output;
 mod stretch;
 mod stripes;
 
+pub use crate::image::ImageF32;
 pub use average::{average_frames, average_frames_into, Averaged, Averager};
 pub use capture::{capture, CaptureError, Captured};
 pub use flat::FlatField;
-pub use image::ImageF32;
 pub use lowpass::seed_lowpass;
 pub use stretch::{stretch, Stretch};
 pub use stripes::{estimate_stripes, remove_stripes, StripeEstimate};

@@ -53,25 +53,6 @@ pub struct FrameCamera {
 }
 
 impl FrameCamera {
-    /// A simulated photo's camera in the rig's terms (principal point at the fiducial centre,
-    /// no distortion): for the demo, the scenes and the tests that compare with the
-    /// simulator's truth. Only the numbers cross over; the geometry is the rig's own.
-    pub fn of_simulated(p: &rig_sim::scene::AerialPhoto) -> FrameCamera {
-        let e = p.exterior;
-        FrameCamera {
-            interior: Interior {
-                focal_mm: p.focal_mm,
-                principal_point: PhotoMm::new(0.0, 0.0),
-            },
-            exterior: Exterior::from_degrees(
-                e.omega_deg,
-                e.phi_deg,
-                e.kappa_deg,
-                GroundM::new(e.x0_m, e.y0_m, e.z0_m),
-            ),
-        }
-    }
-
     /// Collinearity: where ground point `g` appears in the photo. `None` behind the camera.
     pub fn project(&self, g: GroundM) -> Option<PhotoMm> {
         let r = self.exterior.rotation();

@@ -5,9 +5,9 @@
 use super::frame::{Exterior, FrameCamera, Interior};
 use crate::coords::{GroundM, PhotoMm};
 use nalgebra::{DMatrix, DVector};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Resection {
     pub exterior: Exterior,
     /// σ0 of the photo coordinates, mm.

@@ -7,6 +7,7 @@ pub mod pmf_set;
 pub use pmf_set::{PmfSet, RigorousPhoto, StereoPoint};
 pub mod grid;
 pub mod output;
+pub mod pipeline;
 pub mod pmf_dtm;
 pub mod project;
 pub mod regions;

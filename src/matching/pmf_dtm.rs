@@ -7,7 +7,7 @@ use super::pmf_set::PmfSet;
 use super::regions::{remove_wrong_heights, RegionParams, RegionStats};
 use super::sweep::{sweep, HeightMap, SweepParams};
 use crate::coords::GroundM;
-use crate::digitise::ImageF32;
+use crate::image::ImageF32;
 use serde::{Deserialize, Serialize};
 use std::time::Instant;
 

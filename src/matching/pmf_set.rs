@@ -8,7 +8,7 @@
 use super::pmf::{select, Mapping, PmfError, Polynomial, Sample, Selection};
 use crate::coords::{GroundM, PixelXY};
 use crate::geometry::FrameCamera;
-use crate::scan::PhotoGrid;
+use crate::geometry::PhotoGrid;
 use serde::{Deserialize, Serialize};
 
 /// A point seen in both photos, with its ground coordinates.

@@ -8,7 +8,7 @@
 //! best lands on the narrowed range's edge). Bands of rows run in parallel.
 
 use super::pmf::Mapping;
-use crate::digitise::ImageF32;
+use crate::image::ImageF32;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 

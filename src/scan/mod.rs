@@ -5,7 +5,6 @@
 //! image per region in photo coordinates, the hand-over to the matching core.
 
 pub mod calibration;
-pub mod grid;
 pub mod manifest;
 pub mod mosaic;
 pub mod plan;
@@ -15,8 +14,8 @@ pub mod script;
 pub mod sidecar;
 pub mod verify;
 
+pub use crate::geometry::PhotoGrid;
 pub use calibration::ScanCalibration;
-pub use grid::PhotoGrid;
 pub use plan::{plan, Plan};
 pub use run::{ScanDir, ScanError};
 pub use script::ScanScript;

@@ -12,10 +12,10 @@
 //! order, so the same tiles always give the same bytes.
 
 use super::calibration::ScanCalibration;
-use super::grid::PhotoGrid;
 use super::plan::MOSAIC_MARGIN_PX;
 use crate::coords::{CarriageUm, PixelXY};
 use crate::digitise::ImageF32;
+use crate::geometry::PhotoGrid;
 use rayon::prelude::*;
 use std::collections::HashMap;
 use std::sync::Arc;

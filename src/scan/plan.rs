@@ -3,9 +3,9 @@
 //! limits, and how long the scan takes and how many bytes it writes. Nothing moves.
 
 use super::calibration::ScanCalibration;
-use super::grid::PhotoGrid;
 use super::script::ScanScript;
 use crate::coords::{CarriageUm, PhotoMm, PixelXY};
+use crate::geometry::PhotoGrid;
 use serde::{Deserialize, Serialize};
 
 /// A tile's usable area starts this far inside the camera frame (px): the stripe filter's and

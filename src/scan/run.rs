@@ -5,7 +5,6 @@
 //! bytes) and takes the others exactly as an uninterrupted run would have.
 
 use super::calibration::ScanCalibration;
-use super::grid::PhotoGrid;
 use super::manifest::{fnv64, intact, FileRecord, Manifest, TileRecord};
 use super::mosaic::{self, Interpolation, TileSource};
 use super::plan::Plan;
@@ -16,6 +15,7 @@ use crate::camera::{Camera, CameraError};
 use crate::digitise::capture::{capture, CaptureError};
 use crate::digitise::output::{read_tiff16_f32, write_json, write_tiff16};
 use crate::digitise::{FlatField, ImageF32};
+use crate::geometry::PhotoGrid;
 use crate::stage::{Stage, StageError};
 use serde_json::json;
 use std::path::{Path, PathBuf};

@@ -2,8 +2,8 @@
 //! beside it, which says which photo point every pixel shows, in what grey units, and which
 //! calibrations (interior orientation, camera certificate, pixel→carriage) it came through.
 
-use super::grid::PhotoGrid;
 use crate::coords::PhotoMm;
+use crate::geometry::PhotoGrid;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
@@ -116,5 +116,16 @@ impl ScannedPhoto {
             )));
         }
         Ok((s, px))
+    }
+
+    /// The photo as the matching core takes it (the hand-over): the image in its grey counts,
+    /// its photo grid and the camera certificate's focal length.
+    pub fn load_photo(json: &Path) -> Result<crate::matching::pipeline::Photo, SidecarError> {
+        let (s, px) = Self::load(json)?;
+        Ok(crate::matching::pipeline::Photo {
+            image: crate::image::ImageF32::from_u16(s.grid.width, s.grid.height, &px),
+            grid: s.grid,
+            focal_mm: s.camera_certificate.focal_length_mm,
+        })
     }
 }

@@ -1,3 +1,7 @@
+//! Images as the core takes them: one channel of grey values as f32, row-major. The hardware
+//! side (digitisation, scanning) produces them; the matchers and the least-squares measurement
+//! consume them, whoever made them.
+
 /// A single-channel floating-point image, row-major.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ImageF32 {

@@ -1,0 +1,283 @@
+//! Seed 000's pipeline from a project, as a library: the mapping functions (fitted to the
+//! control points, read from a file, or derived from photos resected on the control points),
+//! the height sweep, the removal of wrong heights, the grid, the comparison with a reference,
+//! and the files a run leaves. It takes plain photos (an image and its pixel → photo grid);
+//! whoever made them — the rig's scans or anyone's — hands them over as [`Photo`]s.
+
+use super::output::{read_geotiff, write_error_map, write_geotiff, write_hillshade, write_ply};
+use super::pmf::PmfError;
+use super::pmf_dtm::{pmf_dtm, Budget, DtmError, PmfDtm, PmfDtmParams, PmfDtmReport};
+use super::pmf_set::FitReport;
+use super::project::{PmfSource, Project, ProjectError};
+use super::regions::RegionParams;
+use super::sweep::SweepParams;
+use super::{PmfSet, RigorousPhoto, StereoPoint};
+use crate::coords::{PhotoMm, PixelXY};
+use crate::geometry::{resect, FrameCamera, Interior, PhotoGrid, Resection, ResectionError};
+use crate::image::ImageF32;
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+/// A photo as the core takes it: the image in grey values, which photo point (mm) each pixel
+/// shows, and the camera's calibrated focal length.
+#[derive(Debug, Clone)]
+pub struct Photo {
+    pub image: ImageF32,
+    pub grid: PhotoGrid,
+    pub focal_mm: f64,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum PipelineError {
+    #[error(transparent)]
+    Project(#[from] ProjectError),
+    #[error("fitting the mapping functions to {path}: {source}")]
+    Fit { path: PathBuf, source: PmfError },
+    #[error("the mappings {path}: {message}")]
+    Mappings { path: PathBuf, message: String },
+    #[error("resection of the {which} photo: {source}")]
+    Resection {
+        which: &'static str,
+        source: ResectionError,
+    },
+    #[error("deriving the mapping functions from the resected photos: {0}")]
+    Derive(PmfError),
+    #[error("reading the reference model {path}: {source}")]
+    Reference {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("project {path}: {source}")]
+    Dtm { path: PathBuf, source: DtmError },
+    #[error(
+        "{dir} holds files that are not a `rig dtm` run's ({files}): give a new or empty directory"
+    )]
+    Foreign { dir: PathBuf, files: String },
+    #[error("writing into {dir}: {source}")]
+    Write {
+        dir: PathBuf,
+        source: std::io::Error,
+    },
+}
+
+/// The resected photos, when the mappings were derived from them.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Orientation {
+    pub left: Resection,
+    pub right: Resection,
+}
+
+/// `report.json`: what a run did and found (seed 000 Tables 2–5), written and read as this type.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RunReport {
+    pub project: PathBuf,
+    pub pmf_from: PmfSource,
+    pub orientation: Option<Orientation>,
+    /// Seed 000 Table 2: each mapping's terms and RMSE at the control and check points.
+    pub pmf: Vec<FitReport>,
+    pub dtm: PmfDtmReport,
+}
+
+/// The files a run writes into its directory (and their temporary `.part` names meanwhile).
+pub const OUTPUTS: [&str; 6] = [
+    "dem.tif",
+    "points.ply",
+    "hillshade.png",
+    "error.png",
+    "report.json",
+    "pmfs.json",
+];
+
+/// An output directory must be new, empty, or hold only an earlier run's outputs (a run that
+/// was killed half way left some of them, or `.part` files): anything else is not ours to
+/// replace.
+fn check_out_dir(out: &Path) -> Result<(), PipelineError> {
+    if !out.exists() {
+        return Ok(());
+    }
+    let write = |source| PipelineError::Write {
+        dir: out.to_path_buf(),
+        source,
+    };
+    let mut foreign = Vec::new();
+    for e in std::fs::read_dir(out).map_err(write)? {
+        let name = e.map_err(write)?.file_name().to_string_lossy().to_string();
+        let base = name.strip_suffix(".part").unwrap_or(&name);
+        if !OUTPUTS.contains(&base) {
+            foreign.push(name);
+        }
+    }
+    if foreign.is_empty() {
+        return Ok(());
+    }
+    foreign.sort();
+    Err(PipelineError::Foreign {
+        dir: out.to_path_buf(),
+        files: foreign.join(", "),
+    })
+}
+
+/// The mapping functions the project asks for, and the resected photos when they were derived.
+fn mappings(
+    p: &Project,
+    [left, right]: [&Photo; 2],
+    pts: &super::project::PointFile,
+) -> Result<(PmfSet, Option<Orientation>), PipelineError> {
+    match p.pmf.from {
+        PmfSource::Points => PmfSet::from_points(p.pmf.order, &pts.gcps, &pts.cps)
+            .map(|m| (m, None))
+            .map_err(|source| PipelineError::Fit {
+                path: p.points.file.clone(),
+                source,
+            }),
+        PmfSource::File => {
+            let Some(path) = p.pmf.file.clone() else {
+                return Err(PipelineError::Mappings {
+                    path: p.path.clone(),
+                    message: "[pmf] from = \"file\" names no file".into(),
+                });
+            };
+            let text = std::fs::read_to_string(&path).map_err(|e| PipelineError::Mappings {
+                path: path.clone(),
+                message: e.to_string(),
+            })?;
+            serde_json::from_str::<PmfSet>(&text)
+                .map(|m| (m, None))
+                .map_err(|e| PipelineError::Mappings {
+                    path,
+                    message: format!("not a set of mapping functions ({e})"),
+                })
+        }
+        PmfSource::Rigorous => {
+            let orient = |ph: &Photo, px: &dyn Fn(&StereoPoint) -> [f64; 2], which| {
+                let interior = Interior {
+                    focal_mm: ph.focal_mm,
+                    principal_point: PhotoMm::new(0.0, 0.0),
+                };
+                let obs: Vec<_> = pts
+                    .gcps
+                    .iter()
+                    .map(|g| {
+                        let q = px(g);
+                        (ph.grid.photo(PixelXY::new(q[0], q[1])), g.ground)
+                    })
+                    .collect();
+                resect(&interior, &obs)
+                    .map(|r| (interior, r))
+                    .map_err(|source| PipelineError::Resection { which, source })
+            };
+            let (il, rl) = orient(left, &|g| g.left, "left")?;
+            let (ir, rr) = orient(right, &|g| g.right, "right")?;
+            let photo = |interior, r: &Resection, grid| RigorousPhoto {
+                camera: FrameCamera {
+                    interior,
+                    exterior: r.exterior,
+                },
+                grid,
+            };
+            let (l, r) = (photo(il, &rl, left.grid), photo(ir, &rr, right.grid));
+            let m =
+                PmfSet::from_rigorous(&l, &r, [p.matching.h_min, p.matching.h_max], p.pmf.order)
+                    .map_err(PipelineError::Derive)?;
+            Ok((
+                m,
+                Some(Orientation {
+                    left: rl,
+                    right: rr,
+                }),
+            ))
+        }
+    }
+}
+
+/// Runs project `p` on the photos it names (`photos`, left then right, already loaded) into
+/// `out`: `dem.tif`, `points.ply`, `hillshade.png`, `error.png` (with a reference),
+/// `report.json` and `pmfs.json`, each written whole or not at all. `max_memory_mb` overrides
+/// the project's limit.
+pub fn run(
+    p: &Project,
+    photos: [&Photo; 2],
+    out: &Path,
+    max_memory_mb: Option<u64>,
+) -> Result<(PmfDtm, RunReport), PipelineError> {
+    check_out_dir(out)?;
+    let pts = p.points()?;
+    let (pmfs, orientation) = mappings(p, photos, &pts)?;
+    let params = PmfDtmParams {
+        sweep: SweepParams {
+            h_min: p.matching.h_min,
+            h_max: p.matching.h_max,
+            h_step: p.matching.h_step,
+            window: p.matching.window,
+            threshold: p.matching.threshold,
+            neighbours: p.matching.neighbours,
+            stride: p.matching.stride,
+            ..Default::default()
+        },
+        regions: RegionParams {
+            search_distance: p.regions.search_distance,
+            height_threshold: p.height_threshold(),
+            population_threshold: p.regions.population_threshold,
+        },
+        cell_m: p.grid.cell_m,
+    };
+    let reference = match &p.grid.reference {
+        Some(r) => Some(read_geotiff(r).map_err(|source| PipelineError::Reference {
+            path: r.clone(),
+            source,
+        })?),
+        None => None,
+    };
+    let height_at = reference
+        .as_ref()
+        .map(|g| move |x: f64, y: f64| g.interpolate(x, y));
+    let budget = Budget {
+        max_memory_mb: max_memory_mb.unwrap_or(p.limits.max_memory_mb),
+        max_candidates: p.limits.max_candidates_g * 1e9,
+    };
+    let r = pmf_dtm(
+        &photos[0].image,
+        &photos[1].image,
+        &pmfs,
+        &params,
+        &budget,
+        height_at.as_ref().map(|f| f as &dyn Fn(f64, f64) -> f64),
+        p.grid.flying_height_m,
+    )
+    .map_err(|source| PipelineError::Dtm {
+        path: p.path.clone(),
+        source,
+    })?;
+    let report = RunReport {
+        project: p.path.clone(),
+        pmf_from: p.pmf.from,
+        orientation,
+        pmf: pmfs.report.clone(),
+        dtm: r.report.clone(),
+    };
+    let write = |source| PipelineError::Write {
+        dir: out.to_path_buf(),
+        source,
+    };
+    std::fs::create_dir_all(out).map_err(write)?;
+    // A rerun replaces an earlier run's files; one without a reference leaves no old error map.
+    if reference.is_none() {
+        let _ = std::fs::remove_file(out.join("error.png"));
+    }
+    write_geotiff(&out.join("dem.tif"), &r.grid).map_err(write)?;
+    write_ply(&out.join("points.ply"), &r.points).map_err(write)?;
+    write_hillshade(&out.join("hillshade.png"), &r.grid).map_err(write)?;
+    if let (Some(g), Some(c)) = (&reference, &r.report.comparison) {
+        let d = r.grid.differences(|x, y| g.interpolate(x, y));
+        write_error_map(
+            &out.join("error.png"),
+            &r.grid,
+            &d,
+            (3.0 * c.rmse_m).max(1.0),
+        )
+        .map_err(write)?;
+    }
+    crate::atomic::write_json(&out.join("report.json"), &report).map_err(write)?;
+    crate::atomic::write_json(&out.join("pmfs.json"), &pmfs).map_err(write)?;
+    Ok((r, report))
+}
