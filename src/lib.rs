@@ -5,6 +5,7 @@ pub mod atomic;
 pub mod calibrate;
 pub mod camera;
 pub mod coords;
+pub mod correlation;
 pub mod digitise;
 pub mod geometry;
 pub mod image;

@@ -6,7 +6,14 @@
 use std::path::{Path, PathBuf};
 
 /// The core: these files and folders under `src/`.
-const CORE: [&str; 5] = ["geometry", "matching", "image.rs", "coords.rs", "atomic.rs"];
+const CORE: [&str; 6] = [
+    "geometry",
+    "matching",
+    "image.rs",
+    "correlation.rs",
+    "coords.rs",
+    "atomic.rs",
+];
 /// What the core may not name: modules of the hardware side, and the simulator's crate.
 const HARDWARE: [&str; 9] = [
     "crate::stage",

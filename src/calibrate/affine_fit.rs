@@ -45,34 +45,7 @@ pub struct Fit {
     pub residuals: Vec<Residual>,
 }
 
-/// The inverse of a 2×2 matrix; `None` when it is singular.
-pub fn inv2(m: [[f64; 2]; 2]) -> Option<[[f64; 2]; 2]> {
-    let det = m[0][0] * m[1][1] - m[0][1] * m[1][0];
-    (det.abs() > 1e-12).then(|| {
-        [
-            [m[1][1] / det, -m[0][1] / det],
-            [-m[1][0] / det, m[0][0] / det],
-        ]
-    })
-}
-
-/// `m·v`.
-pub fn mul2(m: [[f64; 2]; 2], v: [f64; 2]) -> [f64; 2] {
-    [
-        m[0][0] * v[0] + m[0][1] * v[1],
-        m[1][0] * v[0] + m[1][1] * v[1],
-    ]
-}
-
-/// The 2×2 part of affine parameters a0, a1, a2, b0, b1, b2.
-pub fn linear_part(p: &[f64; 6]) -> [[f64; 2]; 2] {
-    [[p[1], p[2]], [p[4], p[5]]]
-}
-
-/// The linear part's inverse applied to `d` (NaN when it is singular).
-pub fn solve_linear(p: &[f64; 6], d: [f64; 2]) -> [f64; 2] {
-    inv2(linear_part(p)).map_or([f64::NAN; 2], |m| mul2(m, d))
-}
+pub use crate::geometry::affine::{inv2, linear_part, mul2, solve_linear};
 
 impl Fit {
     pub fn apply(&self, p: [f64; 2]) -> [f64; 2] {

@@ -2,6 +2,7 @@
 //! space resection, and the pixel → photo grid of a photo's image. No hardware, no images:
 //! the matching core and the polynomial mapping functions build on it.
 
+pub mod affine;
 pub mod frame;
 pub mod intersection;
 pub mod photo_grid;

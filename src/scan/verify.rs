@@ -5,6 +5,7 @@
 //! orientation would no longer hold.
 
 use super::mosaic::gaussian;
+use crate::correlation::ncc;
 use crate::digitise::ImageF32;
 use crate::targets::resample::sample;
 use serde::Serialize;
@@ -24,18 +25,6 @@ pub struct FilmCheck {
     /// Where the film now appears relative to where it was, px of the tile (col, row).
     pub shift_px: [f64; 2],
     pub correlation: f64,
-}
-
-fn ncc(a: &[f64], b: &[f64]) -> f64 {
-    let n = a.len() as f64;
-    let (ma, mb) = (a.iter().sum::<f64>() / n, b.iter().sum::<f64>() / n);
-    let (mut sab, mut saa, mut sbb) = (0.0, 0.0, 0.0);
-    for (x, y) in a.iter().zip(b) {
-        sab += (x - ma) * (y - mb);
-        saa += (x - ma) * (x - ma);
-        sbb += (y - mb) * (y - mb);
-    }
-    sab / (saa * sbb).sqrt().max(1e-12)
 }
 
 /// The shift d such that `now(q) ≈ a + b·before(q + d)` over the tiles' central window.

@@ -15,6 +15,7 @@ use super::resample::sample;
 use super::template::{Template, FINE, FINE_PAD};
 use crate::coords::PixelXY;
 use crate::digitise::ImageF32;
+use crate::geometry::affine::{inv2, linear_part, mul2};
 use nalgebra::{SMatrix, SVector};
 use serde::Serialize;
 
@@ -154,12 +155,9 @@ fn match_sampling_template(
     let mut r = [gm - gs / fs * fm, gs / fs];
     // The centre: where U(d) = 0, d = −M⁻¹·(u0, v0).
     let centre_of = |u: &[f64; 6]| -> Option<[f64; 2]> {
-        let det = u[1] * u[5] - u[2] * u[4];
-        (det.abs() > 1e-9).then(|| {
-            [
-                -(u[5] * u[0] - u[2] * u[3]) / det,
-                -(-u[4] * u[0] + u[1] * u[3]) / det,
-            ]
+        inv2(linear_part(u)).map(|m| {
+            let v = mul2(m, [u[0], u[3]]);
+            [-v[0], -v[1]]
         })
     };
     let normal = |r: &[f64; 2], f: &[(f64, f64, f64)]| {
@@ -219,13 +217,10 @@ fn match_sampling_template(
             let q = nm.try_inverse().ok_or(LsmError::Singular)?;
             let sigma0 = (vv / (np - 8.0)).sqrt();
             // ∂centre/∂u: −M⁻¹ applied to the unit vectors (shifts) and to d (shape).
-            let det = u[1] * u[5] - u[2] * u[4];
-            let mi = [[u[5] / det, -u[2] / det], [-u[4] / det, u[1] / det]];
+            let mi = inv2(linear_part(&u)).ok_or(LsmError::Singular)?;
             let col = |v: [f64; 2]| {
-                [
-                    -(mi[0][0] * v[0] + mi[0][1] * v[1]),
-                    -(mi[1][0] * v[0] + mi[1][1] * v[1]),
-                ]
+                let w = mul2(mi, v);
+                [-w[0], -w[1]]
             };
             let cols = [
                 col([1.0, 0.0]),
@@ -244,7 +239,8 @@ fn match_sampling_template(
                 }
                 v.max(0.0)
             };
-            let corr = correlation(pix.iter().map(|p| p.2), f.iter().map(|f| f.0));
+            let (g, t): (Vec<f64>, Vec<f64>) = pix.iter().zip(&f).map(|(p, f)| (p.2, f.0)).unzip();
+            let corr = crate::correlation::ncc(&g, &t);
             let centre = PixelXY::new(start.col + c[0], start.row + c[1]);
             return Ok(LsmMatch {
                 centre,
@@ -264,24 +260,4 @@ fn match_sampling_template(
             return Err(LsmError::Diverged { iterations: it });
         }
     }
-}
-
-/// Pearson's correlation coefficient of two equally long series.
-pub fn correlation(a: impl Iterator<Item = f64>, b: impl Iterator<Item = f64>) -> f64 {
-    let (mut n, mut sa, mut sb, mut saa, mut sbb, mut sab) = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
-    for (x, y) in a.zip(b) {
-        n += 1.0;
-        sa += x;
-        sb += y;
-        saa += x * x;
-        sbb += y * y;
-        sab += x * y;
-    }
-    let cov = sab - sa * sb / n;
-    let va = saa - sa * sa / n;
-    let vb = sbb - sb * sb / n;
-    if va <= 0.0 || vb <= 0.0 {
-        return 0.0;
-    }
-    cov / (va * vb).sqrt()
 }
