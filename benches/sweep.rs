@@ -8,9 +8,10 @@ mod common;
 
 use criterion::{criterion_group, Criterion};
 use rig::digitise::ImageF32;
+use rig::geometry::FrameSensor;
 use rig::matching::pmf::Mapping;
 use rig::matching::sweep::{sweep, SweepParams};
-use rig::matching::{PmfSet, RigorousPhoto};
+use rig::matching::PmfSet;
 use rig::scan::PhotoGrid;
 use rig_sim::scene::{jacksboro, AerialPhoto};
 use std::hint::black_box;
@@ -23,8 +24,8 @@ struct Case {
     p: SweepParams,
 }
 
-fn photo(a: &AerialPhoto, g: PhotoGrid) -> (RigorousPhoto, ImageF32) {
-    let r = RigorousPhoto {
+fn photo(a: &AerialPhoto, g: PhotoGrid) -> (FrameSensor, ImageF32) {
+    let r = FrameSensor {
         camera: rig::sim_scene::frame_camera(a),
         grid: g,
     };
@@ -44,7 +45,7 @@ fn case() -> Case {
     );
     let (l, li) = photo(&a, PhotoGrid::covering([44.0, -2.0, 48.0, 2.0], 0.025));
     let (r, ri) = photo(&b, PhotoGrid::covering([-54.0, -5.0, -38.0, 5.0], 0.025));
-    let set = PmfSet::from_rigorous(&l, &r, [340.0, 600.0], 3).unwrap();
+    let set = PmfSet::from_sensors(&l, &r, [340.0, 600.0], 3).unwrap();
     Case {
         left: li,
         right: ri,

@@ -2,19 +2,21 @@
 //! (seed 004 §4), checked against that model at points it was not fitted to.
 
 use rig::coords::GroundM;
-use rig::matching::{PmfSet, RigorousPhoto};
+use rig::coords::PixelXY;
+use rig::geometry::{FrameSensor, Sensor};
+use rig::matching::PmfSet;
 use rig::scan::PhotoGrid;
 use rig_sim::scene::{jacksboro, AerialPhoto};
 
-fn rigorous(p: &AerialPhoto, area: [f64; 4]) -> RigorousPhoto {
-    RigorousPhoto {
+fn rigorous(p: &AerialPhoto, area: [f64; 4]) -> FrameSensor {
+    FrameSensor {
         camera: rig::sim_scene::frame_camera(p),
         grid: PhotoGrid::covering(area, 0.025),
     }
 }
 
 /// Photo 1 of seed 5's block, and the areas of photos 1 and 2 that see the same ground.
-fn pair() -> (AerialPhoto, RigorousPhoto, RigorousPhoto) {
+fn pair() -> (AerialPhoto, FrameSensor, FrameSensor) {
     let d = jacksboro();
     let (a, b) = (
         AerialPhoto::new(d.clone(), 5, 1, 1.0),
@@ -37,7 +39,7 @@ fn derived_mappings_reproduce_the_rigorous_model() {
     }
     let lo = hs.iter().cloned().fold(f64::MAX, f64::min) - 20.0;
     let hi = hs.iter().cloned().fold(f64::MIN, f64::max) + 20.0;
-    let set = PmfSet::from_rigorous(&l, &r, [lo, hi], 3).unwrap();
+    let set = PmfSet::from_sensors(&l, &r, [lo, hi], 3).unwrap();
     for f in &set.report {
         eprintln!(
             "{:28} {:2} terms  GCP RMSE {:.5}  CP RMSE {:.5} {}",
@@ -52,8 +54,8 @@ fn derived_mappings_reproduce_the_rigorous_model() {
             rng.uniform() * l.grid.height as f64,
         ];
         let h = lo + (hi - lo) * rng.uniform();
-        let g = l.ground_at(px, h);
-        let q = r.pixel_of(g).unwrap();
+        let g = l.image_to_ground(PixelXY::new(px[0], px[1]), h).unwrap();
+        let q = r.ground_to_image(g).map(|q| [q.col, q.row]).unwrap();
         let m = set.left_to_right.eval([px[0], px[1], h]);
         e_img = e_img.max((m[0] - q[0]).hypot(m[1] - q[1]));
         let gg = set.left_to_ground.eval([px[0], px[1], h]);
@@ -85,7 +87,7 @@ fn mappings_from_noisy_control_points_reach_the_measuring_noise() {
         let photo = l.grid.photo(rig::coords::PixelXY::new(px[0], px[1]));
         let g = a.ground_point([photo.x, photo.y]);
         let g = GroundM::new(g[0], g[1], g[2]);
-        let q = r.pixel_of(g).unwrap();
+        let q = r.ground_to_image(g).map(|q| [q.col, q.row]).unwrap();
         let n = |rng: &mut rig_sim::rng::Rng, s: f64| s * rng.normal();
         pts.push(rig::matching::StereoPoint {
             id: format!("p{k}"),

@@ -3,13 +3,14 @@
 
 use rig::coords::PixelXY;
 use rig::digitise::ImageF32;
+use rig::geometry::FrameSensor;
 use rig::matching::sweep::{sweep, SweepParams};
-use rig::matching::{PmfSet, RigorousPhoto};
+use rig::matching::PmfSet;
 use rig::scan::PhotoGrid;
 use rig_sim::scene::{jacksboro, AerialPhoto};
 
-fn rigorous(p: &AerialPhoto, grid: PhotoGrid) -> RigorousPhoto {
-    RigorousPhoto {
+fn rigorous(p: &AerialPhoto, grid: PhotoGrid) -> FrameSensor {
+    FrameSensor {
         camera: rig::sim_scene::frame_camera(p),
         grid,
     }
@@ -55,7 +56,7 @@ fn heights_from_the_sweep_match_the_dem() {
     }
     let lo = hs.iter().cloned().fold(f64::MAX, f64::min) - 30.0;
     let hi = hs.iter().cloned().fold(f64::MIN, f64::max) + 30.0;
-    let set = PmfSet::from_rigorous(&l, &r, [lo, hi], 3).unwrap();
+    let set = PmfSet::from_sensors(&l, &r, [lo, hi], 3).unwrap();
     let p = SweepParams {
         h_min: lo,
         h_max: hi,

@@ -7,8 +7,10 @@ pub mod frame;
 pub mod intersection;
 pub mod photo_grid;
 pub mod resection;
+pub mod sensor;
 
 pub use frame::{Exterior, FrameCamera, Interior};
 pub use intersection::{intersect, Intersection};
 pub use photo_grid::PhotoGrid;
 pub use resection::{resect, Resection, ResectionError};
+pub use sensor::{FrameSensor, Sensor};

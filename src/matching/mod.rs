@@ -4,7 +4,7 @@
 pub mod pmf;
 pub mod pmf_set;
 
-pub use pmf_set::{PmfSet, RigorousPhoto, StereoPoint};
+pub use pmf_set::{PmfSet, StereoPoint};
 pub mod grid;
 pub mod output;
 pub mod pipeline;

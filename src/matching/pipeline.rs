@@ -11,9 +11,11 @@ use super::pmf_set::FitReport;
 use super::project::{PmfSource, Project, ProjectError};
 use super::regions::RegionParams;
 use super::sweep::SweepParams;
-use super::{PmfSet, RigorousPhoto, StereoPoint};
+use super::{PmfSet, StereoPoint};
 use crate::coords::{PhotoMm, PixelXY};
-use crate::geometry::{resect, FrameCamera, Interior, PhotoGrid, Resection, ResectionError};
+use crate::geometry::{
+    resect, FrameCamera, FrameSensor, Interior, PhotoGrid, Resection, ResectionError,
+};
 use crate::image::ImageF32;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
@@ -168,7 +170,7 @@ fn mappings(
             };
             let (il, rl) = orient(left, &|g| g.left, "left")?;
             let (ir, rr) = orient(right, &|g| g.right, "right")?;
-            let photo = |interior, r: &Resection, grid| RigorousPhoto {
+            let photo = |interior, r: &Resection, grid| FrameSensor {
                 camera: FrameCamera {
                     interior,
                     exterior: r.exterior,
@@ -176,9 +178,8 @@ fn mappings(
                 grid,
             };
             let (l, r) = (photo(il, &rl, left.grid), photo(ir, &rr, right.grid));
-            let m =
-                PmfSet::from_rigorous(&l, &r, [p.matching.h_min, p.matching.h_max], p.pmf.order)
-                    .map_err(PipelineError::Derive)?;
+            let m = PmfSet::from_sensors(&l, &r, [p.matching.h_min, p.matching.h_max], p.pmf.order)
+                .map_err(PipelineError::Derive)?;
             Ok((
                 m,
                 Some(Orientation {

@@ -1,14 +1,13 @@
 //! The mappings of a stereo pair as polynomial mapping functions: image→image (what the
 //! height sweep follows), image→ground and ground→image for both photos, and the height from
 //! a triplet (x′, y′, x″). Fitted to ground control points with the terms chosen by check
-//! points (seed 000), or derived from a rigorous model on a 5×5 grid of the left image at
+//! points (seed 000), or derived from any two sensors on a 5×5 grid of the left image at
 //! three heights (seed 004 §4), the check points then at the cells' centres at two heights in
 //! between. Image coordinates are pixels of each photo (continuous, corner origin).
 
 use super::pmf::{select, Mapping, PmfError, Polynomial, Sample, Selection};
 use crate::coords::{GroundM, PixelXY};
-use crate::geometry::FrameCamera;
-use crate::geometry::PhotoGrid;
+use crate::geometry::Sensor;
 use serde::{Deserialize, Serialize};
 
 /// A point seen in both photos, with its ground coordinates.
@@ -46,26 +45,6 @@ pub struct PmfSet {
     /// (x′, y′, x″) → h.
     pub height: Polynomial,
     pub report: Vec<FitReport>,
-}
-
-/// A photo as the rigorous model sees it: its camera and the grid from its pixels to photo mm.
-#[derive(Debug, Clone, Copy)]
-pub struct RigorousPhoto {
-    pub camera: FrameCamera,
-    pub grid: PhotoGrid,
-}
-
-impl RigorousPhoto {
-    pub fn ground_at(&self, px: [f64; 2], h: f64) -> GroundM {
-        self.camera
-            .at_height(self.grid.photo(PixelXY::new(px[0], px[1])), h)
-    }
-
-    pub fn pixel_of(&self, g: GroundM) -> Option<[f64; 2]> {
-        let p = self.camera.project(g)?;
-        let q = self.grid.pixel(p);
-        Some([q.col, q.row])
-    }
 }
 
 fn chosen(
@@ -161,19 +140,21 @@ impl PmfSet {
     /// points, for SPOT); a frame pair's parallax goes with 1/(Z₀ − h), whose cubic term is
     /// still a tenth of a pixel over a few hundred metres, and at three heights h³ cannot be
     /// told from h: so five (125 points).
-    pub fn from_rigorous(
-        left: &RigorousPhoto,
-        right: &RigorousPhoto,
+    pub fn from_sensors(
+        left: &dyn Sensor,
+        right: &dyn Sensor,
         heights: [f64; 2],
         order: u8,
     ) -> Result<PmfSet, PmfError> {
-        let (w, h) = (left.grid.width as f64, left.grid.height as f64);
+        let (w, h) = left.image_size();
+        let (w, h) = (w as f64, h as f64);
         let point = |id: String, px: [f64; 2], z: f64| -> Option<StereoPoint> {
-            let g = left.ground_at(px, z);
+            let g = left.image_to_ground(PixelXY::new(px[0], px[1]), z)?;
+            let q = right.ground_to_image(g)?;
             Some(StereoPoint {
                 id,
                 left: px,
-                right: right.pixel_of(g)?,
+                right: [q.col, q.row],
                 ground: g,
             })
         };

@@ -1,0 +1,107 @@
+//! One sensor abstraction for every model that maps ground to image and back (as GDAL's
+//! transformers have one for rigorous models and RPCs): the frame camera now, a pushbroom
+//! scanner or an RPC later. Mapping functions are fitted from any `Sensor` (seed 004 §4), and
+//! the matchers ask nothing else of a photo's geometry.
+//!
+//! Image coordinates are continuous pixels of the sensor's own image, `PixelXY` (column,
+//! row), as everywhere in the core; ground coordinates are `GroundM` in the project's CRS.
+
+use super::{FrameCamera, PhotoGrid};
+use crate::coords::{GroundM, PixelXY};
+
+pub trait Sensor {
+    /// Width and height of the image, pixels.
+    fn image_size(&self) -> (usize, usize);
+
+    /// Where ground point `g` appears; `None` where the sensor cannot see it (behind it).
+    fn ground_to_image(&self, g: GroundM) -> Option<PixelXY>;
+
+    /// The ground point at height `z` seen at pixel `q`; `None` where the ray never reaches
+    /// that height.
+    fn image_to_ground(&self, q: PixelXY, z: f64) -> Option<GroundM>;
+
+    /// ∂(col, row)/∂(X, Y, Z) at `g`, pixels per metre: by default central differences of
+    /// [`Sensor::ground_to_image`] over ±0.5 m (a model with closed forms overrides it).
+    fn partials(&self, g: GroundM) -> Option<[[f64; 3]; 2]> {
+        const H: f64 = 0.5;
+        let mut d = [[0.0; 3]; 2];
+        for k in 0..3 {
+            let at = |s: f64| {
+                let mut p = [g.x, g.y, g.z];
+                p[k] += s;
+                self.ground_to_image(GroundM::new(p[0], p[1], p[2]))
+            };
+            let (a, b) = (at(H)?, at(-H)?);
+            d[0][k] = (a.col - b.col) / (2.0 * H);
+            d[1][k] = (a.row - b.row) / (2.0 * H);
+        }
+        Some(d)
+    }
+}
+
+/// A frame photo as a sensor: its camera (collinearity) and the grid from its image's pixels
+/// to photo millimetres.
+#[derive(Debug, Clone, Copy)]
+pub struct FrameSensor {
+    pub camera: FrameCamera,
+    pub grid: PhotoGrid,
+}
+
+impl Sensor for FrameSensor {
+    fn image_size(&self) -> (usize, usize) {
+        (self.grid.width, self.grid.height)
+    }
+
+    fn ground_to_image(&self, g: GroundM) -> Option<PixelXY> {
+        self.camera.project(g).map(|p| self.grid.pixel(p))
+    }
+
+    fn image_to_ground(&self, q: PixelXY, z: f64) -> Option<GroundM> {
+        let g = self.camera.at_height(self.grid.photo(q), z);
+        [g.x, g.y].iter().all(|v| v.is_finite()).then_some(g)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::coords::PhotoMm;
+    use crate::geometry::{Exterior, Interior};
+
+    /// A vertical photo (ω = φ = κ = 0) of focal length f from (0, 0, Z0): x = f·X/(Z0 − Z),
+    /// y = f·Y/(Z0 − Z) in mm, so ∂x/∂X = f/(Z0 − Z) and ∂x/∂Z = f·X/(Z0 − Z)², in pixels
+    /// divided by the grid's step (rows run against y).
+    #[test]
+    fn a_vertical_photo_has_the_closed_form_partials_and_round_trips() {
+        let (f, z0, step) = (153.0, 6500.0, 0.025);
+        let s = FrameSensor {
+            camera: FrameCamera {
+                interior: Interior {
+                    focal_mm: f,
+                    principal_point: PhotoMm::new(0.0, 0.0),
+                },
+                exterior: Exterior::from_degrees(0.0, 0.0, 0.0, GroundM::new(0.0, 0.0, z0)),
+            },
+            grid: PhotoGrid::covering([-10.0, -10.0, 10.0, 10.0], step),
+        };
+        let g = GroundM::new(300.0, -200.0, 400.0);
+        let d = s.partials(g).unwrap();
+        let h = z0 - g.z;
+        let want = [
+            [f / h / step, 0.0, f * g.x / (h * h) / step],
+            [0.0, -f / h / step, -f * g.y / (h * h) / step],
+        ];
+        for r in 0..2 {
+            for c in 0..3 {
+                assert!((d[r][c] - want[r][c]).abs() < 1e-6, "{d:?} vs {want:?}");
+            }
+        }
+        let q = s.ground_to_image(g).unwrap();
+        let back = s.image_to_ground(q, g.z).unwrap();
+        assert!((back.x - g.x).abs() < 1e-6 && (back.y - g.y).abs() < 1e-6);
+        // Above the camera nothing is seen.
+        assert!(s
+            .ground_to_image(GroundM::new(0.0, 0.0, z0 + 10.0))
+            .is_none());
+    }
+}
