@@ -165,7 +165,11 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<i32> {
         &json!({"gcps": gcps, "cps": cps}),
     )?;
     let truth = super::scene_cmd::truth_grid(&p1, AREA, 10.0)?;
-    rig::matching::output::write_geotiff(&out.join("truth-dem.tif"), &truth)?;
+    rig::matching::output::write_geotiff(
+        &out.join("truth-dem.tif"),
+        &truth,
+        rig::geometry::Crs::Local,
+    )?;
     std::fs::write(
         out.join("project.toml"),
         super::scene_cmd::project_toml(

@@ -324,7 +324,11 @@ pub fn run(a: &SceneArgs) -> anyhow::Result<i32> {
         &json!({"gcps": gcps, "cps": cps}),
     )?;
     let truth = truth_grid(&p1, area, 10.0)?;
-    rig::matching::output::write_geotiff(&a.out.join("truth-dem.tif"), &truth)?;
+    rig::matching::output::write_geotiff(
+        &a.out.join("truth-dem.tif"),
+        &truth,
+        rig::geometry::Crs::Local,
+    )?;
     rig::digitise::output::write_json(
         &a.out.join("truth.json"),
         &json!({"seed": a.seed, "photos": [p1, p2], "area_mm": [area, area2],

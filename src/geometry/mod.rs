@@ -3,12 +3,14 @@
 //! the matching core and the polynomial mapping functions build on it.
 
 pub mod affine;
+pub mod crs;
 pub mod frame;
 pub mod intersection;
 pub mod photo_grid;
 pub mod resection;
 pub mod sensor;
 
+pub use crs::Crs;
 pub use frame::{Exterior, FrameCamera, Interior};
 pub use intersection::{intersect, Intersection};
 pub use photo_grid::PhotoGrid;

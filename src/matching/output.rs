@@ -4,9 +4,10 @@
 
 use super::grid::ElevationGrid;
 use crate::coords::GroundM;
+use crate::geometry::Crs;
 use std::io::Write;
 use std::path::Path;
-use tiff::encoder::{colortype, TiffEncoder};
+use tiff::encoder::{colortype, Compression, DeflateLevel, TiffEncoder};
 use tiff::tags::Tag;
 
 /// The value written for nodata nodes (and named in the GDAL_NODATA tag).
@@ -16,12 +17,14 @@ fn other<E: std::fmt::Display>(path: &Path) -> impl Fn(E) -> std::io::Error + '_
     move |e| std::io::Error::other(format!("{}: {e}", path.display()))
 }
 
-/// Writes `grid` as a float32 GeoTIFF: pixel-is-area, the model's tie point at the
-/// north-west node's cell corner, square cells; a local projected system in metres (no EPSG
-/// code: the ground system is the project's own). Atomic (temporary file, rename).
-pub fn write_geotiff(path: &Path, grid: &ElevationGrid) -> std::io::Result<()> {
+/// Writes `grid` as a Deflate-compressed float32 GeoTIFF: pixel-is-area, the model's tie
+/// point at the north-west node's cell corner, square cells, in `crs` (an EPSG projected
+/// system, or a user-defined one in metres for `local`). Atomic (temporary file, rename).
+pub fn write_geotiff(path: &Path, grid: &ElevationGrid, crs: Crs) -> std::io::Result<()> {
     crate::atomic::write_with(path, |w| {
-        let mut enc = TiffEncoder::new(w).map_err(other(path))?;
+        let mut enc = TiffEncoder::new(w)
+            .map_err(other(path))?
+            .with_compression(Compression::Deflate(DeflateLevel::Balanced));
         let mut img = enc
             .new_image::<colortype::Gray32Float>(grid.cols as u32, grid.rows as u32)
             .map_err(other(path))?;
@@ -38,13 +41,17 @@ pub fn write_geotiff(path: &Path, grid: &ElevationGrid) -> std::io::Result<()> {
         )
         .map_err(other(path))?;
         // GeoKeyDirectory: version 1.1.0, 4 keys: model type projected (1024 = 1), raster
-        // type pixel-is-area (1025 = 1), projected CRS user-defined (3072 = 32767), linear
-        // units metre (3076 = 9001).
+        // type pixel-is-area (1025 = 1), projected CRS (3072: the EPSG code, or 32767 for
+        // user-defined), linear units metre (3076 = 9001).
+        let code = match crs {
+            Crs::Epsg(c) => c,
+            Crs::Local => 32767,
+        };
         let keys: [u16; 20] = [
             1, 1, 0, 4, //
             1024, 0, 1, 1, //
             1025, 0, 1, 1, //
-            3072, 0, 1, 32767, //
+            3072, 0, 1, code, //
             3076, 0, 1, 9001,
         ];
         e.write_tag(Tag::GeoKeyDirectoryTag, &keys[..])
@@ -60,8 +67,11 @@ pub fn write_geotiff(path: &Path, grid: &ElevationGrid) -> std::io::Result<()> {
     })
 }
 
-/// Reads a float32 GeoTIFF written by [`write_geotiff`] back into a grid.
+/// Reads a single-band GeoTIFF elevation model (8/16/32-bit integers or 32/64-bit floats, as
+/// GDAL writes them) into a grid: square cells, a tie point, pixel-is-area or pixel-is-point
+/// (GTRasterTypeGeoKey) honoured, the GDAL_NODATA value (and −9999) read as no height.
 pub fn read_geotiff(path: &Path) -> std::io::Result<ElevationGrid> {
+    use tiff::decoder::DecodingResult as D;
     let f = std::fs::File::open(path)?;
     let mut d = tiff::decoder::Decoder::new(std::io::BufReader::new(f)).map_err(other(path))?;
     let (w, h) = d.dimensions().map_err(other(path))?;
@@ -71,30 +81,69 @@ pub fn read_geotiff(path: &Path) -> std::io::Result<ElevationGrid> {
     let tie = d
         .get_tag_f64_vec(Tag::ModelTiepointTag)
         .map_err(other(path))?;
-    let z = match d.read_image().map_err(other(path))? {
-        tiff::decoder::DecodingResult::F32(v) => v,
+    // GeoKeyDirectory: a header of 4 shorts, then (key, location, count, value) per key.
+    let keys = d
+        .find_tag_unsigned_vec::<u16>(Tag::GeoKeyDirectoryTag)
+        .map_err(other(path))?
+        .unwrap_or_default();
+    let pixel_is_point = keys
+        .get(4..)
+        .unwrap_or(&[])
+        .chunks_exact(4)
+        .any(|k| k[0] == 1025 && k[1] == 0 && k[3] == 2);
+    let nodata = d
+        .find_tag(Tag::GdalNodata)
+        .map_err(other(path))?
+        .and_then(|v| v.into_string().ok())
+        .and_then(|s| s.trim().trim_end_matches('\0').parse::<f64>().ok());
+    let z: Vec<f64> = match d.read_image().map_err(other(path))? {
+        D::F32(v) => v.into_iter().map(f64::from).collect(),
+        D::F64(v) => v,
+        D::I16(v) => v.into_iter().map(f64::from).collect(),
+        D::U16(v) => v.into_iter().map(f64::from).collect(),
+        D::I32(v) => v.into_iter().map(f64::from).collect(),
+        D::U32(v) => v.into_iter().map(f64::from).collect(),
+        D::U8(v) => v.into_iter().map(f64::from).collect(),
+        D::I8(v) => v.into_iter().map(f64::from).collect(),
         _ => {
             return Err(std::io::Error::other(format!(
-                "{}: not float32",
+                "{}: heights must be one band of integers or floats",
                 path.display()
             )))
         }
     };
-    if scale.len() < 2 || tie.len() < 6 || scale[0] <= 0.0 || scale[0] != scale[1] {
+    if z.len() != w as usize * h as usize {
+        return Err(std::io::Error::other(format!(
+            "{}: one band expected ({} values for {w} × {h} cells)",
+            path.display(),
+            z.len()
+        )));
+    }
+    if scale.len() < 2
+        || tie.len() < 6
+        || !(scale[0] > 0.0 && scale[0].is_finite())
+        || (scale[0] - scale[1]).abs() > 1e-9 * scale[0]
+    {
         return Err(std::io::Error::other(format!(
             "{}: needs square cells and a tie point (ModelPixelScale, ModelTiepoint)",
             path.display()
         )));
     }
     let cell = scale[0];
+    // The tie point names raster point (i, j) = (tie[0], tie[1]): a cell's corner when pixel
+    // is area, its centre when pixel is point. Node (0, 0) is the first cell's centre.
+    let shift = if pixel_is_point { 0.0 } else { 0.5 };
+    let x0 = tie[3] + (shift - tie[0]) * cell;
+    let y0 = tie[4] - (shift - tie[1]) * cell;
+    let missing = |v: f64| !v.is_finite() || v == NODATA as f64 || nodata.is_some_and(|n| v == n);
     Ok(ElevationGrid {
-        x0: tie[3] + 0.5 * cell,
-        y0: tie[4] - 0.5 * cell,
+        x0,
+        y0,
         cell_m: cell,
         cols: w as usize,
         rows: h as usize,
         z: z.into_iter()
-            .map(|v| if v == NODATA { f32::NAN } else { v })
+            .map(|v| if missing(v) { f32::NAN } else { v as f32 })
             .collect(),
     })
 }
@@ -204,7 +253,7 @@ mod tests {
             })
             .collect();
         let p = d.path().join("dem.tif");
-        write_geotiff(&p, &g).unwrap();
+        write_geotiff(&p, &g, Crs::Local).unwrap();
         let back = read_geotiff(&p).unwrap();
         assert_eq!((back.cols, back.rows), (g.cols, g.rows));
         assert_eq!((back.x0, back.y0, back.cell_m), (g.x0, g.y0, g.cell_m));

@@ -265,7 +265,7 @@ pub fn run(
     if reference.is_none() {
         let _ = std::fs::remove_file(out.join("error.png"));
     }
-    write_geotiff(&out.join("dem.tif"), &r.grid).map_err(write)?;
+    write_geotiff(&out.join("dem.tif"), &r.grid, p.crs).map_err(write)?;
     write_ply(&out.join("points.ply"), &r.points).map_err(write)?;
     write_hillshade(&out.join("hillshade.png"), &r.grid).map_err(write)?;
     if let (Some(g), Some(c)) = (&reference, &r.report.comparison) {

@@ -147,6 +147,9 @@ impl Default for Limits {
 #[derive(Debug, Clone, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct Project {
+    /// The ground coordinates' system, written into every output (default "local").
+    #[serde(default)]
+    pub crs: crate::geometry::Crs,
     pub photos: Photos,
     pub points: Points,
     #[serde(default = "default_pmf")]
