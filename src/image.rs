@@ -36,3 +36,125 @@ impl ImageF32 {
         &self.data[row * self.width..(row + 1) * self.width]
     }
 }
+
+/// Reads a grey image for the matching core: a one-band TIFF (8/16/32-bit integers, 32/64-bit
+/// floats, either byte order — the decoder converts) or a PNG (8/16-bit grey), its grey values
+/// unscaled. Colour is refused rather than mixed into grey. Its size is checked against
+/// `max_bytes` (as f32) before the pixels are decoded.
+pub fn load_grey(path: &std::path::Path, max_bytes: u64) -> std::io::Result<ImageF32> {
+    let bad = |what: String| {
+        std::io::Error::new(
+            std::io::ErrorKind::InvalidData,
+            format!("{}: {what}", path.display()),
+        )
+    };
+    let bytes = std::fs::read(path)
+        .map_err(|e| std::io::Error::new(e.kind(), format!("{}: {e}", path.display())))?;
+    let fits = |w: u64, h: u64| {
+        if w == 0 || h == 0 || 4 * w * h > max_bytes {
+            Err(bad(format!(
+                "{w} × {h} px needs {} MiB as an image; the limit is {} MiB",
+                (4 * w * h) >> 20,
+                max_bytes >> 20
+            )))
+        } else {
+            Ok(())
+        }
+    };
+    if bytes.starts_with(b"\x89PNG") {
+        let r =
+            image::ImageReader::with_format(std::io::Cursor::new(&bytes), image::ImageFormat::Png);
+        let (w, h) = r
+            .into_dimensions()
+            .map_err(|e| bad(format!("not a readable PNG ({e})")))?;
+        fits(w as u64, h as u64)?;
+        let img = image::load_from_memory_with_format(&bytes, image::ImageFormat::Png)
+            .map_err(|e| bad(format!("not a readable PNG ({e})")))?;
+        let data: Vec<f32> = match img {
+            image::DynamicImage::ImageLuma8(g) => g.into_raw().into_iter().map(f32::from).collect(),
+            image::DynamicImage::ImageLuma16(g) => {
+                g.into_raw().into_iter().map(f32::from).collect()
+            }
+            other => {
+                return Err(bad(format!(
+                    "{:?} pixels: a grey image is needed (convert it to grey first)",
+                    other.color()
+                )))
+            }
+        };
+        return Ok(ImageF32 {
+            width: w as usize,
+            height: h as usize,
+            data,
+        });
+    }
+    use tiff::decoder::{Decoder, DecodingResult as D, Limits};
+    let mut limits = Limits::default();
+    limits.decoding_buffer_size = usize::try_from(2 * max_bytes).unwrap_or(usize::MAX);
+    let mut d = Decoder::new(std::io::Cursor::new(&bytes))
+        .map_err(|e| bad(format!("neither a PNG nor a readable TIFF ({e})")))?
+        .with_limits(limits);
+    let (w, h) = d.dimensions().map_err(|e| bad(e.to_string()))?;
+    fits(w as u64, h as u64)?;
+    match d.colortype() {
+        Ok(tiff::ColorType::Gray(_)) => {}
+        Ok(c) => {
+            return Err(bad(format!(
+                "{c:?} pixels: a one-band grey image is needed (convert it to grey first)"
+            )))
+        }
+        Err(e) => return Err(bad(e.to_string())),
+    }
+    let data: Vec<f32> = match d.read_image().map_err(|e| bad(e.to_string()))? {
+        D::U8(v) => v.into_iter().map(f32::from).collect(),
+        D::U16(v) => v.into_iter().map(f32::from).collect(),
+        D::U32(v) => v.into_iter().map(|x| x as f32).collect(),
+        D::I8(v) => v.into_iter().map(f32::from).collect(),
+        D::I16(v) => v.into_iter().map(f32::from).collect(),
+        D::I32(v) => v.into_iter().map(|x| x as f32).collect(),
+        D::F32(v) => v,
+        D::F64(v) => v.into_iter().map(|x| x as f32).collect(),
+        _ => return Err(bad("a sample type the rig does not read".into())),
+    };
+    if data.len() != w as usize * h as usize || data.iter().any(|v| !v.is_finite()) {
+        return Err(bad(
+            "one band of finite grey values expected (NaN or infinite values, or more bands)"
+                .into(),
+        ));
+    }
+    Ok(ImageF32 {
+        width: w as usize,
+        height: h as usize,
+        data,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn grey_tiff_and_png_read_their_values_and_colour_is_refused() {
+        let d = tempfile::tempdir().unwrap();
+        let px: Vec<u16> = vec![0, 1000, 65535, 7];
+        let t = d.path().join("a.tif");
+        let raw: Vec<u8> = px.iter().flat_map(|v| v.to_ne_bytes()).collect();
+        image::save_buffer(&t, &raw, 2, 2, image::ExtendedColorType::L16).unwrap();
+        let img = load_grey(&t, 1 << 20).unwrap();
+        assert_eq!((img.width, img.height), (2, 2));
+        assert_eq!(img.data, vec![0.0, 1000.0, 65535.0, 7.0]);
+        let p = d.path().join("a.png");
+        image::save_buffer(&p, &[0u8, 50, 100, 255], 2, 2, image::ExtendedColorType::L8).unwrap();
+        assert_eq!(
+            load_grey(&p, 1 << 20).unwrap().data,
+            vec![0.0, 50.0, 100.0, 255.0]
+        );
+        let c = d.path().join("c.png");
+        image::save_buffer(&c, &[0u8; 12], 2, 2, image::ExtendedColorType::Rgb8).unwrap();
+        assert!(load_grey(&c, 1 << 20)
+            .unwrap_err()
+            .to_string()
+            .contains("grey"));
+        assert!(load_grey(&t, 8).unwrap_err().to_string().contains("limit"));
+    }
+}

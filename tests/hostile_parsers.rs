@@ -188,3 +188,27 @@ fn matching_projects_survive_mutation() {
         rig::matching::project::Project::parse(t, Path::new("hostile.toml")).is_ok()
     });
 }
+
+#[test]
+fn format2_projects_and_points_files_survive_mutation() {
+    use rig::matching::project2::{parse_points, Project2};
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let f = "fuzz/seeds/project/format2.toml";
+    let seed = std::fs::read_to_string(root.join(f)).unwrap();
+    survive(f, seed.clone(), 3000, |t| {
+        Project2::parse(t, Path::new("hostile.toml")).is_ok()
+    });
+    let csv = "id,kind,x,y,z,photo,col,row\np1,gcp,15100.5,13200.25,512.5,1,1200.5,1500.25\np1,gcp,15100.5,13200.25,512.5,2,340.0,1490.75\nt1,tie,,,,3,800.0,900.0\np2,cp,15400.0,13300.0,530.0,1,1300.0,1400.0\n".to_string();
+    survive("points.csv", csv, 3000, |t| {
+        let photos = Project2::parse(
+            &std::fs::read_to_string(
+                Path::new(env!("CARGO_MANIFEST_DIR")).join("fuzz/seeds/project/format2.toml"),
+            )
+            .unwrap(),
+            Path::new("p.toml"),
+        )
+        .unwrap()
+        .photos;
+        parse_points(t, Path::new("points.csv"), &photos).is_ok()
+    });
+}

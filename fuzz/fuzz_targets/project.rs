@@ -1,12 +1,16 @@
-//! Matching projects: any text parses (every number range-checked) or is a typed error, never
-//! a panic.
+//! Matching projects, formats 1 and 2, and the format-2 points file: any text parses (every
+//! number range-checked) or is a typed error, never a panic.
 #![no_main]
 use libfuzzer_sys::fuzz_target;
 use rig::matching::project::Project;
+use rig::matching::project2::{parse_points, Project2};
 use std::path::Path;
 
 fuzz_target!(|data: &[u8]| {
     if let Ok(text) = std::str::from_utf8(data) {
         let _ = Project::parse(text, Path::new("project.toml"));
+        if let Ok(p) = Project2::parse(text, Path::new("project.toml")) {
+            let _ = parse_points(text, Path::new("points.csv"), &p.photos);
+        }
     }
 });

@@ -10,10 +10,32 @@ use rig::matching::regions::RegionStats;
 use rig::scan::ScannedPhoto;
 use std::path::PathBuf;
 
+/// Elevation models from photos: `rig dtm PROJECT.toml --out DIR`.
+///
+/// A format-2 project (`format = 2`; see the README) names any number of photos as plain grey
+/// images with their cameras and orientations (or the rig's scans), the ground CRS, points and
+/// the DEM: every overlapping pair is swept and the heights merged into dem.tif (Deflate float32
+/// GeoTIFF in the project's CRS, nodata −9999), points.ply, hillshade.png, error.png (with
+/// [check] reference) and report.json. A format-1 project (two scanned photos, `rig sim scene`
+/// and `rig demo` write them) runs seed 000's method as `rig dtm pmf` did.
 #[derive(Debug, Args)]
+#[command(args_conflicts_with_subcommands = true, verbatim_doc_comment)]
 pub struct DtmArgs {
     #[command(subcommand)]
-    pub action: DtmAction,
+    pub action: Option<DtmAction>,
+    /// The project file (TOML).
+    #[arg(value_name = "PROJECT.toml")]
+    pub project: Option<PathBuf>,
+    /// Output directory (created; empty, or holding only an earlier run's outputs, which are
+    /// replaced).
+    #[arg(long, value_name = "DIR")]
+    pub out: Option<PathBuf>,
+    /// Most memory the run may take, MiB (overrides the project's [limits] max_memory_mb).
+    #[arg(long, value_name = "MIB", value_parser = clap::value_parser!(u64).range(16..=1_048_576))]
+    pub max_memory: Option<u64>,
+    /// Print the report as JSON.
+    #[arg(long)]
+    pub json: bool,
 }
 
 #[derive(Debug, Subcommand)]
@@ -102,8 +124,85 @@ pub fn print_report(pmf: &[FitReport], r: &PmfDtm) {
     }
 }
 
+/// A format-2 project: photos loaded (scans through the scan's hand-over), the N-photo sweep.
+fn run_format2(
+    project: &std::path::Path,
+    out: &std::path::Path,
+    max_memory: Option<u64>,
+    json: bool,
+) -> anyhow::Result<i32> {
+    use rig::matching::pipeline2::{self, InputPhoto};
+    use rig::matching::project2::Project2;
+    let p = Project2::load(project)?;
+    let scan = |sidecar: &std::path::Path| -> Result<InputPhoto, String> {
+        let ph = ScannedPhoto::load_photo(sidecar).map_err(|e| e.to_string())?;
+        Ok(InputPhoto {
+            image: ph.image,
+            grid: ph.grid,
+            interior: rig::geometry::Interior {
+                focal_mm: ph.focal_mm,
+                principal_point: rig::coords::PhotoMm::new(0.0, 0.0),
+            },
+        })
+    };
+    let photos = pipeline2::load_photos(&p, &scan)?;
+    let r = pipeline2::run(&p, &photos, out, max_memory)?;
+    if json {
+        println!("{}", serde_json::to_string(&r)?);
+        return Ok(0);
+    }
+    println!(
+        "{} photos, {} pairs swept, heights {:.0}…{:.0} m; CRS {}",
+        p.photos.len(),
+        r.pairs.len(),
+        r.heights_m[0],
+        r.heights_m[1],
+        r.crs
+    );
+    for pr in &r.pairs {
+        println!(
+            "  {} × {}: step {:.2} m, {:.1} % matched, {} points kept",
+            pr.left, pr.right, pr.h_step_m, pr.dtm.matched_percent, pr.points
+        );
+    }
+    println!(
+        "elevation model: {} × {} nodes of {} m, {} with a height",
+        r.grid.cols, r.grid.rows, p.cell_m, r.grid_filled
+    );
+    if let Some(c) = &r.comparison {
+        println!(
+            "against the reference: RMSE {:.2} m, mean {:+.2} m, max +{:.2} / {:.2} m over {} nodes",
+            c.rmse_m, c.mean_m, c.max_positive_m, c.max_negative_m, c.nodes
+        );
+    }
+    println!("written to {}", out.display());
+    Ok(0)
+}
+
 pub fn run(a: DtmArgs) -> anyhow::Result<i32> {
-    match a.action {
+    let action = match (a.action, a.project, a.out) {
+        (Some(act), _, _) => act,
+        (None, Some(project), Some(out)) => {
+            let text = std::fs::read_to_string(&project)
+                .with_context(|| format!("reading {}", project.display()))?;
+            if rig::matching::project2::is_format2(&text) {
+                return run_format2(&project, &out, a.max_memory, a.json);
+            }
+            DtmAction::Pmf {
+                project,
+                out,
+                json: a.json,
+                max_memory: a.max_memory,
+            }
+        }
+        (None, None, _) => {
+            anyhow::bail!("give the project: rig dtm PROJECT.toml --out DIR (see rig dtm --help)")
+        }
+        (None, Some(_), None) => {
+            anyhow::bail!("give the output directory: rig dtm PROJECT.toml --out DIR")
+        }
+    };
+    match action {
         DtmAction::Pmf {
             project,
             out,

@@ -33,33 +33,30 @@ pub struct Photo {
 pub enum PipelineError {
     #[error(transparent)]
     Project(#[from] ProjectError),
-    #[error("fitting the mapping functions to {path}: {source}")]
-    Fit { path: PathBuf, source: PmfError },
+    #[error("fitting the mapping functions to {path}: {cause}")]
+    Fit { path: PathBuf, cause: PmfError },
     #[error("the mappings {path}: {message}")]
     Mappings { path: PathBuf, message: String },
-    #[error("resection of the {which} photo: {source}")]
+    #[error("resection of the {which} photo: {cause}")]
     Resection {
         which: &'static str,
-        source: ResectionError,
+        cause: ResectionError,
     },
     #[error("deriving the mapping functions from the resected photos: {0}")]
     Derive(PmfError),
-    #[error("reading the reference model {path}: {source}")]
+    #[error("reading the reference model {path}: {cause}")]
     Reference {
         path: PathBuf,
-        source: std::io::Error,
+        cause: std::io::Error,
     },
-    #[error("project {path}: {source}")]
-    Dtm { path: PathBuf, source: DtmError },
+    #[error("project {path}: {cause}")]
+    Dtm { path: PathBuf, cause: DtmError },
     #[error(
         "{dir} holds files that are not a `rig dtm` run's ({files}): give a new or empty directory"
     )]
     Foreign { dir: PathBuf, files: String },
-    #[error("writing into {dir}: {source}")]
-    Write {
-        dir: PathBuf,
-        source: std::io::Error,
-    },
+    #[error("writing into {dir}: {cause}")]
+    Write { dir: PathBuf, cause: std::io::Error },
 }
 
 /// The resected photos, when the mappings were derived from them.
@@ -93,13 +90,13 @@ pub const OUTPUTS: [&str; 6] = [
 /// An output directory must be new, empty, or hold only an earlier run's outputs (a run that
 /// was killed half way left some of them, or `.part` files): anything else is not ours to
 /// replace.
-fn check_out_dir(out: &Path) -> Result<(), PipelineError> {
+pub(crate) fn check_out_dir(out: &Path) -> Result<(), PipelineError> {
     if !out.exists() {
         return Ok(());
     }
     let write = |source| PipelineError::Write {
         dir: out.to_path_buf(),
-        source,
+        cause: source,
     };
     let mut foreign = Vec::new();
     for e in std::fs::read_dir(out).map_err(write)? {
@@ -130,7 +127,7 @@ fn mappings(
             .map(|m| (m, None))
             .map_err(|source| PipelineError::Fit {
                 path: p.points.file.clone(),
-                source,
+                cause: source,
             }),
         PmfSource::File => {
             let Some(path) = p.pmf.file.clone() else {
@@ -166,7 +163,10 @@ fn mappings(
                     .collect();
                 resect(&interior, &obs)
                     .map(|r| (interior, r))
-                    .map_err(|source| PipelineError::Resection { which, source })
+                    .map_err(|source| PipelineError::Resection {
+                        which,
+                        cause: source,
+                    })
             };
             let (il, rl) = orient(left, &|g| g.left, "left")?;
             let (ir, rr) = orient(right, &|g| g.right, "right")?;
@@ -225,7 +225,7 @@ pub fn run(
     let reference = match &p.grid.reference {
         Some(r) => Some(read_geotiff(r).map_err(|source| PipelineError::Reference {
             path: r.clone(),
-            source,
+            cause: source,
         })?),
         None => None,
     };
@@ -247,7 +247,7 @@ pub fn run(
     )
     .map_err(|source| PipelineError::Dtm {
         path: p.path.clone(),
-        source,
+        cause: source,
     })?;
     let report = RunReport {
         project: p.path.clone(),
@@ -258,7 +258,7 @@ pub fn run(
     };
     let write = |source| PipelineError::Write {
         dir: out.to_path_buf(),
-        source,
+        cause: source,
     };
     std::fs::create_dir_all(out).map_err(write)?;
     // A rerun replaces an earlier run's files; one without a reference leaves no old error map.

@@ -1,0 +1,383 @@
+//! The sweep over N photos (project format 2): every photo becomes a [`Sensor`] (its camera
+//! and orientation, given or resected from the control points), every pair whose footprints
+//! overlap gets mapping functions from the two sensors (seed 004 §4) and seed 000's sweep,
+//! and the heights of all pairs are merged into one grid in the project's CRS.
+
+use super::grid::{Comparison, ElevationGrid};
+use super::output::{read_geotiff, write_error_map, write_geotiff, write_hillshade, write_ply};
+use super::pmf_dtm::{pmf_dtm, Budget, DtmError, PmfDtmParams, PmfDtmReport};
+use super::pmf_set::FitReport;
+use super::project2::{Kind, Observation, Project2, Project2Error, Source};
+use super::regions::RegionParams;
+use super::sweep::SweepParams;
+use super::PmfSet;
+use crate::coords::{GroundM, PixelXY};
+use crate::geometry::{
+    resect, Crs, FrameCamera, FrameSensor, Interior, PhotoGrid, Resection, ResectionError, Sensor,
+};
+use crate::image::ImageF32;
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+/// A photo handed to the core: its image, which photo point each pixel shows, and the
+/// camera's interior orientation.
+#[derive(Debug, Clone)]
+pub struct InputPhoto {
+    pub image: ImageF32,
+    pub grid: PhotoGrid,
+    pub interior: Interior,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum Pipeline2Error {
+    #[error(transparent)]
+    Project(#[from] Project2Error),
+    #[error("photo `{id}`: {message}")]
+    Photo { id: String, message: String },
+    #[error("photo `{id}`: resection from {points} control points: {cause}")]
+    Resection {
+        id: String,
+        points: usize,
+        cause: ResectionError,
+    },
+    #[error("{0}")]
+    Heights(String),
+    #[error("no two photos overlap on the ground: nothing to match")]
+    NoOverlap,
+    #[error("photos `{left}` and `{right}`: {cause}")]
+    Pair {
+        left: String,
+        right: String,
+        cause: DtmError,
+    },
+    #[error("photos `{left}` and `{right}`: mapping functions from the sensors: {message}")]
+    Mappings {
+        left: String,
+        right: String,
+        message: String,
+    },
+    #[error("the DEM grid: {0}")]
+    Grid(String),
+    #[error("reading the reference model {path}: {cause}")]
+    Reference {
+        path: PathBuf,
+        cause: std::io::Error,
+    },
+    #[error(transparent)]
+    OutDir(#[from] super::pipeline::PipelineError),
+    #[error("writing into {dir}: {cause}")]
+    Write { dir: PathBuf, cause: std::io::Error },
+}
+
+/// One pair's part of the run.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PairReport {
+    pub left: String,
+    pub right: String,
+    /// Height step used, m (half a pixel of parallax unless the project gave one).
+    pub h_step_m: f64,
+    pub pmf: Vec<FitReport>,
+    pub dtm: PmfDtmReport,
+    /// Matched points it added to the merged model.
+    pub points: usize,
+}
+
+/// `report.json` of a format-2 run.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Report2 {
+    pub project: PathBuf,
+    pub crs: Crs,
+    /// Photos resected from the control points (the others had their orientation given).
+    pub resected: Vec<(String, Resection)>,
+    pub heights_m: [f64; 2],
+    pub extent: [f64; 4],
+    pub pairs: Vec<PairReport>,
+    pub points: usize,
+    pub grid: ElevationGrid,
+    pub grid_filled: usize,
+    pub comparison: Option<Comparison>,
+}
+
+/// The grid of a plain image with square pixels of `pixel_mm`, its centre on the photo
+/// coordinates' origin: x = (col − (W−1)/2)·p, y = ((H−1)/2 − row)·p at pixel centres.
+pub fn centred_grid(width: usize, height: usize, pixel_mm: f64) -> PhotoGrid {
+    PhotoGrid {
+        corner_mm: [
+            -0.5 * width as f64 * pixel_mm,
+            0.5 * height as f64 * pixel_mm,
+        ],
+        step_mm: pixel_mm,
+        width,
+        height,
+    }
+}
+
+/// Loads a plain-image photo of the project (scans come through `scan`, the hardware side's
+/// hand-over), within the project's memory limit.
+pub fn load_photos(
+    p: &Project2,
+    scan: &dyn Fn(&Path) -> Result<InputPhoto, String>,
+) -> Result<Vec<InputPhoto>, Pipeline2Error> {
+    let max = p.limits.max_memory_mb << 20;
+    p.photos
+        .iter()
+        .map(|ph| {
+            let err = |message: String| Pipeline2Error::Photo {
+                id: ph.id.clone(),
+                message,
+            };
+            match &ph.source {
+                Source::Image { path, camera } => {
+                    let image =
+                        crate::image::load_grey(path, max).map_err(|e| err(e.to_string()))?;
+                    let grid = centred_grid(image.width, image.height, camera.pixel_mm);
+                    Ok(InputPhoto {
+                        image,
+                        grid,
+                        interior: Interior {
+                            focal_mm: camera.focal_mm,
+                            principal_point: camera.principal_point,
+                        },
+                    })
+                }
+                Source::Scan { sidecar } => scan(sidecar).map_err(err),
+            }
+        })
+        .collect()
+}
+
+/// The ground rectangle (xmin, ymin, xmax, ymax) the image's corners and middle see at `z`.
+fn footprint(s: &dyn Sensor, z: f64) -> Option<[f64; 4]> {
+    let (w, h) = s.image_size();
+    let (w, h) = (w as f64, h as f64);
+    let mut r = [f64::MAX, f64::MAX, f64::MIN, f64::MIN];
+    for (c, q) in [(0.0, 0.0), (w, 0.0), (0.0, h), (w, h), (0.5 * w, 0.5 * h)] {
+        let g = s.image_to_ground(PixelXY::new(c, q), z)?;
+        r = [r[0].min(g.x), r[1].min(g.y), r[2].max(g.x), r[3].max(g.y)];
+    }
+    Some(r)
+}
+
+fn overlap(a: [f64; 4], b: [f64; 4]) -> Option<[f64; 4]> {
+    let o = [
+        a[0].max(b[0]),
+        a[1].max(b[1]),
+        a[2].min(b[2]),
+        a[3].min(b[3]),
+    ];
+    (o[2] > o[0] && o[3] > o[1]).then_some(o)
+}
+
+/// Half a pixel of parallax in the right photo, in metres of height, at the left photo's
+/// centre: the sweep's step, so that the correlation peak is sampled finely enough for its
+/// parabola (seed 000 used 2 m where that was 4–9 px: too coarse).
+fn parallax_step(l: &dyn Sensor, r: &dyn Sensor, z: f64) -> Option<f64> {
+    let (w, h) = l.image_size();
+    let q = PixelXY::new(0.5 * w as f64, 0.5 * h as f64);
+    let a = r.ground_to_image(l.image_to_ground(q, z)?)?;
+    let b = r.ground_to_image(l.image_to_ground(q, z + 1.0)?)?;
+    let px_per_m = (a.col - b.col).hypot(a.row - b.row);
+    (px_per_m > 1e-9).then(|| (0.5 / px_per_m).clamp(0.01, 100.0))
+}
+
+/// Runs a format-2 project on its loaded photos into `out`.
+pub fn run(
+    p: &Project2,
+    photos: &[InputPhoto],
+    out: &Path,
+    max_memory_mb: Option<u64>,
+) -> Result<Report2, Pipeline2Error> {
+    super::pipeline::check_out_dir(out)?;
+    let obs = p.observations()?;
+    let control: Vec<&Observation> = obs.iter().filter(|o| o.kind == Kind::Gcp).collect();
+    // Orientation: given, or resected from this photo's control points.
+    let mut resected = Vec::new();
+    let mut sensors = Vec::new();
+    for (ph, input) in p.photos.iter().zip(photos) {
+        let exterior = match ph.exterior {
+            Some(e) => e,
+            None => {
+                let pts: Vec<_> = control
+                    .iter()
+                    .filter(|o| o.photo == ph.id)
+                    .filter_map(|o| Some((input.grid.photo(PixelXY::new(o.col, o.row)), o.ground?)))
+                    .collect();
+                let r =
+                    resect(&input.interior, &pts).map_err(|source| Pipeline2Error::Resection {
+                        id: ph.id.clone(),
+                        points: pts.len(),
+                        cause: source,
+                    })?;
+                let e = r.exterior;
+                resected.push((ph.id.clone(), r));
+                e
+            }
+        };
+        sensors.push(FrameSensor {
+            camera: FrameCamera {
+                interior: input.interior,
+                exterior,
+            },
+            grid: input.grid,
+        });
+    }
+    // Heights: given, or the control and check points' range with a margin.
+    let heights = match p.heights {
+        Some(h) => h,
+        None => {
+            let zs: Vec<f64> = obs
+                .iter()
+                .filter(|o| o.kind != Kind::Tie)
+                .filter_map(|o| o.ground.map(|g| g.z))
+                .collect();
+            if zs.len() < 2 {
+                return Err(Pipeline2Error::Heights(format!(
+                    "{}: give [dem] heights = [min, max] (no control or check points to take them from)",
+                    p.path.display()
+                )));
+            }
+            let lo = zs.iter().copied().fold(f64::MAX, f64::min);
+            let hi = zs.iter().copied().fold(f64::MIN, f64::max);
+            let m = (0.2 * (hi - lo)).max(20.0);
+            [lo - m, hi + m]
+        }
+    };
+    let mid = 0.5 * (heights[0] + heights[1]);
+    let prints: Vec<Option<[f64; 4]>> = sensors
+        .iter()
+        .map(|s| footprint(s as &dyn Sensor, mid))
+        .collect();
+    let mut pairs = Vec::new();
+    let mut union: Option<[f64; 4]> = None;
+    for i in 0..sensors.len() {
+        for j in i + 1..sensors.len() {
+            if let (Some(a), Some(b)) = (prints[i], prints[j]) {
+                if let Some(o) = overlap(a, b) {
+                    pairs.push((i, j));
+                    union = Some(match union {
+                        None => o,
+                        Some(u) => [
+                            u[0].min(o[0]),
+                            u[1].min(o[1]),
+                            u[2].max(o[2]),
+                            u[3].max(o[3]),
+                        ],
+                    });
+                }
+            }
+        }
+    }
+    let extent = match (p.extent, union) {
+        (Some(e), _) => e,
+        (None, Some(u)) => u,
+        (None, None) => return Err(Pipeline2Error::NoOverlap),
+    };
+    if pairs.is_empty() {
+        return Err(Pipeline2Error::NoOverlap);
+    }
+    let budget = Budget {
+        max_memory_mb: max_memory_mb.unwrap_or(p.limits.max_memory_mb),
+        max_candidates: p.limits.max_candidates_g * 1e9,
+    };
+    let m = &p.matching;
+    let mut all = Vec::new();
+    let mut reports = Vec::new();
+    for (i, j) in pairs {
+        let (l, r) = (&sensors[i], &sensors[j]);
+        let (li, ri) = (&p.photos[i].id, &p.photos[j].id);
+        let pmfs =
+            PmfSet::from_sensors(l, r, heights, m.order).map_err(|e| Pipeline2Error::Mappings {
+                left: li.clone(),
+                right: ri.clone(),
+                message: e.to_string(),
+            })?;
+        let h_step = m.h_step.or_else(|| parallax_step(l, r, mid)).unwrap_or(1.0);
+        let params = PmfDtmParams {
+            sweep: SweepParams {
+                h_min: heights[0],
+                h_max: heights[1],
+                h_step,
+                window: m.window,
+                threshold: m.threshold,
+                neighbours: m.neighbours,
+                stride: m.stride,
+                ..Default::default()
+            },
+            regions: RegionParams {
+                search_distance: m.search_distance,
+                height_threshold: m.height_threshold.unwrap_or(1.5 * h_step),
+                population_threshold: m.population_threshold,
+            },
+            cell_m: p.cell_m,
+        };
+        let d = pmf_dtm(
+            &photos[i].image,
+            &photos[j].image,
+            &pmfs,
+            &params,
+            &budget,
+            None,
+            None,
+        )
+        .map_err(|source| Pipeline2Error::Pair {
+            left: li.clone(),
+            right: ri.clone(),
+            cause: source,
+        })?;
+        reports.push(PairReport {
+            left: li.clone(),
+            right: ri.clone(),
+            h_step_m: h_step,
+            pmf: pmfs.report.clone(),
+            dtm: d.report,
+            points: d.points.len(),
+        });
+        all.extend(d.points);
+    }
+    let mut grid = ElevationGrid::covering(extent, p.cell_m, budget.max_memory_mb)
+        .map_err(|e| Pipeline2Error::Grid(e.to_string()))?;
+    let pts: Vec<GroundM> = all.iter().map(|(g, _)| *g).collect();
+    grid.fill(&pts);
+    let reference = match &p.reference {
+        Some(r) => Some(read_geotiff(r).map_err(|source| Pipeline2Error::Reference {
+            path: r.clone(),
+            cause: source,
+        })?),
+        None => None,
+    };
+    let comparison = reference
+        .as_ref()
+        .map(|g| grid.compare(|x, y| g.interpolate(x, y)));
+    let write = |source| Pipeline2Error::Write {
+        dir: out.to_path_buf(),
+        cause: source,
+    };
+    std::fs::create_dir_all(out).map_err(write)?;
+    write_geotiff(&out.join("dem.tif"), &grid, p.crs).map_err(write)?;
+    write_ply(&out.join("points.ply"), &all).map_err(write)?;
+    write_hillshade(&out.join("hillshade.png"), &grid).map_err(write)?;
+    match (&reference, &comparison) {
+        (Some(g), Some(c)) => {
+            let d = grid.differences(|x, y| g.interpolate(x, y));
+            write_error_map(&out.join("error.png"), &grid, &d, (3.0 * c.rmse_m).max(1.0))
+                .map_err(write)?;
+        }
+        _ => {
+            let _ = std::fs::remove_file(out.join("error.png"));
+        }
+    }
+    let report = Report2 {
+        project: p.path.clone(),
+        crs: p.crs,
+        resected,
+        heights_m: heights,
+        extent,
+        pairs: reports,
+        points: all.len(),
+        grid_filled: grid.filled(),
+        grid,
+        comparison,
+    };
+    crate::atomic::write_json(&out.join("report.json"), &report).map_err(write)?;
+    Ok(report)
+}

@@ -1,0 +1,502 @@
+//! Project format 2: any number of photos as plain images with their cameras and orientations
+//! (or the rig's own scan hand-overs), control and check points in a CSV file, the ground CRS,
+//! the DEM's cell, extent and heights. The README documents every key; the names are the
+//! contract. Every number is range-checked here with the file and the key named.
+//!
+//! Pixel coordinates in this format (and in the points file) follow the README's convention:
+//! (col, row) with integer values at pixel centres, (0, 0) the centre of the top-left pixel.
+//! The core's images use the corner origin (pixel c covers [c, c + 1)): `col + 0.5`.
+
+use super::project::Limits;
+use crate::coords::{GroundM, PhotoMm};
+use crate::geometry::{Crs, Exterior};
+use serde::Deserialize;
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+#[derive(Debug, thiserror::Error)]
+pub enum Project2Error {
+    #[error("cannot read {path}: {cause}")]
+    Read {
+        path: PathBuf,
+        cause: std::io::Error,
+    },
+    #[error("{path}: {message}")]
+    Invalid { path: PathBuf, message: String },
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawCamera {
+    focal_mm: f64,
+    #[serde(default)]
+    principal_point_mm: [f64; 2],
+    pixel_mm: Option<f64>,
+    pixel_to_photo: Option<[f64; 6]>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawPhoto {
+    id: String,
+    image: Option<String>,
+    camera: Option<String>,
+    position: Option<[f64; 3]>,
+    angles_deg: Option<[f64; 3]>,
+    scan: Option<String>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawPoints {
+    file: String,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawDem {
+    cell_m: f64,
+    extent: Option<[f64; 4]>,
+    heights: Option<[f64; 2]>,
+}
+
+fn d_window() -> usize {
+    9
+}
+fn d_threshold() -> f64 {
+    0.5
+}
+fn d_stride() -> usize {
+    1
+}
+fn d_order() -> u8 {
+    3
+}
+fn d_true() -> bool {
+    true
+}
+fn d_search() -> usize {
+    2
+}
+fn d_population() -> usize {
+    200
+}
+fn d_method() -> String {
+    "sweep".into()
+}
+
+/// `[matching]`: the method and its parameters (seed 000 Table 3, with defaults).
+#[derive(Debug, Clone, Deserialize, serde::Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct Matching2 {
+    #[serde(default = "d_method")]
+    pub method: String,
+    #[serde(default = "d_window")]
+    pub window: usize,
+    #[serde(default = "d_threshold")]
+    pub threshold: f64,
+    /// Height step of the sweep, m; default: half a pixel of parallax in each pair.
+    pub h_step: Option<f64>,
+    #[serde(default = "d_stride")]
+    pub stride: usize,
+    #[serde(default = "d_true")]
+    pub neighbours: bool,
+    /// Order of the mapping functions derived from the sensors (seed 004: 3).
+    #[serde(default = "d_order")]
+    pub order: u8,
+    #[serde(default = "d_search")]
+    pub search_distance: usize,
+    pub height_threshold: Option<f64>,
+    #[serde(default = "d_population")]
+    pub population_threshold: usize,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawCheck {
+    reference: String,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct Raw {
+    format: u32,
+    crs: Crs,
+    #[serde(default)]
+    camera: BTreeMap<String, RawCamera>,
+    photo: Vec<RawPhoto>,
+    points: Option<RawPoints>,
+    dem: RawDem,
+    matching: Option<Matching2>,
+    check: Option<RawCheck>,
+    #[serde(default)]
+    limits: Limits,
+}
+
+/// A camera as the project gives it.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct Camera2 {
+    pub focal_mm: f64,
+    pub principal_point: PhotoMm,
+    /// Square pixels, mm: x = (col − (W−1)/2)·p, y = ((H−1)/2 − row)·p.
+    pub pixel_mm: f64,
+}
+
+/// Where a photo comes from.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub enum Source {
+    /// A plain image and its camera.
+    Image { path: PathBuf, camera: Camera2 },
+    /// The rig's own scanned photo (its sidecar): image, grid and focal length from the scan.
+    Scan { sidecar: PathBuf },
+}
+
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct Photo2 {
+    pub id: String,
+    pub source: Source,
+    /// Given, or `None`: resected from the control points.
+    pub exterior: Option<Exterior>,
+}
+
+/// What a point observation is for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+pub enum Kind {
+    Gcp,
+    Cp,
+    Tie,
+}
+
+/// One line of the points file: a point seen in one photo.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct Observation {
+    pub id: String,
+    pub kind: Kind,
+    pub ground: Option<GroundM>,
+    pub photo: String,
+    /// Corner-origin continuous pixel (the core's): the file's centre-origin value + 0.5.
+    pub col: f64,
+    pub row: f64,
+}
+
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct Project2 {
+    pub path: PathBuf,
+    pub crs: Crs,
+    pub photos: Vec<Photo2>,
+    pub points_file: Option<PathBuf>,
+    pub cell_m: f64,
+    pub extent: Option<[f64; 4]>,
+    pub heights: Option<[f64; 2]>,
+    pub matching: Matching2,
+    pub reference: Option<PathBuf>,
+    pub limits: Limits,
+}
+
+/// Whether `text` is a format-2 project (a top-level `format = 2`).
+pub fn is_format2(text: &str) -> bool {
+    text.parse::<toml::Table>()
+        .ok()
+        .and_then(|t| t.get("format").and_then(|v| v.as_integer()))
+        == Some(2)
+}
+
+const MAX_PHOTOS: usize = 64;
+/// Coordinates of ground points and projection centres, m (any projected CRS fits).
+const MAX_GROUND_M: f64 = 1e8;
+
+impl Project2 {
+    pub fn load(path: &Path) -> Result<Project2, Project2Error> {
+        let text = std::fs::read_to_string(path).map_err(|source| Project2Error::Read {
+            path: path.to_path_buf(),
+            cause: source,
+        })?;
+        Self::parse(&text, path)
+    }
+
+    /// The project in `text`, as if read from `path` (relative paths resolved against its
+    /// directory; nothing else is read).
+    pub fn parse(text: &str, path: &Path) -> Result<Project2, Project2Error> {
+        let bad = |message: String| Project2Error::Invalid {
+            path: path.to_path_buf(),
+            message,
+        };
+        let raw: Raw =
+            toml::from_str(text).map_err(|e| bad(e.to_string().trim_end().to_string()))?;
+        if raw.format != 2 {
+            return Err(bad(format!(
+                "format = {}: this reader takes format 2",
+                raw.format
+            )));
+        }
+        let base = path.parent().unwrap_or(Path::new("."));
+        let finite = |v: &[f64], max: f64| v.iter().all(|x| x.is_finite() && x.abs() <= max);
+        let mut cameras = BTreeMap::new();
+        for (name, c) in &raw.camera {
+            if !(c.focal_mm.is_finite() && (1.0..=5000.0).contains(&c.focal_mm)) {
+                return Err(bad(format!(
+                    "[camera.{name}] focal_mm {}: 1 to 5000 mm",
+                    c.focal_mm
+                )));
+            }
+            if !finite(&c.principal_point_mm, 100.0) {
+                return Err(bad(format!(
+                    "[camera.{name}] principal_point_mm {:?}: two numbers within ±100 mm",
+                    c.principal_point_mm
+                )));
+            }
+            let pixel_mm = match (c.pixel_mm, c.pixel_to_photo) {
+                (Some(p), None) if p.is_finite() && (1e-4..=1.0).contains(&p) => p,
+                (Some(p), None) => {
+                    return Err(bad(format!(
+                        "[camera.{name}] pixel_mm {p}: 0.0001 to 1 mm"
+                    )))
+                }
+                (None, Some(_)) => {
+                    return Err(bad(format!(
+                        "[camera.{name}] pixel_to_photo: not supported yet; give pixel_mm (square pixels, image centred on the principal point's origin)"
+                    )))
+                }
+                _ => {
+                    return Err(bad(format!(
+                        "[camera.{name}]: give pixel_mm (the image's pixel on the film, mm)"
+                    )))
+                }
+            };
+            cameras.insert(
+                name.clone(),
+                Camera2 {
+                    focal_mm: c.focal_mm,
+                    principal_point: PhotoMm::new(c.principal_point_mm[0], c.principal_point_mm[1]),
+                    pixel_mm,
+                },
+            );
+        }
+        if raw.photo.len() < 2 || raw.photo.len() > MAX_PHOTOS {
+            return Err(bad(format!(
+                "{} [[photo]] entries: 2 to {MAX_PHOTOS}",
+                raw.photo.len()
+            )));
+        }
+        let mut photos: Vec<Photo2> = Vec::new();
+        for (k, p) in raw.photo.iter().enumerate() {
+            let at = format!("[[photo]] {} (`{}`)", k + 1, p.id);
+            if p.id.trim().is_empty() || photos.iter().any(|q| q.id == p.id) {
+                return Err(bad(format!("{at}: id empty or used twice")));
+            }
+            let source = match (&p.image, &p.camera, &p.scan) {
+                (Some(img), Some(cam), None) => Source::Image {
+                    path: base.join(img),
+                    camera: *cameras.get(cam).ok_or_else(|| {
+                        bad(format!(
+                            "{at}: camera `{cam}` is not among [camera.*] ({})",
+                            cameras.keys().cloned().collect::<Vec<_>>().join(", ")
+                        ))
+                    })?,
+                },
+                (None, None, Some(s)) => Source::Scan {
+                    sidecar: base.join(s),
+                },
+                _ => {
+                    return Err(bad(format!(
+                        "{at}: give image and camera, or scan (the rig's scanned-photo sidecar)"
+                    )))
+                }
+            };
+            let exterior = match (p.position, p.angles_deg) {
+                (Some(c), Some(a)) => {
+                    if !finite(&c, MAX_GROUND_M) || !finite(&a, 360.0) {
+                        return Err(bad(format!(
+                            "{at}: position within ±1e8 m and angles_deg within ±360°"
+                        )));
+                    }
+                    Some(Exterior::from_degrees(
+                        a[0],
+                        a[1],
+                        a[2],
+                        GroundM::new(c[0], c[1], c[2]),
+                    ))
+                }
+                (None, None) => None,
+                _ => {
+                    return Err(bad(format!(
+                        "{at}: give both position and angles_deg, or neither (resected from the control points)"
+                    )))
+                }
+            };
+            photos.push(Photo2 {
+                id: p.id.clone(),
+                source,
+                exterior,
+            });
+        }
+        let d = &raw.dem;
+        if !(d.cell_m.is_finite() && (0.01..=10_000.0).contains(&d.cell_m)) {
+            return Err(bad(format!("[dem] cell_m {}: 0.01 to 10000 m", d.cell_m)));
+        }
+        if let Some(e) = d.extent {
+            if !finite(&e, MAX_GROUND_M) || e[2] <= e[0] || e[3] <= e[1] {
+                return Err(bad(format!(
+                    "[dem] extent {e:?}: [xmin, ymin, xmax, ymax], increasing, within ±1e8 m"
+                )));
+            }
+        }
+        if let Some(h) = d.heights {
+            let r = super::project::HEIGHT_RANGE;
+            if !(r.contains(&h[0]) && r.contains(&h[1]) && h[1] > h[0]) {
+                return Err(bad(format!(
+                    "[dem] heights {h:?}: [min, max], increasing, within {} … {} m",
+                    r.start(),
+                    r.end()
+                )));
+            }
+        }
+        let m = raw
+            .matching
+            .unwrap_or_else(|| toml::from_str("").expect("every [matching] key has a default"));
+        if m.method != "sweep" {
+            return Err(bad(format!(
+                "[matching] method `{}`: \"sweep\" (seed 000's height sweep) is the one built so far",
+                m.method
+            )));
+        }
+        if m.window < 3 || m.window > 101 || m.window.is_multiple_of(2) {
+            return Err(bad(format!(
+                "[matching] window {}: an odd number of pixels from 3 to 101",
+                m.window
+            )));
+        }
+        if !(0.0..1.0).contains(&m.threshold) {
+            return Err(bad(format!(
+                "[matching] threshold {}: 0 up to (not including) 1",
+                m.threshold
+            )));
+        }
+        if let Some(s) = m.h_step {
+            if !(s.is_finite() && (0.001..=1000.0).contains(&s)) {
+                return Err(bad(format!("[matching] h_step {s}: 0.001 to 1000 m")));
+            }
+        }
+        if !(1..=1000).contains(&m.stride) || !(1..=3).contains(&m.order) {
+            return Err(bad(format!(
+                "[matching] stride {} (1 to 1000) or order {} (1 to 3) out of range",
+                m.stride, m.order
+            )));
+        }
+        if !(1..=100).contains(&m.search_distance)
+            || m.population_threshold > 1_000_000_000
+            || m.height_threshold
+                .is_some_and(|t| !(t.is_finite() && t > 0.0 && t <= 10_000.0))
+        {
+            return Err(bad(
+                "[matching] search_distance 1 to 100, population_threshold 0 to 1e9, height_threshold above 0 up to 10000 m".into(),
+            ));
+        }
+        let l = &raw.limits;
+        let limits_ok = (16..=1_048_576).contains(&l.max_memory_mb)
+            && l.max_candidates_g.is_finite()
+            && l.max_candidates_g > 0.0;
+        if !limits_ok {
+            return Err(bad(
+                "[limits] max_memory_mb 16 to 1048576, max_candidates_g above 0".into(),
+            ));
+        }
+        Ok(Project2 {
+            path: path.to_path_buf(),
+            crs: raw.crs,
+            photos,
+            points_file: raw.points.map(|p| base.join(p.file)),
+            cell_m: d.cell_m,
+            extent: d.extent,
+            heights: d.heights,
+            matching: m,
+            reference: raw.check.map(|c| base.join(c.reference)),
+            limits: raw.limits,
+        })
+    }
+
+    /// The points file's observations (`id,kind,x,y,z,photo,col,row`, a header line first;
+    /// x, y, z empty for tie points), every number range-checked with its line.
+    pub fn observations(&self) -> Result<Vec<Observation>, Project2Error> {
+        let Some(f) = &self.points_file else {
+            return Ok(Vec::new());
+        };
+        let text = std::fs::read_to_string(f).map_err(|source| Project2Error::Read {
+            path: f.clone(),
+            cause: source,
+        })?;
+        parse_points(&text, f, &self.photos)
+    }
+}
+
+/// The points file's text (see [`Project2::observations`]).
+pub fn parse_points(
+    text: &str,
+    f: &Path,
+    photos: &[Photo2],
+) -> Result<Vec<Observation>, Project2Error> {
+    let bad = |line: usize, message: String| Project2Error::Invalid {
+        path: f.to_path_buf(),
+        message: format!("line {line}: {message}"),
+    };
+    let mut out = Vec::new();
+    let mut lines = text
+        .lines()
+        .enumerate()
+        .filter(|(_, l)| !l.trim().is_empty());
+    match lines.next() {
+        Some((_, h)) if h.replace(' ', "") == "id,kind,x,y,z,photo,col,row" => {}
+        _ => {
+            return Err(bad(
+                1,
+                "the header must be `id,kind,x,y,z,photo,col,row`".into(),
+            ))
+        }
+    }
+    for (i, l) in lines {
+        let n = i + 1;
+        if out.len() >= 1_000_000 {
+            return Err(bad(n, "more than 1000000 observations".into()));
+        }
+        let c: Vec<&str> = l.split(',').map(str::trim).collect();
+        if c.len() != 8 {
+            return Err(bad(n, format!("{} fields, 8 expected", c.len())));
+        }
+        let num = |s: &str, what: &str, max: f64| {
+            s.parse::<f64>()
+                .ok()
+                .filter(|v| v.is_finite() && v.abs() <= max)
+                .ok_or_else(|| bad(n, format!("{what} `{s}`: a number within ±{max}")))
+        };
+        let kind = match c[1] {
+            "gcp" => Kind::Gcp,
+            "cp" => Kind::Cp,
+            "tie" => Kind::Tie,
+            k => return Err(bad(n, format!("kind `{k}`: gcp, cp or tie"))),
+        };
+        let ground = if kind == Kind::Tie && c[2..5].iter().all(|s| s.is_empty()) {
+            None
+        } else {
+            Some(GroundM::new(
+                num(c[2], "x", MAX_GROUND_M)?,
+                num(c[3], "y", MAX_GROUND_M)?,
+                num(c[4], "z", 100_000.0)?,
+            ))
+        };
+        if !photos.iter().any(|p| p.id == c[5]) {
+            return Err(bad(
+                n,
+                format!("photo `{}` is not among the [[photo]] ids", c[5]),
+            ));
+        }
+        out.push(Observation {
+            id: c[0].to_string(),
+            kind,
+            ground,
+            photo: c[5].to_string(),
+            col: num(c[6], "col", 1e6)? + 0.5,
+            row: num(c[7], "row", 1e6)? + 0.5,
+        });
+    }
+    Ok(out)
+}
