@@ -21,3 +21,27 @@ pub fn frame_camera(p: &rig_sim::scene::AerialPhoto) -> FrameCamera {
         ),
     }
 }
+
+/// The simulated world's coordinate system: WGS 84 / UTM zone 16N.
+pub const CRS: crate::geometry::Crs = crate::geometry::Crs::Epsg(32616);
+
+/// Where the simulator's local origin (the Jacksboro DEM's south-west corner, 84.41375° W,
+/// 36.44625° N) lies in [`CRS`]: easting and northing by the Transverse Mercator series on
+/// WGS 84, rounded to 10 m. The simulator treats the DEM's 3″ cells as metric and its grid as
+/// east–north aligned, so its world lies within about half a kilometre of the real terrain
+/// (UTM's grid is turned 1.5° there): close enough for a GIS to place it, not for surveying.
+pub const ORIGIN_M: [f64; 2] = [731_800.0, 4_036_560.0];
+
+/// A simulator ground point (local metres) in [`CRS`].
+pub fn to_crs(g: [f64; 3]) -> GroundM {
+    GroundM::new(g[0] + ORIGIN_M[0], g[1] + ORIGIN_M[1], g[2])
+}
+
+/// A grid computed on the simulator's local ground, moved into [`CRS`].
+pub fn grid_to_crs(
+    mut g: crate::matching::grid::ElevationGrid,
+) -> crate::matching::grid::ElevationGrid {
+    g.x0 += ORIGIN_M[0];
+    g.y0 += ORIGIN_M[1];
+    g
+}

@@ -64,15 +64,17 @@ fn three_plain_photos_give_a_dem_a_gis_can_place() {
             let g = [g0[0], g0[1], dem.height(g0[0], g0[1])];
             zs.push(g[2]);
             let kind = if k % 3 == 0 { "cp" } else { "gcp" };
+            // In the world's CRS (UTM 16N), as a surveyor would give them.
+            let w = rig::sim_scene::to_crs(g);
             for (i, a) in photos.iter().enumerate() {
                 let q = pixel_of(a.project(g));
                 if q.iter().all(|v| (0.0..N as f64 - 1.0).contains(v)) {
                     writeln!(
                         csv,
                         "p{k},{kind},{:.3},{:.3},{:.3},{},{:.3},{:.3}",
-                        g[0],
-                        g[1],
-                        g[2],
+                        w.x,
+                        w.y,
+                        w.z,
                         i + 1,
                         q[0],
                         q[1]
@@ -103,7 +105,7 @@ fn three_plain_photos_give_a_dem_a_gis_can_place() {
                 t.z[r * t.cols + c] = dem.height(x, y) as f32;
             }
         }
-        t
+        rig::sim_scene::grid_to_crs(t)
     };
     rig::matching::output::write_geotiff(&d.path().join("truth.tif"), &truth, Crs::Epsg(32616))
         .unwrap();
@@ -121,10 +123,11 @@ fn three_plain_photos_give_a_dem_a_gis_can_place() {
         .unwrap();
         // Photo 3 has no orientation: resected from its control points.
         if k < 2 {
+            let c = rig::sim_scene::to_crs([e.x0_m, e.y0_m, e.z0_m]);
             writeln!(
                 project,
                 "position = [{}, {}, {}]\nangles_deg = [{}, {}, {}]",
-                e.x0_m, e.y0_m, e.z0_m, e.omega_deg, e.phi_deg, e.kappa_deg
+                c.x, c.y, c.z, e.omega_deg, e.phi_deg, e.kappa_deg
             )
             .unwrap();
         }

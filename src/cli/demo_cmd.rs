@@ -165,11 +165,7 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<i32> {
         &json!({"gcps": gcps, "cps": cps}),
     )?;
     let truth = super::scene_cmd::truth_grid(&p1, AREA, 10.0)?;
-    rig::matching::output::write_geotiff(
-        &out.join("truth-dem.tif"),
-        &truth,
-        rig::geometry::Crs::Local,
-    )?;
+    rig::matching::output::write_geotiff(&out.join("truth-dem.tif"), &truth, rig::sim_scene::CRS)?;
     std::fs::write(
         out.join("project.toml"),
         super::scene_cmd::project_toml(
@@ -184,10 +180,8 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<i32> {
         "elevation model by polynomial mapping functions and a height sweep (seed 000)",
         &[
             "dtm".into(),
-            "pmf".into(),
-            "--json".into(),
-            "--project".into(),
             s(&out.join("project.toml")),
+            "--json".into(),
             "--out".into(),
             s(&dtm_dir),
         ],

@@ -138,10 +138,11 @@ pub enum Command {
     /// with control and check points and the true elevation model: a ready matching project.
     #[command(verbatim_doc_comment)]
     Sim(SimCmd),
-    /// Elevation models from photos: `rig dtm pmf --project FILE --out DIR` (seed 000).
+    /// Elevation models from photos: `rig dtm PROJECT.toml --out DIR` (any photos with their
+    /// orientations: project format 2; or a scanned pair: format 1, seed 000).
     ///
     /// Example:
-    ///   rig sim scene --out scene && rig dtm pmf --project scene/project.toml --out dtm
+    ///   rig sim scene --out scene && rig dtm scene/project.toml --out dtm
     ///
     /// Exit codes: 0 done; 2 bad usage; 1 any other error (the message names the file).
     #[command(verbatim_doc_comment)]

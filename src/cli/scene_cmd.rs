@@ -4,7 +4,7 @@
 
 use anyhow::Context;
 use clap::Args;
-use rig::coords::{GroundM, PhotoMm, PixelXY};
+use rig::coords::{PhotoMm, PixelXY};
 use rig::matching::grid::ElevationGrid;
 use rig::matching::StereoPoint;
 use rig::scan::sidecar::{self, ScannedPhoto};
@@ -162,11 +162,11 @@ pub fn draw_points(
             id: format!("{prefix}{}", v.len() + 1),
             left: [q.col + px(rng), q.row + px(rng)],
             right: [qb.col + px(rng), qb.row + px(rng)],
-            ground: GroundM::new(
+            ground: rig::sim_scene::to_crs([
                 g[0] + ground_m * rng.normal(),
                 g[1] + ground_m * rng.normal(),
                 g[2] + ground_m * rng.normal(),
-            ),
+            ]),
         });
     }
     v
@@ -210,7 +210,8 @@ pub fn terrain_range(a: &AerialPhoto, area: [f64; 4]) -> [f64; 2] {
     [lo, hi]
 }
 
-/// The true DEM resampled (bilinearly) to a square grid over the ground under `area`.
+/// The true DEM resampled (bilinearly) to a square grid over the ground under `area`, in the
+/// simulated world's CRS.
 pub fn truth_grid(
     a: &AerialPhoto,
     area: [f64; 4],
@@ -237,7 +238,8 @@ pub fn truth_grid(
             grid.z[r * grid.cols + c] = dem.height(x, y) as f32;
         }
     }
-    Ok(grid)
+    // Computed on the simulator's ground, handed over in the world's CRS.
+    Ok(rig::sim_scene::grid_to_crs(grid))
 }
 
 /// Height step of the projects the scene and the demo write, m (about twice the accuracy
@@ -249,6 +251,8 @@ pub const HEIGHT_STEP_M: f64 = 2.0;
 pub fn project_toml(header: &str, [left, right]: [&Path; 2], hs: [f64; 2]) -> String {
     format!(
         r#"{header}
+crs = "{crs}"              # the simulated world: WGS 84 / UTM zone 16N (see README)
+
 [photos]
 left = "{l}"
 right = "{r}"
@@ -279,6 +283,7 @@ cell_m = 10.0
 reference = "truth-dem.tif"
 flying_height_m = 6500.0
 "#,
+        crs = rig::sim_scene::CRS,
         l = left.display(),
         r = right.display(),
         lo = hs[0] - 30.0,
@@ -327,7 +332,7 @@ pub fn run(a: &SceneArgs) -> anyhow::Result<i32> {
     rig::matching::output::write_geotiff(
         &a.out.join("truth-dem.tif"),
         &truth,
-        rig::geometry::Crs::Local,
+        rig::sim_scene::CRS,
     )?;
     rig::digitise::output::write_json(
         &a.out.join("truth.json"),
@@ -337,7 +342,7 @@ pub fn run(a: &SceneArgs) -> anyhow::Result<i32> {
     )?;
     let project = project_toml(
         &format!(
-            "# A matching project made by `rig sim scene` (seed {}); run it with\n#   rig dtm pmf --project {}/project.toml --out OUT",
+            "# A matching project made by `rig sim scene` (seed {}); run it with\n#   rig dtm {}/project.toml --out OUT",
             a.seed,
             a.out.display()
         ),
