@@ -129,14 +129,26 @@ fn the_demo_runs_the_whole_chain_and_meets_half_the_height_step() {
     eprintln!("{text}");
     let v: Value =
         serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
-    let t = &v["dtm"]["dtm"];
+    // Three photos, every pair swept, the heights merged (project format 2).
+    let t = &v["dtm"];
     let rmse = t["comparison"]["rmse_m"].as_f64().unwrap();
-    let step = t["params"]["sweep"]["h_step"].as_f64().unwrap();
-    assert!(rmse <= 0.5 * step, "demo RMSE {rmse} m, step {step} m");
-    assert!(t["remaining_percent"].as_f64().unwrap() > 90.0);
+    // Seed 000's target: half its 2 m height step.
+    assert!(rmse <= 1.0, "demo RMSE {rmse} m");
+    let pairs = t["pairs"].as_array().unwrap();
+    assert_eq!(pairs.len(), 3);
+    for p in pairs {
+        assert!(
+            p["dtm"]["remaining_percent"].as_f64().unwrap() > 90.0,
+            "{p}"
+        );
+    }
+    assert_eq!(t["crs"], "EPSG:32616");
+    assert_eq!(t["resected"].as_array().unwrap().len(), 3);
     for f in [
         "scan-photo-1/stereo.tiff",
         "scan-photo-2/stereo.tiff",
+        "scan-photo-3/stereo.tiff",
+        "points.csv",
         "dtm/dem.tif",
         "dtm/hillshade.png",
         "project.toml",

@@ -1,7 +1,8 @@
 //! `rig demo`: the whole chain on the built-in simulator, step by step as an operator would
-//! type it — pixel→carriage calibration, the interior orientation and a scan of each of two
-//! overlapping photos, control points, the elevation model by seed 000's method — and a
-//! report comparing it with the simulator's true DEM. Every step is the real `rig` command,
+//! type it — pixel→carriage calibration, the interior orientation and a scan of each of three
+//! overlapping photos (two along the strip, one from the next strip), control points, the
+//! elevation model from a format-2 project (the photos resected from the control points, every
+//! pair swept, seed 000's method) — and a report comparing it with the simulator's true DEM. Every step is the real `rig` command,
 //! printed before it runs, so the demo doubles as a worked example.
 
 use anyhow::{bail, Context};
@@ -27,9 +28,11 @@ pub struct DemoArgs {
     pub quick: bool,
 }
 
-/// The area of photo 1 that is scanned and matched, photo mm (inside the overlap with
-/// photo 2, whose centre lies about 92 mm along x).
-const AREA: [f64; 4] = [36.0, -8.0, 56.0, 8.0];
+/// The area of photo 1 that is scanned and matched, photo mm: where photos 2 (about 92 mm
+/// along x) and 3 (the next strip, about 161 mm across y) see it too.
+const AREA: [f64; 4] = [36.0, -80.0, 56.0, -64.0];
+/// Photos of the block the demo uses.
+const PHOTOS: [u32; 3] = [1, 2, 3];
 
 fn step(title: &str, args: &[String]) -> anyhow::Result<Value> {
     eprintln!("\n== {title}\n$ rig {}", args.join(" "));
@@ -114,17 +117,28 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<i32> {
     args.extend(["--grid", grid, "--frames", frames, "--json", "--store"].map(String::from));
     args.push(s(&store));
     let pixel = step("pixel → carriage calibration (seed 002)", &args)?;
-    // The simulator's block, to place photo 2's scan where it sees photo 1's area.
+    // The simulator's block, to place the other photos' scans where they see photo 1's area.
     let dem = jacksboro();
-    let (p1, p2) = (
-        AerialPhoto::new(dem.clone(), a.seed, 1, 110.0),
-        AerialPhoto::new(dem, a.seed, 2, 110.0),
-    );
-    let hs = super::scene_cmd::terrain_range(&p1, AREA);
-    let area2 = super::scene_cmd::matching_area(&p1, &p2, AREA, [hs[0] - 30.0, hs[1] + 30.0]);
+    let block: Vec<AerialPhoto> = PHOTOS
+        .iter()
+        .map(|&k| AerialPhoto::new(dem.clone(), a.seed, k, 110.0))
+        .collect();
+    let p1 = &block[0];
+    let hs = super::scene_cmd::terrain_range(p1, AREA);
+    let regions: Vec<[f64; 4]> = block
+        .iter()
+        .enumerate()
+        .map(|(k, b)| {
+            if k == 0 {
+                AREA
+            } else {
+                super::scene_cmd::matching_area(p1, b, AREA, [hs[0] - 30.0, hs[1] + 30.0])
+            }
+        })
+        .collect();
     let mut sidecars = Vec::new();
     let mut interiors = Vec::new();
-    for (photo, region) in [(1u32, AREA), (2, area2)] {
+    for (&photo, &region) in PHOTOS.iter().zip(&regions) {
         // 2. Interior orientation of the film on the carriage.
         let dir = store.join(format!("interior-photo-{photo}"));
         let mut args: Vec<String> = vec!["calibrate".into(), "interior".into()];
@@ -152,32 +166,57 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<i32> {
     // 4. Control and check points in the scanned photos (an operator would measure them; here
     // the simulator's truth plus measuring noise), the true DEM, the project.
     eprintln!("\n== control points, the true DEM and the matching project");
-    let (s1, _) = ScannedPhoto::load(&sidecars[0])?;
-    let (s2, _) = ScannedPhoto::load(&sidecars[1])?;
+    let grids: Vec<rig::geometry::PhotoGrid> = sidecars
+        .iter()
+        .map(|f| ScannedPhoto::load(f).map(|(s, _)| s.grid))
+        .collect::<Result<_, _>>()?;
     let mut rng = rig_sim::rng::Rng::new(a.seed ^ 0xDE40);
-    let noise = (0.005, 0.5);
-    let gcps =
-        super::scene_cmd::draw_points((&p1, &s1.grid), (&p2, &s2.grid), 20, "gcp", noise, &mut rng);
-    let cps =
-        super::scene_cmd::draw_points((&p1, &s1.grid), (&p2, &s2.grid), 30, "cp", noise, &mut rng);
-    rig::digitise::output::write_json(
-        &out.join("points.json"),
-        &json!({"gcps": gcps, "cps": cps}),
-    )?;
-    let truth = super::scene_cmd::truth_grid(&p1, AREA, 10.0)?;
+    let mut csv = String::from("id,kind,x,y,z,photo,col,row\n");
+    points_csv(&mut csv, &block, &grids, 24, "gcp", &mut rng);
+    points_csv(&mut csv, &block, &grids, 30, "cp", &mut rng);
+    std::fs::write(out.join("points.csv"), &csv)?;
+    let truth = super::scene_cmd::truth_grid(p1, AREA, 10.0)?;
     rig::matching::output::write_geotiff(&out.join("truth-dem.tif"), &truth, rig::sim_scene::CRS)?;
-    std::fs::write(
-        out.join("project.toml"),
-        super::scene_cmd::project_toml(
-            "# Written by `rig demo`: the two scanned photos, their control points, seed 000's parameters.",
-            [&sidecars[0], &sidecars[1]],
-            hs,
-        ),
-    )?;
+    let mut project = format!(
+        "# Written by `rig demo`: three scanned photos, resected from their control points,\n\
+         # every pair swept (seed 000), in the simulated world's CRS.\nformat = 2\ncrs = \"{}\"\n",
+        rig::sim_scene::CRS
+    );
+    for (k, f) in sidecars.iter().enumerate() {
+        project.push_str(&format!(
+            "\n[[photo]]\nid = \"{}\"\nscan = \"{}\"\n",
+            PHOTOS[k],
+            f.strip_prefix(&out).unwrap_or(f).display()
+        ));
+    }
+    // The DEM covers the ground of photo 1's scanned area, where all three photos overlap and
+    // every node gets the median of three pairs.
+    let e = {
+        let (mut lo, mut hi) = ([f64::MAX; 2], [f64::MIN; 2]);
+        for x in [AREA[0], AREA[2]] {
+            for y in [AREA[1], AREA[3]] {
+                let g = rig::sim_scene::to_crs(p1.ground_point([x, y]));
+                lo = [lo[0].min(g.x), lo[1].min(g.y)];
+                hi = [hi[0].max(g.x), hi[1].max(g.y)];
+            }
+        }
+        [lo[0], lo[1], hi[0], hi[1]]
+    };
+    project.push_str(&format!(
+        "\n[points]\nfile = \"points.csv\"\n\n[dem]\ncell_m = 10.0\nextent = [{:.0}, {:.0}, {:.0}, {:.0}]\nheights = [{:.0}, {:.0}]\n\n\
+         [matching]\nmethod = \"sweep\"\nwindow = 9\nthreshold = 0.5\n\n[check]\nreference = \"truth-dem.tif\"\n",
+        e[0],
+        e[1],
+        e[2],
+        e[3],
+        hs[0] - 30.0,
+        hs[1] + 30.0
+    ));
+    std::fs::write(out.join("project.toml"), project)?;
     // 5. The elevation model.
     let dtm_dir = out.join("dtm");
     let dtm = step(
-        "elevation model by polynomial mapping functions and a height sweep (seed 000)",
+        "elevation model: every pair of the three photos swept along its mapping functions (seeds 000, 004)",
         &[
             "dtm".into(),
             s(&out.join("project.toml")),
@@ -196,8 +235,7 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<i32> {
         "photo_centre_mm": PhotoMm::new(0.0, 0.0),
     });
     rig::digitise::output::write_json(&out.join("report.json"), &report)?;
-    let t = &dtm["dtm"];
-    let c = &t["comparison"];
+    let c = &dtm["comparison"];
     println!(
         "\nrig demo (seed {}), {:.0} s, in {}:",
         a.seed,
@@ -223,21 +261,28 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<i32> {
             sidecars[k].display()
         );
     }
+    for pr in dtm["pairs"].as_array().into_iter().flatten() {
+        let t = &pr["dtm"];
+        println!(
+            "  photos {} × {}: step {:.2} m (half a pixel of parallax), {:.1} % of {} points matched, {:.1} % kept after the height and population criteria",
+            pr["left"].as_str().unwrap_or("?"),
+            pr["right"].as_str().unwrap_or("?"),
+            pr["h_step_m"].as_f64().unwrap_or(f64::NAN),
+            t["matched_percent"].as_f64().unwrap_or(f64::NAN),
+            t["points_total"],
+            t["remaining_percent"].as_f64().unwrap_or(f64::NAN)
+        );
+    }
+    let rmse = c["rmse_m"].as_f64().unwrap_or(f64::NAN);
     println!(
-        "  matching: {:.1} % of {} points matched, {:.1} % kept after the height and population criteria",
-        t["matched_percent"].as_f64().unwrap_or(f64::NAN),
-        t["points_total"],
-        t["remaining_percent"].as_f64().unwrap_or(f64::NAN)
-    );
-    println!(
-        "  elevation model vs the true DEM: RMSE {:.2} m ({:.3} ‰ of the 6 500 m flying height; height step {} m), mean {:+.2} m, max +{:.2} / {:.2} m over {} nodes",
-        c["rmse_m"].as_f64().unwrap_or(f64::NAN),
-        t["rmse_permille_of_flying_height"].as_f64().unwrap_or(f64::NAN),
-        super::scene_cmd::HEIGHT_STEP_M,
+        "  elevation model vs the true DEM: RMSE {:.2} m ({:.3} ‰ of the 6 500 m flying height), mean {:+.2} m, max +{:.2} / {:.2} m over {} nodes; in {}",
+        rmse,
+        1000.0 * rmse / rig_sim::scene::FLYING_HEIGHT_M,
         c["mean_m"].as_f64().unwrap_or(f64::NAN),
         c["max_positive_m"].as_f64().unwrap_or(f64::NAN),
         c["max_negative_m"].as_f64().unwrap_or(f64::NAN),
-        c["nodes"]
+        c["nodes"],
+        dtm["crs"].as_str().unwrap_or("?")
     );
     println!(
         "  look at: {}/hillshade.png, {}/error.png; the model: {}/dem.tif; everything: report.json",
@@ -246,4 +291,65 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<i32> {
         dtm_dir.display()
     );
     Ok(0)
+}
+
+/// Appends `n` points of photo 1's scanned area to the points file: their ground (in the
+/// world's CRS) and their place in every photo that sees them, with measuring noise (5 µm on
+/// the film, 0.5 m on the ground). Pixels in the README's convention (integer values at pixel
+/// centres; the scans' grids count from the corner). Control points on a jittered grid that
+/// reaches the area's edges, check points anywhere inside.
+fn points_csv(
+    csv: &mut String,
+    block: &[AerialPhoto],
+    grids: &[rig::geometry::PhotoGrid],
+    n: usize,
+    kind: &str,
+    rng: &mut rig_sim::rng::Rng,
+) {
+    use rig::coords::PixelXY;
+    use std::fmt::Write as _;
+    let g0 = &grids[0];
+    let side = (n as f64).sqrt().ceil() as usize;
+    for k in 0..n {
+        let (u, w) = if kind == "gcp" {
+            let (i, j) = (k % side, k / side);
+            let f = |t: usize, r: f64| {
+                (0.03 + 0.94 * (t as f64 + 0.25 * (r - 0.5)) / (side - 1) as f64).clamp(0.02, 0.98)
+            };
+            (f(i, rng.uniform()), f(j, rng.uniform()))
+        } else {
+            (0.05 + 0.9 * rng.uniform(), 0.05 + 0.9 * rng.uniform())
+        };
+        let p = g0.photo(PixelXY::new(u * g0.width as f64, w * g0.height as f64));
+        let g = block[0].ground_point([p.x, p.y]);
+        let noisy = [
+            g[0] + 0.5 * rng.normal(),
+            g[1] + 0.5 * rng.normal(),
+            g[2] + 0.5 * rng.normal(),
+        ];
+        let world = rig::sim_scene::to_crs(noisy);
+        for (i, (b, grid)) in block.iter().zip(grids).enumerate() {
+            let q = b.project(g);
+            let px = grid.pixel(PhotoMm::new(q[0], q[1]));
+            let inside = px.col > 1.0
+                && px.row > 1.0
+                && px.col < grid.width as f64 - 1.0
+                && px.row < grid.height as f64 - 1.0;
+            if !inside {
+                continue;
+            }
+            let e = 0.005 / grid.step_mm;
+            let _ = writeln!(
+                csv,
+                "{kind}{},{kind},{:.3},{:.3},{:.3},{},{:.3},{:.3}",
+                k + 1,
+                world.x,
+                world.y,
+                world.z,
+                PHOTOS[i],
+                px.col - 0.5 + e * rng.normal(),
+                px.row - 0.5 + e * rng.normal()
+            );
+        }
+    }
 }

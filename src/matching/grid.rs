@@ -119,6 +119,33 @@ impl ElevationGrid {
         }
     }
 
+    /// Like [`ElevationGrid::fill`] but with the median of each node's points: for heights
+    /// merged from several pairs, where one pair's blunders must not pull the others' mean.
+    pub fn fill_median(&mut self, pts: &[GroundM]) {
+        let mut per: Vec<Vec<f32>> = vec![Vec::new(); self.z.len()];
+        for p in pts {
+            let c = ((p.x - self.x0) / self.cell_m).round();
+            let r = ((self.y0 - p.y) / self.cell_m).round();
+            let inside = c >= 0.0 && r >= 0.0 && c < self.cols as f64 && r < self.rows as f64;
+            if inside && p.z.is_finite() {
+                per[r as usize * self.cols + c as usize].push(p.z as f32);
+            }
+        }
+        for (z, v) in self.z.iter_mut().zip(&mut per) {
+            *z = if v.is_empty() {
+                f32::NAN
+            } else {
+                v.sort_by(f32::total_cmp);
+                let n = v.len();
+                if n % 2 == 1 {
+                    v[n / 2]
+                } else {
+                    0.5 * (v[n / 2 - 1] + v[n / 2])
+                }
+            };
+        }
+    }
+
     /// Bilinear height at ground (x, y); NaN outside, next to nodata, or on a grid of fewer
     /// than 2 × 2 nodes (nothing to interpolate between).
     pub fn interpolate(&self, x: f64, y: f64) -> f64 {

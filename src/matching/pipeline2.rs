@@ -337,7 +337,7 @@ pub fn run(
     let mut grid = ElevationGrid::covering(extent, p.cell_m, budget.max_memory_mb)
         .map_err(|e| Pipeline2Error::Grid(e.to_string()))?;
     let pts: Vec<GroundM> = all.iter().map(|(g, _)| *g).collect();
-    grid.fill(&pts);
+    grid.fill_median(&pts);
     let reference = match &p.reference {
         Some(r) => Some(read_geotiff(r).map_err(|source| Pipeline2Error::Reference {
             path: r.clone(),

@@ -257,6 +257,12 @@ pub fn sweep(left: &ImageF32, right: &ImageF32, map: &Mapping, p: &SweepParams) 
                     if bc < p.threshold as f32 {
                         continue;
                     }
+                    // A peak whose neighbouring height could not be scored (its window left
+                    // the right photo) is not a peak but the edge of what the right photo
+                    // sees: the ground may lie beyond it, so no height is invented here.
+                    if (bi > 0 && below.is_none()) || (bi < n_steps && above.is_none()) {
+                        continue;
+                    }
                     let mut hv = p.h_min + bi as f64 * p.h_step;
                     if p.refine {
                         if let (Some(a), Some(b)) = (below, above) {
