@@ -36,11 +36,12 @@ fn elevation_model_from_a_rendered_pair_meets_half_the_height_step() {
     let project = std::fs::read_to_string(scene.join("project.toml")).unwrap();
     for (from, name) in [("points", "dtm-points"), ("rigorous", "dtm-rigorous")] {
         let p = scene.join(format!("{name}.toml"));
-        std::fs::write(
-            &p,
-            project.replace("from = \"points\"", &format!("from = \"{from}\"")),
-        )
-        .unwrap();
+        let text = project.replace("from = \"points\"", &format!("from = \"{from}\""));
+        assert!(
+            project.contains("from = \"points\""),
+            "the scene's project changed form"
+        );
+        std::fs::write(&p, text).unwrap();
         let out = d.path().join(name);
         let o = run_ok(
             rig()
@@ -50,6 +51,9 @@ fn elevation_model_from_a_rendered_pair_meets_half_the_height_step() {
                 .arg(&out),
         );
         let v: Value = serde_json::from_slice(&o.stdout).unwrap();
+        // The run used the mappings asked for (not the default the text may have kept).
+        assert_eq!(v["pmf_from"], from, "{}", v["pmf_from"]);
+        assert_eq!(v["orientation"].is_null(), from != "rigorous");
         let t = &v["dtm"];
         let step = t["params"]["sweep"]["h_step"].as_f64().unwrap();
         let rmse = t["comparison"]["rmse_m"].as_f64().unwrap();
@@ -90,20 +94,24 @@ fn elevation_model_from_a_rendered_pair_meets_half_the_height_step() {
     )
     .unwrap();
     let again = d.path().join("dtm-file");
-    run_ok(
+    let o = run_ok(
         rig()
-            .args(["dtm", "pmf", "--project"])
+            .args(["dtm", "pmf", "--json", "--project"])
             .arg(&p)
             .arg("--out")
             .arg(&again),
     );
+    let v: Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(v["pmf_from"], "file");
     assert_eq!(
         std::fs::read(first.join("dem.tif")).unwrap(),
         std::fs::read(again.join("dem.tif")).unwrap()
     );
     // A project with a bad value names the file and the field.
     let bad = scene.join("bad.toml");
-    std::fs::write(&bad, project.replace("h_step = 2", "h_step = -2")).unwrap();
+    let text = project.replace("h_step = 2", "h_step = -2");
+    assert_ne!(text, project, "the scene's project has no `h_step = 2`");
+    std::fs::write(&bad, text).unwrap();
     let o = rig()
         .args(["dtm", "pmf", "--project"])
         .arg(&bad)
