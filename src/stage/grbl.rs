@@ -776,7 +776,11 @@ impl GrblController {
                     position: None,
                 });
             }
-            // Idle: the `ok` was lost on the line; the checks below decide as for an `ok`.
+            // Idle: the `ok` was lost on the line, or is still on its way: it must not answer a
+            // later command, so it is waited for briefly and set aside. The checks below then
+            // decide as for an `ok`.
+            let _ = self.wait_reply(Instant::now() + REPLY_TIMEOUT)?;
+            self.replies.clear();
         }
         self.homing = false;
         self.inflight.clear();
