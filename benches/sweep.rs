@@ -27,7 +27,7 @@ struct Case {
 fn photo(a: &AerialPhoto, g: PhotoGrid) -> (FrameSensor, ImageF32) {
     let r = FrameSensor {
         camera: rig::sim_scene::frame_camera(a),
-        grid: g,
+        frame: g.into(),
     };
     let img = ImageF32 {
         width: g.width,

@@ -17,10 +17,15 @@ use std::path::Path;
 /// Film pixel of the plain images, mm, and their half-size: 2000 × 2000 px over ±100 mm.
 const PIXEL_MM: f64 = 0.1;
 const N: usize = 2000;
+/// Where each image's window lies along x from the centred one, mm: photo 2's is a crop 15 mm
+/// toward photo 1 (its camera says so by pixel_to_photo).
+const SHIFT: [f64; 3] = [0.0, -15.0, 0.0];
 
-fn write_photo(a: &AerialPhoto, path: &Path) {
+/// Writes photo `a` as a 16-bit TIFF of the film from `x_shift_mm` to the right of the centred
+/// window (a crop off the centre: its pixel → photo relation is then a general affine).
+fn write_photo(a: &AerialPhoto, path: &Path, x_shift_mm: f64) {
     let half = 0.5 * N as f64 * PIXEL_MM;
-    let t = a.render([-half, half], PIXEL_MM, N, N, 2);
+    let t = a.render([-half + x_shift_mm, half], PIXEL_MM, N, N, 2);
     let raw: Vec<u8> = t
         .iter()
         .flat_map(|v| ((v * 60_000.0).round().clamp(0.0, 65_535.0) as u16).to_ne_bytes())
@@ -50,7 +55,7 @@ fn three_plain_photos_give_a_dem_a_gis_can_place() {
         .map(|k| AerialPhoto::new(dem.clone(), 5, k, 105.0))
         .collect();
     for (k, a) in photos.iter().enumerate() {
-        write_photo(a, &d.path().join(format!("photo_{}.tif", k + 1)));
+        write_photo(a, &d.path().join(format!("photo_{}.tif", k + 1)), SHIFT[k]);
     }
     // Control and check points where all three photos see the ground (photo 1's quadrant
     // toward 2 and 3), read off the truth; pixels in the README's convention.
@@ -67,7 +72,8 @@ fn three_plain_photos_give_a_dem_a_gis_can_place() {
             // In the world's CRS (UTM 16N), as a surveyor would give them.
             let w = rig::sim_scene::to_crs(g);
             for (i, a) in photos.iter().enumerate() {
-                let q = pixel_of(a.project(g));
+                let mut q = pixel_of(a.project(g));
+                q[0] -= SHIFT[i] / PIXEL_MM;
                 if q.iter().all(|v| (0.0..N as f64 - 1.0).contains(v)) {
                     writeln!(
                         csv,
@@ -112,13 +118,23 @@ fn three_plain_photos_give_a_dem_a_gis_can_place() {
     let mut project = String::from(
         "format = 2\ncrs = \"EPSG:32616\"\n\n[camera.rc10]\nfocal_mm = 153.0\npixel_mm = 0.1\n",
     );
+    // Photo 2's image is a crop shifted along x: x = SHIFT − (N−1)/2·p + col·p.
+    let c = (N as f64 - 1.0) / 2.0 * PIXEL_MM;
+    writeln!(
+        project,
+        "\n[camera.cropped]\nfocal_mm = 153.0\npixel_to_photo = [{}, {PIXEL_MM}, 0.0, {c}, 0.0, {}]",
+        SHIFT[1] - c,
+        -PIXEL_MM
+    )
+    .unwrap();
     for (k, a) in photos.iter().enumerate() {
         let e = a.exterior;
         write!(
             project,
-            "\n[[photo]]\nid = \"{}\"\nimage = \"photo_{}.tif\"\ncamera = \"rc10\"\n",
+            "\n[[photo]]\nid = \"{}\"\nimage = \"photo_{}.tif\"\ncamera = \"{}\"\n",
             k + 1,
-            k + 1
+            k + 1,
+            if k == 1 { "cropped" } else { "rc10" }
         )
         .unwrap();
         // Photo 3 has no orientation: resected from its control points.

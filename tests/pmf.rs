@@ -11,7 +11,7 @@ use rig_sim::scene::{jacksboro, AerialPhoto};
 fn rigorous(p: &AerialPhoto, area: [f64; 4]) -> FrameSensor {
     FrameSensor {
         camera: rig::sim_scene::frame_camera(p),
-        grid: PhotoGrid::covering(area, 0.025),
+        frame: PhotoGrid::covering(area, 0.025).into(),
     }
 }
 
@@ -50,8 +50,8 @@ fn derived_mappings_reproduce_the_rigorous_model() {
     let (mut e_img, mut e_gnd, mut e_h): (f64, f64, f64) = (0.0, 0.0, 0.0);
     for _ in 0..200 {
         let px = [
-            rng.uniform() * l.grid.width as f64,
-            rng.uniform() * l.grid.height as f64,
+            rng.uniform() * l.frame.width as f64,
+            rng.uniform() * l.frame.height as f64,
         ];
         let h = lo + (hi - lo) * rng.uniform();
         let g = l.image_to_ground(PixelXY::new(px[0], px[1]), h).unwrap();
@@ -81,10 +81,10 @@ fn mappings_from_noisy_control_points_reach_the_measuring_noise() {
     let mut pts = Vec::new();
     for k in 0..70 {
         let px = [
-            rng.uniform() * l.grid.width as f64,
-            rng.uniform() * l.grid.height as f64,
+            rng.uniform() * l.frame.width as f64,
+            rng.uniform() * l.frame.height as f64,
         ];
-        let photo = l.grid.photo(rig::coords::PixelXY::new(px[0], px[1]));
+        let photo = l.frame.photo(rig::coords::PixelXY::new(px[0], px[1]));
         let g = a.ground_point([photo.x, photo.y]);
         let g = GroundM::new(g[0], g[1], g[2]);
         let q = r.ground_to_image(g).map(|q| [q.col, q.row]).unwrap();

@@ -12,7 +12,7 @@ use rig_sim::scene::{jacksboro, AerialPhoto};
 fn rigorous(p: &AerialPhoto, grid: PhotoGrid) -> FrameSensor {
     FrameSensor {
         camera: rig::sim_scene::frame_camera(p),
-        grid,
+        frame: grid.into(),
     }
 }
 

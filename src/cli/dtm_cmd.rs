@@ -138,7 +138,7 @@ fn run_format2(
         let ph = ScannedPhoto::load_photo(sidecar).map_err(|e| e.to_string())?;
         Ok(InputPhoto {
             image: ph.image,
-            grid: ph.grid,
+            frame: ph.grid.into(),
             interior: rig::geometry::Interior {
                 focal_mm: ph.focal_mm,
                 principal_point: rig::coords::PhotoMm::new(0.0, 0.0),

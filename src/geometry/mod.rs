@@ -7,6 +7,7 @@ pub mod crs;
 pub mod frame;
 pub mod intersection;
 pub mod photo_grid;
+pub mod pixel_frame;
 pub mod resection;
 pub mod sensor;
 
@@ -14,5 +15,6 @@ pub use crs::Crs;
 pub use frame::{Exterior, FrameCamera, Interior};
 pub use intersection::{intersect, Intersection};
 pub use photo_grid::PhotoGrid;
+pub use pixel_frame::PixelToPhoto;
 pub use resection::{resect, Resection, ResectionError};
 pub use sensor::{FrameSensor, Sensor};

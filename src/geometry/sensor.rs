@@ -6,7 +6,7 @@
 //! Image coordinates are continuous pixels of the sensor's own image, `PixelXY` (column,
 //! row), as everywhere in the core; ground coordinates are `GroundM` in the project's CRS.
 
-use super::{FrameCamera, PhotoGrid};
+use super::{FrameCamera, PixelToPhoto};
 use crate::coords::{GroundM, PixelXY};
 
 pub trait Sensor {
@@ -39,25 +39,25 @@ pub trait Sensor {
     }
 }
 
-/// A frame photo as a sensor: its camera (collinearity) and the grid from its image's pixels
-/// to photo millimetres.
+/// A frame photo as a sensor: its camera (collinearity) and which photo point each pixel of
+/// its image shows.
 #[derive(Debug, Clone, Copy)]
 pub struct FrameSensor {
     pub camera: FrameCamera,
-    pub grid: PhotoGrid,
+    pub frame: PixelToPhoto,
 }
 
 impl Sensor for FrameSensor {
     fn image_size(&self) -> (usize, usize) {
-        (self.grid.width, self.grid.height)
+        (self.frame.width, self.frame.height)
     }
 
     fn ground_to_image(&self, g: GroundM) -> Option<PixelXY> {
-        self.camera.project(g).map(|p| self.grid.pixel(p))
+        self.camera.project(g).map(|p| self.frame.pixel(p))
     }
 
     fn image_to_ground(&self, q: PixelXY, z: f64) -> Option<GroundM> {
-        let g = self.camera.at_height(self.grid.photo(q), z);
+        let g = self.camera.at_height(self.frame.photo(q), z);
         [g.x, g.y].iter().all(|v| v.is_finite()).then_some(g)
     }
 }
@@ -82,7 +82,7 @@ mod tests {
                 },
                 exterior: Exterior::from_degrees(0.0, 0.0, 0.0, GroundM::new(0.0, 0.0, z0)),
             },
-            grid: PhotoGrid::covering([-10.0, -10.0, 10.0, 10.0], step),
+            frame: crate::geometry::PhotoGrid::covering([-10.0, -10.0, 10.0, 10.0], step).into(),
         };
         let g = GroundM::new(300.0, -200.0, 400.0);
         let d = s.partials(g).unwrap();

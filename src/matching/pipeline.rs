@@ -170,12 +170,12 @@ fn mappings(
             };
             let (il, rl) = orient(left, &|g| g.left, "left")?;
             let (ir, rr) = orient(right, &|g| g.right, "right")?;
-            let photo = |interior, r: &Resection, grid| FrameSensor {
+            let photo = |interior, r: &Resection, grid: PhotoGrid| FrameSensor {
                 camera: FrameCamera {
                     interior,
                     exterior: r.exterior,
                 },
-                grid,
+                frame: grid.into(),
             };
             let (l, r) = (photo(il, &rl, left.grid), photo(ir, &rr, right.grid));
             let m = PmfSet::from_sensors(&l, &r, [p.matching.h_min, p.matching.h_max], p.pmf.order)

@@ -13,7 +13,8 @@ use super::sweep::SweepParams;
 use super::PmfSet;
 use crate::coords::{GroundM, PixelXY};
 use crate::geometry::{
-    resect, Crs, FrameCamera, FrameSensor, Interior, PhotoGrid, Resection, ResectionError, Sensor,
+    resect, Crs, FrameCamera, FrameSensor, Interior, PhotoGrid, PixelToPhoto, Resection,
+    ResectionError, Sensor,
 };
 use crate::image::ImageF32;
 use serde::{Deserialize, Serialize};
@@ -24,7 +25,7 @@ use std::path::{Path, PathBuf};
 #[derive(Debug, Clone)]
 pub struct InputPhoto {
     pub image: ImageF32,
-    pub grid: PhotoGrid,
+    pub frame: PixelToPhoto,
     pub interior: Interior,
 }
 
@@ -112,6 +113,18 @@ pub fn centred_grid(width: usize, height: usize, pixel_mm: f64) -> PhotoGrid {
     }
 }
 
+/// A camera's pixel → photo relation applied to an image of `width × height`.
+fn frame_of(
+    camera: &super::project2::Camera2,
+    width: usize,
+    height: usize,
+) -> Option<PixelToPhoto> {
+    match camera.pixel_to_photo {
+        Some(p) => PixelToPhoto::from_centre_origin(p, width, height),
+        None => Some(centred_grid(width, height, camera.pixel_mm).into()),
+    }
+}
+
 /// Loads a plain-image photo of the project (scans come through `scan`, the hardware side's
 /// hand-over), within the project's memory limit.
 pub fn load_photos(
@@ -130,10 +143,11 @@ pub fn load_photos(
                 Source::Image { path, camera } => {
                     let image =
                         crate::image::load_grey(path, max).map_err(|e| err(e.to_string()))?;
-                    let grid = centred_grid(image.width, image.height, camera.pixel_mm);
+                    let frame = frame_of(camera, image.width, image.height)
+                        .ok_or_else(|| err("its camera's pixel_to_photo is singular".into()))?;
                     Ok(InputPhoto {
                         image,
-                        grid,
+                        frame,
                         interior: Interior {
                             focal_mm: camera.focal_mm,
                             principal_point: camera.principal_point,
@@ -200,7 +214,9 @@ pub fn run(
                 let pts: Vec<_> = control
                     .iter()
                     .filter(|o| o.photo == ph.id)
-                    .filter_map(|o| Some((input.grid.photo(PixelXY::new(o.col, o.row)), o.ground?)))
+                    .filter_map(|o| {
+                        Some((input.frame.photo(PixelXY::new(o.col, o.row)), o.ground?))
+                    })
                     .collect();
                 let r =
                     resect(&input.interior, &pts).map_err(|source| Pipeline2Error::Resection {
@@ -218,7 +234,7 @@ pub fn run(
                 interior: input.interior,
                 exterior,
             },
-            grid: input.grid,
+            frame: input.frame,
         });
     }
     // Heights: given, or the control and check points' range with a margin.

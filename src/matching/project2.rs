@@ -140,6 +140,9 @@ pub struct Camera2 {
     pub principal_point: PhotoMm,
     /// Square pixels, mm: x = (col − (W−1)/2)·p, y = ((H−1)/2 − row)·p.
     pub pixel_mm: f64,
+    /// Or any affine pixel → photo (README convention: integer values at pixel centres):
+    /// x = a0 + a1·col + a2·row, y = b0 + b1·col + b2·row; used when given.
+    pub pixel_to_photo: Option<[f64; 6]>,
 }
 
 /// Where a photo comes from.
@@ -245,21 +248,33 @@ impl Project2 {
                     c.principal_point_mm
                 )));
             }
-            let pixel_mm = match (c.pixel_mm, c.pixel_to_photo) {
-                (Some(p), None) if p.is_finite() && (1e-4..=1.0).contains(&p) => p,
+            let (pixel_mm, pixel_to_photo) = match (c.pixel_mm, c.pixel_to_photo) {
+                (Some(p), None) if p.is_finite() && (1e-4..=1.0).contains(&p) => (p, None),
                 (Some(p), None) => {
                     return Err(bad(format!(
                         "[camera.{name}] pixel_mm {p}: 0.0001 to 1 mm"
                     )))
                 }
-                (None, Some(_)) => {
+                (None, Some(a)) => {
+                    let shift_ok = finite(&[a[0], a[3]], 1000.0);
+                    let lin = [a[1], a[2], a[4], a[5]];
+                    let det = a[1] * a[5] - a[2] * a[4];
+                    let size = det.abs().sqrt();
+                    if !shift_ok || !finite(&lin, 1.0) || !(1e-4..=1.0).contains(&size) {
+                        return Err(bad(format!(
+                            "[camera.{name}] pixel_to_photo {a:?}: [a0, a1, a2, b0, b1, b2] in mm, shifts within ±1000 mm, a pixel of 0.0001 to 1 mm (not singular)"
+                        )));
+                    }
+                    (size, Some(a))
+                }
+                (Some(_), Some(_)) => {
                     return Err(bad(format!(
-                        "[camera.{name}] pixel_to_photo: not supported yet; give pixel_mm (square pixels, image centred on the principal point's origin)"
+                        "[camera.{name}]: give pixel_mm or pixel_to_photo, not both"
                     )))
                 }
-                _ => {
+                (None, None) => {
                     return Err(bad(format!(
-                        "[camera.{name}]: give pixel_mm (the image's pixel on the film, mm)"
+                        "[camera.{name}]: give pixel_mm (square pixels, mm) or pixel_to_photo (an affine)"
                     )))
                 }
             };
@@ -269,6 +284,7 @@ impl Project2 {
                     focal_mm: c.focal_mm,
                     principal_point: PhotoMm::new(c.principal_point_mm[0], c.principal_point_mm[1]),
                     pixel_mm,
+                    pixel_to_photo,
                 },
             );
         }
