@@ -184,6 +184,11 @@ fn three_plain_photos_give_a_dem_a_gis_can_place() {
         3,
         "all three pairs overlap"
     );
+    // Every pair contributes (a photo whose pixel → photo relation were misread would match
+    // nothing, and the others would hide it in the merged model).
+    for p in r["pairs"].as_array().unwrap() {
+        assert!(p["points"].as_u64().unwrap() > 10_000, "{p}");
+    }
     assert_eq!(r["resected"][0][0], "3");
     let rmse = r["comparison"]["rmse_m"].as_f64().unwrap();
     // One pixel of parallax here: 0.1 mm on the film × 42 500 (4.25 m on the ground) over a
