@@ -10,16 +10,9 @@ use rig::matching::regions::RegionStats;
 use rig::scan::ScannedPhoto;
 use std::path::PathBuf;
 
-/// Elevation models from photos: `rig dtm PROJECT.toml --out DIR`.
-///
-/// A format-2 project (`format = 2`; see the README) names any number of photos as plain grey
-/// images with their cameras and orientations (or the rig's scans), the ground CRS, points and
-/// the DEM: every overlapping pair is swept and the heights merged into dem.tif (Deflate float32
-/// GeoTIFF in the project's CRS, nodata −9999), points.ply, hillshade.png, error.png (with
-/// [check] reference) and report.json. A format-1 project (two scanned photos, `rig sim scene`
-/// and `rig demo` write them) runs seed 000's method as `rig dtm pmf` did.
+/// Options of `rig dtm` (its help text is on `Command::Dtm`).
 #[derive(Debug, Args)]
-#[command(args_conflicts_with_subcommands = true, verbatim_doc_comment)]
+#[command(args_conflicts_with_subcommands = true)]
 pub struct DtmArgs {
     #[command(subcommand)]
     pub action: Option<DtmAction>,

@@ -138,8 +138,15 @@ pub enum Command {
     /// with control and check points and the true elevation model: a ready matching project.
     #[command(verbatim_doc_comment)]
     Sim(SimCmd),
-    /// Elevation models from photos: `rig dtm PROJECT.toml --out DIR` (any photos with their
-    /// orientations: project format 2; or a scanned pair: format 1, seed 000).
+    /// Elevation models from photos: `rig dtm PROJECT.toml --out DIR`.
+    ///
+    /// A format-2 project (`format = 2`; see the README) names any number of photos as plain
+    /// grey images with their cameras and orientations (or resected from control points, or
+    /// the rig's scans), the ground CRS, points and the DEM: every overlapping pair is swept
+    /// and the heights merged. A format-1 project (a scanned pair: `rig sim scene` writes one)
+    /// runs seed 000's method. Outputs in DIR: dem.tif (Deflate float32 GeoTIFF in the
+    /// project's CRS, nodata −9999), points.ply, hillshade.png, error.png (with a reference),
+    /// report.json; each written whole or not at all, so a killed run can be run again.
     ///
     /// Example:
     ///   rig sim scene --out scene && rig dtm scene/project.toml --out dtm
