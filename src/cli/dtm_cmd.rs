@@ -189,10 +189,14 @@ pub fn run(a: DtmArgs) -> anyhow::Result<i32> {
             }
         }
         (None, None, _) => {
-            anyhow::bail!("give the project: rig dtm PROJECT.toml --out DIR (see rig dtm --help)")
+            eprintln!(
+                "rig dtm: give the project: rig dtm PROJECT.toml --out DIR (see rig dtm --help)"
+            );
+            return Ok(2);
         }
         (None, Some(_), None) => {
-            anyhow::bail!("give the output directory: rig dtm PROJECT.toml --out DIR")
+            eprintln!("rig dtm: give the output directory: rig dtm PROJECT.toml --out DIR");
+            return Ok(2);
         }
     };
     match action {
