@@ -4,6 +4,7 @@
 //! and the files a run leaves. It takes plain photos (an image and its pixel → photo grid);
 //! whoever made them — the rig's scans or anyone's — hands them over as [`Photo`]s.
 
+use super::grid::{Comparison, ElevationGrid};
 use super::output::{read_geotiff, write_error_map, write_geotiff, write_hillshade, write_ply};
 use super::pmf::PmfError;
 use super::pmf_dtm::{pmf_dtm, Budget, DtmError, PmfDtm, PmfDtmParams, PmfDtmReport};
@@ -12,7 +13,8 @@ use super::project::{PmfSource, Project, ProjectError};
 use super::regions::RegionParams;
 use super::sweep::SweepParams;
 use super::{PmfSet, StereoPoint};
-use crate::coords::{PhotoMm, PixelXY};
+use crate::coords::{GroundM, PhotoMm, PixelXY};
+use crate::geometry::Crs;
 use crate::geometry::{
     resect, FrameCamera, FrameSensor, Interior, PhotoGrid, Resection, ResectionError,
 };
@@ -260,25 +262,42 @@ pub fn run(
         dir: out.to_path_buf(),
         cause: source,
     };
-    std::fs::create_dir_all(out).map_err(write)?;
-    // A rerun replaces an earlier run's files; one without a reference leaves no old error map.
-    if reference.is_none() {
-        let _ = std::fs::remove_file(out.join("error.png"));
-    }
-    write_geotiff(&out.join("dem.tif"), &r.grid, p.crs).map_err(write)?;
-    write_ply(&out.join("points.ply"), &r.points).map_err(write)?;
-    write_hillshade(&out.join("hillshade.png"), &r.grid).map_err(write)?;
-    if let (Some(g), Some(c)) = (&reference, &r.report.comparison) {
-        let d = r.grid.differences(|x, y| g.interpolate(x, y));
-        write_error_map(
-            &out.join("error.png"),
-            &r.grid,
-            &d,
-            (3.0 * c.rmse_m).max(1.0),
-        )
-        .map_err(write)?;
-    }
-    crate::atomic::write_json(&out.join("report.json"), &report).map_err(write)?;
+    write_outputs(
+        out,
+        &r.grid,
+        &r.points,
+        reference.as_ref().zip(r.report.comparison.as_ref()),
+        p.crs,
+        &report,
+    )
+    .map_err(write)?;
     crate::atomic::write_json(&out.join("pmfs.json"), &pmfs).map_err(write)?;
     Ok((r, report))
+}
+
+/// The files every run leaves in `out`: the model in `crs`, its points, the hillshade, the
+/// error map against the reference (removed when there is none, so that a rerun leaves no old
+/// one) and the report. Each written whole or not at all.
+pub(crate) fn write_outputs(
+    out: &Path,
+    grid: &ElevationGrid,
+    points: &[(GroundM, f32)],
+    reference: Option<(&ElevationGrid, &Comparison)>,
+    crs: Crs,
+    report: &impl Serialize,
+) -> std::io::Result<()> {
+    std::fs::create_dir_all(out)?;
+    write_geotiff(&out.join("dem.tif"), grid, crs)?;
+    write_ply(&out.join("points.ply"), points)?;
+    write_hillshade(&out.join("hillshade.png"), grid)?;
+    match reference {
+        Some((g, c)) => {
+            let d = grid.differences(|x, y| g.interpolate(x, y));
+            write_error_map(&out.join("error.png"), grid, &d, (3.0 * c.rmse_m).max(1.0))?;
+        }
+        None => {
+            let _ = std::fs::remove_file(out.join("error.png"));
+        }
+    }
+    crate::atomic::write_json(&out.join("report.json"), report)
 }

@@ -4,7 +4,7 @@
 //! and the heights of all pairs are merged into one grid in the project's CRS.
 
 use super::grid::{Comparison, ElevationGrid};
-use super::output::{read_geotiff, write_error_map, write_geotiff, write_hillshade, write_ply};
+use super::output::read_geotiff;
 use super::pmf_dtm::{pmf_dtm, Budget, DtmError, PmfDtmParams, PmfDtmReport};
 use super::pmf_set::FitReport;
 use super::project2::{Kind, Observation, Project2, Project2Error, Source};
@@ -368,20 +368,6 @@ pub fn run(
         dir: out.to_path_buf(),
         cause: source,
     };
-    std::fs::create_dir_all(out).map_err(write)?;
-    write_geotiff(&out.join("dem.tif"), &grid, p.crs).map_err(write)?;
-    write_ply(&out.join("points.ply"), &all).map_err(write)?;
-    write_hillshade(&out.join("hillshade.png"), &grid).map_err(write)?;
-    match (&reference, &comparison) {
-        (Some(g), Some(c)) => {
-            let d = grid.differences(|x, y| g.interpolate(x, y));
-            write_error_map(&out.join("error.png"), &grid, &d, (3.0 * c.rmse_m).max(1.0))
-                .map_err(write)?;
-        }
-        _ => {
-            let _ = std::fs::remove_file(out.join("error.png"));
-        }
-    }
     let report = Report2 {
         project: p.path.clone(),
         crs: p.crs,
@@ -394,6 +380,14 @@ pub fn run(
         grid,
         comparison,
     };
-    crate::atomic::write_json(&out.join("report.json"), &report).map_err(write)?;
+    super::pipeline::write_outputs(
+        out,
+        &report.grid,
+        &all,
+        reference.as_ref().zip(report.comparison.as_ref()),
+        p.crs,
+        &report,
+    )
+    .map_err(write)?;
     Ok(report)
 }
