@@ -5,6 +5,7 @@
 
 use super::grid::{Comparison, ElevationGrid};
 use super::output::read_geotiff;
+use super::pipeline::PipelineError;
 use super::pmf_dtm::{pmf_dtm, Budget, DtmError, PmfDtmParams, PmfDtmReport};
 use super::pmf_set::FitReport;
 use super::project2::{Kind, Observation, Project2, Project2Error, Source};
@@ -59,15 +60,9 @@ pub enum Pipeline2Error {
     },
     #[error("the DEM grid: {0}")]
     Grid(String),
-    #[error("reading the reference model {path}: {cause}")]
-    Reference {
-        path: PathBuf,
-        cause: std::io::Error,
-    },
+    /// The output directory, the reference model and the files written: as for format 1.
     #[error(transparent)]
-    OutDir(#[from] super::pipeline::PipelineError),
-    #[error("writing into {dir}: {cause}")]
-    Write { dir: PathBuf, cause: std::io::Error },
+    Output(#[from] PipelineError),
 }
 
 /// One pair's part of the run.
@@ -355,7 +350,7 @@ pub fn run(
     let pts: Vec<GroundM> = all.iter().map(|(g, _)| *g).collect();
     grid.fill_median(&pts);
     let reference = match &p.reference {
-        Some(r) => Some(read_geotiff(r).map_err(|source| Pipeline2Error::Reference {
+        Some(r) => Some(read_geotiff(r).map_err(|source| PipelineError::Reference {
             path: r.clone(),
             cause: source,
         })?),
@@ -364,7 +359,7 @@ pub fn run(
     let comparison = reference
         .as_ref()
         .map(|g| grid.compare(|x, y| g.interpolate(x, y)));
-    let write = |source| Pipeline2Error::Write {
+    let write = |source| PipelineError::Write {
         dir: out.to_path_buf(),
         cause: source,
     };

@@ -128,6 +128,66 @@ pub struct Limits {
     pub max_candidates_g: f64,
 }
 
+impl Limits {
+    /// Both limits in their ranges (the message names the key and the range).
+    pub(crate) fn check(&self) -> Result<(), String> {
+        if !(16..=1_048_576).contains(&self.max_memory_mb) {
+            return Err(format!(
+                "[limits] max_memory_mb {}: 16 to 1048576 MiB",
+                self.max_memory_mb
+            ));
+        }
+        let g = self.max_candidates_g;
+        if !(g.is_finite() && g > 0.0 && g <= 1e6) {
+            return Err(format!(
+                "[limits] max_candidates_g {g}: above 0, at most 1000000 (billions)"
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// The sweep's parameters (window, threshold, stride) and the wrong-height removal's
+/// (search distance, population and height thresholds), as both project formats take them;
+/// the first argument names the sections the two groups stand in.
+pub(crate) fn check_sweep(
+    (m, r): (&str, &str),
+    (window, threshold, stride): (usize, f64, usize),
+    (search_distance, population, height): (usize, usize, Option<f64>),
+) -> Result<(), String> {
+    if !(3..=101).contains(&window) || window.is_multiple_of(2) {
+        return Err(format!(
+            "{m} window {window}: an odd number of pixels from 3 to 101 (seed 000: 9)"
+        ));
+    }
+    if !(0.0..1.0).contains(&threshold) {
+        return Err(format!(
+            "{m} threshold {threshold}: a correlation from 0 up to (not including) 1 (seed 000: 0.5)"
+        ));
+    }
+    if !(1..=1000).contains(&stride) {
+        return Err(format!("{m} stride {stride}: 1 to 1000 pixels"));
+    }
+    if !(1..=100).contains(&search_distance) {
+        return Err(format!(
+            "{r} search_distance {search_distance}: 1 to 100 grid steps (seed 000: 2)"
+        ));
+    }
+    if population > 1_000_000_000 {
+        return Err(format!(
+            "{r} population_threshold {population}: 0 to 1000000000 points"
+        ));
+    }
+    if let Some(h) = height {
+        if !(h.is_finite() && h > 0.0 && h <= 10_000.0) {
+            return Err(format!(
+                "{r} height_threshold {h}: above 0, at most 10000 m"
+            ));
+        }
+    }
+    Ok(())
+}
+
 pub fn default_memory_mb() -> u64 {
     4096
 }
@@ -236,44 +296,19 @@ impl Project {
                 m.h_step
             ));
         }
-        if m.window < 3 || m.window > 101 || m.window.is_multiple_of(2) {
-            return Err(format!(
-                "[matching] window {}: an odd number of pixels from 3 to 101 (seed 000: 9)",
-                m.window
-            ));
-        }
-        if !(0.0..1.0).contains(&m.threshold) {
-            return Err(format!(
-                "[matching] threshold {}: a correlation from 0 up to (not including) 1 (seed 000: 0.5)",
-                m.threshold
-            ));
-        }
-        if !(1..=1000).contains(&m.stride) {
-            return Err(format!("[matching] stride {}: 1 to 1000 pixels", m.stride));
-        }
         if !(1..=3).contains(&self.pmf.order) {
             return Err(format!("[pmf] order {}: 1, 2 or 3", self.pmf.order));
         }
         let r = &self.regions;
-        if !(1..=100).contains(&r.search_distance) {
-            return Err(format!(
-                "[regions] search_distance {}: 1 to 100 grid steps (seed 000: 2)",
-                r.search_distance
-            ));
-        }
-        if r.population_threshold > 1_000_000_000 {
-            return Err(format!(
-                "[regions] population_threshold {}: 0 to 1000000000 points",
-                r.population_threshold
-            ));
-        }
-        if let Some(h) = r.height_threshold {
-            if !(h.is_finite() && h > 0.0 && h <= 100_000.0) {
-                return Err(format!(
-                    "[regions] height_threshold {h}: above 0, at most 100000 m"
-                ));
-            }
-        }
+        check_sweep(
+            ("[matching]", "[regions]"),
+            (m.window, m.threshold, m.stride),
+            (
+                r.search_distance,
+                r.population_threshold,
+                r.height_threshold,
+            ),
+        )?;
         let g = &self.grid;
         if !(g.cell_m.is_finite() && (0.001..=100_000.0).contains(&g.cell_m)) {
             return Err(format!("[grid] cell_m {}: 0.001 to 100000 m", g.cell_m));
@@ -285,23 +320,7 @@ impl Project {
                 ));
             }
         }
-        let l = &self.limits;
-        if !(16..=1_048_576).contains(&l.max_memory_mb) {
-            return Err(format!(
-                "[limits] max_memory_mb {}: 16 to 1048576 MiB",
-                l.max_memory_mb
-            ));
-        }
-        if !(l.max_candidates_g.is_finite()
-            && l.max_candidates_g > 0.0
-            && l.max_candidates_g <= 1e6)
-        {
-            return Err(format!(
-                "[limits] max_candidates_g {}: above 0, at most 1000000 (billions)",
-                l.max_candidates_g
-            ));
-        }
-        Ok(())
+        self.limits.check()
     }
 
     /// The control and check points; every number finite, ids given.

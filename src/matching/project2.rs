@@ -7,7 +7,7 @@
 //! (col, row) with integer values at pixel centres, (0, 0) the centre of the top-left pixel.
 //! The core's images use the corner origin (pixel c covers [c, c + 1)): `col + 0.5`.
 
-use super::project::Limits;
+use super::project::{check_sweep, Limits};
 use crate::coords::{GroundM, PhotoMm};
 use crate::geometry::{Crs, Exterior};
 use serde::Deserialize;
@@ -376,47 +376,25 @@ impl Project2 {
                 m.method
             )));
         }
-        if m.window < 3 || m.window > 101 || m.window.is_multiple_of(2) {
-            return Err(bad(format!(
-                "[matching] window {}: an odd number of pixels from 3 to 101",
-                m.window
-            )));
-        }
-        if !(0.0..1.0).contains(&m.threshold) {
-            return Err(bad(format!(
-                "[matching] threshold {}: 0 up to (not including) 1",
-                m.threshold
-            )));
-        }
         if let Some(s) = m.h_step {
             if !(s.is_finite() && (0.001..=1000.0).contains(&s)) {
                 return Err(bad(format!("[matching] h_step {s}: 0.001 to 1000 m")));
             }
         }
-        if !(1..=1000).contains(&m.stride) || !(1..=3).contains(&m.order) {
-            return Err(bad(format!(
-                "[matching] stride {} (1 to 1000) or order {} (1 to 3) out of range",
-                m.stride, m.order
-            )));
+        if !(1..=3).contains(&m.order) {
+            return Err(bad(format!("[matching] order {}: 1, 2 or 3", m.order)));
         }
-        if !(1..=100).contains(&m.search_distance)
-            || m.population_threshold > 1_000_000_000
-            || m.height_threshold
-                .is_some_and(|t| !(t.is_finite() && t > 0.0 && t <= 10_000.0))
-        {
-            return Err(bad(
-                "[matching] search_distance 1 to 100, population_threshold 0 to 1e9, height_threshold above 0 up to 10000 m".into(),
-            ));
-        }
-        let l = &raw.limits;
-        let limits_ok = (16..=1_048_576).contains(&l.max_memory_mb)
-            && l.max_candidates_g.is_finite()
-            && l.max_candidates_g > 0.0;
-        if !limits_ok {
-            return Err(bad(
-                "[limits] max_memory_mb 16 to 1048576, max_candidates_g above 0".into(),
-            ));
-        }
+        check_sweep(
+            ("[matching]", "[matching]"),
+            (m.window, m.threshold, m.stride),
+            (
+                m.search_distance,
+                m.population_threshold,
+                m.height_threshold,
+            ),
+        )
+        .map_err(bad)?;
+        raw.limits.check().map_err(bad)?;
         Ok(Project2 {
             path: path.to_path_buf(),
             crs: raw.crs,
