@@ -208,8 +208,8 @@ fn options(a: &StageArgs) -> Result<DriverOptions, String> {
         // Both range-checked above.
         timeouts: TimeoutPolicy {
             factor: a.timeout_factor,
-            margin: Duration::from_secs_f64(a.timeout_margin),
-            cap: Duration::from_secs_f64(a.timeout),
+            margin: stage::secs(a.timeout_margin),
+            cap: stage::secs(a.timeout),
         },
         tolerance_um: a.tolerance_um,
         speed_um_s: a.speed.map(|s| s * 1000.0),

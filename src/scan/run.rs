@@ -343,9 +343,7 @@ fn take(
     ScanError,
 > {
     let pos = rig.stage.move_to(at)?;
-    std::thread::sleep(Duration::from_secs_f64(
-        sd.script.capture.settle_ms / 1000.0,
-    ));
+    std::thread::sleep(crate::stage::secs(sd.script.capture.settle_ms / 1000.0));
     // Frames the camera captured before now (during the move or the settle) are set aside.
     let settled = rig.camera.now()?;
     let mut c = capture(

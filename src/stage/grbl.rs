@@ -993,7 +993,7 @@ impl Controller for GrblController {
         self.port.write_all(b"!")?;
         // From full speed a stop takes v/a; the settings are range-checked, the wait capped.
         let v_a = (self.info.max_speed_um_s / self.info.accel_um_s2).min(30.0);
-        let deadline = Instant::now() + Duration::from_secs_f64(v_a) + Duration::from_secs(1);
+        let deadline = Instant::now() + super::secs(v_a) + Duration::from_secs(1);
         let mut held = None;
         while Instant::now() < deadline {
             match self.query(1) {
