@@ -124,20 +124,12 @@ fn run_format2(
     max_memory: Option<u64>,
     json: bool,
 ) -> anyhow::Result<i32> {
-    use rig::matching::pipeline2::{self, InputPhoto};
+    use rig::matching::pipeline2;
     use rig::matching::project2::Project2;
     let p = Project2::load(project)?;
-    let scan = |sidecar: &std::path::Path| -> Result<InputPhoto, String> {
-        let ph = ScannedPhoto::load_photo(sidecar).map_err(|e| e.to_string())?;
-        Ok(InputPhoto {
-            image: ph.image,
-            frame: ph.grid.into(),
-            interior: rig::geometry::Interior {
-                focal_mm: ph.focal_mm,
-                principal_point: rig::coords::PhotoMm::new(0.0, 0.0),
-            },
-        })
-    };
+    // The rig's own scans come through the scan's hand-over.
+    let scan =
+        |sidecar: &std::path::Path| ScannedPhoto::load_photo(sidecar).map_err(|e| e.to_string());
     let photos = pipeline2::load_photos(&p, &scan)?;
     let r = pipeline2::run(&p, &photos, out, max_memory)?;
     if json {

@@ -13,22 +13,22 @@ use super::project::{PmfSource, Project, ProjectError};
 use super::regions::RegionParams;
 use super::sweep::SweepParams;
 use super::{PmfSet, StereoPoint};
-use crate::coords::{GroundM, PhotoMm, PixelXY};
+use crate::coords::{GroundM, PixelXY};
 use crate::geometry::Crs;
 use crate::geometry::{
-    resect, FrameCamera, FrameSensor, Interior, PhotoGrid, Resection, ResectionError,
+    resect, FrameCamera, FrameSensor, Interior, PixelToPhoto, Resection, ResectionError,
 };
 use crate::image::ImageF32;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
-/// A photo as the core takes it: the image in grey values, which photo point (mm) each pixel
-/// shows, and the camera's calibrated focal length.
+/// A photo as the core takes it, from whoever made it: the image in grey values, which photo
+/// point (mm) each pixel shows, and the camera's interior orientation.
 #[derive(Debug, Clone)]
 pub struct Photo {
     pub image: ImageF32,
-    pub grid: PhotoGrid,
-    pub focal_mm: f64,
+    pub frame: PixelToPhoto,
+    pub interior: Interior,
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -151,20 +151,16 @@ fn mappings(
         }
         PmfSource::Rigorous => {
             let orient = |ph: &Photo, px: &dyn Fn(&StereoPoint) -> [f64; 2], which| {
-                let interior = Interior {
-                    focal_mm: ph.focal_mm,
-                    principal_point: PhotoMm::new(0.0, 0.0),
-                };
                 let obs: Vec<_> = pts
                     .gcps
                     .iter()
                     .map(|g| {
                         let q = px(g);
-                        (ph.grid.photo(PixelXY::new(q[0], q[1])), g.ground)
+                        (ph.frame.photo(PixelXY::new(q[0], q[1])), g.ground)
                     })
                     .collect();
-                resect(&interior, &obs)
-                    .map(|r| (interior, r))
+                resect(&ph.interior, &obs)
+                    .map(|r| (ph.interior, r))
                     .map_err(|source| PipelineError::Resection {
                         which,
                         cause: source,
@@ -172,14 +168,14 @@ fn mappings(
             };
             let (il, rl) = orient(left, &|g| g.left, "left")?;
             let (ir, rr) = orient(right, &|g| g.right, "right")?;
-            let photo = |interior, r: &Resection, grid: PhotoGrid| FrameSensor {
+            let photo = |interior, r: &Resection, frame| FrameSensor {
                 camera: FrameCamera {
                     interior,
                     exterior: r.exterior,
                 },
-                frame: grid.into(),
+                frame,
             };
-            let (l, r) = (photo(il, &rl, left.grid), photo(ir, &rr, right.grid));
+            let (l, r) = (photo(il, &rl, left.frame), photo(ir, &rr, right.frame));
             let m = PmfSet::from_sensors(&l, &r, [p.matching.h_min, p.matching.h_max], p.pmf.order)
                 .map_err(PipelineError::Derive)?;
             Ok((

@@ -5,7 +5,7 @@
 
 use super::grid::{Comparison, ElevationGrid};
 use super::output::read_geotiff;
-use super::pipeline::PipelineError;
+use super::pipeline::{Photo, PipelineError};
 use super::pmf_dtm::{pmf_dtm, Budget, DtmError, PmfDtmParams, PmfDtmReport};
 use super::pmf_set::FitReport;
 use super::project2::{Kind, Observation, Project2, Project2Error, Source};
@@ -17,18 +17,8 @@ use crate::geometry::{
     resect, Crs, FrameCamera, FrameSensor, Interior, PhotoGrid, PixelToPhoto, Resection,
     ResectionError, Sensor,
 };
-use crate::image::ImageF32;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
-
-/// A photo handed to the core: its image, which photo point each pixel shows, and the
-/// camera's interior orientation.
-#[derive(Debug, Clone)]
-pub struct InputPhoto {
-    pub image: ImageF32,
-    pub frame: PixelToPhoto,
-    pub interior: Interior,
-}
 
 #[derive(Debug, thiserror::Error)]
 pub enum Pipeline2Error {
@@ -124,8 +114,8 @@ fn frame_of(
 /// hand-over), within the project's memory limit.
 pub fn load_photos(
     p: &Project2,
-    scan: &dyn Fn(&Path) -> Result<InputPhoto, String>,
-) -> Result<Vec<InputPhoto>, Pipeline2Error> {
+    scan: &dyn Fn(&Path) -> Result<Photo, String>,
+) -> Result<Vec<Photo>, Pipeline2Error> {
     let max = p.limits.max_memory_mb << 20;
     p.photos
         .iter()
@@ -140,7 +130,7 @@ pub fn load_photos(
                         crate::image::load_grey(path, max).map_err(|e| err(e.to_string()))?;
                     let frame = frame_of(camera, image.width, image.height)
                         .ok_or_else(|| err("its camera's pixel_to_photo is singular".into()))?;
-                    Ok(InputPhoto {
+                    Ok(Photo {
                         image,
                         frame,
                         interior: Interior {
@@ -192,7 +182,7 @@ fn parallax_step(l: &dyn Sensor, r: &dyn Sensor, z: f64) -> Option<f64> {
 /// Runs a format-2 project on its loaded photos into `out`.
 pub fn run(
     p: &Project2,
-    photos: &[InputPhoto],
+    photos: &[Photo],
     out: &Path,
     max_memory_mb: Option<u64>,
 ) -> Result<Report2, Pipeline2Error> {

@@ -119,13 +119,18 @@ impl ScannedPhoto {
     }
 
     /// The photo as the matching core takes it (the hand-over): the image in its grey counts,
-    /// its photo grid and the camera certificate's focal length.
+    /// its photo grid and the camera's interior orientation.
     pub fn load_photo(json: &Path) -> Result<crate::matching::pipeline::Photo, SidecarError> {
         let (s, px) = Self::load(json)?;
         Ok(crate::matching::pipeline::Photo {
             image: crate::image::ImageF32::from_u16(s.grid.width, s.grid.height, &px),
-            grid: s.grid,
-            focal_mm: s.camera_certificate.focal_length_mm,
+            frame: s.grid.into(),
+            // The certificate gives the focal length; the principal point is taken at the
+            // fiducial centre (the photo coordinates' origin).
+            interior: crate::geometry::Interior {
+                focal_mm: s.camera_certificate.focal_length_mm,
+                principal_point: crate::coords::PhotoMm::new(0.0, 0.0),
+            },
         })
     }
 }
