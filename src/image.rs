@@ -27,7 +27,27 @@ impl ImageF32 {
         }
     }
 
+    /// Bilinear value at continuous coordinates (pixel c covers [c, c + 1), its centre at
+    /// c + 0.5); `None` outside the pixel centres' hull.
     #[inline]
+    pub fn bilinear(&self, x: f64, y: f64) -> Option<f32> {
+        let (u, v) = (x - 0.5, y - 0.5);
+        // Written so that NaN and huge coordinates fall outside too.
+        if u.is_nan() || v.is_nan() || u < 0.0 || v < 0.0 {
+            return None;
+        }
+        let (i, j) = (u as usize, v as usize);
+        if i >= self.width.saturating_sub(1) || j >= self.height.saturating_sub(1) {
+            return None;
+        }
+        let (fx, fy) = ((u - i as f64) as f32, (v - j as f64) as f32);
+        let p = &self.data[j * self.width + i..];
+        let q = &self.data[(j + 1) * self.width + i..];
+        let a = p[0] + fx * (p[1] - p[0]);
+        let b = q[0] + fx * (q[1] - q[0]);
+        Some(a + fy * (b - a))
+    }
+
     pub fn at(&self, col: usize, row: usize) -> f32 {
         self.data[row * self.width + col]
     }

@@ -10,6 +10,7 @@ pub mod digitise;
 pub mod geometry;
 pub mod image;
 pub mod matching;
+pub mod picture;
 pub mod scan;
 pub mod sim_scene;
 pub mod stage;

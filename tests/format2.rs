@@ -197,6 +197,8 @@ fn three_plain_photos_give_a_dem_a_gis_can_place() {
     assert!(rmse < 3.5, "RMSE {rmse} m");
     assert!(r["grid_filled"].as_u64().unwrap() > 1000);
     let _ = zs;
+    check_quality_and_ortho(&out, &r, &photos[0]);
+    check_las_against_ply(&out);
     // A GIS places it: the CRS is in the GeoTIFF (checked when GDAL is installed).
     if let Ok(o) = std::process::Command::new("gdalinfo")
         .arg(out.join("dem.tif"))
@@ -207,5 +209,127 @@ fn three_plain_photos_give_a_dem_a_gis_can_place() {
             t.contains("UTM zone 16N") && t.contains("NoData Value=-9999"),
             "{t}"
         );
+    }
+}
+
+/// quality.tif and ortho.tif, checked against what the simulator knows: the standard deviations
+/// are scaled by the pairs' redundancy and within a factor of a few of the true errors; the
+/// orthophoto shows the ground's reflectance where it lies (it correlates with the simulator's
+/// texture at the nodes, and less so one cell off).
+fn check_quality_and_ortho(out: &Path, r: &serde_json::Value, a: &AerialPhoto) {
+    let f = &r["variance_factor"];
+    assert!(f["comparisons"].as_u64().unwrap() >= 50, "{f}");
+    let s0 = f["s0"].as_f64().unwrap();
+    assert!(s0 > 0.3 && s0 < 30.0, "{f}");
+    let c = &r["sigma_vs_reference"];
+    eprintln!("σ against the reference: {c}; variance factor {f}");
+    let ratio = c["ratio"].as_f64().unwrap();
+    assert!(ratio > 0.3 && ratio < 5.0, "σ off by {ratio}: {c}");
+    // The orthophoto against the ground's reflectance at each node (simulator coordinates).
+    let o = rig::matching::output::read_geotiff(&out.join("ortho.tif")).unwrap();
+    let dem = jacksboro();
+    let corr_at = |dc: i64| {
+        let (mut v, mut t) = (Vec::new(), Vec::new());
+        for r in 0..o.rows {
+            for c in 0..o.cols {
+                let g = o.z[r * o.cols + c];
+                if !g.is_finite() {
+                    continue;
+                }
+                let [x, y] = o.node(c, r);
+                let x = x - rig::sim_scene::ORIGIN_M[0] + dc as f64 * o.cell_m;
+                let y = y - rig::sim_scene::ORIGIN_M[1];
+                v.push(g as f64);
+                t.push(rig_sim::scene::reflectance(a.texture_seed, &dem, x, y));
+            }
+        }
+        let n = v.len() as f64;
+        let (mv, mt) = (v.iter().sum::<f64>() / n, t.iter().sum::<f64>() / n);
+        let (mut svt, mut svv, mut stt) = (0.0, 0.0, 0.0);
+        for (a, b) in v.iter().zip(&t) {
+            svt += (a - mv) * (b - mt);
+            svv += (a - mv) * (a - mv);
+            stt += (b - mt) * (b - mt);
+        }
+        (svt / (svv * stt).sqrt(), v.len())
+    };
+    let (here, n) = corr_at(0);
+    let (off, _) = corr_at(1);
+    eprintln!("ortho vs the ground's reflectance: correlation {here:.3} over {n} nodes, {off:.3} one cell east");
+    assert!(n > 1000 && here > 0.8 && here > off + 0.1, "{here} {off}");
+    // quality.tif: two bands, σ and correlation, as GDAL reads them (when installed).
+    if let Ok(g) = std::process::Command::new("gdalinfo")
+        .args(["-stats"])
+        .arg(out.join("quality.tif"))
+        .output()
+    {
+        let t = String::from_utf8_lossy(&g.stdout);
+        assert!(
+            t.contains("Band 2")
+                && t.contains("height standard deviation (m)")
+                && t.contains("UTM zone 16N"),
+            "{t}"
+        );
+    }
+}
+
+/// points.las read by the LAS 1.2 specification's layout (not by the crate that wrote it) and
+/// compared with points.ply: the same points to the millimetre, and the CRS in the
+/// LASF_Projection record.
+fn check_las_against_ply(out: &Path) {
+    let las = std::fs::read(out.join("points.las")).unwrap();
+    let u16_at = |o: usize| u16::from_le_bytes([las[o], las[o + 1]]);
+    let u32_at = |o: usize| u32::from_le_bytes(las[o..o + 4].try_into().unwrap());
+    let f64_at = |o: usize| f64::from_le_bytes(las[o..o + 8].try_into().unwrap());
+    assert_eq!(&las[0..4], b"LASF");
+    assert_eq!((las[24], las[25]), (1, 2));
+    let (data_at, vlrs, format, len, count) = (
+        u32_at(96) as usize,
+        u32_at(100),
+        las[104],
+        u16_at(105) as usize,
+        u32_at(107) as usize,
+    );
+    assert_eq!((format, len), (0, 20));
+    let scale = [f64_at(131), f64_at(139), f64_at(147)];
+    let offset = [f64_at(155), f64_at(163), f64_at(171)];
+    // The VLRs follow the header: 54-byte header each, then the record.
+    let mut at = u16_at(94) as usize;
+    let mut epsg = None;
+    for _ in 0..vlrs {
+        let user = String::from_utf8_lossy(&las[at + 2..at + 18])
+            .trim_end_matches('\0')
+            .to_string();
+        let (id, n) = (u16_at(at + 18), u16_at(at + 20) as usize);
+        if user == "LASF_Projection" && id == 34735 {
+            let keys: Vec<u16> = (0..n / 2).map(|k| u16_at(at + 54 + 2 * k)).collect();
+            epsg = keys[4..].chunks(4).find(|k| k[0] == 3072).map(|k| k[3]);
+        }
+        at += 54 + n;
+    }
+    assert_eq!(epsg, Some(32616));
+    let ply = std::fs::read(out.join("points.ply")).unwrap();
+    let head = ply.windows(11).position(|w| w == b"end_header\n").unwrap() + 11;
+    let text = String::from_utf8_lossy(&ply[..head]);
+    assert!(text.contains("comment crs EPSG:32616"), "{text}");
+    let n: usize = text
+        .lines()
+        .find_map(|l| l.strip_prefix("element vertex "))
+        .unwrap()
+        .parse()
+        .unwrap();
+    assert_eq!(count, n);
+    for k in (0..n).step_by(n / 97 + 1) {
+        let p = head + k * 32;
+        let q = data_at + k * len;
+        for i in 0..3 {
+            let want = f64::from_le_bytes(ply[p + 8 * i..p + 8 * i + 8].try_into().unwrap());
+            let raw = i32::from_le_bytes(las[q + 4 * i..q + 4 * i + 4].try_into().unwrap());
+            let got = raw as f64 * scale[i] + offset[i];
+            assert!(
+                (got - want).abs() <= 0.0005 + 1e-9,
+                "point {k} axis {i}: {got} vs {want}"
+            );
+        }
     }
 }

@@ -6,8 +6,9 @@
 use std::path::{Path, PathBuf};
 
 /// The core: these files and folders under `src/`.
-const CORE: [&str; 6] = [
+const CORE: [&str; 7] = [
     "geometry",
+    "picture.rs",
     "matching",
     "image.rs",
     "correlation.rs",

@@ -3,92 +3,19 @@
 //! and a scale bar with its length written beside it.
 
 use super::affine_fit::Fit;
+use crate::picture::{line, nice, put, save_png, text, trim, BLACK};
 use image::{Rgb, RgbImage};
 use std::path::Path;
 
 const SIZE: u32 = 640;
 const MARGIN: f64 = 60.0;
 
-/// 3×5 glyphs for the scale bar's label.
-fn glyph(c: char) -> [u8; 5] {
-    match c {
-        '0' => [7, 5, 5, 5, 7],
-        '1' => [2, 6, 2, 2, 7],
-        '2' => [7, 1, 7, 4, 7],
-        '3' => [7, 1, 7, 1, 7],
-        '4' => [5, 5, 7, 1, 1],
-        '5' => [7, 4, 7, 1, 7],
-        '6' => [7, 4, 7, 5, 7],
-        '7' => [7, 1, 1, 1, 1],
-        '8' => [7, 5, 7, 5, 7],
-        '9' => [7, 5, 7, 1, 7],
-        '.' => [0, 0, 0, 0, 2],
-        'u' => [0, 5, 5, 5, 7],
-        'm' => [0, 7, 7, 5, 5],
-        'p' => [0, 7, 5, 7, 4],
-        'x' => [0, 5, 2, 5, 5],
-        _ => [0; 5],
-    }
-}
-
-pub(crate) fn text(img: &mut RgbImage, x: i64, y: i64, s: &str, scale: i64) {
-    for (k, c) in s.chars().enumerate() {
-        let g = glyph(c);
-        for (r, bits) in g.iter().enumerate() {
-            for col in 0..3 {
-                if bits & (4 >> col) != 0 {
-                    for dy in 0..scale {
-                        for dx in 0..scale {
-                            put(
-                                img,
-                                x + (k as i64 * 4 + col) * scale + dx,
-                                y + r as i64 * scale + dy,
-                                Rgb([0, 0, 0]),
-                            );
-                        }
-                    }
-                }
-            }
-        }
-    }
-}
-
-pub(crate) fn put(img: &mut RgbImage, x: i64, y: i64, c: Rgb<u8>) {
-    if x >= 0 && y >= 0 && x < img.width() as i64 && y < img.height() as i64 {
-        img.put_pixel(x as u32, y as u32, c);
-    }
-}
-
-pub(crate) fn line(img: &mut RgbImage, a: [f64; 2], b: [f64; 2], c: Rgb<u8>) {
-    let n = ((b[0] - a[0]).abs().max((b[1] - a[1]).abs()).ceil() as i64).max(1);
-    for k in 0..=n {
-        let t = k as f64 / n as f64;
-        let (x, y) = (a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1]));
-        for (dx, dy) in [(0, 0), (1, 0), (0, 1)] {
-            put(img, x.round() as i64 + dx, y.round() as i64 + dy, c);
-        }
-    }
-}
-
-/// A round length near `v`: 1, 2 or 5 × 10ⁿ.
-fn nice(v: f64) -> f64 {
-    let e = v.log10().floor();
-    let b = 10f64.powf(e);
-    [1.0, 2.0, 5.0, 10.0]
-        .into_iter()
-        .map(|m| m * b)
-        .rfind(|x| *x <= v)
-        .unwrap_or(b)
-}
-
 /// Draws `fit`'s residuals; `unit` labels the scale bar ("um").
 pub fn residual_plot(fit: &Fit, unit: &str, path: &Path) -> std::io::Result<()> {
     let mut img = RgbImage::from_pixel(SIZE, SIZE, Rgb([255, 255, 255]));
     let pts = &fit.residuals;
     if pts.is_empty() {
-        return img
-            .save(path)
-            .map_err(|e| std::io::Error::other(e.to_string()));
+        return save_png(&img, path);
     }
     let (mut lo, mut hi) = ([f64::MAX; 2], [f64::MIN; 2]);
     for r in pts {
@@ -171,14 +98,9 @@ pub fn residual_plot(fit: &Fit, unit: &str, path: &Path) -> std::io::Result<()> 
         y as i64 - 5,
         &label,
         2,
+        BLACK,
     );
-    img.save(path)
-        .map_err(|e| std::io::Error::other(e.to_string()))
-}
-
-fn trim(v: f64) -> String {
-    let s = format!("{v:.4}");
-    s.trim_end_matches('0').trim_end_matches('.').to_string()
+    save_png(&img, path)
 }
 
 #[cfg(test)]
@@ -188,9 +110,6 @@ mod tests {
 
     #[test]
     fn a_plot_is_drawn_and_scaled() {
-        assert_eq!(nice(0.37), 0.2);
-        assert_eq!(nice(7.0), 5.0);
-        assert_eq!(trim(0.5), "0.5");
         let pts: Vec<_> = (0..9)
             .map(|i| {
                 let p = [(i % 3) as f64 * 100.0, (i / 3) as f64 * 100.0];

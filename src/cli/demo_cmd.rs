@@ -284,11 +284,19 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<i32> {
         c["nodes"],
         dtm["crs"].as_str().unwrap_or("?")
     );
+    let sv = &dtm["sigma_vs_reference"];
+    if let Some(ratio) = sv["ratio"].as_f64() {
+        println!(
+            "  its standard deviations (quality.tif, × {:.2} from the pairs' disagreement): RMS {:.2} m; the true errors are {:.1} × them, {:.0} % within 2σ",
+            dtm["variance_factor"]["s0"].as_f64().unwrap_or(1.0),
+            sv["rms_sigma_m"].as_f64().unwrap_or(f64::NAN),
+            ratio,
+            sv["within_2_sigma_percent"].as_f64().unwrap_or(f64::NAN)
+        );
+    }
     println!(
-        "  look at: {}/hillshade.png, {}/error.png; the model: {}/dem.tif; everything: report.json",
+        "  look at: {}/hillshade.png, error.png, quality.png; the model: dem.tif, quality.tif, ortho.tif, points.las; everything: report.json",
         dtm_dir.display(),
-        dtm_dir.display(),
-        dtm_dir.display()
     );
     Ok(0)
 }

@@ -37,8 +37,9 @@ pub enum DtmAction {
     /// the check points), a height sweep along their epipolar lines, removal of wrong heights
     /// by the height and population criteria, gridding, comparison with a reference.
     ///
-    /// Writes into --out: dem.tif (float32 GeoTIFF, nodata −9999), points.ply, hillshade.png,
-    /// error.png (with a reference), report.json, pmfs.json (the mappings, reusable with
+    /// Writes into --out: dem.tif (float32 GeoTIFF, nodata −9999), quality.tif (σ, correlation),
+    /// ortho.tif, points.ply, points.las, hillshade.png, quality.png, error.png (with a
+    /// reference), report.json, pmfs.json (the mappings, reusable with
     /// `from = "file"`). Each file is written whole or not at all; a run that was killed can
     /// be run again into the same directory.
     ///
@@ -160,7 +161,39 @@ fn run_format2(
             c.rmse_m, c.mean_m, c.max_positive_m, c.max_negative_m, c.nodes
         );
     }
-    println!("written to {}", out.display());
+    match &r.variance_factor {
+        Some(f) => println!(
+            "standard deviations (quality.tif): the matching's, × {:.2} from {} node heights compared between pairs",
+            f.s0, f.comparisons
+        ),
+        None => println!(
+            "standard deviations (quality.tif): the matching's alone (too few nodes seen by two pairs to scale them)"
+        ),
+    }
+    for (what, c) in [
+        ("check points", &r.check_points),
+        ("the reference", &r.sigma_vs_reference),
+    ] {
+        if let Some(c) = c {
+            let verdict = if c.ratio > 1.5 {
+                format!(
+                    ": the errors are {:.1} × the standard deviations (errors the pairs share, as of the orientations or the sweep's sub-step bias, are not in them)",
+                    c.ratio
+                )
+            } else {
+                String::new()
+            };
+            println!(
+                "  against {what}: RMSE {:.2} m, RMS σ {:.2} m, {:.0} % within 2σ over {}{verdict}",
+                c.rmse_m, c.rms_sigma_m, c.within_2_sigma_percent, c.points
+            );
+        }
+    }
+    println!(
+        "written to {}: dem.tif, quality.tif (σ, correlation), ortho.tif, points.ply, points.las, hillshade.png, quality.png{}, report.json",
+        out.display(),
+        if r.comparison.is_some() { ", error.png" } else { "" }
+    );
     Ok(0)
 }
 

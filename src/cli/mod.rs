@@ -41,14 +41,14 @@ pub struct Cli {
 
 #[derive(Debug, Subcommand)]
 pub enum Command {
-    /// The whole chain on the built-in simulator: calibrate, orient and scan two overlapping
+    /// The whole chain on the built-in simulator: calibrate, orient and scan three overlapping
     /// photos, compute their elevation model, compare it with the true DEM.
     ///
     /// Example:
     ///   rig demo --out demo
     ///
     /// Every step is a real `rig` command, printed before it runs; everything lands in --out
-    /// (sessions/, scan-photo-1/, scan-photo-2/, project.toml, dtm/, report.json).
+    /// (sessions/, scan-photo-1/ … scan-photo-3/, project.toml, dtm/, report.json).
     /// Exit codes: 0 done; 2 bad usage; 1 a step failed (the message says which).
     #[command(verbatim_doc_comment)]
     Demo(demo_cmd::DemoArgs),
@@ -144,9 +144,15 @@ pub enum Command {
     /// grey images with their cameras and orientations (or resected from control points, or
     /// the rig's scans), the ground CRS, points and the DEM: every overlapping pair is swept
     /// and the heights merged. A format-1 project (a scanned pair: `rig sim scene` writes one)
-    /// runs seed 000's method. Outputs in DIR: dem.tif (Deflate float32 GeoTIFF in the
-    /// project's CRS, nodata −9999), points.ply, hillshade.png, error.png (with a reference),
-    /// report.json; each written whole or not at all, so a killed run can be run again.
+    /// runs seed 000's method. Outputs in DIR, each written whole or not at all (a killed run
+    /// can be run again):
+    ///   dem.tif      heights, Deflate float32 GeoTIFF in the project's CRS, nodata −9999
+    ///   quality.tif  band 1 each height's standard deviation (m), band 2 its correlation
+    ///   ortho.tif    orthophoto on the DEM grid (grey values of the most nadir photo)
+    ///   points.ply   matched points (x, y, z, correlation, σ_z; CRS in a comment)
+    ///   points.las   the same as LAS 1.2 with the CRS's GeoTIFF keys
+    ///   hillshade.png, quality.png, error.png (with a reference): maps ≥ 800 px wide
+    ///   report.json  what was done and found, with how far the σ agree with true errors
     ///
     /// Example:
     ///   rig sim scene --out scene && rig dtm scene/project.toml --out dtm

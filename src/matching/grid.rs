@@ -3,6 +3,7 @@
 //! reached are nodata. And the comparison with a reference model in the figures of seed 000
 //! Table 5: largest positive and negative difference, mean, mean absolute, RMSE.
 
+use super::point::MatchedPoint;
 use crate::coords::GroundM;
 use serde::{Deserialize, Serialize};
 
@@ -18,6 +19,16 @@ pub struct ElevationGrid {
     /// Row-major from the north-west; NaN = nodata.
     #[serde(skip)]
     pub z: Vec<f32>,
+}
+
+/// How well each node's height is known, on the grid's nodes (NaN where it has none).
+#[derive(Debug, Clone, PartialEq)]
+pub struct NodeQuality {
+    /// Root mean square of the standard deviations of the node's points, m: not divided by
+    /// their number, for neighbouring matches share most of their windows and their errors.
+    pub sigma_m: Vec<f32>,
+    /// Mean correlation of the node's points.
+    pub corr: Vec<f32>,
 }
 
 /// Seed 000 Table 5.
@@ -46,8 +57,11 @@ pub enum GridError {
     },
 }
 
-/// Bytes a grid node takes while it is made (the heights, and the sums and counts of `fill`).
-pub const BYTES_PER_NODE: f64 = 4.0 + 8.0 + 4.0;
+/// Bytes a grid node takes while it and its products are made: the heights, the sums and
+/// counts of `fill` (12) and of `quality` (24), its σ and correlation (8), the pairs' variance
+/// factor (one comparison per pair of pairs, 8 each for up to 3), the orthophoto and the
+/// differences from a reference (8).
+pub const BYTES_PER_NODE: f64 = 4.0 + 12.0 + 24.0 + 8.0 + 24.0 + 8.0;
 
 impl ElevationGrid {
     /// An empty grid covering `[x_min, y_min, x_max, y_max]` with nodes on multiples of
@@ -143,6 +157,42 @@ impl ElevationGrid {
                     0.5 * (v[n / 2 - 1] + v[n / 2])
                 }
             };
+        }
+    }
+
+    /// The standard deviation and correlation of each node that has a height, from the points
+    /// that fall nearest it (those [`ElevationGrid::fill`] and `fill_median` used).
+    pub fn quality(&self, pts: &[MatchedPoint]) -> NodeQuality {
+        let n = self.z.len();
+        let (mut ss, mut ns) = (vec![0.0f64; n], vec![0u32; n]);
+        let (mut sc, mut nc) = (vec![0.0f64; n], vec![0u32; n]);
+        for p in pts {
+            let c = ((p.ground.x - self.x0) / self.cell_m).round();
+            let r = ((self.y0 - p.ground.y) / self.cell_m).round();
+            let inside = c >= 0.0 && r >= 0.0 && c < self.cols as f64 && r < self.rows as f64;
+            if !inside || !p.ground.z.is_finite() {
+                continue;
+            }
+            let i = r as usize * self.cols + c as usize;
+            if p.sigma_m.is_finite() {
+                ss[i] += (p.sigma_m as f64).powi(2);
+                ns[i] += 1;
+            }
+            if p.corr.is_finite() {
+                sc[i] += p.corr as f64;
+                nc[i] += 1;
+            }
+        }
+        let at = |i: usize, sum: f64, k: u32, f: fn(f64) -> f64| {
+            if self.z[i].is_finite() && k > 0 {
+                f(sum / k as f64) as f32
+            } else {
+                f32::NAN
+            }
+        };
+        NodeQuality {
+            sigma_m: (0..n).map(|i| at(i, ss[i], ns[i], f64::sqrt)).collect(),
+            corr: (0..n).map(|i| at(i, sc[i], nc[i], |v| v)).collect(),
         }
     }
 

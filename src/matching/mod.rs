@@ -5,11 +5,16 @@ pub mod pmf;
 pub mod pmf_set;
 
 pub use pmf_set::{PmfSet, StereoPoint};
+pub use point::MatchedPoint;
 pub mod grid;
+pub mod maps;
+pub mod ortho;
 pub mod output;
 pub mod pipeline;
 pub mod pipeline2;
 pub mod pmf_dtm;
+pub mod point;
+pub mod precision;
 pub mod project;
 pub mod project2;
 pub mod regions;

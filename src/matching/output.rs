@@ -2,13 +2,13 @@
 //! `gdalinfo` and GIS tools read), the matched points as a binary PLY, and PNG pictures for a
 //! person — a hillshade of the model and a map of its differences from a reference.
 
-use super::grid::ElevationGrid;
-use crate::coords::GroundM;
+use super::grid::{ElevationGrid, NodeQuality};
+use super::MatchedPoint;
 use crate::geometry::Crs;
 use std::io::Write;
 use std::path::Path;
 use tiff::encoder::{colortype, Compression, DeflateLevel, TiffEncoder};
-use tiff::tags::Tag;
+use tiff::tags::{PhotometricInterpretation, SampleFormat, Tag};
 
 /// The value written for nodata nodes (and named in the GDAL_NODATA tag).
 pub const NODATA: f32 = -9999.0;
@@ -17,54 +17,148 @@ fn other<E: std::fmt::Display>(path: &Path) -> impl Fn(E) -> std::io::Error + '_
     move |e| std::io::Error::other(format!("{}: {e}", path.display()))
 }
 
-/// Writes `grid` as a Deflate-compressed float32 GeoTIFF: pixel-is-area, the model's tie
-/// point at the north-west node's cell corner, square cells, in `crs` (an EPSG projected
-/// system, or a user-defined one in metres for `local`). Atomic (temporary file, rename).
-pub fn write_geotiff(path: &Path, grid: &ElevationGrid, crs: Crs) -> std::io::Result<()> {
+/// Two float32 bands per pixel (GDAL's layout for a multi-band raster: minimum-is-black, the
+/// second sample "unspecified" extra).
+struct TwoBands32Float;
+impl colortype::ColorType for TwoBands32Float {
+    type Inner = f32;
+    const TIFF_VALUE: PhotometricInterpretation = PhotometricInterpretation::BlackIsZero;
+    const BITS_PER_SAMPLE: &'static [u16] = &[32, 32];
+    const SAMPLE_FORMAT: &'static [SampleFormat] = &[SampleFormat::IEEEFP, SampleFormat::IEEEFP];
+    fn horizontal_predict(row: &[f32], result: &mut Vec<f32>) {
+        // Only called with a predictor, which is never set here: samples unchanged.
+        result.extend_from_slice(row);
+    }
+}
+
+/// Writes `data` (row-major, `bands.len()` samples per node, NaN = nodata) on `grid`'s nodes
+/// as a Deflate-compressed float32 GeoTIFF: pixel-is-area, the tie point at the north-west
+/// node's cell corner, square cells, in `crs` (an EPSG projected system, or a user-defined one
+/// in metres for `local`), each band's description in GDAL's metadata. Atomic.
+fn write_raster(
+    path: &Path,
+    grid: &ElevationGrid,
+    crs: Crs,
+    data: &[f32],
+    bands: &[&str],
+) -> std::io::Result<()> {
+    if data.len() != grid.cols * grid.rows * bands.len() || !(1..=2).contains(&bands.len()) {
+        return Err(std::io::Error::other(format!(
+            "{}: {} values for {} × {} nodes and {} bands",
+            path.display(),
+            data.len(),
+            grid.cols,
+            grid.rows,
+            bands.len()
+        )));
+    }
+    let data: Vec<f32> = data
+        .iter()
+        .map(|&v| if v.is_finite() { v } else { NODATA })
+        .collect();
     crate::atomic::write_with(path, |w| {
         let mut enc = TiffEncoder::new(w)
             .map_err(other(path))?
             .with_compression(Compression::Deflate(DeflateLevel::Balanced));
-        let mut img = enc
-            .new_image::<colortype::Gray32Float>(grid.cols as u32, grid.rows as u32)
+        let (cols, rows) = (grid.cols as u32, grid.rows as u32);
+        let tags = |e: &mut tiff::encoder::DirectoryEncoder<'_, _, _>| -> std::io::Result<()> {
+            let half = 0.5 * grid.cell_m;
+            e.write_tag(
+                Tag::ModelPixelScaleTag,
+                &[grid.cell_m, grid.cell_m, 0.0][..],
+            )
             .map_err(other(path))?;
-        let e = img.encoder();
-        let half = 0.5 * grid.cell_m;
-        e.write_tag(
-            Tag::ModelPixelScaleTag,
-            &[grid.cell_m, grid.cell_m, 0.0][..],
-        )
-        .map_err(other(path))?;
-        e.write_tag(
-            Tag::ModelTiepointTag,
-            &[0.0, 0.0, 0.0, grid.x0 - half, grid.y0 + half, 0.0][..],
-        )
-        .map_err(other(path))?;
-        // GeoKeyDirectory: version 1.1.0, 4 keys: model type projected (1024 = 1), raster
-        // type pixel-is-area (1025 = 1), projected CRS (3072: the EPSG code, or 32767 for
-        // user-defined), linear units metre (3076 = 9001).
-        let code = match crs {
-            Crs::Epsg(c) => c,
-            Crs::Local => 32767,
+            e.write_tag(
+                Tag::ModelTiepointTag,
+                &[0.0, 0.0, 0.0, grid.x0 - half, grid.y0 + half, 0.0][..],
+            )
+            .map_err(other(path))?;
+            // GeoKeyDirectory: version 1.1.0, 4 keys: model type projected (1024 = 1), raster
+            // type pixel-is-area (1025 = 1), projected CRS (3072: the EPSG code, or 32767 for
+            // user-defined), linear units metre (3076 = 9001).
+            let code = match crs {
+                Crs::Epsg(c) => c,
+                Crs::Local => 32767,
+            };
+            let keys: [u16; 20] = [
+                1, 1, 0, 4, //
+                1024, 0, 1, 1, //
+                1025, 0, 1, 1, //
+                3072, 0, 1, code, //
+                3076, 0, 1, 9001,
+            ];
+            e.write_tag(Tag::GeoKeyDirectoryTag, &keys[..])
+                .map_err(other(path))?;
+            e.write_tag(Tag::GdalNodata, &*format!("{NODATA}"))
+                .map_err(other(path))?;
+            let mut meta = String::from("<GDALMetadata>");
+            for (i, b) in bands.iter().enumerate() {
+                meta += &format!(
+                    "<Item name=\"DESCRIPTION\" sample=\"{i}\" role=\"description\">{b}</Item>"
+                );
+            }
+            meta += "</GDALMetadata>";
+            e.write_tag(Tag::Unknown(GDAL_METADATA), &*meta)
+                .map_err(other(path))
         };
-        let keys: [u16; 20] = [
-            1, 1, 0, 4, //
-            1024, 0, 1, 1, //
-            1025, 0, 1, 1, //
-            3072, 0, 1, code, //
-            3076, 0, 1, 9001,
-        ];
-        e.write_tag(Tag::GeoKeyDirectoryTag, &keys[..])
-            .map_err(other(path))?;
-        e.write_tag(Tag::GdalNodata, &*format!("{NODATA}"))
-            .map_err(other(path))?;
-        let data: Vec<f32> = grid
-            .z
-            .iter()
-            .map(|&v| if v.is_finite() { v } else { NODATA })
-            .collect();
-        img.write_data(&data).map_err(other(path))
+        if bands.len() == 1 {
+            let mut img = enc
+                .new_image::<colortype::Gray32Float>(cols, rows)
+                .map_err(other(path))?;
+            tags(img.encoder())?;
+            img.write_data(&data).map_err(other(path))
+        } else {
+            let mut img = enc
+                .new_image::<TwoBands32Float>(cols, rows)
+                .map_err(other(path))?;
+            tags(img.encoder())?;
+            img.encoder()
+                .write_tag(Tag::ExtraSamples, &[0u16][..])
+                .map_err(other(path))?;
+            img.write_data(&data).map_err(other(path))
+        }
     })
+}
+
+/// GDAL's TIFF tag for its XML metadata (band descriptions).
+const GDAL_METADATA: u16 = 42112;
+
+/// Writes the elevation model: one float32 band of heights, m.
+pub fn write_geotiff(path: &Path, grid: &ElevationGrid, crs: Crs) -> std::io::Result<()> {
+    write_raster(path, grid, crs, &grid.z, &["height (m)"])
+}
+
+/// Writes the model's quality on its grid: band 1 the standard deviation of each node's height
+/// (m), band 2 the correlation of its matches.
+pub fn write_quality(
+    path: &Path,
+    grid: &ElevationGrid,
+    crs: Crs,
+    quality: &NodeQuality,
+) -> std::io::Result<()> {
+    let data: Vec<f32> = quality
+        .sigma_m
+        .iter()
+        .zip(&quality.corr)
+        .flat_map(|(&s, &c)| [s, c])
+        .collect();
+    write_raster(
+        path,
+        grid,
+        crs,
+        &data,
+        &["height standard deviation (m)", "correlation"],
+    )
+}
+
+/// Writes an orthophoto on the model's grid: one float32 band of grey values.
+pub fn write_ortho(
+    path: &Path,
+    grid: &ElevationGrid,
+    crs: Crs,
+    grey: &[f32],
+) -> std::io::Result<()> {
+    write_raster(path, grid, crs, grey, &["grey value"])
 }
 
 /// Reads a single-band GeoTIFF elevation model (8/16/32-bit integers or 32/64-bit floats, as
@@ -148,91 +242,79 @@ pub fn read_geotiff(path: &Path) -> std::io::Result<ElevationGrid> {
     })
 }
 
-/// Binary little-endian PLY of points (x, y, z as doubles, then the matching correlation).
-pub fn write_ply(path: &Path, pts: &[(GroundM, f32)]) -> std::io::Result<()> {
+/// Binary little-endian PLY of the matched points: x, y, z (doubles, m, in `crs`, named in a
+/// header comment), the correlation and the height's standard deviation (m).
+pub fn write_ply(path: &Path, pts: &[MatchedPoint], crs: Crs) -> std::io::Result<()> {
     crate::atomic::write_with(path, |w| {
         write!(
             w,
-            "ply\nformat binary_little_endian 1.0\ncomment rig matched points, ground metres\nelement vertex {}\nproperty double x\nproperty double y\nproperty double z\nproperty float quality\nend_header\n",
+            "ply\nformat binary_little_endian 1.0\ncomment rig matched points, ground metres\ncomment crs {crs}\nelement vertex {}\nproperty double x\nproperty double y\nproperty double z\nproperty float quality\nproperty float sigma_z\nend_header\n",
             pts.len()
         )?;
-        for (p, q) in pts {
-            w.write_all(&p.x.to_le_bytes())?;
-            w.write_all(&p.y.to_le_bytes())?;
-            w.write_all(&p.z.to_le_bytes())?;
-            w.write_all(&q.to_le_bytes())?;
+        for p in pts {
+            w.write_all(&p.ground.x.to_le_bytes())?;
+            w.write_all(&p.ground.y.to_le_bytes())?;
+            w.write_all(&p.ground.z.to_le_bytes())?;
+            w.write_all(&p.corr.to_le_bytes())?;
+            w.write_all(&p.sigma_m.to_le_bytes())?;
         }
         Ok(())
     })
 }
 
-fn save_rgb(path: &Path, w: usize, h: usize, rgb: Vec<u8>) -> std::io::Result<()> {
-    crate::atomic::write_with(path, |f| {
-        image::write_buffer_with_format(
-            f,
-            &rgb,
-            w as u32,
-            h as u32,
-            image::ExtendedColorType::Rgb8,
-            image::ImageFormat::Png,
-        )
-        .map_err(other(path))
-    })
-}
-
-/// Hillshade (sun from the north-west, 45° up) of the grid; nodata in pale blue.
-pub fn write_hillshade(path: &Path, g: &ElevationGrid) -> std::io::Result<()> {
-    let at = |c: i64, r: i64| -> Option<f64> {
-        if c < 0 || r < 0 || c >= g.cols as i64 || r >= g.rows as i64 {
-            return None;
-        }
-        let v = g.z[r as usize * g.cols + c as usize];
-        v.is_finite().then_some(v as f64)
+/// The matched points as LAS 1.2, point format 0, millimetre resolution, with the CRS as the
+/// GeoTIFF keys of a LASF_Projection record (34735) as the LAS specification has it for these
+/// point formats (`local`: no record); intensity = correlation × 65535 (negative as 0).
+pub fn write_las(path: &Path, pts: &[MatchedPoint], crs: Crs) -> std::io::Result<()> {
+    let las_err = |e: las::Error| std::io::Error::other(format!("{}: {e}", path.display()));
+    let mut b = las::Builder::from((1, 2));
+    b.generating_software = "rig".into();
+    let first = pts
+        .first()
+        .map_or([0.0; 3], |p| [p.ground.x, p.ground.y, p.ground.z]);
+    // Offsets at whole kilometres near the data: coordinates as i32 millimetres stay in range.
+    let t = |o: f64| las::Transform {
+        scale: 0.001,
+        offset: (o / 1000.0).round() * 1000.0,
     };
-    let s = [-0.5f64, 0.5, std::f64::consts::FRAC_1_SQRT_2];
-    let mut rgb = Vec::with_capacity(g.cols * g.rows * 3);
-    for r in 0..g.rows as i64 {
-        for c in 0..g.cols as i64 {
-            let v = match (at(c - 1, r), at(c + 1, r), at(c, r - 1), at(c, r + 1)) {
-                (Some(w), Some(e), Some(n), Some(so)) => {
-                    let gx = (e - w) / (2.0 * g.cell_m);
-                    let gy = (n - so) / (2.0 * g.cell_m);
-                    let l = (-gx * s[0] - gy * s[1] + s[2]) / (gx * gx + gy * gy + 1.0).sqrt();
-                    let k = (40.0 + 215.0 * l.clamp(0.0, 1.0)) as u8;
-                    [k, k, k]
-                }
-                _ => [200, 215, 235],
-            };
-            rgb.extend_from_slice(&v);
+    b.transforms = las::Vector {
+        x: t(first[0]),
+        y: t(first[1]),
+        z: t(first[2]),
+    };
+    if let Crs::Epsg(code) = crs {
+        // Version 1.1.0, 3 keys: projected model (1024 = 1), pixel-is-area (1025 = 1),
+        // the projected CRS (3072 = code); little-endian shorts as the record holds them.
+        let keys: [u16; 16] = [1, 1, 0, 3, 1024, 0, 1, 1, 1025, 0, 1, 1, 3072, 0, 1, code];
+        b.vlrs.push(las::Vlr {
+            user_id: "LASF_Projection".into(),
+            record_id: 34735,
+            description: "GeoKeyDirectoryTag".into(),
+            data: keys.iter().flat_map(|k| k.to_le_bytes()).collect(),
+        });
+    }
+    let header = b.into_header().map_err(las_err)?;
+    let mut w = las::Writer::new(std::io::Cursor::new(Vec::new()), header).map_err(las_err)?;
+    for p in pts {
+        let out_of_range = [p.ground.x, p.ground.y, p.ground.z]
+            .iter()
+            .zip([first[0], first[1], first[2]])
+            .any(|(v, o)| !v.is_finite() || (v - o).abs() > 2.0e6);
+        if out_of_range {
+            // Not representable at a millimetre from the offset (±2 147 km): left out.
+            continue;
         }
+        w.write_point(las::Point {
+            x: p.ground.x,
+            y: p.ground.y,
+            z: p.ground.z,
+            intensity: (p.corr.clamp(0.0, 1.0) * 65535.0) as u16,
+            ..Default::default()
+        })
+        .map_err(las_err)?;
     }
-    save_rgb(path, g.cols, g.rows, rgb)
-}
-
-/// The differences (model − reference) in colour: blue below, red above, white near zero,
-/// full colour at ±`span_m`; grey where there is no height.
-pub fn write_error_map(
-    path: &Path,
-    g: &ElevationGrid,
-    diff: &[f32],
-    span_m: f64,
-) -> std::io::Result<()> {
-    let mut rgb = Vec::with_capacity(g.cols * g.rows * 3);
-    for &d in diff {
-        let v = if d.is_finite() {
-            let t = (d as f64 / span_m).clamp(-1.0, 1.0);
-            let k = (255.0 * (1.0 - t.abs())) as u8;
-            if t >= 0.0 {
-                [255, k, k]
-            } else {
-                [k, k, 255]
-            }
-        } else {
-            [150, 150, 150]
-        };
-        rgb.extend_from_slice(&v);
-    }
-    save_rgb(path, g.cols, g.rows, rgb)
+    let bytes = w.into_inner().map_err(las_err)?.into_inner();
+    crate::atomic::write(path, &bytes)
 }
 
 #[cfg(test)]

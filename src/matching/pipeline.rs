@@ -5,14 +5,18 @@
 //! whoever made them — the rig's scans or anyone's — hands them over as [`Photo`]s.
 
 use super::grid::{Comparison, ElevationGrid};
-use super::output::{read_geotiff, write_error_map, write_geotiff, write_hillshade, write_ply};
+use super::maps::{write_error_map, write_hillshade, write_sigma_map};
+use super::ortho::{orthophoto, View};
+use super::output::{
+    read_geotiff, write_geotiff, write_las, write_ortho, write_ply, write_quality,
+};
 use super::pmf::PmfError;
 use super::pmf_dtm::{pmf_dtm, Budget, DtmError, PmfDtm, PmfDtmParams, PmfDtmReport};
 use super::pmf_set::FitReport;
 use super::project::{PmfSource, Project, ProjectError};
 use super::regions::RegionParams;
 use super::sweep::SweepParams;
-use super::{PmfSet, StereoPoint};
+use super::{MatchedPoint, PmfSet, StereoPoint};
 use crate::coords::{GroundM, PixelXY};
 use crate::geometry::Crs;
 use crate::geometry::{
@@ -80,9 +84,13 @@ pub struct RunReport {
 }
 
 /// The files a run writes into its directory (and their temporary `.part` names meanwhile).
-pub const OUTPUTS: [&str; 6] = [
+pub const OUTPUTS: [&str; 10] = [
     "dem.tif",
+    "quality.tif",
+    "quality.png",
+    "ortho.tif",
     "points.ply",
+    "points.las",
     "hillshade.png",
     "error.png",
     "report.json",
@@ -258,10 +266,29 @@ pub fn run(
         dir: out.to_path_buf(),
         cause: source,
     };
+    let to_left = |g: GroundM| {
+        let q = pmfs.ground_to_left.eval([g.x, g.y, g.z]);
+        Some(PixelXY::new(q[0], q[1]))
+    };
+    let to_right = |g: GroundM| {
+        let q = pmfs.ground_to_right.eval([g.x, g.y, g.z]);
+        Some(PixelXY::new(q[0], q[1]))
+    };
+    let views = [
+        View {
+            image: &photos[0].image,
+            project: &to_left,
+        },
+        View {
+            image: &photos[1].image,
+            project: &to_right,
+        },
+    ];
     write_outputs(
         out,
         &r.grid,
         &r.points,
+        &views,
         reference.as_ref().zip(r.report.comparison.as_ref()),
         p.crs,
         &report,
@@ -271,25 +298,50 @@ pub fn run(
     Ok((r, report))
 }
 
-/// The files every run leaves in `out`: the model in `crs`, its points, the hillshade, the
-/// error map against the reference (removed when there is none, so that a rerun leaves no old
-/// one) and the report. Each written whole or not at all.
+/// The files every run leaves in `out`: the model in `crs` with its quality and the
+/// orthophoto from `views`, its points (PLY and LAS), the hillshade, the error map against the
+/// reference (removed when there is none, so that a rerun leaves no old one) and the report.
+/// Each written whole or not at all.
 pub(crate) fn write_outputs(
     out: &Path,
     grid: &ElevationGrid,
-    points: &[(GroundM, f32)],
+    points: &[MatchedPoint],
+    views: &[View<'_>],
     reference: Option<(&ElevationGrid, &Comparison)>,
     crs: Crs,
     report: &impl Serialize,
 ) -> std::io::Result<()> {
     std::fs::create_dir_all(out)?;
     write_geotiff(&out.join("dem.tif"), grid, crs)?;
-    write_ply(&out.join("points.ply"), points)?;
-    write_hillshade(&out.join("hillshade.png"), grid)?;
+    let quality = grid.quality(points);
+    write_quality(&out.join("quality.tif"), grid, crs, &quality)?;
+    let sig: Vec<f32> = quality
+        .sigma_m
+        .iter()
+        .copied()
+        .filter(|v| v.is_finite())
+        .collect();
+    let rms =
+        (sig.iter().map(|&v| (v as f64).powi(2)).sum::<f64>() / sig.len().max(1) as f64).sqrt();
+    write_sigma_map(
+        &out.join("quality.png"),
+        grid,
+        &quality.sigma_m,
+        &format!("{crs}, RMS {rms:.2} m over {} nodes", sig.len()),
+    )?;
+    write_ortho(&out.join("ortho.tif"), grid, crs, &orthophoto(grid, views))?;
+    write_ply(&out.join("points.ply"), points, crs)?;
+    write_las(&out.join("points.las"), points, crs)?;
+    write_hillshade(&out.join("hillshade.png"), grid, crs)?;
     match reference {
         Some((g, c)) => {
             let d = grid.differences(|x, y| g.interpolate(x, y));
-            write_error_map(&out.join("error.png"), grid, &d, (3.0 * c.rmse_m).max(1.0))?;
+            let summary = format!(
+                "RMSE {:.2} m, mean {:+.2} m, over {} nodes",
+                c.rmse_m, c.mean_m, c.nodes
+            );
+            let span = crate::picture::nice((3.0 * c.rmse_m).max(0.1)) * 2.0;
+            write_error_map(&out.join("error.png"), grid, &d, span, &summary)?;
         }
         None => {
             let _ = std::fs::remove_file(out.join("error.png"));

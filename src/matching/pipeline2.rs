@@ -4,14 +4,16 @@
 //! and the heights of all pairs are merged into one grid in the project's CRS.
 
 use super::grid::{Comparison, ElevationGrid};
+use super::ortho::View;
 use super::output::read_geotiff;
 use super::pipeline::{Photo, PipelineError};
 use super::pmf_dtm::{pmf_dtm, Budget, DtmError, PmfDtmParams, PmfDtmReport};
 use super::pmf_set::FitReport;
+use super::precision::{check_sigma, variance_factor, SigmaCheck, VarianceFactor};
 use super::project2::{Kind, Observation, Project2, Project2Error, Source};
 use super::regions::RegionParams;
 use super::sweep::SweepParams;
-use super::PmfSet;
+use super::{MatchedPoint, PmfSet};
 use crate::coords::{GroundM, PixelXY};
 use crate::geometry::{
     resect, Crs, FrameCamera, FrameSensor, Interior, PhotoGrid, PixelToPhoto, Resection,
@@ -81,7 +83,14 @@ pub struct Report2 {
     pub points: usize,
     pub grid: ElevationGrid,
     pub grid_filled: usize,
+    /// The scale applied to the matching's standard deviations (from the pairs' redundancy);
+    /// `None` where no node was seen by two pairs often enough to estimate it.
+    pub variance_factor: Option<VarianceFactor>,
     pub comparison: Option<Comparison>,
+    /// The model's heights at the check points against theirs, with quality.tif's σ there.
+    pub check_points: Option<SigmaCheck>,
+    /// quality.tif's σ against the reference model's differences, node by node.
+    pub sigma_vs_reference: Option<SigmaCheck>,
 }
 
 /// The grid of a plain image with square pixels of `pixel_mm`, its centre on the photo
@@ -281,7 +290,7 @@ pub fn run(
         max_candidates: p.limits.max_candidates_g * 1e9,
     };
     let m = &p.matching;
-    let mut all = Vec::new();
+    let mut per_pair = Vec::new();
     let mut reports = Vec::new();
     for (i, j) in pairs {
         let (l, r) = (&sensors[i], &sensors[j]);
@@ -333,11 +342,23 @@ pub fn run(
             dtm: d.report,
             points: d.points.len(),
         });
-        all.extend(d.points);
+        per_pair.push(d.points);
     }
     let mut grid = ElevationGrid::covering(extent, p.cell_m, budget.max_memory_mb)
         .map_err(|e| Pipeline2Error::Grid(e.to_string()))?;
-    let pts: Vec<GroundM> = all.iter().map(|(g, _)| *g).collect();
+    // The matchers' standard deviations scaled by what the pairs' disagreement shows.
+    let refs: Vec<&[MatchedPoint]> = per_pair.iter().map(|v| v.as_slice()).collect();
+    let factor = variance_factor(&grid, &refs);
+    let s0 = factor.map_or(1.0, |f| f.s0) as f32;
+    let all: Vec<MatchedPoint> = per_pair
+        .into_iter()
+        .flatten()
+        .map(|p| MatchedPoint {
+            sigma_m: p.sigma_m * s0,
+            ..p
+        })
+        .collect();
+    let pts: Vec<GroundM> = all.iter().map(|p| p.ground).collect();
     grid.fill_median(&pts);
     let reference = match &p.reference {
         Some(r) => Some(read_geotiff(r).map_err(|source| PipelineError::Reference {
@@ -349,6 +370,34 @@ pub fn run(
     let comparison = reference
         .as_ref()
         .map(|g| grid.compare(|x, y| g.interpolate(x, y)));
+    let quality = grid.quality(&all);
+    let sigma_vs_reference = reference.as_ref().and_then(|g| {
+        let d = grid.differences(|x, y| g.interpolate(x, y));
+        check_sigma(
+            d.iter()
+                .zip(&quality.sigma_m)
+                .map(|(&e, &s)| (e as f64, s as f64)),
+        )
+    });
+    // One line per observation: each check point once.
+    let mut seen = std::collections::HashSet::new();
+    let cps = obs
+        .iter()
+        .filter(|o| o.kind == Kind::Cp && seen.insert(o.id.as_str()));
+    let check_points = check_sigma(cps.filter_map(|o| {
+        let g = o.ground?;
+        let (c, r) = (
+            ((g.x - grid.x0) / grid.cell_m).round(),
+            ((grid.y0 - g.y) / grid.cell_m).round(),
+        );
+        let inside = c >= 0.0 && r >= 0.0 && c < grid.cols as f64 && r < grid.rows as f64;
+        let s = if inside {
+            quality.sigma_m[r as usize * grid.cols + c as usize] as f64
+        } else {
+            f64::NAN
+        };
+        Some((grid.interpolate(g.x, g.y) - g.z, s))
+    }));
     let write = |source| PipelineError::Write {
         dir: out.to_path_buf(),
         cause: source,
@@ -362,13 +411,29 @@ pub fn run(
         pairs: reports,
         points: all.len(),
         grid_filled: grid.filled(),
+        variance_factor: factor,
+        check_points,
+        sigma_vs_reference,
         grid,
         comparison,
     };
+    let projections: Vec<_> = sensors
+        .iter()
+        .map(|s| move |g: GroundM| s.ground_to_image(g))
+        .collect();
+    let views: Vec<View> = photos
+        .iter()
+        .zip(&projections)
+        .map(|(ph, f)| View {
+            image: &ph.image,
+            project: f,
+        })
+        .collect();
     super::pipeline::write_outputs(
         out,
         &report.grid,
         &all,
+        &views,
         reference.as_ref().zip(report.comparison.as_ref()),
         p.crs,
         &report,

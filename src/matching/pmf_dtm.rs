@@ -4,6 +4,7 @@
 
 use super::grid::{Comparison, ElevationGrid, GridError};
 use super::pmf_set::PmfSet;
+use super::point::MatchedPoint;
 use super::regions::{remove_wrong_heights, RegionParams, RegionStats};
 use super::sweep::{sweep, HeightMap, SweepParams};
 use crate::coords::GroundM;
@@ -102,7 +103,7 @@ pub struct PmfDtmReport {
 
 pub struct PmfDtm {
     pub heights: HeightMap,
-    pub points: Vec<(GroundM, f32)>,
+    pub points: Vec<MatchedPoint>,
     pub grid: ElevationGrid,
     pub report: PmfDtmReport,
 }
@@ -142,12 +143,16 @@ pub fn pmf_dtm(
             let g = pmfs.left_to_ground.eval([px[0], px[1], h as f64]);
             // A mapping that is not a number here (a degenerate fit) gives no point.
             if g.iter().all(|v| v.is_finite()) {
-                points.push((GroundM::new(g[0], g[1], h as f64), heights.corr[k]));
+                points.push(MatchedPoint {
+                    ground: GroundM::new(g[0], g[1], h as f64),
+                    corr: heights.corr[k],
+                    sigma_m: heights.sigma[k],
+                });
             }
         }
     }
     let (mut lo, mut hi) = ([f64::MAX; 2], [f64::MIN; 2]);
-    for (g, _) in &points {
+    for MatchedPoint { ground: g, .. } in &points {
         lo = [lo[0].min(g.x), lo[1].min(g.y)];
         hi = [hi[0].max(g.x), hi[1].max(g.y)];
     }
@@ -156,7 +161,7 @@ pub fn pmf_dtm(
     } else {
         ElevationGrid::covering([lo[0], lo[1], hi[0], hi[1]], p.cell_m, budget.max_memory_mb)?
     };
-    let pts: Vec<GroundM> = points.iter().map(|(g, _)| *g).collect();
+    let pts: Vec<GroundM> = points.iter().map(|p| p.ground).collect();
     grid.fill(&pts);
     let comparison = reference.map(|f| grid.compare(f));
     let rmse_permille = match (&comparison, flying_height_m) {

@@ -153,6 +153,7 @@ mod tests {
             stride: 1,
             h: (0..w * h).map(|i| f(i % w, i / w)).collect(),
             corr: vec![1.0; w * h],
+            sigma: vec![0.1; w * h],
             candidates: 0,
         }
     }

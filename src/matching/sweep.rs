@@ -57,6 +57,9 @@ pub struct HeightMap {
     pub stride: usize,
     pub h: Vec<f32>,
     pub corr: Vec<f32>,
+    /// Standard deviation of each height, m (see [`height_sigma`]); NaN where the peak could
+    /// not be refined.
+    pub sigma: Vec<f32>,
     /// Candidate heights tried in all (for throughput figures).
     pub candidates: u64,
 }
@@ -73,25 +76,6 @@ impl HeightMap {
     pub fn matched(&self) -> usize {
         self.h.iter().filter(|v| v.is_finite()).count()
     }
-}
-
-/// Bilinear value at continuous coordinates (pixel centres at +0.5); `None` outside.
-#[inline]
-fn bilinear(img: &ImageF32, x: f64, y: f64) -> Option<f32> {
-    let (u, v) = (x - 0.5, y - 0.5);
-    if u < 0.0 || v < 0.0 {
-        return None;
-    }
-    let (i, j) = (u as usize, v as usize);
-    if i + 1 >= img.width || j + 1 >= img.height {
-        return None;
-    }
-    let (fx, fy) = ((u - i as f64) as f32, (v - j as f64) as f32);
-    let p = &img.data[j * img.width + i..];
-    let q = &img.data[(j + 1) * img.width + i..];
-    let a = p[0] + fx * (p[1] - p[0]);
-    let b = q[0] + fx * (q[1] - q[0]);
-    Some(a + fy * (b - a))
 }
 
 /// The reference window centred (zero mean) and its norm; `None` if flat.
@@ -116,7 +100,7 @@ fn ncc_at(right: &ImageF32, x: f64, y: f64, k: usize, refw: &[f32], refn: f32) -
     let (mut s, mut ss, mut sr) = (0.0f32, 0.0f32, 0.0f32);
     for dy in 0..w {
         for dx in 0..w {
-            let v = bilinear(right, x + dx as f64 - k as f64, y + dy as f64 - k as f64)?;
+            let v = right.bilinear(x + dx as f64 - k as f64, y + dy as f64 - k as f64)?;
             s += v;
             ss += v * v;
             sr += v * refw[dy * w + dx];
@@ -129,6 +113,20 @@ fn ncc_at(right: &ImageF32, x: f64, y: f64, k: usize, refw: &[f32], refn: f32) -
     }
     // Σ(v − mean)·ref = Σ v·ref, the reference having zero mean.
     Some(sr / (refn * var.sqrt()))
+}
+
+/// The standard deviation of a height from its correlation peak, after Förstner's precision of
+/// matching: σ_p² = σ_n² / Σ g′² over the n window pixels, with the noise-to-signal ratio from
+/// the correlation, σ_n²/σ_g² = (1 − ρ)/ρ, and the gradients' share σ_g′²/σ_g² = |ρ″|/ρ from
+/// the peak's curvature — so σ_h² = (1 − ρ) / (n·|ρ″|), ρ″ the second difference of the
+/// correlation over the height steps divided by the step² (per m²): no pixel-to-metre factor
+/// is needed, the curvature is already measured in height. `None` for a peak with no curvature.
+pub fn height_sigma(rho: f64, second_difference: f64, step_m: f64, n: usize) -> Option<f64> {
+    let curvature = -second_difference / (step_m * step_m);
+    // A correlation of 1 is noise-free only in theory: resampling alone leaves ~1e-3.
+    let rho = rho.min(0.999);
+    (curvature > 0.0 && n > 0 && rho.is_finite())
+        .then(|| ((1.0 - rho) / (n as f64 * curvature)).sqrt())
 }
 
 /// One reference pixel being matched: its window and where the candidates go.
@@ -196,12 +194,14 @@ pub fn sweep(left: &ImageF32, right: &ImageF32, map: &Mapping, p: &SweepParams) 
     let rows = left.height.saturating_sub(2 * k).div_ceil(s);
     let n_steps = ((p.h_max - p.h_min) / p.h_step).floor() as i64;
     const BAND: usize = 16;
-    let bands: Vec<(Vec<f32>, Vec<f32>, u64)> = (0..rows.div_ceil(BAND))
+    #[allow(clippy::type_complexity)]
+    let bands: Vec<(Vec<f32>, Vec<f32>, Vec<f32>, u64)> = (0..rows.div_ceil(BAND))
         .into_par_iter()
         .map(|b| {
             let (j0, j1) = (b * BAND, ((b + 1) * BAND).min(rows));
             let mut h = vec![f32::NAN; (j1 - j0) * cols];
             let mut corr = vec![f32::NAN; (j1 - j0) * cols];
+            let mut sigma = vec![f32::NAN; (j1 - j0) * cols];
             let mut tried = 0u64;
             for j in j0..j1 {
                 for i in 0..cols {
@@ -264,28 +264,31 @@ pub fn sweep(left: &ImageF32, right: &ImageF32, map: &Mapping, p: &SweepParams) 
                         continue;
                     }
                     let mut hv = p.h_min + bi as f64 * p.h_step;
-                    if p.refine {
-                        if let (Some(a), Some(b)) = (below, above) {
-                            let den = a as f64 - 2.0 * bc as f64 + b as f64;
-                            if den < 0.0 {
-                                let t = 0.5 * (a as f64 - b as f64) / den;
-                                hv += t.clamp(-0.5, 0.5) * p.h_step;
-                            }
+                    let mut sd = None;
+                    if let (Some(a), Some(b)) = (below, above) {
+                        let den = a as f64 - 2.0 * bc as f64 + b as f64;
+                        if p.refine && den < 0.0 {
+                            let t = 0.5 * (a as f64 - b as f64) / den;
+                            hv += t.clamp(-0.5, 0.5) * p.h_step;
                         }
+                        sd = height_sigma(bc as f64, den, p.h_step, p.window * p.window);
                     }
                     h[(j - j0) * cols + i] = hv as f32;
                     corr[(j - j0) * cols + i] = bc;
+                    sigma[(j - j0) * cols + i] = sd.map_or(f32::NAN, |v| v as f32);
                 }
             }
-            (h, corr, tried)
+            (h, corr, sigma, tried)
         })
         .collect();
     let mut h = Vec::with_capacity(rows * cols);
     let mut corr = Vec::with_capacity(rows * cols);
+    let mut sigma = Vec::with_capacity(rows * cols);
     let mut candidates = 0;
-    for (bh, bc, t) in bands {
+    for (bh, bc, bs, t) in bands {
         h.extend(bh);
         corr.extend(bc);
+        sigma.extend(bs);
         candidates += t;
     }
     HeightMap {
@@ -296,6 +299,7 @@ pub fn sweep(left: &ImageF32, right: &ImageF32, map: &Mapping, p: &SweepParams) 
         stride: s,
         h,
         corr,
+        sigma,
         candidates,
     }
 }

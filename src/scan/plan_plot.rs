@@ -4,7 +4,7 @@
 
 use super::calibration::ScanCalibration;
 use super::plan::Plan;
-use crate::calibrate::plot::{line, put, text};
+use crate::picture::{line, put, save_png, text, BLACK};
 use image::{Rgb, RgbImage};
 use std::path::Path;
 
@@ -47,6 +47,7 @@ pub fn plan_plot(
             p[1] as i64 + 5,
             &f.id.to_string(),
             2,
+            BLACK,
         );
     }
     let [hx, hy] = plan.tile_half_mm;
@@ -82,8 +83,5 @@ pub fn plan_plot(
             }
         }
     }
-    crate::atomic::write_with(path, |w| {
-        img.write_to(w, image::ImageFormat::Png)
-            .map_err(std::io::Error::other)
-    })
+    save_png(&img, path)
 }

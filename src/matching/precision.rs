@@ -1,0 +1,138 @@
+//! How far to trust the matchers' standard deviations: an a-posteriori variance factor from
+//! the redundancy of several pairs, as an adjustment scales its normal matrix's precision by
+//! σ0. Where two pairs give a height for the same node, their difference has the variance
+//! σ_a² + σ_b² if the standard deviations are right; the factor is what they must be
+//! multiplied by for that to hold (robustly: from the median of the normalised squared
+//! differences, which is 0.455 for a χ² of one degree of freedom).
+
+use super::grid::ElevationGrid;
+use super::point::MatchedPoint;
+use serde::{Deserialize, Serialize};
+
+/// The scale of the standard deviations, and the node comparisons it rests on.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct VarianceFactor {
+    pub s0: f64,
+    /// Node heights compared between two pairs.
+    pub comparisons: usize,
+}
+
+/// The fewest comparisons a factor is estimated from.
+pub const MIN_COMPARISONS: usize = 50;
+
+/// The variance factor from each pair's points on `grid`'s nodes; `None` with fewer than
+/// [`MIN_COMPARISONS`] nodes seen by two pairs (a single pair has no redundancy).
+pub fn variance_factor(grid: &ElevationGrid, pairs: &[&[MatchedPoint]]) -> Option<VarianceFactor> {
+    let per_pair: Vec<(Vec<f32>, Vec<f32>)> = pairs
+        .iter()
+        .map(|pts| {
+            let mut g = grid.clone();
+            let ground: Vec<_> = pts.iter().map(|p| p.ground).collect();
+            g.fill(&ground);
+            let q = g.quality(pts);
+            (g.z, q.sigma_m)
+        })
+        .collect();
+    let mut r = Vec::new();
+    for a in 0..per_pair.len() {
+        for b in a + 1..per_pair.len() {
+            let ((za, sa), (zb, sb)) = (&per_pair[a], &per_pair[b]);
+            for i in 0..grid.z.len() {
+                let v = (sa[i] as f64).powi(2) + (sb[i] as f64).powi(2);
+                let d = za[i] as f64 - zb[i] as f64;
+                if d.is_finite() && v.is_finite() && v > 0.0 {
+                    r.push(d * d / v);
+                }
+            }
+        }
+    }
+    if r.len() < MIN_COMPARISONS {
+        return None;
+    }
+    r.sort_by(f64::total_cmp);
+    let median = r[r.len() / 2];
+    Some(VarianceFactor {
+        s0: (median / 0.454_936).sqrt(),
+        comparisons: r.len(),
+    })
+}
+
+/// Standard deviations against true errors: how far the error bars can be trusted.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct SigmaCheck {
+    pub points: usize,
+    pub rmse_m: f64,
+    pub rms_sigma_m: f64,
+    /// RMSE / RMS σ: 1 when the standard deviations are right, above 1 when too small.
+    pub ratio: f64,
+    /// Share of errors within 2σ, %: 95.4 for right normal errors.
+    pub within_2_sigma_percent: f64,
+}
+
+/// Compares errors with their standard deviations (pairs with a non-finite member skipped).
+pub fn check_sigma(pairs: impl IntoIterator<Item = (f64, f64)>) -> Option<SigmaCheck> {
+    let (mut n, mut ee, mut ss, mut inside) = (0usize, 0.0, 0.0, 0usize);
+    for (e, s) in pairs {
+        if !(e.is_finite() && s.is_finite()) || s <= 0.0 {
+            continue;
+        }
+        n += 1;
+        ee += e * e;
+        ss += s * s;
+        inside += usize::from(e.abs() <= 2.0 * s);
+    }
+    (n > 0).then(|| {
+        let (rmse, rms) = ((ee / n as f64).sqrt(), (ss / n as f64).sqrt());
+        SigmaCheck {
+            points: n,
+            rmse_m: rmse,
+            rms_sigma_m: rms,
+            ratio: rmse / rms,
+            within_2_sigma_percent: 100.0 * inside as f64 / n as f64,
+        }
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::coords::GroundM;
+
+    /// Two pairs whose heights scatter with a known standard deviation 3 times the stated one:
+    /// the factor comes out near 3.
+    #[test]
+    fn the_factor_is_the_ratio_of_true_to_stated_scatter() {
+        let grid = ElevationGrid::covering([0.0, 0.0, 99.0, 99.0], 1.0, 64).unwrap();
+        // A deterministic normal-ish sequence (sum of 12 uniforms − 6).
+        let mut state = 12345u64;
+        let mut gauss = || {
+            let mut s = 0.0;
+            for _ in 0..12 {
+                state = state
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                s += (state >> 11) as f64 / (1u64 << 53) as f64;
+            }
+            s - 6.0
+        };
+        let (stated, truth) = (0.1f32, 0.3);
+        let mut pairs = [Vec::new(), Vec::new()];
+        for r in 0..100 {
+            for c in 0..100 {
+                for p in pairs.iter_mut() {
+                    p.push(MatchedPoint {
+                        ground: GroundM::new(c as f64, r as f64, 500.0 + truth * gauss()),
+                        corr: 0.9,
+                        sigma_m: stated,
+                    });
+                }
+            }
+        }
+        let refs: Vec<&[MatchedPoint]> = pairs.iter().map(|p| p.as_slice()).collect();
+        let f = variance_factor(&grid, &refs).unwrap();
+        assert_eq!(f.comparisons, 10_000);
+        assert!((f.s0 - 3.0).abs() < 0.15, "{f:?}");
+        // One pair: nothing to compare.
+        assert!(variance_factor(&grid, &refs[..1]).is_none());
+    }
+}
