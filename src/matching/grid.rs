@@ -288,9 +288,10 @@ mod tests {
             ElevationGrid::covering([0.0, f64::NAN, 100.0, 100.0], 1.0, 4096),
             Err(GridError::NotFinite { .. })
         ));
-        // At the limit, exactly: 1024 × 1024 nodes of 16 bytes is 16 MiB.
-        assert!(ElevationGrid::covering([0.0, 0.0, 1023.0, 1023.0], 1.0, 16).is_ok());
-        assert!(ElevationGrid::covering([0.0, 0.0, 1024.0, 1023.0], 1.0, 16).is_err());
+        // At the limit, exactly: 1024 × 1024 nodes of 80 bytes is 80 MiB.
+        assert_eq!(BYTES_PER_NODE, 80.0);
+        assert!(ElevationGrid::covering([0.0, 0.0, 1023.0, 1023.0], 1.0, 80).is_ok());
+        assert!(ElevationGrid::covering([0.0, 0.0, 1024.0, 1023.0], 1.0, 80).is_err());
     }
 
     #[test]
