@@ -9,7 +9,7 @@
 use nalgebra::{DMatrix, DVector};
 use serde::Serialize;
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, serde::Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Model {
     Affine6,
@@ -17,7 +17,7 @@ pub enum Model {
 }
 
 /// One point's residual (observed − fitted, in the target system's units) and its test.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, serde::Deserialize)]
 pub struct Residual {
     pub id: String,
     pub from: [f64; 2],
@@ -29,7 +29,7 @@ pub struct Residual {
     pub rejected: bool,
 }
 
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, serde::Deserialize)]
 pub struct Fit {
     pub model: Model,
     /// a0, a1, a2, b0, b1, b2 (a0 = b0 = 0 for the linear model).

@@ -6,7 +6,7 @@ use serde::Serialize;
 use std::path::{Path, PathBuf};
 
 /// How much change is drift.
-#[derive(Debug, Clone, Copy, Serialize)]
+#[derive(Debug, Clone, Copy, Serialize, serde::Deserialize)]
 pub struct DriftThresholds {
     /// µm per px.
     pub scale_um: f64,
@@ -29,7 +29,7 @@ impl Default for DriftThresholds {
 }
 
 /// One pixel session's figures (a row of seed Tables 2 and 3).
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, serde::Deserialize)]
 pub struct SessionFigures {
     pub session: PathBuf,
     pub x_scale: f64,
@@ -41,7 +41,7 @@ pub struct SessionFigures {
     pub mark: Option<[f64; 4]>,
 }
 
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, serde::Deserialize)]
 pub struct Comparison {
     pub earlier: PathBuf,
     pub d_x_scale: f64,
@@ -54,7 +54,7 @@ pub struct Comparison {
     pub drift: Vec<String>,
 }
 
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, serde::Deserialize)]
 pub struct History {
     pub sessions: Vec<SessionFigures>,
     pub thresholds: DriftThresholds,

@@ -44,19 +44,11 @@ impl PixelTransform {
 
     /// From a pixel session's results.json.
     pub fn from_session(dir: &Path) -> Result<Self, String> {
-        let p = dir.join(super::session::RESULTS);
-        let text = std::fs::read_to_string(&p).map_err(|e| format!("{}: {e}", p.display()))?;
-        let v: serde_json::Value =
-            serde_json::from_str(&text).map_err(|e| format!("{}: {e}", p.display()))?;
-        let params = &v["calibration"]["affine"]["params"];
-        serde_json::from_value::<[f64; 6]>(params.clone())
-            .map(|params| PixelTransform { params })
-            .map_err(|_| {
-                format!(
-                    "{}: no pixel→carriage transformation in it (is it a pixel session?)",
-                    p.display()
-                )
-            })
+        let r: super::documents::PixelResults =
+            super::documents::read_results(dir, "pixel").map_err(|e| e.to_string())?;
+        Ok(PixelTransform {
+            params: r.calibration.affine.params,
+        })
     }
 }
 
@@ -86,7 +78,7 @@ impl Default for InteriorOptions {
 }
 
 /// One fiducial's measurement.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, serde::Deserialize)]
 pub struct FiducialObservation {
     pub id: u32,
     pub group: FiducialGroup,
@@ -104,7 +96,7 @@ pub struct FiducialObservation {
 }
 
 /// One version of the carriage→image fit (seed Table 5).
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, serde::Deserialize)]
 pub struct InteriorVersion {
     pub name: String,
     pub fiducials: Vec<u32>,
@@ -114,7 +106,7 @@ pub struct InteriorVersion {
     pub error: Option<String>,
 }
 
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, serde::Deserialize)]
 pub struct InteriorOrientation {
     /// Coarse and fine matching of the fiducials (seed Table 4).
     pub matching: Option<super::measure::MatchTable>,

@@ -82,7 +82,7 @@ impl Default for Quality {
 }
 
 /// What became of one mark.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, serde::Deserialize)]
 pub struct MarkResult {
     pub coarse: Option<CoarseMatch>,
     pub lsm: Option<LsmMatch>,
@@ -152,7 +152,7 @@ pub fn measure(img: &ImageF32, t: &MarkTemplates, q: &Quality) -> MarkResult {
 }
 
 /// Average, minimum and maximum of one column.
-#[derive(Debug, Clone, Copy, Serialize)]
+#[derive(Debug, Clone, Copy, Serialize, serde::Deserialize)]
 pub struct Stat {
     pub average: f64,
     pub minimum: f64,
@@ -172,7 +172,7 @@ impl Stat {
 
 /// The columns of seed 002's Tables 1 and 4 over the marks used: how far fine matching moved
 /// the coarse position, the shifts' standard deviations, the correlation, σ0, iterations.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, serde::Deserialize)]
 pub struct MatchTable {
     pub marks: usize,
     pub x_shift_px: Stat,

@@ -4,6 +4,7 @@
 //! store so drift between sessions shows.
 
 pub mod affine_fit;
+pub mod documents;
 pub mod history;
 pub mod interior;
 pub mod measure;

@@ -107,7 +107,7 @@ fn clear_spot(plate: &PlateCertificate) -> CarriageUm {
 }
 
 /// One measured position of a cross.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, serde::Deserialize)]
 pub struct CrossObservation {
     pub id: String,
     pub cross: u32,
@@ -118,7 +118,7 @@ pub struct CrossObservation {
 }
 
 /// The measuring mark's pixel from each cross and together (seed Table 3).
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, serde::Deserialize)]
 pub struct MarkLocation {
     pub mean: PixelXY,
     pub std: [f64; 2],
@@ -126,7 +126,7 @@ pub struct MarkLocation {
     pub per_cross: Vec<(u32, PixelXY)>,
 }
 
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, serde::Deserialize)]
 pub struct PixelCalibration {
     /// The first look's 2×2 (µm per px), from stage steps.
     pub first_look: [[f64; 2]; 2],

@@ -2,6 +2,7 @@
 //! descriptor, event, stop documents, flushed line by line so a crash loses nothing already
 //! measured), a crop of every mark with the fitted centre drawn, and the results document.
 
+use super::documents::LogDocument;
 use crate::coords::PixelXY;
 use crate::digitise::ImageF32;
 use serde_json::{json, Value};
@@ -94,9 +95,22 @@ impl Session {
         self.log.sync_data()
     }
 
-    pub fn start(&mut self, kind: &str, descriptor: Value) -> std::io::Result<()> {
-        self.write(json!({"doc": "start", "kind": kind, "time": utc_stamp(SystemTime::now()), "rig_version": env!("CARGO_PKG_VERSION")}))?;
-        self.write(json!({"doc": "descriptor", "data": descriptor}))
+    /// The log's first two documents: the start, and the descriptor (one of the typed
+    /// descriptors of [`super::documents`], read back by the same type).
+    pub fn start<D: serde::Serialize>(
+        &mut self,
+        kind: &str,
+        descriptor: &D,
+    ) -> std::io::Result<()> {
+        let start: LogDocument<&D> = LogDocument::Start {
+            kind: kind.into(),
+            time: utc_stamp(SystemTime::now()),
+            rig_version: env!("CARGO_PKG_VERSION").into(),
+        };
+        self.write(serde_json::to_value(start)?)?;
+        self.write(serde_json::to_value(LogDocument::Descriptor {
+            data: descriptor,
+        })?)
     }
 
     pub fn event(&mut self, name: &str, data: Value) -> std::io::Result<()> {
@@ -108,9 +122,12 @@ impl Session {
     }
 
     /// Writes the results document atomically.
-    pub fn write_results(&self, v: &Value) -> std::io::Result<PathBuf> {
+    pub fn write_results<C: serde::Serialize>(
+        &self,
+        r: &super::documents::Results<C>,
+    ) -> std::io::Result<PathBuf> {
         let p = self.dir.join(RESULTS);
-        crate::digitise::output::write_json(&p, v)?;
+        crate::atomic::write_json(&p, r)?;
         Ok(p)
     }
 
@@ -211,7 +228,7 @@ mod tests {
     fn a_session_is_never_written_over() {
         let d = tempfile::tempdir().unwrap();
         let mut s = Session::create(&d.path().join("s")).unwrap();
-        s.start("pixel", json!({"x": 1})).unwrap();
+        s.start("pixel", &json!({"x": 1})).unwrap();
         s.event("measured", json!({"id": 5})).unwrap();
         s.stop("done", None).unwrap();
         let log = std::fs::read_to_string(d.path().join("s").join(LOG)).unwrap();

@@ -27,7 +27,7 @@ pub struct Frame {
 }
 
 /// A pixel format the device offers, and whether the rig can measure with it.
-#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct FormatInfo {
     pub fourcc: String,
     pub width: usize,
@@ -37,7 +37,7 @@ pub struct FormatInfo {
     pub refused: Option<String>,
 }
 
-#[derive(Debug, Clone, serde::Serialize)]
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
 pub struct CameraInfo {
     pub name: String,
     pub driver: String,

@@ -3,12 +3,12 @@
 use super::connect::{connect, Hardware};
 use anyhow::{bail, Context};
 use clap::{Args, Subcommand};
+use rig::calibrate::documents::{InteriorDescriptor, PixelDescriptor, Results};
 use rig::calibrate::{
     calibrate_interior, calibrate_pixel, CalibrateError, InteriorOptions, InteriorOrientation,
     PixelCalibration, PixelOptions, PixelTransform, Rig, Session,
 };
 use rig::targets::certificate::{CameraCertificate, PlateCertificate};
-use serde_json::json;
 use std::io::IsTerminal;
 use std::path::PathBuf;
 
@@ -180,8 +180,13 @@ impl Running {
         }
         let result = match r {
             Ok(c) => {
-                let doc = json!({"kind": kind, "session": self.session.dir, "calibration": c});
-                self.session.write_results(&doc)?;
+                let results = Results {
+                    kind: kind.to_string(),
+                    session: self.session.dir.clone(),
+                    calibration: &c,
+                };
+                self.session.write_results(&results)?;
+                let doc = serde_json::to_value(&results)?;
                 self.session.stop("done", None)?;
                 Ok((c, doc))
             }
@@ -262,12 +267,18 @@ pub fn run(a: CalibrateArgs) -> anyhow::Result<i32> {
             };
             run.session.start(
                 "pixel",
-                json!({
-                    "plate_certificate": cert_path, "plate": plate.name,
-                    "camera": run.hw.camera.info(), "stage": run.hw.stage.info(),
-                    "frames": opt.frames, "grid": opt.grid, "patch": opt.patch,
-                    "blur_px": opt.blur_px, "nominal_um_per_px": nominal, "sim": a.conn.sim,
-                }),
+                &PixelDescriptor {
+                    plate_certificate: cert_path.clone(),
+                    plate: plate.name.clone(),
+                    camera: run.hw.camera.info(),
+                    stage: run.hw.stage.info().clone(),
+                    frames: opt.frames,
+                    grid: opt.grid,
+                    patch: opt.patch,
+                    blur_px: opt.blur_px,
+                    nominal_um_per_px: nominal,
+                    sim: a.conn.sim,
+                },
             )?;
             let (c, doc, dir) = run.run(&a, "pixel", |rig| calibrate_pixel(rig, &plate, &opt))?;
             if a.json {
@@ -376,13 +387,19 @@ pub fn run(a: CalibrateArgs) -> anyhow::Result<i32> {
             };
             run.session.start(
                 "interior",
-                json!({
-                    "camera_certificate": cert_path, "camera_name": cert.name,
-                    "pixel_session": pixel_dir, "pixel_to_carriage": pixel,
-                    "flat_field": run.flat.is_some().then_some(&flat_path),
-                    "camera": run.hw.camera.info(), "stage": run.hw.stage.info(),
-                    "frames": opt.frames, "patch": opt.patch, "film_centre_mm": centre, "sim": a.conn.sim,
-                }),
+                &InteriorDescriptor {
+                    camera_certificate: cert_path.clone(),
+                    camera_name: cert.name.clone(),
+                    pixel_session: pixel_dir.clone(),
+                    pixel_to_carriage: pixel,
+                    flat_field: run.flat.is_some().then(|| flat_path.clone()),
+                    camera: run.hw.camera.info(),
+                    stage: run.hw.stage.info().clone(),
+                    frames: opt.frames,
+                    patch: opt.patch,
+                    film_centre_mm: centre,
+                    sim: a.conn.sim,
+                },
             )?;
             let home = !no_home;
             let (c, doc, dir) = run.run(&a, "interior", |rig| {

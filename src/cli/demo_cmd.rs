@@ -7,10 +7,12 @@
 
 use anyhow::{bail, Context};
 use clap::Args;
+use rig::calibrate::documents::{InteriorResults, PixelResults};
 use rig::coords::PhotoMm;
+use rig::matching::pipeline2::Report2;
 use rig::scan::ScannedPhoto;
 use rig_sim::scene::{jacksboro, AerialPhoto};
-use serde_json::{json, Value};
+use serde_json::json;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::Instant;
@@ -34,7 +36,9 @@ const AREA: [f64; 4] = [36.0, -80.0, 56.0, -64.0];
 /// Photos of the block the demo uses.
 const PHOTOS: [u32; 3] = [1, 2, 3];
 
-fn step(title: &str, args: &[String]) -> anyhow::Result<Value> {
+/// Runs `rig ARGS` and reads what it printed with --json as a `T` (the type the command
+/// wrote it with).
+fn step<T: serde::de::DeserializeOwned>(title: &str, args: &[String]) -> anyhow::Result<T> {
     eprintln!("\n== {title}\n$ rig {}", args.join(" "));
     let exe = std::env::current_exe().context("finding the rig executable")?;
     let t = Instant::now();
@@ -51,7 +55,8 @@ fn step(title: &str, args: &[String]) -> anyhow::Result<Value> {
     }
     eprintln!("   ({:.1} s)", t.elapsed().as_secs_f64());
     let text = String::from_utf8_lossy(&out.stdout);
-    Ok(serde_json::from_str(text.trim()).unwrap_or(Value::String(text.into_owned())))
+    serde_json::from_str(text.trim())
+        .with_context(|| format!("step `{title}` printed no report the demo can read"))
 }
 
 fn s(p: &Path) -> String {
@@ -116,7 +121,7 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<i32> {
     args.extend(sim(1));
     args.extend(["--grid", grid, "--frames", frames, "--json", "--store"].map(String::from));
     args.push(s(&store));
-    let pixel = step("pixel → carriage calibration (seed 002)", &args)?;
+    let pixel: PixelResults = step("pixel → carriage calibration (seed 002)", &args)?;
     // The simulator's block, to place the other photos' scans where they see photo 1's area.
     let dem = jacksboro();
     let block: Vec<AerialPhoto> = PHOTOS
@@ -137,7 +142,7 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<i32> {
         })
         .collect();
     let mut sidecars = Vec::new();
-    let mut interiors = Vec::new();
+    let mut interiors: Vec<InteriorResults> = Vec::new();
     for (&photo, &region) in PHOTOS.iter().zip(&regions) {
         // 2. Interior orientation of the film on the carriage.
         let dir = store.join(format!("interior-photo-{photo}"));
@@ -157,7 +162,7 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<i32> {
         let mut args: Vec<String> = vec!["scan".into()];
         args.extend(sim(photo));
         args.extend(["--json".into(), "run".into(), s(&script)]);
-        step(
+        step::<serde_json::Value>(
             &format!("scan of photo {photo}, region {region:.1?} mm"),
             &args,
         )?;
@@ -215,7 +220,7 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<i32> {
     std::fs::write(out.join("project.toml"), project)?;
     // 5. The elevation model.
     let dtm_dir = out.join("dtm");
-    let dtm = step(
+    let dtm: Report2 = step(
         "elevation model: every pair of the three photos swept along its mapping functions (seeds 000, 004)",
         &[
             "dtm".into(),
@@ -228,70 +233,64 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<i32> {
     let report = json!({
         "seed": a.seed,
         "seconds": t0.elapsed().as_secs_f64(),
-        "pixel": pixel["calibration"]["affine"],
-        "interior": interiors.iter().map(|i| &i["calibration"]["versions"]).collect::<Vec<_>>(),
+        "pixel": pixel.calibration.affine,
+        "interior": interiors.iter().map(|i| &i.calibration.versions).collect::<Vec<_>>(),
         "scans": sidecars,
         "dtm": dtm,
         "photo_centre_mm": PhotoMm::new(0.0, 0.0),
     });
     rig::digitise::output::write_json(&out.join("report.json"), &report)?;
-    let c = &dtm["comparison"];
     println!(
         "\nrig demo (seed {}), {:.0} s, in {}:",
         a.seed,
         t0.elapsed().as_secs_f64(),
         out.display()
     );
-    let af = &pixel["calibration"];
+    let af = &pixel.calibration;
     println!(
         "  pixel → carriage: x-scale {:.4}, y-scale {:.4}, x-shear {:.4}, y-shear {:.4} µm (simulator: 10.19, 10.96, 0.09, 0.10), RMS {:.3} µm",
-        af["x_scale"].as_f64().unwrap_or(f64::NAN),
-        af["y_scale"].as_f64().unwrap_or(f64::NAN),
-        af["x_shear"].as_f64().unwrap_or(f64::NAN),
-        af["y_shear"].as_f64().unwrap_or(f64::NAN),
-        af["rms_um"].as_f64().unwrap_or(f64::NAN)
+        af.x_scale, af.y_scale, af.x_shear, af.y_shear, af.rms_um
     );
     for (k, i) in interiors.iter().enumerate() {
-        let v = &i["calibration"]["versions"][0];
+        let v = i.calibration.versions.first();
         println!(
             "  photo {}: interior orientation ({}), RMS {:.2} µm; scanned at 25 µm → {}",
             k + 1,
-            v["name"].as_str().unwrap_or("?"),
-            v["rms_um"].as_f64().unwrap_or(f64::NAN),
+            v.map_or("?", |v| v.name.as_str()),
+            v.and_then(|v| v.rms_um).unwrap_or(f64::NAN),
             sidecars[k].display()
         );
     }
-    for pr in dtm["pairs"].as_array().into_iter().flatten() {
-        let t = &pr["dtm"];
+    for pr in &dtm.pairs {
         println!(
             "  photos {} × {}: step {:.2} m (half a pixel of parallax), {:.1} % of {} points matched, {:.1} % kept after the height and population criteria",
-            pr["left"].as_str().unwrap_or("?"),
-            pr["right"].as_str().unwrap_or("?"),
-            pr["h_step_m"].as_f64().unwrap_or(f64::NAN),
-            t["matched_percent"].as_f64().unwrap_or(f64::NAN),
-            t["points_total"],
-            t["remaining_percent"].as_f64().unwrap_or(f64::NAN)
+            pr.left,
+            pr.right,
+            pr.h_step_m,
+            pr.dtm.matched_percent,
+            pr.dtm.points_total,
+            pr.dtm.remaining_percent
         );
     }
-    let rmse = c["rmse_m"].as_f64().unwrap_or(f64::NAN);
-    println!(
-        "  elevation model vs the true DEM: RMSE {:.2} m ({:.3} ‰ of the 6 500 m flying height), mean {:+.2} m, max +{:.2} / {:.2} m over {} nodes; in {}",
-        rmse,
-        1000.0 * rmse / rig_sim::scene::FLYING_HEIGHT_M,
-        c["mean_m"].as_f64().unwrap_or(f64::NAN),
-        c["max_positive_m"].as_f64().unwrap_or(f64::NAN),
-        c["max_negative_m"].as_f64().unwrap_or(f64::NAN),
-        c["nodes"],
-        dtm["crs"].as_str().unwrap_or("?")
-    );
-    let sv = &dtm["sigma_vs_reference"];
-    if let Some(ratio) = sv["ratio"].as_f64() {
+    if let Some(c) = &dtm.comparison {
+        println!(
+            "  elevation model vs the true DEM: RMSE {:.2} m ({:.3} ‰ of the 6 500 m flying height), mean {:+.2} m, max +{:.2} / {:.2} m over {} nodes; in {}",
+            c.rmse_m,
+            1000.0 * c.rmse_m / rig_sim::scene::FLYING_HEIGHT_M,
+            c.mean_m,
+            c.max_positive_m,
+            c.max_negative_m,
+            c.nodes,
+            dtm.crs
+        );
+    }
+    if let Some(sv) = &dtm.sigma_vs_reference {
         println!(
             "  its standard deviations (quality.tif, × {:.2} from the pairs' disagreement): RMS {:.2} m; the true errors are {:.1} × them, {:.0} % within 2σ",
-            dtm["variance_factor"]["s0"].as_f64().unwrap_or(1.0),
-            sv["rms_sigma_m"].as_f64().unwrap_or(f64::NAN),
-            ratio,
-            sv["within_2_sigma_percent"].as_f64().unwrap_or(f64::NAN)
+            dtm.variance_factor.map_or(1.0, |f| f.s0),
+            sv.rms_sigma_m,
+            sv.ratio,
+            sv.within_2_sigma_percent
         );
     }
     println!(

@@ -5,12 +5,14 @@
 
 use super::script::FiducialVersion;
 use crate::calibrate::affine_fit::{inv2, mul2, solve_linear};
+use crate::calibrate::documents::{
+    read_descriptor, read_results, DocumentError, InteriorDescriptor, InteriorResults,
+};
 use crate::calibrate::PixelTransform;
 use crate::coords::{CarriageUm, PhotoMm, PixelXY};
 use crate::stage::SoftLimits;
 use crate::targets::certificate::CameraCertificate;
 use serde::{Deserialize, Serialize};
-use serde_json::Value;
 use std::path::{Path, PathBuf};
 
 #[derive(Debug, thiserror::Error)]
@@ -100,113 +102,89 @@ fn err(path: &Path, message: impl Into<String>) -> CalibrationError {
     }
 }
 
-fn read_json(path: &Path) -> Result<Value, CalibrationError> {
-    let text = std::fs::read_to_string(path).map_err(|e| err(path, e.to_string()))?;
-    serde_json::from_str(&text).map_err(|e| err(path, format!("not JSON: {e}")))
-}
-
-/// The descriptor document of a session's log (the second line).
-fn descriptor(dir: &Path) -> Result<Value, CalibrationError> {
-    let p = dir.join(crate::calibrate::session::LOG);
-    let text = std::fs::read_to_string(&p).map_err(|e| err(&p, e.to_string()))?;
-    text.lines()
-        .filter_map(|l| serde_json::from_str::<Value>(l).ok())
-        .find(|d| d["doc"] == "descriptor")
-        .map(|d| d["data"].clone())
-        .ok_or_else(|| err(&p, "no descriptor document in the log"))
-}
-
 /// A path a session recorded: as written, or relative to the session's own directory.
-fn recorded_path(session: &Path, v: &Value, fallback_name: &str) -> Option<PathBuf> {
+fn recorded_path(session: &Path, recorded: &Path, fallback_name: &str) -> Option<PathBuf> {
     let own = session.join(fallback_name);
     if own.is_file() {
         return Some(own);
     }
-    let p = PathBuf::from(v.as_str()?);
-    p.exists().then_some(p)
+    recorded.exists().then(|| recorded.to_path_buf())
 }
 
 impl ScanCalibration {
     pub fn load(interior: &Path, version: FiducialVersion) -> Result<Self, CalibrationError> {
         let results_path = interior.join(crate::calibrate::session::RESULTS);
-        let results = read_json(&results_path)?;
-        if results["kind"] != "interior" {
-            return Err(err(
-                &results_path,
-                "not an interior-orientation session (run `rig calibrate interior`)",
-            ));
-        }
-        let v = results["calibration"]["versions"]
-            .as_array()
-            .and_then(|vs| vs.iter().find(|v| v["name"] == version.name()))
+        let doc = |e: DocumentError| err(&e.path, e.message);
+        let results: InteriorResults = read_results(interior, "interior").map_err(doc)?;
+        let v = results
+            .calibration
+            .versions
+            .iter()
+            .find(|v| v.name == version.name())
             .ok_or_else(|| err(&results_path, "no carriage→photo versions in it"))?;
-        let params: [f64; 6] =
-            serde_json::from_value(v["fit"]["params"].clone()).map_err(|_| {
-                err(
-                    &results_path,
-                    format!(
-                        "the `{}` version has no fit ({}); choose another with [film] fiducials",
-                        version.name(),
-                        v["error"].as_str().unwrap_or("unknown reason")
-                    ),
-                )
-            })?;
-        let d = descriptor(interior)?;
+        let params = v.fit.as_ref().map(|f| f.params).ok_or_else(|| {
+            err(
+                &results_path,
+                format!(
+                    "the `{}` version has no fit ({}); choose another with [film] fiducials",
+                    version.name(),
+                    v.error.as_deref().unwrap_or("unknown reason")
+                ),
+            )
+        })?;
+        let d: InteriorDescriptor = read_descriptor(interior).map_err(doc)?;
         let log = interior.join(crate::calibrate::session::LOG);
-        let pixel: PixelTransform = serde_json::from_value(d["pixel_to_carriage"].clone())
-            .map_err(|_| err(&log, "the descriptor lacks pixel_to_carriage"))?;
-        let cert_path = recorded_path(interior, &d["camera_certificate"], "camera-cert.toml")
+        let cert_path = recorded_path(interior, &d.camera_certificate, "camera-cert.toml")
             .ok_or_else(|| err(&log, "its camera certificate is not found"))?;
         let certificate =
             CameraCertificate::load(&cert_path).map_err(|e| err(&cert_path, e.to_string()))?;
-        let cam = &d["camera"];
-        let st = &d["stage"];
-        let num = |v: &Value, what: &str| {
-            v.as_f64()
-                .ok_or_else(|| err(&log, format!("the descriptor lacks {what}")))
-        };
-        let limits: SoftLimits = serde_json::from_value(st["limits"].clone())
-            .map_err(|_| err(&log, "the descriptor lacks the stage's soft limits"))?;
-        let count = |v: &Value, what: &str| {
-            v.as_u64().filter(|&n| n <= 65_536).ok_or_else(|| {
-                err(
-                    &log,
-                    format!("the descriptor's {what} is not a count up to 65536"),
-                )
-            })
-        };
-        let max_speed_um_s = num(&st["max_speed_um_s"], "stage.max_speed_um_s")?;
-        let accel_um_s2 = num(&st["accel_um_s2"], "stage.accel_um_s2")?;
+        let (cam, st) = (&d.camera, &d.stage);
         let homing_s = {
             let mut info = crate::stage::ControllerInfo::unknown("recorded");
-            info.max_speed_um_s = max_speed_um_s;
-            info.accel_um_s2 = accel_um_s2;
-            info.home_speed_um_s = st["home_speed_um_s"].as_f64().unwrap_or(max_speed_um_s);
-            info.homing_bound_s = st["homing_bound_s"].as_f64().unwrap_or(0.0);
-            info.travel =
-                serde_json::from_value(st["travel"].clone()).unwrap_or(limits.max - limits.min);
+            info.max_speed_um_s = st.max_speed_um_s;
+            info.accel_um_s2 = st.accel_um_s2;
+            // Sessions recorded before these were kept: the fastest speed, the limits' span.
+            info.home_speed_um_s = if st.home_speed_um_s > 0.0 {
+                st.home_speed_um_s
+            } else {
+                st.max_speed_um_s
+            };
+            info.homing_bound_s = st.homing_bound_s;
+            info.travel = if st.travel == CarriageUm::default() {
+                st.limits.max - st.limits.min
+            } else {
+                st.travel
+            };
             let s = info.homing_duration().as_secs_f64();
             (s.is_finite() && s > 0.0).then_some(s.min(3600.0))
         };
+        let count = |n: usize, what: &str| {
+            (n <= 65_536).then_some(n).ok_or_else(|| {
+                err(
+                    &log,
+                    format!("the descriptor's {what} {n} is not a count up to 65536"),
+                )
+            })
+        };
         let rig = RigRecord {
-            width: count(&cam["width"], "camera.width")? as usize,
-            height: count(&cam["height"], "camera.height")? as usize,
-            bit_depth: count(&cam["bit_depth"], "camera.bit_depth")? as u32,
-            frame_rate_hz: cam["frame_rate_hz"].as_f64(),
-            limits,
-            max_speed_um_s,
-            accel_um_s2,
+            width: count(cam.width, "camera.width")?,
+            height: count(cam.height, "camera.height")?,
+            bit_depth: count(cam.bit_depth as usize, "camera.bit_depth")? as u32,
+            frame_rate_hz: cam.frame_rate_hz,
+            limits: st.limits,
+            max_speed_um_s: st.max_speed_um_s,
+            accel_um_s2: st.accel_um_s2,
             homing_s,
         };
         rig.check().map_err(|m| err(&log, m))?;
         let cal = ScanCalibration {
             interior_session: interior.to_path_buf(),
-            pixel_session: PathBuf::from(d["pixel_session"].as_str().unwrap_or("")),
-            pixel,
+            pixel_session: d.pixel_session.clone(),
+            pixel: d.pixel_to_carriage,
             version,
             carriage_to_photo: params,
-            rms_um: v["rms_um"].as_f64().unwrap_or(f64::NAN),
-            fiducials: serde_json::from_value(v["fiducials"].clone()).unwrap_or_default(),
+            rms_um: v.rms_um.unwrap_or(f64::NAN),
+            fiducials: v.fiducials.clone(),
             camera_certificate: cert_path,
             certificate,
             rig,

@@ -145,7 +145,7 @@ impl ScanDir {
         let mut log = Session::append(dir)?;
         log.start(
             "scan",
-            json!({"script": script.path, "film": script.film_name, "calibration": cal,
+            &json!({"script": script.path, "film": script.film_name, "calibration": cal,
                    "capture": script.capture, "resolution_um": script.resolution_um,
                    "regions": script.regions, "tiles": manifest.plan.tiles.len(),
                    "estimate": manifest.plan.estimate}),

@@ -28,7 +28,7 @@ use std::path::Path;
 use std::time::Duration;
 
 /// What the controller is doing.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, serde::Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum StageState {
     Idle,
@@ -65,32 +65,40 @@ pub struct StageStatus {
     pub controller_state: String,
 }
 
-/// What the host learnt about the controller when it connected.
-#[derive(Debug, Clone, Serialize)]
+/// What the host learnt about the controller when it connected (sessions record it; fields
+/// that older sessions lack read as zero or empty).
+#[derive(Debug, Clone, Serialize, serde::Deserialize)]
 pub struct ControllerInfo {
-    pub dialect: &'static str,
+    pub dialect: String,
     pub identity: String,
+    #[serde(default)]
     pub travel: CarriageUm,
     /// The controller's own soft limits, in carriage coordinates.
     pub limits: SoftLimits,
     pub max_speed_um_s: f64,
     pub accel_um_s2: f64,
+    #[serde(default)]
     pub home_speed_um_s: f64,
     /// Smallest position increment the controller reports (step or encoder count).
+    #[serde(default)]
     pub resolution_um: f64,
     /// Things the operator should know (e.g. the controller's own soft limits are off, or it
     /// was in Alarm when the rig connected).
+    #[serde(default)]
     pub notes: Vec<String>,
     /// The longest a homing cycle may take, from the controller's own rates and travel.
+    #[serde(default)]
     pub homing_bound_s: f64,
     /// What the controller's set-up should change for the rig (`rig stage check-setup`).
+    #[serde(default)]
     pub advice: Vec<SetupAdvice>,
     /// The controller settings the rig uses, as read (name, value and meaning).
+    #[serde(default)]
     pub settings: Vec<(String, String)>,
 }
 
 /// One change the controller's set-up needs, or would benefit from.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, serde::Deserialize)]
 pub struct SetupAdvice {
     pub setting: String,
     pub now: String,
@@ -98,7 +106,7 @@ pub struct SetupAdvice {
 }
 
 /// What a stop did.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, serde::Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum StopAction {
     /// Nothing was moving (or the controller had already stopped itself in an alarm).
@@ -127,7 +135,7 @@ impl StopAction {
 }
 
 /// Where a stop left the carriage, and how it was stopped.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, serde::Deserialize)]
 pub struct Stopped {
     pub action: StopAction,
     /// The position after the stop, when the controller still knows it.
@@ -148,7 +156,7 @@ impl ControllerInfo {
     /// Before the controller has been asked: nothing known but the dialect.
     pub fn unknown(dialect: &'static str) -> Self {
         ControllerInfo {
-            dialect,
+            dialect: dialect.into(),
             identity: String::new(),
             travel: CarriageUm::default(),
             limits: SoftLimits {
@@ -222,7 +230,7 @@ pub trait Stage {
 }
 
 /// The controller dialects the rig speaks.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Dialect {
     /// The rig's own firmware protocol (firmware-protocol/PROTOCOL.md).

@@ -33,7 +33,7 @@ impl Default for CoarseOptions {
     }
 }
 
-#[derive(Debug, Clone, Copy, Serialize)]
+#[derive(Debug, Clone, Copy, Serialize, serde::Deserialize)]
 pub struct CoarseMatch {
     pub centre: PixelXY,
     /// Correlation of the gradient magnitudes at the best position, times √visible.
@@ -42,7 +42,7 @@ pub struct CoarseMatch {
     pub visible: f64,
 }
 
-#[derive(Debug, Clone, PartialEq, thiserror::Error, Serialize)]
+#[derive(Debug, Clone, PartialEq, thiserror::Error, Serialize, serde::Deserialize)]
 #[serde(tag = "kind", rename_all = "snake_case")]
 pub enum CoarseError {
     #[error("no mark found: the best match scores {best_score:.2} (needs {min_score:.2})")]

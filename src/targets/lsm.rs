@@ -46,7 +46,7 @@ impl Default for LsmOptions {
 }
 
 /// A converged match.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, serde::Deserialize)]
 pub struct LsmMatch {
     /// The mark's centre in the image.
     pub centre: PixelXY,
@@ -65,7 +65,7 @@ pub struct LsmMatch {
     pub moved_px: [f64; 2],
 }
 
-#[derive(Debug, Clone, PartialEq, thiserror::Error, Serialize)]
+#[derive(Debug, Clone, PartialEq, thiserror::Error, Serialize, serde::Deserialize)]
 #[serde(tag = "kind", rename_all = "snake_case")]
 pub enum LsmError {
     #[error("least-squares matching did not converge in {iterations} iterations")]
