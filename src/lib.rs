@@ -12,6 +12,7 @@ pub mod image;
 pub mod matching;
 pub mod picture;
 pub mod scan;
+pub mod seconds;
 pub mod sim_scene;
 pub mod stage;
 pub mod targets;

@@ -85,15 +85,7 @@ pub trait Camera {
     fn dropped(&self) -> u64;
 }
 
-/// Seconds from a device or a socket as a `Duration`: `None` for negative, NaN, infinite or
-/// absurd (over a year) values, which are never a camera's clock.
-pub fn secs(t: f64) -> Option<Duration> {
-    if (0.0..=3.2e7).contains(&t) {
-        Duration::try_from_secs_f64(t).ok()
-    } else {
-        None
-    }
-}
+pub use crate::seconds::clock as secs;
 
 /// Counts gaps in a stream's sequence numbers.
 #[derive(Debug, Default, Clone)]

@@ -69,7 +69,13 @@ impl Camera for SimCamera {
         self.seq.see(f.seq);
         Ok(Frame {
             seq: f.seq,
-            timestamp: Duration::from_secs_f64(f.t_s),
+            // The simulator's clock, checked as any device's is.
+            timestamp: super::secs(f.t_s).ok_or_else(|| {
+                super::CameraError::Io(format!(
+                    "the simulator's frame time {} s is no clock reading",
+                    f.t_s
+                ))
+            })?,
             width: f.width,
             height: f.height,
             bit_depth: f.bit_depth,
@@ -78,7 +84,10 @@ impl Camera for SimCamera {
     }
 
     fn now(&mut self) -> Result<Duration> {
-        Ok(Duration::from_secs_f64(self.src.now_s().max(0.0)))
+        let t = self.src.now_s();
+        super::secs(t).ok_or_else(|| {
+            super::CameraError::Io(format!("the simulator's clock {t} s is no clock reading"))
+        })
     }
 
     fn dropped(&self) -> u64 {

@@ -238,7 +238,7 @@ pub fn run(a: CalibrateArgs) -> anyhow::Result<i32> {
                 bail!("--grid {grid} is out of range: use 2 to 15");
             }
             let nominal = parse_pair(pixel_um, "--pixel-um")?;
-            if plate_cert.is_none() && !a.conn.sim {
+            if plate_cert.is_none() && !a.conn.sim.on {
                 bail!("--plate-cert FILE is needed (the carriage plate's certificate; the README shows its format)");
             }
             let mut run = Running::begin(&a, out, "pixel", false)?;
@@ -277,7 +277,7 @@ pub fn run(a: CalibrateArgs) -> anyhow::Result<i32> {
                     patch: opt.patch,
                     blur_px: opt.blur_px,
                     nominal_um_per_px: nominal,
-                    sim: a.conn.sim,
+                    sim: a.conn.sim.on,
                 },
             )?;
             let (c, doc, dir) = run.run(&a, "pixel", |rig| calibrate_pixel(rig, &plate, &opt))?;
@@ -336,7 +336,7 @@ pub fn run(a: CalibrateArgs) -> anyhow::Result<i32> {
         } => {
             check_frames(*frames)?;
             let centre = parse_pair(film_centre, "--film-centre")?;
-            if camera_cert.is_none() && !a.conn.sim {
+            if camera_cert.is_none() && !a.conn.sim.on {
                 bail!("--camera-cert FILE is needed (the film camera's certificate with its fiducials; the README shows its format)");
             }
             let pixel_dir = match pixel_session {
@@ -398,7 +398,7 @@ pub fn run(a: CalibrateArgs) -> anyhow::Result<i32> {
                     frames: opt.frames,
                     patch: opt.patch,
                     film_centre_mm: centre,
-                    sim: a.conn.sim,
+                    sim: a.conn.sim.on,
                 },
             )?;
             let home = !no_home;

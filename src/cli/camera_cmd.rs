@@ -13,16 +13,11 @@ use std::time::Duration;
 /// Options of `rig camera` (its help text is on `Command::Camera`).
 #[derive(Debug, Args)]
 pub struct CameraArgs {
-    /// Camera: /dev/videoN (needs the `v4l2` build feature) or sim:SOCKET (a running
-    /// `rig-sim --camera-socket SOCKET`).
-    #[arg(long, value_name = "DEVICE", conflicts_with = "sim", global = true)]
-    pub camera: Option<String>,
-    /// Use the built-in simulator (a simulated camera over a simulated, homed stage).
-    #[arg(long, global = true)]
-    pub sim: bool,
-    /// Simulator: random seed.
-    #[arg(long, default_value_t = 1, requires = "sim", global = true)]
-    pub sim_seed: u64,
+    #[command(flatten)]
+    pub camera: super::connect::CameraDevice,
+    /// The simulator: a camera over a simulated, homed stage.
+    #[command(flatten)]
+    pub sim: super::connect::Simulated,
     /// Simulator: lay a film (8 fiducials, a textured picture) on the carriage.
     #[arg(long, requires = "sim", global = true)]
     pub sim_film: bool,
@@ -137,11 +132,11 @@ pub fn run(a: CameraArgs) -> anyhow::Result<i32> {
     if let CameraAction::List = a.action {
         return list(a.json);
     }
-    if a.camera.is_none() && !a.sim {
+    if a.camera.device.is_none() && !a.sim.on {
         eprintln!("rig camera: name a camera with --camera DEVICE (/dev/videoN or sim:SOCKET), or use --sim");
         return Ok(2);
     }
-    let (sim, mut cam): (_, Box<dyn Camera>) = if a.sim {
+    let (sim, mut cam): (_, Box<dyn Camera>) = if a.sim.on {
         if !(0.0..=0.5).contains(&a.sim_frame_drop) {
             bail!(
                 "--sim-frame-drop {} is out of range: use 0 to 0.5",
@@ -150,7 +145,7 @@ pub fn run(a: CameraArgs) -> anyhow::Result<i32> {
         }
         let s = rig_sim::EmbeddedSim::start(rig_sim::SimConfig {
             time_scale: 0.0,
-            seed: a.sim_seed,
+            seed: a.sim.seed,
             start_homed: true,
             film: a.sim_film,
             ..Default::default()
@@ -161,6 +156,7 @@ pub fn run(a: CameraArgs) -> anyhow::Result<i32> {
     } else {
         let dev = a
             .camera
+            .device
             .clone()
             .expect("clap requires --camera without --sim");
         (None, open_device(&dev)?)

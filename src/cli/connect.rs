@@ -8,28 +8,65 @@ use rig::camera::{Camera, SimCamera};
 use rig::stage::{self, Dialect, DriverOptions, LinkOptions, SoftLimits, Stage};
 use std::path::PathBuf;
 
+/// The stage controller on a serial port: every command that drives the stage takes it so.
 #[derive(Debug, Args)]
-pub struct ConnectArgs {
-    /// Serial port of the stage controller.
+pub struct StagePort {
+    /// Serial port of the stage controller (e.g. /dev/ttyUSB0, or the path `rig sim` prints).
     #[arg(long, value_name = "PATH", conflicts_with = "sim", global = true)]
     pub stage: Option<PathBuf>,
-    /// Controller dialect on that port.
+    /// Controller dialect on that port: native (the rig's firmware) or grbl (GRBL 1.1).
     #[arg(long, value_enum, default_value = "native", global = true)]
     pub dialect: Dialect,
+}
+
+/// The camera: every command that takes frames names it so.
+#[derive(Debug, Args)]
+pub struct CameraDevice {
+    /// Camera: /dev/videoN (needs the `v4l2` build feature) or sim:SOCKET (a running
+    /// `rig sim --camera-socket SOCKET`).
+    #[arg(
+        id = "camera",
+        long = "camera",
+        value_name = "DEVICE",
+        conflicts_with = "sim",
+        global = true
+    )]
+    pub device: Option<String>,
+}
+
+/// The built-in simulator in place of the hardware, and its seed.
+#[derive(Debug, Args)]
+pub struct Simulated {
+    /// Use the built-in simulator instead of hardware (what it simulates: the command's help
+    /// says).
+    #[arg(id = "sim", long = "sim", global = true)]
+    pub on: bool,
+    /// Simulator: random seed.
+    #[arg(
+        id = "sim_seed",
+        long = "sim-seed",
+        default_value_t = 1,
+        requires = "sim",
+        global = true
+    )]
+    pub seed: u64,
+}
+
+/// Stage and camera together (`rig calibrate`, `rig scan run`), or the simulator of both.
+#[derive(Debug, Args)]
+pub struct ConnectArgs {
+    #[command(flatten)]
+    pub port: StagePort,
+    #[command(flatten)]
+    pub camera: CameraDevice,
+    /// The simulator: stage, camera, plate and film; it writes its own certificates and keeps
+    /// its truth beside the results as sim-truth.json.
+    #[command(flatten)]
+    pub sim: Simulated,
     /// Tighter soft limits, mm: XMIN,XMAX,YMIN,YMAX (intersected with the controller's; a scan
     /// is planned within them too).
     #[arg(long, value_name = "MM,MM,MM,MM", value_parser = super::stage_cmd::parse_limits, global = true)]
     pub limits: Option<SoftLimits>,
-    /// Camera: /dev/videoN (needs the `v4l2` build feature) or sim:SOCKET.
-    #[arg(long, value_name = "DEVICE", conflicts_with = "sim", global = true)]
-    pub camera: Option<String>,
-    /// Use the built-in simulator (stage, camera, plate, film; it writes its own
-    /// certificates and keeps its truth beside the results as sim-truth.json).
-    #[arg(long, global = true)]
-    pub sim: bool,
-    /// Simulator: random seed.
-    #[arg(long, default_value_t = 1, requires = "sim", global = true)]
-    pub sim_seed: u64,
     /// Simulator: wall seconds per simulated second (0 = no waiting).
     #[arg(
         long,
@@ -99,14 +136,14 @@ pub fn connect(
     film: bool,
     link: &LinkOptions,
 ) -> anyhow::Result<Hardware> {
-    if a.sim {
+    if a.sim.on {
         if a.sim_time_scale.is_nan() || a.sim_time_scale < 0.0 {
             bail!("--sim-time-scale must be 0 or more");
         }
         let s = rig_sim::EmbeddedSim::start(rig_sim::SimConfig {
             time_scale: a.sim_time_scale,
-            seed: a.sim_seed,
-            dialect: match a.dialect {
+            seed: a.sim.seed,
+            dialect: match a.port.dialect {
                 Dialect::Native => rig_sim::Dialect::Native,
                 Dialect::Grbl => rig_sim::Dialect::Grbl,
             },
@@ -120,7 +157,7 @@ pub fn connect(
             ..Default::default()
         })
         .context("starting the built-in simulator")?;
-        let stage = stage::open(&s.port, a.dialect, driver_options(a), link)?;
+        let stage = stage::open(&s.port, a.port.dialect, driver_options(a), link)?;
         let camera = Box::new(SimCamera::new(s.world.clone(), 0.0));
         return Ok(Hardware {
             sim: Some(s),
@@ -128,10 +165,10 @@ pub fn connect(
             camera,
         });
     }
-    let (Some(port), Some(cam)) = (&a.stage, &a.camera) else {
+    let (Some(port), Some(cam)) = (&a.port.stage, &a.camera.device) else {
         bail!("name the stage and the camera (--stage PATH --dialect native|grbl --camera DEVICE), or use --sim");
     };
-    let stage = stage::open(port, a.dialect, driver_options(a), link)
+    let stage = stage::open(port, a.port.dialect, driver_options(a), link)
         .with_context(|| format!("opening the stage at {}", port.display()))?;
     let camera = super::camera_cmd::open_device(cam)?;
     Ok(Hardware {

@@ -17,15 +17,11 @@ use std::time::Duration;
 /// Options of `rig stage` (its help text is on `Command::Stage`).
 #[derive(Debug, Args)]
 pub struct StageArgs {
-    /// Serial port of the stage controller (e.g. /dev/ttyUSB0, or the path `rig-sim` prints).
-    #[arg(long, value_name = "PATH", conflicts_with = "sim", global = true)]
-    pub stage: Option<PathBuf>,
-    /// Controller dialect on that port.
-    #[arg(long, value_enum, default_value = "native", global = true)]
-    pub dialect: Dialect,
-    /// Use a built-in simulated controller (started homed) instead of hardware.
-    #[arg(long, global = true)]
-    pub sim: bool,
+    #[command(flatten)]
+    pub port: super::connect::StagePort,
+    /// The simulator: a controller of the chosen dialect, started homed.
+    #[command(flatten)]
+    pub sim: super::connect::Simulated,
     /// Simulator: wall seconds per simulated second (0 = no waiting).
     #[arg(
         long,
@@ -35,9 +31,6 @@ pub struct StageArgs {
         global = true
     )]
     pub sim_time_scale: f64,
-    /// Simulator: random seed.
-    #[arg(long, default_value_t = 1, requires = "sim", global = true)]
-    pub sim_seed: u64,
     /// Simulator: faults to inject (see `rig sim --help`).
     #[arg(long, value_name = "SPEC", requires = "sim", global = true)]
     pub sim_faults: Option<String>,
@@ -433,7 +426,7 @@ fn label(a: &Action) -> &'static str {
 
 /// Runs `rig stage`; returns the process exit code.
 pub fn run(a: StageArgs) -> anyhow::Result<i32> {
-    if a.stage.is_none() && !a.sim {
+    if a.port.stage.is_none() && !a.sim.on {
         eprintln!("rig stage: name the controller with --stage PATH (and --dialect native|grbl), or use --sim");
         return Ok(2);
     }
@@ -445,7 +438,7 @@ pub fn run(a: StageArgs) -> anyhow::Result<i32> {
         }
     };
     let mut sim = None;
-    let port = if a.sim {
+    let port = if a.sim.on {
         let faults = match &a.sim_faults {
             Some(s) => {
                 rig_sim::FaultSpec::parse(s).with_context(|| format!("--sim-faults `{s}`"))?
@@ -456,12 +449,12 @@ pub fn run(a: StageArgs) -> anyhow::Result<i32> {
             bail!("--sim-time-scale must be 0 or more");
         }
         let cfg = rig_sim::SimConfig {
-            dialect: match a.dialect {
+            dialect: match a.port.dialect {
                 Dialect::Native => rig_sim::Dialect::Native,
                 Dialect::Grbl => rig_sim::Dialect::Grbl,
             },
             time_scale: a.sim_time_scale,
-            seed: a.sim_seed,
+            seed: a.sim.seed,
             faults,
             truth: a.sim_truth.clone(),
             stage_link: None,
@@ -475,7 +468,8 @@ pub fn run(a: StageArgs) -> anyhow::Result<i32> {
         sim = Some(s);
         p
     } else {
-        a.stage
+        a.port
+            .stage
             .clone()
             .expect("clap requires --stage without --sim")
     };
@@ -489,7 +483,7 @@ pub fn run(a: StageArgs) -> anyhow::Result<i32> {
         cancel: Some(cancel),
     };
     let progress = Progress::start(label(&a.action), !a.json);
-    let result = stage::open(&port, a.dialect, opts, &link).and_then(|mut s| {
+    let result = stage::open(&port, a.port.dialect, opts, &link).and_then(|mut s| {
         let r = act(s.as_mut(), &a.action);
         if matches!(r, Err(StageError::Cancelled)) {
             // Wait for the deceleration to end before letting go of the line.
