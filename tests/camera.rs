@@ -171,7 +171,7 @@ fn frames_queued_during_a_move_never_enter_an_average() {
     // The fix: back at A, frames from before the stage stood still are set aside.
     st.move_to(a).unwrap();
     let fresh = take(&mut cam, 4, true);
-    assert_eq!(fresh.stale, rig_sim::camera::BUFFERS as u64 - 1);
+    assert_eq!(fresh.stale, rig_sim::frames::BUFFERS as u64 - 1);
     let off = mad(&fresh.image, &at_a.image);
     assert!(off < 3.0 * noise, "{off} vs noise {noise}");
 }

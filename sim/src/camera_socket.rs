@@ -1,6 +1,6 @@
 //! The simulated camera served on a Unix socket (CAMERA_SOCKET.md beside this crate).
 
-use crate::camera::FrameSource;
+use crate::frames::FrameSource;
 use crate::server::World;
 use serde_json::{json, Value};
 use std::io::{BufRead, BufReader, Write};

@@ -4,7 +4,6 @@
 //! film deformation, all part of the truth. The picture area carries an aerial photo rendered
 //! from a DEM ([`crate::scene`]).
 
-use crate::camera::erf;
 use crate::rng::Rng;
 use crate::scene::AerialPhoto;
 use serde::Serialize;
@@ -218,6 +217,19 @@ impl Film {
         }
         self.base * (1.0 - (1.0 - self.mark / self.base) * (1.0 - clear))
     }
+}
+
+/// Error function (Abramowitz & Stegun 7.1.26, |error| < 1.5e-7).
+pub fn erf(x: f64) -> f64 {
+    let s = x.signum();
+    let x = x.abs();
+    let t = 1.0 / (1.0 + 0.327_591_1 * x);
+    let y = 1.0
+        - (((((1.061_405_429 * t - 1.453_152_027) * t) + 1.421_413_741) * t - 0.284_496_736) * t
+            + 0.254_829_592)
+            * t
+            * (-x * x).exp();
+    s * y
 }
 
 #[cfg(test)]

@@ -16,6 +16,7 @@ pub mod certificates;
 pub mod cli;
 pub mod faults;
 pub mod film;
+pub mod frames;
 pub mod grbl;
 pub mod native;
 pub mod plate;

@@ -12,7 +12,6 @@ use crate::coords::{CarriageUm, PixelXY};
 use crate::targets::certificate::{CameraCertificate, FiducialGroup};
 use serde::{Deserialize, Serialize};
 use serde_json::json;
-use std::path::Path;
 
 /// Pixel → carriage as a pixel session measured it: carriage = stage + A·p + t.
 #[derive(Debug, Clone, Copy, Serialize, Deserialize)]
@@ -40,15 +39,6 @@ impl PixelTransform {
         let a = &self.params;
         let [c, r] = super::affine_fit::solve_linear(a, [-a[0], -a[3]]);
         PixelXY::new(c, r)
-    }
-
-    /// From a pixel session's results.json.
-    pub fn from_session(dir: &Path) -> Result<Self, String> {
-        let r: super::documents::PixelResults =
-            super::documents::read_results(dir, "pixel").map_err(|e| e.to_string())?;
-        Ok(PixelTransform {
-            params: r.calibration.affine.params,
-        })
     }
 }
 

@@ -2,9 +2,9 @@
 //! descriptor, event, stop documents, flushed line by line so a crash loses nothing already
 //! measured), a crop of every mark with the fitted centre drawn, and the results document.
 
-use super::documents::LogDocument;
 use crate::coords::PixelXY;
 use crate::digitise::ImageF32;
+use serde::{de::DeserializeOwned, Deserialize, Serialize};
 use serde_json::{json, Value};
 use std::fs::{File, OpenOptions};
 use std::io::Write;
@@ -122,10 +122,7 @@ impl Session {
     }
 
     /// Writes the results document atomically.
-    pub fn write_results<C: serde::Serialize>(
-        &self,
-        r: &super::documents::Results<C>,
-    ) -> std::io::Result<PathBuf> {
+    pub fn write_results<C: serde::Serialize>(&self, r: &Results<C>) -> std::io::Result<PathBuf> {
         let p = self.dir.join(RESULTS);
         crate::atomic::write_json(&p, r)?;
         Ok(p)
@@ -210,6 +207,114 @@ pub fn list(store: &Path, kind: &str) -> std::io::Result<Vec<PathBuf>> {
     };
     v.sort();
     Ok(v)
+}
+
+/// `results.json` of a session: what kind of calibration, where, and its result.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Results<C> {
+    pub kind: String,
+    pub session: PathBuf,
+    pub calibration: C,
+}
+
+/// One line of a session's log.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(tag = "doc", rename_all = "snake_case")]
+pub enum LogDocument<D> {
+    Start {
+        kind: String,
+        time: String,
+        rig_version: String,
+    },
+    Descriptor {
+        data: D,
+    },
+    Event {
+        name: String,
+        data: serde_json::Value,
+    },
+    Stop {
+        status: String,
+        reason: Option<String>,
+    },
+}
+
+/// Why a session's document could not be read.
+#[derive(Debug, thiserror::Error)]
+#[error("{path}: {message}")]
+pub struct DocumentError {
+    pub path: PathBuf,
+    pub message: String,
+}
+
+fn fail(path: &Path, message: impl Into<String>) -> DocumentError {
+    DocumentError {
+        path: path.to_path_buf(),
+        message: message.into(),
+    }
+}
+
+/// A session's results document, of kind `kind`.
+pub fn read_results<C: DeserializeOwned>(
+    dir: &Path,
+    kind: &str,
+) -> Result<Results<C>, DocumentError> {
+    let p = dir.join(super::session::RESULTS);
+    let text = std::fs::read_to_string(&p).map_err(|e| fail(&p, e.to_string()))?;
+    // The kind first, so that the wrong kind of session is named as such.
+    let head: serde_json::Value =
+        serde_json::from_str(&text).map_err(|e| fail(&p, format!("not JSON: {e}")))?;
+    if head["kind"] != kind {
+        let article = if kind.starts_with(['a', 'e', 'i', 'o', 'u']) {
+            "an"
+        } else {
+            "a"
+        };
+        return Err(fail(
+            &p,
+            format!("not {article} {kind} session (run `rig calibrate {kind}`)"),
+        ));
+    }
+    serde_path_to_error::deserialize(head).map_err(|e| {
+        fail(
+            &p,
+            format!(
+                "not a {kind} session's results: at {}: {}",
+                e.path(),
+                e.inner()
+            ),
+        )
+    })
+}
+
+/// A session log's descriptor document.
+pub fn read_descriptor<D: DeserializeOwned>(dir: &Path) -> Result<D, DocumentError> {
+    let p = dir.join(super::session::LOG);
+    let text = std::fs::read_to_string(&p).map_err(|e| fail(&p, e.to_string()))?;
+    for (n, line) in text.lines().enumerate() {
+        let v: serde_json::Value = match serde_json::from_str(line) {
+            Ok(v) => v,
+            // A crash can leave a last line cut short; it is not the descriptor.
+            Err(_) => continue,
+        };
+        if v["doc"] == "descriptor" {
+            // The data read as D directly (not through the tagged enum, whose buffering
+            // would lose the path of a bad field).
+            let mut v = v;
+            return serde_path_to_error::deserialize::<_, D>(v["data"].take()).map_err(|e| {
+                fail(
+                    &p,
+                    format!(
+                        "line {}: the descriptor's {}: {}",
+                        n + 1,
+                        e.path(),
+                        e.inner()
+                    ),
+                )
+            });
+        }
+    }
+    Err(fail(&p, "no descriptor document in the log"))
 }
 
 #[cfg(test)]

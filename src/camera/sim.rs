@@ -2,7 +2,7 @@
 //! stage really is.
 
 use super::{Camera, CameraInfo, FormatInfo, Frame, Result, SeqTracker};
-use rig_sim::camera::FrameSource;
+use rig_sim::frames::FrameSource;
 use std::time::Duration;
 
 pub struct SimCamera {

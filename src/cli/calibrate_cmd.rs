@@ -6,7 +6,7 @@ use clap::{Args, Subcommand};
 use rig::calibrate::documents::{InteriorDescriptor, PixelDescriptor, Results};
 use rig::calibrate::{
     calibrate_interior, calibrate_pixel, CalibrateError, InteriorOptions, InteriorOrientation,
-    PixelCalibration, PixelOptions, PixelTransform, Rig, Session,
+    PixelCalibration, PixelOptions, Rig, Session,
 };
 use rig::targets::certificate::{CameraCertificate, PlateCertificate};
 use std::io::IsTerminal;
@@ -350,7 +350,7 @@ pub fn run(a: CalibrateArgs) -> anyhow::Result<i32> {
                         )
                     })?,
             };
-            let pixel = PixelTransform::from_session(&pixel_dir).map_err(anyhow::Error::msg)?;
+            let pixel = rig::calibrate::documents::pixel_transform(&pixel_dir)?;
             let flat_path = pixel_dir.join(rig::calibrate::pixel::FLAT);
             let flat = match flat_path.exists() {
                 true => Some(

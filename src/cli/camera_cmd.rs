@@ -82,24 +82,6 @@ pub fn parse_pair(s: &str, what: &str) -> anyhow::Result<(f64, f64)> {
     Ok((v[0], v[1]))
 }
 
-/// Opens a camera by name: `sim:SOCKET` (a running `rig-sim --camera-socket`) or a device path.
-pub fn open_device(dev: &str) -> anyhow::Result<Box<dyn Camera>> {
-    match dev.strip_prefix("sim:") {
-        Some(path) => Ok(Box::new(rig::camera::socket::SocketCamera::open(path)?)),
-        None => open_v4l2(dev),
-    }
-}
-
-#[cfg(feature = "v4l2")]
-fn open_v4l2(dev: &str) -> anyhow::Result<Box<dyn Camera>> {
-    Ok(Box::new(rig::camera::v4l2::V4l2Camera::open(dev)?))
-}
-
-#[cfg(not(feature = "v4l2"))]
-fn open_v4l2(dev: &str) -> anyhow::Result<Box<dyn Camera>> {
-    bail!("camera {dev}: this rig was built without the V4L2 backend; rebuild with `cargo build --release --features v4l2` (needs libclang), or use --sim")
-}
-
 /// `rig camera list`.
 #[cfg(feature = "v4l2")]
 fn list(as_json: bool) -> anyhow::Result<i32> {
@@ -159,7 +141,7 @@ pub fn run(a: CameraArgs) -> anyhow::Result<i32> {
             .device
             .clone()
             .expect("clap requires --camera without --sim");
-        (None, open_device(&dev)?)
+        (None, super::connect::open_device(&dev)?)
     };
     let code = match &a.action {
         CameraAction::List => unreachable!("handled above"),

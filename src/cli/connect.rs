@@ -5,6 +5,7 @@
 use anyhow::{bail, Context};
 use clap::Args;
 use rig::camera::{Camera, SimCamera};
+use rig::coords::CarriageUm;
 use rig::stage::{self, Dialect, DriverOptions, LinkOptions, SoftLimits, Stage};
 use std::path::PathBuf;
 
@@ -17,6 +18,10 @@ pub struct StagePort {
     /// Controller dialect on that port: native (the rig's firmware) or grbl (GRBL 1.1).
     #[arg(long, value_enum, default_value = "native", global = true)]
     pub dialect: Dialect,
+    /// Tighter soft limits, mm: XMIN,XMAX,YMIN,YMAX (intersected with the controller's; a scan
+    /// is planned within them too).
+    #[arg(long, value_name = "MM,MM,MM,MM", value_parser = parse_limits, global = true)]
+    pub limits: Option<SoftLimits>,
 }
 
 /// The camera: every command that takes frames names it so.
@@ -63,10 +68,6 @@ pub struct ConnectArgs {
     /// its truth beside the results as sim-truth.json.
     #[command(flatten)]
     pub sim: Simulated,
-    /// Tighter soft limits, mm: XMIN,XMAX,YMIN,YMAX (intersected with the controller's; a scan
-    /// is planned within them too).
-    #[arg(long, value_name = "MM,MM,MM,MM", value_parser = super::stage_cmd::parse_limits, global = true)]
-    pub limits: Option<SoftLimits>,
     /// Simulator: wall seconds per simulated second (0 = no waiting).
     #[arg(
         long,
@@ -106,7 +107,7 @@ pub struct ConnectArgs {
 
 fn driver_options(a: &ConnectArgs) -> DriverOptions {
     DriverOptions {
-        limits: a.limits,
+        limits: a.port.limits,
         ..Default::default()
     }
 }
@@ -170,10 +171,52 @@ pub fn connect(
     };
     let stage = stage::open(port, a.port.dialect, driver_options(a), link)
         .with_context(|| format!("opening the stage at {}", port.display()))?;
-    let camera = super::camera_cmd::open_device(cam)?;
+    let camera = open_device(cam)?;
     Ok(Hardware {
         sim: None,
         stage,
         camera,
+    })
+}
+
+/// Opens a camera by name: `sim:SOCKET` (a running `rig-sim --camera-socket`) or a device path.
+pub fn open_device(dev: &str) -> anyhow::Result<Box<dyn Camera>> {
+    match dev.strip_prefix("sim:") {
+        Some(path) => Ok(Box::new(rig::camera::socket::SocketCamera::open(path)?)),
+        None => open_v4l2(dev),
+    }
+}
+
+#[cfg(feature = "v4l2")]
+fn open_v4l2(dev: &str) -> anyhow::Result<Box<dyn Camera>> {
+    Ok(Box::new(rig::camera::v4l2::V4l2Camera::open(dev)?))
+}
+
+#[cfg(not(feature = "v4l2"))]
+fn open_v4l2(dev: &str) -> anyhow::Result<Box<dyn Camera>> {
+    bail!("camera {dev}: this rig was built without the V4L2 backend; rebuild with `cargo build --release --features v4l2` (needs libclang), or use --sim")
+}
+
+pub fn parse_limits(s: &str) -> Result<SoftLimits, String> {
+    let v: Vec<f64> = s
+        .split(',')
+        .map(|x| {
+            x.trim()
+                .parse::<f64>()
+                .map_err(|_| format!("`{x}` is not a number"))
+        })
+        .collect::<Result<_, _>>()?;
+    if v.len() != 4 {
+        return Err("expected XMIN,XMAX,YMIN,YMAX in mm".into());
+    }
+    if v.iter().any(|x| !x.is_finite()) {
+        return Err("the limits must be numbers (not nan or inf)".into());
+    }
+    if v[0] >= v[1] || v[2] >= v[3] {
+        return Err("each minimum must be below its maximum".into());
+    }
+    Ok(SoftLimits {
+        min: CarriageUm::from_mm(v[0], v[2]),
+        max: CarriageUm::from_mm(v[1], v[3]),
     })
 }

@@ -93,7 +93,7 @@ fn calibration(a: &ScanArgs, s: &ScanScript) -> anyhow::Result<ScanCalibration> 
             })?,
     };
     let mut cal = ScanCalibration::load(&interior, s.fiducials)?;
-    if let Some(l) = &a.conn.limits {
+    if let Some(l) = &a.conn.port.limits {
         cal.rig.limits = cal.rig.limits.intersect(l);
     }
     Ok(cal)
@@ -253,7 +253,7 @@ pub fn run(a: ScanArgs) -> anyhow::Result<i32> {
             let dir = s.out_dir.clone();
             let mut sd = if *resume {
                 let check = Reopen {
-                    limits: a.conn.limits,
+                    limits: a.conn.port.limits,
                     max_memory_mib: a.max_memory,
                 };
                 match ScanDir::resume(&dir, s, &check) {

@@ -4,8 +4,7 @@ use anyhow::{bail, Context};
 use clap::{Args, Subcommand};
 use rig::coords::CarriageUm;
 use rig::stage::{
-    self, Approach, Dialect, DriverOptions, LinkOptions, SoftLimits, Stage, StageError,
-    TimeoutPolicy,
+    self, Approach, Dialect, DriverOptions, LinkOptions, Stage, StageError, TimeoutPolicy,
 };
 use serde_json::json;
 use signal_hook::consts::SIGINT;
@@ -61,9 +60,6 @@ pub struct StageArgs {
     /// Move speed, mm/s (default: the controller's maximum).
     #[arg(long, value_name = "MM_S", global = true)]
     pub speed: Option<f64>,
-    /// Tighter soft limits, mm: XMIN,XMAX,YMIN,YMAX (intersected with the controller's).
-    #[arg(long, value_name = "MM,MM,MM,MM", value_parser = parse_limits, global = true)]
-    pub limits: Option<SoftLimits>,
     /// Motion timeout = expected duration × this + --timeout-margin.
     #[arg(long, default_value_t = 1.5, global = true)]
     pub timeout_factor: f64,
@@ -119,27 +115,6 @@ pub enum Action {
     CheckSetup,
     /// Stop at once (the position may be lost: home afterwards).
     Estop,
-}
-
-pub fn parse_limits(s: &str) -> Result<SoftLimits, String> {
-    let v: Vec<f64> = s
-        .split(',')
-        .map(|x| {
-            x.trim()
-                .parse::<f64>()
-                .map_err(|_| format!("`{x}` is not a number"))
-        })
-        .collect::<Result<_, _>>()?;
-    if v.len() != 4 {
-        return Err("expected XMIN,XMAX,YMIN,YMAX in mm".into());
-    }
-    if v[0] > v[1] || v[2] > v[3] {
-        return Err("each minimum must be below its maximum".into());
-    }
-    Ok(SoftLimits {
-        min: CarriageUm::from_mm(v[0], v[2]),
-        max: CarriageUm::from_mm(v[1], v[3]),
-    })
 }
 
 /// The motion options, checked; an error is bad usage (exit code 2).
@@ -206,7 +181,7 @@ fn options(a: &StageArgs) -> Result<DriverOptions, String> {
         },
         tolerance_um: a.tolerance_um,
         speed_um_s: a.speed.map(|s| s * 1000.0),
-        limits: a.limits,
+        limits: a.port.limits,
     })
 }
 
