@@ -107,6 +107,37 @@ fn elevation_model_from_a_rendered_pair_meets_half_the_height_step() {
         std::fs::read(first.join("dem.tif")).unwrap(),
         std::fs::read(again.join("dem.tif")).unwrap()
     );
+    // A height range that misses most of the terrain: the run warns that the heights pile at
+    // the bound (it does not pass silently).
+    let h_min: f64 = project
+        .lines()
+        .find_map(|l| l.strip_prefix("h_min = "))
+        .expect("the scene's project has h_min")
+        .trim()
+        .parse()
+        .unwrap();
+    let h_max_line = project
+        .lines()
+        .find(|l| l.starts_with("h_max = "))
+        .expect("the scene's project has h_max");
+    let low = scene.join("low.toml");
+    std::fs::write(
+        &low,
+        project.replace(h_max_line, &format!("h_max = {}", h_min + 86.0)),
+    )
+    .unwrap();
+    let o = run_ok(
+        rig()
+            .args(["dtm"])
+            .arg(&low)
+            .arg("--out")
+            .arg(d.path().join("dtm-low")),
+    );
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        e.contains("warning") && e.contains("within a step of the highest height tried"),
+        "{e}"
+    );
     // A project with a bad value names the file and the field.
     let bad = scene.join("bad.toml");
     let text = project.replace("h_step = 2", "h_step = -2");

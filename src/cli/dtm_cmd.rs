@@ -133,6 +133,11 @@ fn run_format2(
         |sidecar: &std::path::Path| ScannedPhoto::load_photo(sidecar).map_err(|e| e.to_string());
     let photos = pipeline2::load_photos(&p, &scan)?;
     let r = pipeline2::run(&p, &photos, out, max_memory)?;
+    for pr in &r.pairs {
+        if let Some(w) = pr.dtm.pile_warning() {
+            eprintln!("rig dtm: warning: photos {} × {}: {w}", pr.left, pr.right);
+        }
+    }
     if json {
         println!("{}", serde_json::to_string(&r)?);
         return Ok(0);
@@ -238,11 +243,18 @@ pub fn run(a: DtmArgs) -> anyhow::Result<i32> {
             };
             let (left, right) = (load(&p.photos.left)?, load(&p.photos.right)?);
             let (r, report) = pipeline::run(&p, [&left, &right], &out, max_memory)?;
+            if let Some(w) = r.report.pile_warning() {
+                eprintln!("rig dtm: warning: {w}");
+            }
             if json {
                 println!("{}", serde_json::to_string(&report)?);
             } else {
                 print_report(&report.pmf, &r);
-                println!("written to {}", out.display());
+                println!(
+                "written to {}: dem.tif, quality.tif, ortho.tif, points.ply, points.las, hillshade.png, quality.png{}, report.json, pmfs.json",
+                out.display(),
+                if report.dtm.comparison.is_some() { ", error.png" } else { "" }
+            );
             }
             Ok(0)
         }

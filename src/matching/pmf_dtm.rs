@@ -99,6 +99,35 @@ pub struct PmfDtmReport {
     /// Flying height above the terrain, m, when known: the RMSE in per mille of it.
     pub flying_height_m: Option<f64>,
     pub rmse_permille_of_flying_height: Option<f64>,
+    /// Share of the points kept whose height lies within a step of the lowest (highest)
+    /// height tried, %: a pile there means the terrain may reach beyond the range.
+    #[serde(default)]
+    pub at_lowest_percent: f64,
+    #[serde(default)]
+    pub at_highest_percent: f64,
+}
+
+/// The share of matches piled at a bound above which a run warns, %.
+pub const PILE_WARNING_PERCENT: f64 = 2.0;
+
+impl PmfDtmReport {
+    /// A warning when the matches pile at a bound of the heights tried; `None` when not.
+    pub fn pile_warning(&self) -> Option<String> {
+        let s = &self.params.sweep;
+        let (lo, hi) = (self.at_lowest_percent, self.at_highest_percent);
+        if lo.max(hi) <= PILE_WARNING_PERCENT {
+            return None;
+        }
+        let (share, which, h) = if lo >= hi {
+            (lo, "lowest", s.h_min)
+        } else {
+            (hi, "highest", s.h_max)
+        };
+        Some(format!(
+            "{share:.1} % of the heights lie within a step of the {which} height tried ({h:.1} m): the terrain may reach beyond {:.1} … {:.1} m, or the mappings cannot tell heights apart; widen the heights (format 2: [dem] heights; format 1: [matching] h_min, h_max) or check the control points",
+            s.h_min, s.h_max
+        ))
+    }
 }
 
 pub struct PmfDtm {
@@ -184,6 +213,20 @@ pub fn pmf_dtm(
         comparison,
         flying_height_m,
         rmse_permille_of_flying_height: rmse_permille,
+        at_lowest_percent: RegionStats::percent(
+            points
+                .iter()
+                .filter(|q| q.ground.z <= p.sweep.h_min + p.sweep.h_step)
+                .count(),
+            points.len(),
+        ),
+        at_highest_percent: RegionStats::percent(
+            points
+                .iter()
+                .filter(|q| q.ground.z >= p.sweep.h_max - p.sweep.h_step)
+                .count(),
+            points.len(),
+        ),
     };
     Ok(PmfDtm {
         heights,
