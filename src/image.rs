@@ -33,13 +33,18 @@ impl ImageF32 {
     pub fn bilinear(&self, x: f64, y: f64) -> Option<f32> {
         let (u, v) = (x - 0.5, y - 0.5);
         // Written so that NaN and huge coordinates fall outside too.
-        if u.is_nan() || v.is_nan() || u < 0.0 || v < 0.0 {
+        let (w1, h1) = (self.width as f64 - 1.0, self.height as f64 - 1.0);
+        if u.is_nan() || v.is_nan() || u < 0.0 || v < 0.0 || u > w1 || v > h1 {
             return None;
         }
-        let (i, j) = (u as usize, v as usize);
-        if i >= self.width.saturating_sub(1) || j >= self.height.saturating_sub(1) {
+        if self.width < 2 || self.height < 2 {
             return None;
         }
+        // The last centres (u = W − 1) interpolate in the last cell with weight 1.
+        let (i, j) = (
+            (u as usize).min(self.width - 2),
+            (v as usize).min(self.height - 2),
+        );
         let (fx, fy) = ((u - i as f64) as f32, (v - j as f64) as f32);
         let p = &self.data[j * self.width + i..];
         let q = &self.data[(j + 1) * self.width + i..];
@@ -152,6 +157,32 @@ pub fn load_grey(path: &std::path::Path, max_bytes: u64) -> std::io::Result<Imag
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// On a plane g = 3c + 5r bilinear sampling is exact everywhere in the centres' hull,
+    /// including its last row and column; outside, at NaN and on 1-pixel images: nothing.
+    #[test]
+    fn bilinear_is_exact_on_a_plane_up_to_the_last_centres() {
+        let mut img = ImageF32::new(4, 3);
+        for r in 0..3 {
+            for c in 0..4 {
+                img.data[r * 4 + c] = (3 * c + 5 * r) as f32;
+            }
+        }
+        let plane = |x: f64, y: f64| (3.0 * (x - 0.5) + 5.0 * (y - 0.5)) as f32;
+        for (x, y) in [(0.5, 0.5), (3.5, 2.5), (3.5, 0.5), (0.5, 2.5), (2.25, 1.75)] {
+            assert_eq!(img.bilinear(x, y), Some(plane(x, y)), "({x}, {y})");
+        }
+        for (x, y) in [
+            (3.51, 1.0),
+            (0.49, 1.0),
+            (1.0, 2.51),
+            (f64::NAN, 1.0),
+            (1e300, 1.0),
+        ] {
+            assert_eq!(img.bilinear(x, y), None, "({x}, {y})");
+        }
+        assert_eq!(ImageF32::new(1, 5).bilinear(0.5, 1.0), None);
+    }
 
     #[test]
     fn grey_tiff_and_png_read_their_values_and_colour_is_refused() {

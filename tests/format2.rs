@@ -227,7 +227,7 @@ fn check_quality_and_ortho(out: &Path, r: &serde_json::Value, a: &AerialPhoto) {
     assert!(ratio > 0.3 && ratio < 5.0, "σ off by {ratio}: {c}");
     // The orthophoto against the ground's reflectance at each node (simulator coordinates).
     let o = rig::matching::output::read_geotiff(&out.join("ortho.tif")).unwrap();
-    let dem = jacksboro();
+    let terrain = jacksboro();
     let corr_at = |dc: i64| {
         let (mut v, mut t) = (Vec::new(), Vec::new());
         for r in 0..o.rows {
@@ -240,7 +240,7 @@ fn check_quality_and_ortho(out: &Path, r: &serde_json::Value, a: &AerialPhoto) {
                 let x = x - rig::sim_scene::ORIGIN_M[0] + dc as f64 * o.cell_m;
                 let y = y - rig::sim_scene::ORIGIN_M[1];
                 v.push(g as f64);
-                t.push(rig_sim::scene::reflectance(a.texture_seed, &dem, x, y));
+                t.push(rig_sim::scene::reflectance(a.texture_seed, &terrain, x, y));
             }
         }
         let n = v.len() as f64;
@@ -257,6 +257,35 @@ fn check_quality_and_ortho(out: &Path, r: &serde_json::Value, a: &AerialPhoto) {
     let (off, _) = corr_at(1);
     eprintln!("ortho vs the ground's reflectance: correlation {here:.3} over {n} nodes, {off:.3} one cell east");
     assert!(n > 1000 && here > 0.8 && here > off + 0.1, "{here} {off}");
+    // quality.tif: two float bands per pixel (σ ≥ 0, correlation within the threshold … 1) on
+    // the DEM's grid, nodata where the DEM has none — read by the TIFF layout, not our reader.
+    let dem = rig::matching::output::read_geotiff(&out.join("dem.tif")).unwrap();
+    let mut d = tiff::decoder::Decoder::new(std::io::BufReader::new(
+        std::fs::File::open(out.join("quality.tif")).unwrap(),
+    ))
+    .unwrap();
+    assert_eq!(d.dimensions().unwrap(), (dem.cols as u32, dem.rows as u32));
+    let tiff::decoder::DecodingResult::F32(q) = d.read_image().unwrap() else {
+        panic!("quality.tif is not float32");
+    };
+    assert_eq!(q.len(), 2 * dem.cols * dem.rows, "two samples per pixel");
+    let mut both = 0;
+    for (i, z) in dem.z.iter().enumerate() {
+        let (s, c) = (q[2 * i], q[2 * i + 1]);
+        if z.is_finite() && s != -9999.0 {
+            assert!(
+                s > 0.0 && s < 50.0 && (0.5..=1.0).contains(&c),
+                "node {i}: σ {s}, ρ {c}"
+            );
+            both += 1;
+        } else if !z.is_finite() {
+            assert!(
+                s == -9999.0 && c == -9999.0,
+                "node {i} has no height but σ {s}"
+            );
+        }
+    }
+    assert!(both > 1000, "{both} nodes with σ");
     // quality.tif: two bands, σ and correlation, as GDAL reads them (when installed).
     if let Ok(g) = std::process::Command::new("gdalinfo")
         .args(["-stats"])

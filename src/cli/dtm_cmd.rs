@@ -168,7 +168,7 @@ fn run_format2(
     }
     match &r.variance_factor {
         Some(f) => println!(
-            "standard deviations (quality.tif): the matching's, × {:.2} from {} node heights compared between pairs",
+            "standard deviations (quality.tif): the matching's, × {:.2} from {} node heights compared between pairs (a lower bound where pairs share a photo)",
             f.s0, f.comparisons
         ),
         None => println!(
@@ -208,8 +208,10 @@ pub fn run(a: DtmArgs) -> anyhow::Result<i32> {
         (None, Some(project), Some(out)) => {
             let text = std::fs::read_to_string(&project)
                 .with_context(|| format!("reading {}", project.display()))?;
-            if rig::matching::project2::is_format2(&text) {
-                return run_format2(&project, &out, a.max_memory, a.json);
+            match rig::matching::project2::format_of(&text) {
+                Ok(2) => return run_format2(&project, &out, a.max_memory, a.json),
+                Ok(_) => {}
+                Err(e) => anyhow::bail!("{}: {e}", project.display()),
             }
             DtmAction::Pmf {
                 project,
@@ -250,6 +252,12 @@ pub fn run(a: DtmArgs) -> anyhow::Result<i32> {
                 println!("{}", serde_json::to_string(&report)?);
             } else {
                 print_report(&report.pmf, &r);
+                if let Some(c) = &report.sigma_vs_reference {
+                    println!(
+                        "standard deviations (quality.tif, the matching's own: one pair cannot scale them): RMS {:.2} m; against the reference the errors are {:.1} × them, {:.0} % within 2σ",
+                        c.rms_sigma_m, c.ratio, c.within_2_sigma_percent
+                    );
+                }
                 println!(
                 "written to {}: dem.tif, quality.tif, ortho.tif, points.ply, points.las, hillshade.png, quality.png{}, report.json, pmfs.json",
                 out.display(),

@@ -101,6 +101,15 @@ impl ElevationGrid {
         })
     }
 
+    /// The index of the node nearest ground (x, y); `None` outside the grid or for NaN.
+    pub fn node_index(&self, x: f64, y: f64) -> Option<usize> {
+        let c = ((x - self.x0) / self.cell_m).round();
+        let r = ((self.y0 - y) / self.cell_m).round();
+        // Written so that NaN (a point from a degenerate mapping) falls outside too.
+        let inside = c >= 0.0 && r >= 0.0 && c < self.cols as f64 && r < self.rows as f64;
+        inside.then(|| r as usize * self.cols + c as usize)
+    }
+
     pub fn node(&self, c: usize, r: usize) -> [f64; 2] {
         [
             self.x0 + c as f64 * self.cell_m,
@@ -113,14 +122,9 @@ impl ElevationGrid {
         let mut sum = vec![0.0f64; self.z.len()];
         let mut n = vec![0u32; self.z.len()];
         for p in pts {
-            let c = ((p.x - self.x0) / self.cell_m).round();
-            let r = ((self.y0 - p.y) / self.cell_m).round();
-            // Written so that NaN (a point from a degenerate mapping) falls outside too.
-            let inside = c >= 0.0 && r >= 0.0 && c < self.cols as f64 && r < self.rows as f64;
-            if !inside || !p.z.is_finite() {
+            let Some(i) = self.node_index(p.x, p.y).filter(|_| p.z.is_finite()) else {
                 continue;
-            }
-            let i = r as usize * self.cols + c as usize;
+            };
             sum[i] += p.z;
             n[i] += 1;
         }
@@ -138,11 +142,8 @@ impl ElevationGrid {
     pub fn fill_median(&mut self, pts: &[GroundM]) {
         let mut per: Vec<Vec<f32>> = vec![Vec::new(); self.z.len()];
         for p in pts {
-            let c = ((p.x - self.x0) / self.cell_m).round();
-            let r = ((self.y0 - p.y) / self.cell_m).round();
-            let inside = c >= 0.0 && r >= 0.0 && c < self.cols as f64 && r < self.rows as f64;
-            if inside && p.z.is_finite() {
-                per[r as usize * self.cols + c as usize].push(p.z as f32);
+            if let Some(i) = self.node_index(p.x, p.y).filter(|_| p.z.is_finite()) {
+                per[i].push(p.z as f32);
             }
         }
         for (z, v) in self.z.iter_mut().zip(&mut per) {
@@ -163,17 +164,20 @@ impl ElevationGrid {
     /// The standard deviation and correlation of each node that has a height, from the points
     /// that fall nearest it (those [`ElevationGrid::fill`] and `fill_median` used).
     pub fn quality(&self, pts: &[MatchedPoint]) -> NodeQuality {
+        self.quality_scaled(pts, 1.0)
+    }
+
+    /// [`ElevationGrid::quality`] with every standard deviation multiplied by `scale` (the
+    /// variance factor of [`super::precision`]).
+    pub fn quality_scaled(&self, pts: &[MatchedPoint], scale: f64) -> NodeQuality {
         let n = self.z.len();
         let (mut ss, mut ns) = (vec![0.0f64; n], vec![0u32; n]);
         let (mut sc, mut nc) = (vec![0.0f64; n], vec![0u32; n]);
         for p in pts {
-            let c = ((p.ground.x - self.x0) / self.cell_m).round();
-            let r = ((self.y0 - p.ground.y) / self.cell_m).round();
-            let inside = c >= 0.0 && r >= 0.0 && c < self.cols as f64 && r < self.rows as f64;
-            if !inside || !p.ground.z.is_finite() {
+            let g = p.ground;
+            let Some(i) = self.node_index(g.x, g.y).filter(|_| g.z.is_finite()) else {
                 continue;
-            }
-            let i = r as usize * self.cols + c as usize;
+            };
             if p.sigma_m.is_finite() {
                 ss[i] += (p.sigma_m as f64).powi(2);
                 ns[i] += 1;
@@ -191,7 +195,9 @@ impl ElevationGrid {
             }
         };
         NodeQuality {
-            sigma_m: (0..n).map(|i| at(i, ss[i], ns[i], f64::sqrt)).collect(),
+            sigma_m: (0..n)
+                .map(|i| at(i, ss[i], ns[i], f64::sqrt) * scale as f32)
+                .collect(),
             corr: (0..n).map(|i| at(i, sc[i], nc[i], |v| v)).collect(),
         }
     }

@@ -319,9 +319,14 @@ mod tests {
         let p = d.path().join("h.png");
         write_hillshade(&p, &g, Crs::Local).unwrap();
         let img = image::open(&p).unwrap().to_rgb8();
-        assert!(img.width() as usize >= MIN_MAP_PX, "{}", img.width());
+        // The map area itself (without its margins) is at least MIN_MAP_PX wide.
+        let (k, s) = zoom(g.cols, g.rows);
+        assert!(g.cols.div_ceil(s) * k >= MIN_MAP_PX, "{k} px per node");
+        assert_eq!(
+            img.width() as usize,
+            LEFT as usize + g.cols * k + RIGHT as usize
+        );
         // West of column 10 the map shows "no height"; east of it, coloured terrain.
-        let (k, _) = zoom(g.cols, g.rows);
         let y = (TOP as usize + g.rows * k / 2) as u32;
         assert_eq!(*img.get_pixel(LEFT as u32 + 2, y), NO_HEIGHT);
         assert_ne!(

@@ -269,9 +269,18 @@ pub fn write_las(path: &Path, pts: &[MatchedPoint], crs: Crs) -> std::io::Result
     let las_err = |e: las::Error| std::io::Error::other(format!("{}: {e}", path.display()));
     let mut b = las::Builder::from((1, 2));
     b.generating_software = "rig".into();
+    let finite = |p: &&MatchedPoint| {
+        p.ground.x.is_finite() && p.ground.y.is_finite() && p.ground.z.is_finite()
+    };
+    // The offsets near the data's lowest corner (of the finite points only).
     let first = pts
-        .first()
-        .map_or([0.0; 3], |p| [p.ground.x, p.ground.y, p.ground.z]);
+        .iter()
+        .filter(finite)
+        .fold(None, |m: Option<[f64; 3]>, p| {
+            let g = [p.ground.x, p.ground.y, p.ground.z];
+            Some(m.map_or(g, |m| [m[0].min(g[0]), m[1].min(g[1]), m[2].min(g[2])]))
+        });
+    let first = first.unwrap_or([0.0; 3]);
     // Offsets at whole kilometres near the data: coordinates as i32 millimetres stay in range.
     let t = |o: f64| las::Transform {
         scale: 0.001,
@@ -295,11 +304,11 @@ pub fn write_las(path: &Path, pts: &[MatchedPoint], crs: Crs) -> std::io::Result
     }
     let header = b.into_header().map_err(las_err)?;
     let mut w = las::Writer::new(std::io::Cursor::new(Vec::new()), header).map_err(las_err)?;
-    for p in pts {
+    for p in pts.iter().filter(finite) {
         let out_of_range = [p.ground.x, p.ground.y, p.ground.z]
             .iter()
             .zip([first[0], first[1], first[2]])
-            .any(|(v, o)| !v.is_finite() || (v - o).abs() > 2.0e6);
+            .any(|(v, o)| (v - o).abs() > 2.0e6);
         if out_of_range {
             // Not representable at a millimetre from the offset (±2 147 km): left out.
             continue;
@@ -309,6 +318,9 @@ pub fn write_las(path: &Path, pts: &[MatchedPoint], crs: Crs) -> std::io::Result
             y: p.ground.y,
             z: p.ground.z,
             intensity: (p.corr.clamp(0.0, 1.0) * 65535.0) as u16,
+            // One return per point, as validators expect of points without returns.
+            return_number: 1,
+            number_of_returns: 1,
             ..Default::default()
         })
         .map_err(las_err)?;

@@ -4,7 +4,7 @@
 //! and the files a run leaves. It takes plain photos (an image and its pixel → photo grid);
 //! whoever made them — the rig's scans or anyone's — hands them over as [`Photo`]s.
 
-use super::grid::{Comparison, ElevationGrid};
+use super::grid::{Comparison, ElevationGrid, NodeQuality};
 use super::maps::{write_error_map, write_hillshade, write_sigma_map};
 use super::ortho::{orthophoto, View};
 use super::output::{
@@ -13,6 +13,7 @@ use super::output::{
 use super::pmf::PmfError;
 use super::pmf_dtm::{pmf_dtm, Budget, DtmError, PmfDtm, PmfDtmParams, PmfDtmReport};
 use super::pmf_set::FitReport;
+use super::precision::{check_sigma, SigmaCheck};
 use super::project::{PmfSource, Project, ProjectError};
 use super::regions::RegionParams;
 use super::sweep::SweepParams;
@@ -81,6 +82,10 @@ pub struct RunReport {
     /// Seed 000 Table 2: each mapping's terms and RMSE at the control and check points.
     pub pmf: Vec<FitReport>,
     pub dtm: PmfDtmReport,
+    /// quality.tif's σ (the matching's own, unscaled: one pair has no redundancy) against the
+    /// reference model's differences.
+    #[serde(default)]
+    pub sigma_vs_reference: Option<SigmaCheck>,
 }
 
 /// The files a run writes into its directory (and their temporary `.part` names meanwhile).
@@ -255,12 +260,23 @@ pub fn run(
         path: p.path.clone(),
         cause: source,
     })?;
+    // One pair: no redundancy to scale the matching's σ by (see precision.rs).
+    let quality = r.grid.quality(&r.points);
+    let sigma_vs_reference = reference.as_ref().and_then(|g| {
+        let d = r.grid.differences(|x, y| g.interpolate(x, y));
+        check_sigma(
+            d.iter()
+                .zip(&quality.sigma_m)
+                .map(|(&e, &s)| (e as f64, s as f64)),
+        )
+    });
     let report = RunReport {
         project: p.path.clone(),
         pmf_from: p.pmf.from,
         orientation,
         pmf: pmfs.report.clone(),
         dtm: r.report.clone(),
+        sigma_vs_reference,
     };
     let write = |source| PipelineError::Write {
         dir: out.to_path_buf(),
@@ -288,6 +304,7 @@ pub fn run(
         out,
         &r.grid,
         &r.points,
+        &quality,
         &views,
         reference.as_ref().zip(r.report.comparison.as_ref()),
         p.crs,
@@ -302,10 +319,12 @@ pub fn run(
 /// orthophoto from `views`, its points (PLY and LAS), the hillshade, the error map against the
 /// reference (removed when there is none, so that a rerun leaves no old one) and the report.
 /// Each written whole or not at all.
+#[allow(clippy::too_many_arguments)] // the run's products, each a different thing to write
 pub(crate) fn write_outputs(
     out: &Path,
     grid: &ElevationGrid,
     points: &[MatchedPoint],
+    quality: &NodeQuality,
     views: &[View<'_>],
     reference: Option<(&ElevationGrid, &Comparison)>,
     crs: Crs,
@@ -313,8 +332,7 @@ pub(crate) fn write_outputs(
 ) -> std::io::Result<()> {
     std::fs::create_dir_all(out)?;
     write_geotiff(&out.join("dem.tif"), grid, crs)?;
-    let quality = grid.quality(points);
-    write_quality(&out.join("quality.tif"), grid, crs, &quality)?;
+    write_quality(&out.join("quality.tif"), grid, crs, quality)?;
     let sig: Vec<f32> = quality
         .sigma_m
         .iter()

@@ -349,15 +349,10 @@ pub fn run(
     // The matchers' standard deviations scaled by what the pairs' disagreement shows.
     let refs: Vec<&[MatchedPoint]> = per_pair.iter().map(|v| v.as_slice()).collect();
     let factor = variance_factor(&grid, &refs);
-    let s0 = factor.map_or(1.0, |f| f.s0) as f32;
-    let all: Vec<MatchedPoint> = per_pair
-        .into_iter()
-        .flatten()
-        .map(|p| MatchedPoint {
-            sigma_m: p.sigma_m * s0,
-            ..p
-        })
-        .collect();
+    // The factor is a node's (means of many points compared): it scales the nodes' σ, not
+    // the points', which keep the matching's own.
+    let s0 = factor.map_or(1.0, |f| f.s0);
+    let all: Vec<MatchedPoint> = per_pair.into_iter().flatten().collect();
     let pts: Vec<GroundM> = all.iter().map(|p| p.ground).collect();
     grid.fill_median(&pts);
     let reference = match &p.reference {
@@ -370,7 +365,7 @@ pub fn run(
     let comparison = reference
         .as_ref()
         .map(|g| grid.compare(|x, y| g.interpolate(x, y)));
-    let quality = grid.quality(&all);
+    let quality = grid.quality_scaled(&all, s0);
     let sigma_vs_reference = reference.as_ref().and_then(|g| {
         let d = grid.differences(|x, y| g.interpolate(x, y));
         check_sigma(
@@ -433,6 +428,7 @@ pub fn run(
         out,
         &report.grid,
         &all,
+        &quality,
         &views,
         reference.as_ref().zip(report.comparison.as_ref()),
         p.crs,

@@ -68,8 +68,10 @@ pub fn estimate(
             limit: budget.max_candidates,
         });
     }
-    // Photos as f32, the height map (height, correlation), a point and its ground position.
-    let bytes = 4.0 * (left.0 * left.1 + right.0 * right.1) as f64 + pixels as f64 * (8.0 + 40.0);
+    // Photos as f32, the height map (height, correlation, σ), a matched point (32) with its
+    // ground position, and its LAS record (20) when the points are written.
+    let bytes =
+        4.0 * (left.0 * left.1 + right.0 * right.1) as f64 + pixels as f64 * (12.0 + 40.0 + 20.0);
     let mib = bytes / (1u64 << 20) as f64;
     if mib.is_nan() || mib > budget.max_memory_mb as f64 {
         return Err(DtmError::TooMuchMemory {
@@ -107,6 +109,11 @@ pub struct PmfDtmReport {
     pub at_highest_percent: f64,
 }
 
+/// The highest height the sweep tries: the last whole step from `h_min`.
+fn highest_tried(s: &super::sweep::SweepParams) -> f64 {
+    s.h_min + ((s.h_max - s.h_min) / s.h_step).floor() * s.h_step
+}
+
 /// The share of matches piled at a bound above which a run warns, %.
 pub const PILE_WARNING_PERCENT: f64 = 2.0;
 
@@ -121,7 +128,7 @@ impl PmfDtmReport {
         let (share, which, h) = if lo >= hi {
             (lo, "lowest", s.h_min)
         } else {
-            (hi, "highest", s.h_max)
+            (hi, "highest", highest_tried(s))
         };
         Some(format!(
             "{share:.1} % of the heights lie within a step of the {which} height tried ({h:.1} m): the terrain may reach beyond {:.1} … {:.1} m, or the mappings cannot tell heights apart; widen the heights (format 2: [dem] heights; format 1: [matching] h_min, h_max) or check the control points",
@@ -223,7 +230,7 @@ pub fn pmf_dtm(
         at_highest_percent: RegionStats::percent(
             points
                 .iter()
-                .filter(|q| q.ground.z >= p.sweep.h_max - p.sweep.h_step)
+                .filter(|q| q.ground.z >= highest_tried(&p.sweep) - p.sweep.h_step)
                 .count(),
             points.len(),
         ),

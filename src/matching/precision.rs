@@ -19,29 +19,52 @@ pub struct VarianceFactor {
 
 /// The fewest comparisons a factor is estimated from.
 pub const MIN_COMPARISONS: usize = 50;
+/// The most it compares (nodes in order): the median is well known long before, and the work
+/// stays bounded for a block of many pairs.
+pub const MAX_COMPARISONS: usize = 1_000_000;
 
 /// The variance factor from each pair's points on `grid`'s nodes; `None` with fewer than
-/// [`MIN_COMPARISONS`] nodes seen by two pairs (a single pair has no redundancy).
+/// [`MIN_COMPARISONS`] nodes seen by two pairs (a single pair has no redundancy). Pairs that
+/// share a photo share its errors, which their difference cannot show: the factor is then a
+/// lower bound. Memory grows with the nodes each pair fills, not with the grid.
 pub fn variance_factor(grid: &ElevationGrid, pairs: &[&[MatchedPoint]]) -> Option<VarianceFactor> {
-    let per_pair: Vec<(Vec<f32>, Vec<f32>)> = pairs
-        .iter()
-        .map(|pts| {
-            let mut g = grid.clone();
-            let ground: Vec<_> = pts.iter().map(|p| p.ground).collect();
-            g.fill(&ground);
-            let q = g.quality(pts);
-            (g.z, q.sigma_m)
-        })
-        .collect();
+    // Per node: each pair's mean height and mean σ² there.
+    let mut per_node: std::collections::BTreeMap<usize, Vec<(f64, f64)>> = Default::default();
+    for pts in pairs {
+        let mut acc: std::collections::BTreeMap<usize, (f64, u32, f64, u32)> = Default::default();
+        for p in pts.iter() {
+            let g = p.ground;
+            let Some(i) = grid.node_index(g.x, g.y).filter(|_| g.z.is_finite()) else {
+                continue;
+            };
+            let a = acc.entry(i).or_default();
+            a.0 += g.z;
+            a.1 += 1;
+            if p.sigma_m.is_finite() {
+                a.2 += (p.sigma_m as f64).powi(2);
+                a.3 += 1;
+            }
+        }
+        for (i, (sz, nz, ss, ns)) in acc {
+            if ns > 0 {
+                per_node
+                    .entry(i)
+                    .or_default()
+                    .push((sz / nz as f64, ss / ns as f64));
+            }
+        }
+    }
     let mut r = Vec::new();
-    for a in 0..per_pair.len() {
-        for b in a + 1..per_pair.len() {
-            let ((za, sa), (zb, sb)) = (&per_pair[a], &per_pair[b]);
-            for i in 0..grid.z.len() {
-                let v = (sa[i] as f64).powi(2) + (sb[i] as f64).powi(2);
-                let d = za[i] as f64 - zb[i] as f64;
-                if d.is_finite() && v.is_finite() && v > 0.0 {
-                    r.push(d * d / v);
+    'nodes: for v in per_node.values() {
+        for a in 0..v.len() {
+            for b in a + 1..v.len() {
+                let var = v[a].1 + v[b].1;
+                let d = v[a].0 - v[b].0;
+                if d.is_finite() && var.is_finite() && var > 0.0 {
+                    r.push(d * d / var);
+                    if r.len() >= MAX_COMPARISONS {
+                        break 'nodes;
+                    }
                 }
             }
         }

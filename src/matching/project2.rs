@@ -197,6 +197,35 @@ pub struct Project2 {
 }
 
 /// Whether `text` is a format-2 project (a top-level `format = 2`).
+/// Which project format `text` is (1 or 2), or what it lacks to be either: a file that parses
+/// as TOML but names no format and has neither format's tables is not taken for format 1 (whose
+/// first complaint, a missing `photos`, would mislead). Text that is not TOML is left to the
+/// loaders, whose errors give the line.
+pub fn format_of(text: &str) -> Result<u32, String> {
+    let Ok(t) = text.parse::<toml::Table>() else {
+        return Ok(if text.contains("format") && text.contains('2') {
+            2
+        } else {
+            1
+        });
+    };
+    match t.get("format") {
+        Some(v) if v.as_integer() == Some(2) => Ok(2),
+        Some(v) => Err(format!(
+            "format = {}: this rig reads format 2 (`format = 2`) and format 1 (no `format` key, a [photos] table)",
+            v.as_integer()
+                .map_or_else(|| format!("(a {})", v.type_str()), |i| i.to_string())
+        )),
+        None if t.contains_key("photos") => Ok(1),
+        None if t.contains_key("photo") || t.contains_key("camera") => Err(
+            "it has [[photo]] or [camera] tables but no `format = 2` line: add it at the top".into(),
+        ),
+        None => Err(
+            "not a matching project: a format-2 project starts with `format = 2` and names [[photo]]s (see the README, \"Elevation models\"); a format-1 project has a [photos] table".into(),
+        ),
+    }
+}
+
 pub fn is_format2(text: &str) -> bool {
     text.parse::<toml::Table>()
         .ok()
@@ -493,4 +522,28 @@ pub fn parse_points(
         });
     }
     Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_format_is_told_or_what_is_missing_said() {
+        assert_eq!(format_of("format = 2\n[[photo]]\nid = \"1\"\n"), Ok(2));
+        assert_eq!(format_of("[photos]\nleft = \"a.json\"\n"), Ok(1));
+        assert!(format_of("")
+            .unwrap_err()
+            .contains("not a matching project"));
+        assert!(format_of("format = 3").unwrap_err().contains("format = 3"));
+        assert!(format_of("format = \"2\"")
+            .unwrap_err()
+            .contains("a string"));
+        assert!(format_of("[camera.a]\nfocal_mm = 1\n")
+            .unwrap_err()
+            .contains("format = 2"));
+        // Not TOML: the named format's loader gives the line.
+        assert_eq!(format_of("format = 2\n[[photo]\n"), Ok(2));
+        assert_eq!(format_of("[photos\n"), Ok(1));
+    }
 }

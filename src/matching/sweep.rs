@@ -123,10 +123,12 @@ fn ncc_at(right: &ImageF32, x: f64, y: f64, k: usize, refw: &[f32], refn: f32) -
 /// is needed, the curvature is already measured in height. `None` for a peak with no curvature.
 pub fn height_sigma(rho: f64, second_difference: f64, step_m: f64, n: usize) -> Option<f64> {
     let curvature = -second_difference / (step_m * step_m);
+    if !(rho.is_finite() && curvature.is_finite()) || curvature <= 0.0 || n == 0 {
+        return None;
+    }
     // A correlation of 1 is noise-free only in theory: resampling alone leaves ~1e-3.
     let rho = rho.min(0.999);
-    (curvature > 0.0 && n > 0 && rho.is_finite())
-        .then(|| ((1.0 - rho) / (n as f64 * curvature)).sqrt())
+    Some(((1.0 - rho) / (n as f64 * curvature)).sqrt())
 }
 
 /// One reference pixel being matched: its window and where the candidates go.
@@ -171,7 +173,8 @@ impl Candidates<'_> {
                 above = c;
                 after_best = false;
             }
-            if let Some(v) = c {
+            // A NaN correlation (NaN grey values in a float image) is never the best.
+            if let Some(v) = c.filter(|v| v.is_finite()) {
                 if best.is_none_or(|b| v > b.1) {
                     best = Some((i, v));
                     below = prev;
@@ -254,7 +257,7 @@ pub fn sweep(left: &ImageF32, right: &ImageF32, map: &Mapping, p: &SweepParams) 
                     let Some((bi, bc, below, above)) = got else {
                         continue;
                     };
-                    if bc < p.threshold as f32 {
+                    if bc.is_nan() || bc < p.threshold as f32 {
                         continue;
                     }
                     // A peak whose neighbouring height could not be scored (its window left
@@ -301,5 +304,33 @@ pub fn sweep(left: &ImageF32, right: &ImageF32, map: &Mapping, p: &SweepParams) 
         corr,
         sigma,
         candidates,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A correlation peak ρ(h) = ρ0·(1 − k·(h − h0)²/2) sampled at steps: σ from the second
+    /// difference equals the closed form √((1 − ρ0)/(n·ρ0·k)), whatever the step.
+    #[test]
+    fn sigma_from_the_peak_curvature_matches_the_closed_form() {
+        let (rho0, k, n) = (0.9, 0.8, 81);
+        let want = ((1.0 - rho0) / (n as f64 * rho0 * k)).sqrt();
+        for step in [0.1, 0.5, 1.0] {
+            let r = |h: f64| rho0 * (1.0 - 0.5 * k * h * h);
+            let d2 = r(-step) - 2.0 * r(0.0) + r(step);
+            let got = height_sigma(rho0, d2, step, n).unwrap();
+            assert!(
+                (got - want).abs() < 1e-12 * want.max(1.0),
+                "{got} vs {want}"
+            );
+        }
+        // A flat or inverted peak, or a NaN, has no σ.
+        assert_eq!(height_sigma(0.9, 0.0, 1.0, 81), None);
+        assert_eq!(height_sigma(0.9, 0.1, 1.0, 81), None);
+        assert_eq!(height_sigma(f64::NAN, -0.1, 1.0, 81), None);
+        assert_eq!(height_sigma(0.9, f64::NAN, 1.0, 81), None);
+        assert_eq!(height_sigma(0.9, -0.1, 1.0, 0), None);
     }
 }
