@@ -7,6 +7,7 @@ pub mod camera;
 pub mod coords;
 pub mod correlation;
 pub mod digitise;
+pub mod exit;
 pub mod geometry;
 pub mod image;
 pub mod matching;

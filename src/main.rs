@@ -21,12 +21,13 @@ fn main() {
             .map_err(anyhow::Error::from),
         Command::Dtm(a) => cli::dtm_cmd::run(a),
         Command::Demo(a) => cli::demo_cmd::run(&a),
+        c @ (Command::Completions { .. } | Command::Man { .. }) => cli::docs(&c),
     };
     match code {
         Ok(c) => std::process::exit(c),
         Err(e) => {
             eprintln!("rig: {e:#}");
-            std::process::exit(1);
+            std::process::exit(cli::exit::code_of(&e));
         }
     }
 }

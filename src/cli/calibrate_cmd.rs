@@ -66,7 +66,7 @@ pub enum CalibrateAction {
     },
     /// Compare the newest pixel session with the earlier ones in --store: scales, shears, the
     /// measuring mark's pixel (seed 002, Tables 2 and 3); changes beyond the thresholds are
-    /// flagged as drift (exit code 3).
+    /// flagged as drift (exit code 10).
     History {
         /// Drift threshold for scales, µm per px.
         #[arg(long, default_value_t = 0.005)]
@@ -324,7 +324,11 @@ pub fn run(a: CalibrateArgs) -> anyhow::Result<i32> {
             } else {
                 print_history(&h);
             }
-            Ok(if drift { 3 } else { 0 })
+            Ok(if drift {
+                super::exit::DRIFT
+            } else {
+                super::exit::OK
+            })
         }
         CalibrateAction::Interior {
             camera_cert,

@@ -116,7 +116,7 @@ pub fn run(a: CameraArgs) -> anyhow::Result<i32> {
     }
     if a.camera.device.is_none() && !a.sim.on {
         eprintln!("rig camera: name a camera with --camera DEVICE (/dev/videoN or sim:SOCKET), or use --sim");
-        return Ok(2);
+        return Ok(rig::exit::USAGE);
     }
     let (sim, mut cam): (_, Box<dyn Camera>) = if a.sim.on {
         if !(0.0..=0.5).contains(&a.sim_frame_drop) {

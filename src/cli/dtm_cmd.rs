@@ -224,11 +224,11 @@ pub fn run(a: DtmArgs) -> anyhow::Result<i32> {
             eprintln!(
                 "rig dtm: give the project: rig dtm PROJECT.toml --out DIR (see rig dtm --help)"
             );
-            return Ok(2);
+            return Ok(rig::exit::USAGE);
         }
         (None, Some(_), None) => {
             eprintln!("rig dtm: give the output directory: rig dtm PROJECT.toml --out DIR");
-            return Ok(2);
+            return Ok(rig::exit::USAGE);
         }
     };
     match action {

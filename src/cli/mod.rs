@@ -5,6 +5,7 @@ pub mod camera_cmd;
 pub mod connect;
 pub mod demo_cmd;
 pub mod dtm_cmd;
+pub use rig::exit;
 pub mod scan_cmd;
 pub mod scene_cmd;
 pub mod stage_cmd;
@@ -28,12 +29,28 @@ pub enum SimAction {
     Scene(scene_cmd::SceneArgs),
 }
 
+/// The version and the features this binary was built with.
+pub const VERSION: &str = if cfg!(feature = "v4l2") {
+    concat!(env!("CARGO_PKG_VERSION"), " (features: v4l2)")
+} else {
+    concat!(
+        env!("CARGO_PKG_VERSION"),
+        " (features: none; cameras: the simulator and sim: sockets, no V4L2)"
+    )
+};
+
 /// The rig: digitise and calibrate aerial film on a camera over motorised X/Y stages.
 ///
 /// Every hardware command runs against real hardware (`--stage PATH`) or against the
 /// built-in simulator (`--sim`), which behaves like the hardware and knows the truth.
 #[derive(Debug, Parser)]
-#[command(name = "rig", version, propagate_version = true, max_term_width = 100)]
+#[command(
+    name = "rig",
+    version = VERSION,
+    propagate_version = true,
+    max_term_width = 100,
+    after_help = exit::TABLE
+)]
 pub struct Cli {
     #[command(subcommand)]
     pub command: Command,
@@ -49,8 +66,7 @@ pub enum Command {
     ///
     /// Every step is a real `rig` command, printed before it runs; everything lands in --out
     /// (sessions/, scan-photo-1/ … scan-photo-3/, project.toml, dtm/, report.json).
-    /// Exit codes: 0 done; 2 bad usage; 1 a step failed (the message says which).
-    #[command(verbatim_doc_comment)]
+    #[command(verbatim_doc_comment, after_help = exit::TABLE)]
     Demo(demo_cmd::DemoArgs),
     /// Drive the X/Y stages: status, home, move, jog, stop.
     ///
@@ -63,12 +79,7 @@ pub enum Command {
     ///   rig stage --sim move 120 80
     ///   rig stage --sim move --relative -0.5 0
     ///
-    /// Exit codes: 0 done; 2 bad usage; 3 target outside the soft limits (nothing sent);
-    /// 4 no answer or motion timeout (stages stopped); 5 stage fault, alarm or not homed;
-    /// 6 position check failed (stages stopped); 7 port cannot be opened, is busy or the link
-    /// died; 8 controller refused the command or speaks another protocol; 130 Ctrl-C (stages
-    /// stopped); 1 anything else.
-    #[command(verbatim_doc_comment)]
+    #[command(verbatim_doc_comment, after_help = exit::TABLE)]
     Stage(stage_cmd::StageArgs),
     /// Look at the camera and grab averaged, stripe-filtered frames.
     ///
@@ -82,9 +93,7 @@ pub enum Command {
     /// grey levels were mapped). With --sim the stage first moves over the plate's central
     /// cross (or --at X,Y).
     ///
-    /// Exit codes: 0 done; 2 bad usage; 1 any other error (the message names the camera,
-    /// file or option).
-    #[command(verbatim_doc_comment)]
+    #[command(verbatim_doc_comment, after_help = exit::TABLE)]
     Camera(camera_cmd::CameraArgs),
     /// Calibrate the rig: pixel→carriage from the plate's crosses (and, with a film, the
     /// interior orientation from its fiducials).
@@ -97,9 +106,7 @@ pub enum Command {
     /// step, flushed as it happens), crops/ (every mark with its fitted centre drawn),
     /// results.json; with --sim also the simulator's certificate and sim-truth.json.
     ///
-    /// Exit codes: 0 done; 2 bad usage; 3 `history` found drift; 1 any other error (the
-    /// message says which step and where the session so far was kept).
-    #[command(verbatim_doc_comment)]
+    #[command(verbatim_doc_comment, after_help = exit::TABLE)]
     Calibrate(calibrate_cmd::CalibrateArgs),
     /// Scan film by script: plan (nothing moves), run (pause with Ctrl-C, --resume after a
     /// pause, crash or kill), mosaic again.
@@ -118,10 +125,7 @@ pub enum Command {
     /// REGION.tiff (16-bit, photo coordinates) with REGION.json (the photo grid, interior
     /// orientation, camera certificate and sessions): what the matching core reads.
     ///
-    /// Exit codes: 0 done; 2 bad usage; 3 plan refused (a tile outside the soft limits; nothing
-    /// moved); 4 paused (continue with --resume); 1 any other error (the message says what to
-    /// do; every tile taken is kept).
-    #[command(verbatim_doc_comment)]
+    #[command(verbatim_doc_comment, after_help = exit::TABLE)]
     Scan(scan_cmd::ScanArgs),
     /// Run the simulated stage controller on a pseudo-terminal (same as `rig-sim`).
     ///
@@ -157,7 +161,62 @@ pub enum Command {
     /// Example:
     ///   rig sim scene --out scene && rig dtm scene/project.toml --out dtm
     ///
-    /// Exit codes: 0 done; 2 bad usage; 1 any other error (the message names the file).
-    #[command(verbatim_doc_comment)]
+    #[command(verbatim_doc_comment, after_help = exit::TABLE)]
     Dtm(dtm_cmd::DtmArgs),
+    /// Shell completions for bash, zsh, fish, elvish or PowerShell, on standard output.
+    ///
+    /// Examples:
+    ///   rig completions bash > ~/.local/share/bash-completion/completions/rig
+    ///   rig completions zsh > ~/.zfunc/_rig      (with fpath+=~/.zfunc in ~/.zshrc)
+    ///   rig completions fish > ~/.config/fish/completions/rig.fish
+    #[command(verbatim_doc_comment)]
+    Completions {
+        #[arg(value_enum)]
+        shell: clap_complete::Shell,
+    },
+    /// The manual: rig(1) on standard output, or with --out a page for every command.
+    ///
+    /// Examples:
+    ///   rig man | man -l -
+    ///   rig man --out ~/.local/share/man/man1     (then `man rig-dtm`)
+    #[command(verbatim_doc_comment)]
+    Man {
+        /// Write rig.1 and one page per command (rig-dtm.1, rig-stage-home.1, …) here.
+        #[arg(long, value_name = "DIR")]
+        out: Option<std::path::PathBuf>,
+    },
+}
+
+/// `rig completions` and `rig man`: generated from the same definitions as the parser, so they
+/// cannot drift from it.
+pub fn docs(command: &Command) -> anyhow::Result<i32> {
+    use anyhow::Context;
+    use clap::CommandFactory;
+    use std::io::Write;
+    let mut cmd = Cli::command();
+    // Generated into memory first, then written: a closed pipe (`| head`) ends the command
+    // quietly instead of panicking inside the generator.
+    let mut text = Vec::new();
+    let print = |text: &[u8]| match std::io::stdout().write_all(text) {
+        Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => Ok(exit::OK),
+        r => r.map(|_| exit::OK).context("writing to standard output"),
+    };
+    match command {
+        Command::Completions { shell } => {
+            clap_complete::generate(*shell, &mut cmd, "rig", &mut text);
+            return print(&text);
+        }
+        Command::Man { out: None } => {
+            clap_mangen::Man::new(cmd).render(&mut text)?;
+            return print(&text);
+        }
+        Command::Man { out: Some(dir) } => {
+            std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+            clap_mangen::generate_to(cmd, dir)
+                .with_context(|| format!("writing the pages into {}", dir.display()))?;
+            println!("manual pages written to {}", dir.display());
+        }
+        _ => unreachable!("docs() is called for `completions` and `man` only"),
+    }
+    Ok(exit::OK)
 }

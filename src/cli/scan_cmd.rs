@@ -12,9 +12,9 @@ use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 
 /// Exit code of a scan paused by Ctrl-C.
-pub const EXIT_PAUSED: i32 = 4;
+pub const EXIT_PAUSED: i32 = super::exit::PAUSED;
 /// Exit code of a plan refused (soft limits, frame size).
-pub const EXIT_REFUSED: i32 = 3;
+pub const EXIT_REFUSED: i32 = super::exit::OUTSIDE_LIMITS;
 
 #[derive(Debug, Args)]
 pub struct ScanArgs {

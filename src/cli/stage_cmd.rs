@@ -403,13 +403,13 @@ fn label(a: &Action) -> &'static str {
 pub fn run(a: StageArgs) -> anyhow::Result<i32> {
     if a.port.stage.is_none() && !a.sim.on {
         eprintln!("rig stage: name the controller with --stage PATH (and --dialect native|grbl), or use --sim");
-        return Ok(2);
+        return Ok(rig::exit::USAGE);
     }
     let opts = match options(&a) {
         Ok(o) => o,
         Err(e) => {
             eprintln!("rig stage: {e}");
-            return Ok(2);
+            return Ok(rig::exit::USAGE);
         }
     };
     let mut sim = None;

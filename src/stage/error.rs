@@ -135,22 +135,23 @@ fn unstopped(e: &StageError) -> String {
 impl StageError {
     /// Exit code for the `rig` command (README, "Exit codes").
     pub fn exit_code(&self) -> i32 {
+        use crate::exit;
         match self {
-            StageError::OutOfLimits { .. } => 3,
-            StageError::Timeout { .. } | StageError::MotionTimeout { .. } => 4,
-            StageError::Fault { .. } | StageError::NotHomed => 5,
-            StageError::PositionMismatch { .. } => 6,
+            StageError::OutOfLimits { .. } => exit::OUTSIDE_LIMITS,
+            StageError::Timeout { .. } | StageError::MotionTimeout { .. } => exit::TIMEOUT,
+            StageError::Fault { .. } | StageError::NotHomed => exit::FAULT,
+            StageError::PositionMismatch { .. } => exit::POSITION,
             StageError::Open { .. } | StageError::PortBusy { .. } | StageError::Disconnected(_) => {
-                7
+                exit::PORT
             }
             StageError::Rejected { .. }
             | StageError::Protocol(_)
             | StageError::Version { .. }
-            | StageError::BadSetting { .. } => 8,
-            StageError::Cancelled => 130,
+            | StageError::BadSetting { .. } => exit::REFUSED,
+            StageError::Cancelled => exit::INTERRUPTED,
             // The worst outcome: the motion may go on. Its own code, so scripts cannot take it
             // for the error that caused the stop.
-            StageError::StopFailed { .. } => 9,
+            StageError::StopFailed { .. } => exit::STOP_NOT_CONFIRMED,
         }
     }
 

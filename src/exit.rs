@@ -1,0 +1,82 @@
+//! The one table of exit codes of the `rig` command, the same for every subcommand (README, "Exit codes"; `rig
+//! --help`). An error from the stage keeps its code whichever command met it (a timeout during
+//! a calibration exits 4 as in `rig stage`).
+
+/// Done.
+pub const OK: i32 = 0;
+/// Any other error: the message says what and where.
+pub const OTHER: i32 = 1;
+/// Bad usage: a flag, a value or a missing argument.
+pub const USAGE: i32 = 2;
+/// Refused before anything moved: a target or a scan plan outside the soft limits.
+pub const OUTSIDE_LIMITS: i32 = 3;
+/// No answer, or a motion took too long (the stages were stopped).
+pub const TIMEOUT: i32 = 4;
+/// A fault or alarm of the stage, or not homed.
+pub const FAULT: i32 = 5;
+/// The position check after a move failed (the stages were stopped).
+pub const POSITION: i32 = 6;
+/// The port cannot be opened, is busy, or the link died.
+pub const PORT: i32 = 7;
+/// The controller refused a command, speaks another protocol, or reports a setting out of
+/// range.
+pub const REFUSED: i32 = 8;
+/// A stop was not confirmed: the motion may go on. Go to the machine.
+pub const STOP_NOT_CONFIRMED: i32 = 9;
+/// `rig calibrate history` found drift.
+pub const DRIFT: i32 = 10;
+/// A scan paused (Ctrl-C once): continue it with `--resume`.
+pub const PAUSED: i32 = 11;
+/// Interrupted by Ctrl-C (the stages were stopped).
+pub const INTERRUPTED: i32 = 130;
+
+/// The table as `--help` shows it.
+pub const TABLE: &str = "Exit codes (every command):
+  0 done                         6 position check failed (stages stopped)
+  1 any other error              7 port cannot be opened, busy, or the link died
+  2 bad usage                    8 controller refused a command or a setting
+  3 outside the soft limits      9 a stop NOT confirmed: the motion may go on
+    (nothing moved)             10 calibration history found drift
+  4 no answer or timeout        11 scan paused: continue with --resume
+    (stages stopped)           130 Ctrl-C (stages stopped)
+  5 stage fault, alarm or not homed";
+
+/// The code for an error that ended a command: the stage error's own where one caused it,
+/// otherwise [`OTHER`].
+pub fn code_of(e: &anyhow::Error) -> i32 {
+    e.chain()
+        .find_map(|c| c.downcast_ref::<crate::stage::StageError>())
+        .map_or(OTHER, |s| s.exit_code())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::stage::StageError;
+
+    /// The stage's codes are the table's, and they survive being wrapped with context.
+    #[test]
+    fn stage_errors_keep_their_code_through_context() {
+        let e = anyhow::Error::new(StageError::NotHomed).context("calibration: moving to cross 3");
+        assert_eq!(code_of(&e), FAULT);
+        assert_eq!(StageError::Cancelled.exit_code(), INTERRUPTED);
+        assert_eq!(code_of(&anyhow::anyhow!("a file")), OTHER);
+        // Every code in the table is written in it once.
+        for c in [
+            OK,
+            OTHER,
+            USAGE,
+            OUTSIDE_LIMITS,
+            TIMEOUT,
+            FAULT,
+            POSITION,
+            PORT,
+            REFUSED,
+        ] {
+            assert!(TABLE.contains(&format!(" {c} ")), "{c}");
+        }
+        for c in [STOP_NOT_CONFIRMED, DRIFT, PAUSED, INTERRUPTED] {
+            assert!(TABLE.contains(&format!("{c} ")), "{c}");
+        }
+    }
+}

@@ -1,0 +1,71 @@
+//! What a new user looks at first: `rig --version` names the features built, completions and
+//! the manual come from the parser's own definitions (and a shell accepts the completions),
+//! and every command's help ends with the one exit-code table.
+
+mod common;
+
+use common::rig;
+
+fn stdout(args: &[&str]) -> String {
+    let o = rig().args(args).output().unwrap();
+    assert!(
+        o.status.success(),
+        "rig {args:?}: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    String::from_utf8(o.stdout).unwrap()
+}
+
+#[test]
+fn version_completions_manual_and_the_exit_table() {
+    let v = stdout(&["--version"]);
+    assert!(v.starts_with("rig ") && v.contains("features:"), "{v}");
+    assert_eq!(v.contains("v4l2)"), cfg!(feature = "v4l2"), "{v}");
+
+    let bash = stdout(&["completions", "bash"]);
+    assert!(bash.contains("_rig()") && bash.contains("dtm") && bash.contains("--sim-seed"));
+    // bash itself reads the script without a syntax error (when bash is here).
+    let d = tempfile::tempdir().unwrap();
+    let f = d.path().join("rig.bash");
+    std::fs::write(&f, &bash).unwrap();
+    if let Ok(o) = std::process::Command::new("bash")
+        .arg("-n")
+        .arg(&f)
+        .output()
+    {
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    }
+    for shell in ["zsh", "fish", "elvish", "powershell"] {
+        assert!(stdout(&["completions", shell]).contains("rig"), "{shell}");
+    }
+
+    let man = stdout(&["man"]);
+    assert!(man.contains(".TH rig 1") && man.contains("dtm"), "{man}");
+    let pages = d.path().join("man");
+    stdout(&["man", "--out", pages.to_str().unwrap()]);
+    for page in ["rig.1", "rig-dtm.1", "rig-stage-home.1", "rig-scan-run.1"] {
+        let t = std::fs::read_to_string(pages.join(page)).unwrap();
+        assert!(t.contains(".TH"), "{page}");
+    }
+
+    // One table, shown by every command's help, with the codes the commands use.
+    let top = stdout(&["--help"]);
+    for cmd in ["stage", "camera", "calibrate", "scan", "dtm", "demo"] {
+        let h = stdout(&[cmd, "--help"]);
+        assert!(
+            h.contains(rig::exit::TABLE),
+            "rig {cmd} --help lacks the table"
+        );
+    }
+    assert!(top.contains(rig::exit::TABLE));
+    // A bad value is bad usage everywhere.
+    for args in [
+        &["completions", "nosh"][..],
+        &["stage", "--sim", "move", "x", "1"],
+        &["dtm"],
+        &["scan", "--sim-seed", "x", "plan", "s.toml"],
+    ] {
+        let o = rig().args(args).output().unwrap();
+        assert_eq!(o.status.code(), Some(rig::exit::USAGE), "rig {args:?}");
+    }
+}
