@@ -21,6 +21,9 @@ fn main() {
             .map_err(anyhow::Error::from),
         Command::Dtm(a) => cli::dtm_cmd::run(a),
         Command::Demo(a) => cli::demo_cmd::run(&a),
+        Command::Config(c) => match c.action {
+            cli::ConfigAction::Show => cli::config::show(&c.port, &c.camera, c.json),
+        },
         c @ (Command::Completions { .. } | Command::Man { .. }) => cli::docs(&c),
     };
     match code {

@@ -114,8 +114,9 @@ pub fn run(a: CameraArgs) -> anyhow::Result<i32> {
     if let CameraAction::List = a.action {
         return list(a.json);
     }
-    if a.camera.device.is_none() && !a.sim.on {
-        eprintln!("rig camera: name a camera with --camera DEVICE (/dev/videoN or sim:SOCKET), or use --sim");
+    let cfg = super::config::resolve(&super::connect::StagePort::none(), Some(&a.camera))?;
+    if cfg.camera.value.is_none() && !a.sim.on {
+        eprintln!("rig camera: name a camera with --camera DEVICE (/dev/videoN or sim:SOCKET; or RIG_CAMERA, or rig.toml: see `rig config show`), or use --sim");
         return Ok(rig::exit::USAGE);
     }
     let (sim, mut cam): (_, Box<dyn Camera>) = if a.sim.on {
@@ -136,11 +137,9 @@ pub fn run(a: CameraArgs) -> anyhow::Result<i32> {
         let c = SimCamera::new(s.world.clone(), a.sim_frame_drop);
         (Some(s), Box::new(c))
     } else {
-        let dev = a
-            .camera
-            .device
-            .clone()
-            .expect("clap requires --camera without --sim");
+        let Some(dev) = cfg.camera.value.clone() else {
+            unreachable!("checked above: a camera, or --sim");
+        };
         (None, super::connect::open_device(&dev)?)
     };
     let code = match &a.action {

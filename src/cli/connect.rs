@@ -13,22 +13,35 @@ use std::path::PathBuf;
 #[derive(Debug, Args)]
 pub struct StagePort {
     /// Serial port of the stage controller (e.g. /dev/ttyUSB0, or the path `rig sim` prints).
+    /// Without the flag: RIG_STAGE, then rig.toml (`rig config show`).
     #[arg(long, value_name = "PATH", conflicts_with = "sim", global = true)]
     pub stage: Option<PathBuf>,
-    /// Controller dialect on that port: native (the rig's firmware) or grbl (GRBL 1.1).
-    #[arg(long, value_enum, default_value = "native", global = true)]
-    pub dialect: Dialect,
+    /// Controller dialect on that port: native (the rig's firmware, the default) or grbl
+    /// (GRBL 1.1). Without the flag: RIG_DIALECT, then rig.toml (`rig config show`).
+    #[arg(long, value_enum, global = true)]
+    pub dialect: Option<Dialect>,
     /// Tighter soft limits, mm: XMIN,XMAX,YMIN,YMAX (intersected with the controller's; a scan
     /// is planned within them too).
     #[arg(long, value_name = "MM,MM,MM,MM", value_parser = parse_limits, global = true)]
     pub limits: Option<SoftLimits>,
 }
 
+impl StagePort {
+    /// No stage flags (for commands that take no stage, such as `rig camera`).
+    pub fn none() -> StagePort {
+        StagePort {
+            stage: None,
+            dialect: None,
+            limits: None,
+        }
+    }
+}
+
 /// The camera: every command that takes frames names it so.
 #[derive(Debug, Args)]
 pub struct CameraDevice {
     /// Camera: /dev/videoN (needs the `v4l2` build feature) or sim:SOCKET (a running
-    /// `rig sim --camera-socket SOCKET`).
+    /// `rig sim --camera-socket SOCKET`). Without the flag: RIG_CAMERA, then rig.toml.
     #[arg(
         id = "camera",
         long = "camera",
@@ -137,6 +150,7 @@ pub fn connect(
     film: bool,
     link: &LinkOptions,
 ) -> anyhow::Result<Hardware> {
+    let cfg = super::config::resolve(&a.port, Some(&a.camera))?;
     if a.sim.on {
         if a.sim_time_scale.is_nan() || a.sim_time_scale < 0.0 {
             bail!("--sim-time-scale must be 0 or more");
@@ -144,7 +158,7 @@ pub fn connect(
         let s = rig_sim::EmbeddedSim::start(rig_sim::SimConfig {
             time_scale: a.sim_time_scale,
             seed: a.sim.seed,
-            dialect: match a.port.dialect {
+            dialect: match cfg.dialect() {
                 Dialect::Native => rig_sim::Dialect::Native,
                 Dialect::Grbl => rig_sim::Dialect::Grbl,
             },
@@ -158,7 +172,7 @@ pub fn connect(
             ..Default::default()
         })
         .context("starting the built-in simulator")?;
-        let stage = stage::open(&s.port, a.port.dialect, driver_options(a), link)?;
+        let stage = stage::open(&s.port, cfg.dialect(), driver_options(a), link)?;
         let camera = Box::new(SimCamera::new(s.world.clone(), 0.0));
         return Ok(Hardware {
             sim: Some(s),
@@ -166,10 +180,10 @@ pub fn connect(
             camera,
         });
     }
-    let (Some(port), Some(cam)) = (&a.port.stage, &a.camera.device) else {
-        bail!("name the stage and the camera (--stage PATH --dialect native|grbl --camera DEVICE), or use --sim");
+    let (Some(port), Some(cam)) = (&cfg.stage.value, &cfg.camera.value) else {
+        bail!("name the stage and the camera (--stage PATH --dialect native|grbl --camera DEVICE, or RIG_STAGE, RIG_DIALECT, RIG_CAMERA, or rig.toml: see `rig config show`), or use --sim");
     };
-    let stage = stage::open(port, a.port.dialect, driver_options(a), link)
+    let stage = stage::open(port, cfg.dialect(), driver_options(a), link)
         .with_context(|| format!("opening the stage at {}", port.display()))?;
     let camera = open_device(cam)?;
     Ok(Hardware {

@@ -2,6 +2,7 @@
 
 pub mod calibrate_cmd;
 pub mod camera_cmd;
+pub mod config;
 pub mod connect;
 pub mod demo_cmd;
 pub mod dtm_cmd;
@@ -163,6 +164,20 @@ pub enum Command {
     ///
     #[command(verbatim_doc_comment, after_help = exit::TABLE)]
     Dtm(dtm_cmd::DtmArgs),
+    /// The settings in force (stage, dialect, camera) and where each comes from.
+    ///
+    /// Precedence: a flag, then the environment (RIG_STAGE, RIG_DIALECT, RIG_CAMERA), then
+    /// the first file found of ./rig.toml and $XDG_CONFIG_HOME/rig/rig.toml (or
+    /// ~/.config/rig/rig.toml), whose keys are stage, dialect and camera:
+    ///   stage = "/dev/ttyUSB0"
+    ///   dialect = "grbl"
+    ///   camera = "/dev/video0"
+    ///
+    /// Examples:
+    ///   rig config show
+    ///   RIG_DIALECT=grbl rig config show --json
+    #[command(verbatim_doc_comment, after_help = exit::TABLE)]
+    Config(ConfigCmd),
     /// Shell completions for bash, zsh, fish, elvish or PowerShell, on standard output.
     ///
     /// Examples:
@@ -185,6 +200,29 @@ pub enum Command {
         #[arg(long, value_name = "DIR")]
         out: Option<std::path::PathBuf>,
     },
+}
+
+/// `rig config`.
+#[derive(Debug, Args)]
+pub struct ConfigCmd {
+    #[command(subcommand)]
+    pub action: ConfigAction,
+    #[command(flatten)]
+    pub port: connect::StagePort,
+    #[command(flatten)]
+    pub camera: connect::CameraDevice,
+    /// With --sim the commands ignore a configured stage and camera (the dialect still holds).
+    #[command(flatten)]
+    pub sim: connect::Simulated,
+    /// Print one JSON object instead of text.
+    #[arg(long, global = true)]
+    pub json: bool,
+}
+
+#[derive(Debug, Subcommand)]
+pub enum ConfigAction {
+    /// Each setting, its value and its source, and the files looked at.
+    Show,
 }
 
 /// `rig completions` and `rig man`: generated from the same definitions as the parser, so they
@@ -219,4 +257,17 @@ pub fn docs(command: &Command) -> anyhow::Result<i32> {
         _ => unreachable!("docs() is called for `completions` and `man` only"),
     }
     Ok(exit::OK)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::CommandFactory;
+
+    /// clap's own checks of every command's definition (names, conflicts, requirements),
+    /// which it otherwise makes only when a path through them is parsed.
+    #[test]
+    fn the_command_line_definitions_are_consistent() {
+        Cli::command().debug_assert();
+    }
 }

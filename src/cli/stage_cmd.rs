@@ -401,7 +401,8 @@ fn label(a: &Action) -> &'static str {
 
 /// Runs `rig stage`; returns the process exit code.
 pub fn run(a: StageArgs) -> anyhow::Result<i32> {
-    if a.port.stage.is_none() && !a.sim.on {
+    let cfg = super::config::resolve(&a.port, None)?;
+    if cfg.stage.value.is_none() && !a.sim.on {
         eprintln!("rig stage: name the controller with --stage PATH (and --dialect native|grbl), or use --sim");
         return Ok(rig::exit::USAGE);
     }
@@ -424,7 +425,7 @@ pub fn run(a: StageArgs) -> anyhow::Result<i32> {
             bail!("--sim-time-scale must be 0 or more");
         }
         let cfg = rig_sim::SimConfig {
-            dialect: match a.port.dialect {
+            dialect: match cfg.dialect() {
                 Dialect::Native => rig_sim::Dialect::Native,
                 Dialect::Grbl => rig_sim::Dialect::Grbl,
             },
@@ -443,10 +444,10 @@ pub fn run(a: StageArgs) -> anyhow::Result<i32> {
         sim = Some(s);
         p
     } else {
-        a.port
-            .stage
-            .clone()
-            .expect("clap requires --stage without --sim")
+        match cfg.stage.value.clone() {
+            Some(p) => p,
+            None => unreachable!("checked above: a port, or --sim"),
+        }
     };
     // Ctrl-C: the waiting read gives up, the stages decelerate to a stop, and we exit 130. A
     // second Ctrl-C ends the program at once.
@@ -458,7 +459,7 @@ pub fn run(a: StageArgs) -> anyhow::Result<i32> {
         cancel: Some(cancel),
     };
     let progress = Progress::start(label(&a.action), !a.json);
-    let result = stage::open(&port, a.port.dialect, opts, &link).and_then(|mut s| {
+    let result = stage::open(&port, cfg.dialect(), opts, &link).and_then(|mut s| {
         let r = act(s.as_mut(), &a.action);
         if matches!(r, Err(StageError::Cancelled)) {
             // Wait for the deceleration to end before letting go of the line.
