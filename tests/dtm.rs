@@ -138,6 +138,8 @@ fn elevation_model_from_a_rendered_pair_meets_half_the_height_step() {
         e.contains("warning") && e.contains("within a step of the highest height tried"),
         "{e}"
     );
+    // No progress bar where standard error is not a terminal (here: a pipe).
+    assert!(!e.contains("sweep (rows)"), "{e}");
     // A project with a bad value names the file and the field.
     let bad = scene.join("bad.toml");
     let text = project.replace("h_step = 2", "h_step = -2");
@@ -195,4 +197,21 @@ fn the_demo_runs_the_whole_chain_and_meets_half_the_height_step() {
         assert!(out.join(f).is_file(), "{f}");
     }
     assert!(text.contains("RMSE"));
+    // The demo's folder can be moved: its project names everything relative to itself, and
+    // the moved copy gives the same model.
+    let moved = d.path().join("moved-demo");
+    std::fs::rename(&out, &moved).unwrap();
+    let again = moved.join("dtm-again");
+    run_ok(
+        rig()
+            .arg("dtm")
+            .arg(moved.join("project.toml"))
+            .arg("--out")
+            .arg(&again),
+    );
+    assert_eq!(
+        std::fs::read(moved.join("dtm/dem.tif")).unwrap(),
+        std::fs::read(again.join("dem.tif")).unwrap(),
+        "the moved demo's model differs"
+    );
 }

@@ -132,7 +132,8 @@ fn run_format2(
     let scan =
         |sidecar: &std::path::Path| ScannedPhoto::load_photo(sidecar).map_err(|e| e.to_string());
     let photos = pipeline2::load_photos(&p, &scan)?;
-    let r = pipeline2::run(&p, &photos, out, max_memory)?;
+    let bar = super::progress_bar::Bar::new(!json);
+    let r = pipeline2::run(&p, &photos, out, max_memory, &bar)?;
     for pr in &r.pairs {
         if let Some(w) = pr.dtm.pile_warning() {
             eprintln!("rig dtm: warning: photos {} × {}: {w}", pr.left, pr.right);
@@ -244,7 +245,8 @@ pub fn run(a: DtmArgs) -> anyhow::Result<i32> {
                     .with_context(|| format!("project {}: photo {}", p.path.display(), f.display()))
             };
             let (left, right) = (load(&p.photos.left)?, load(&p.photos.right)?);
-            let (r, report) = pipeline::run(&p, [&left, &right], &out, max_memory)?;
+            let bar = super::progress_bar::Bar::new(!json);
+            let (r, report) = pipeline::run(&p, [&left, &right], &out, max_memory, &bar)?;
             if let Some(w) = r.report.pile_warning() {
                 eprintln!("rig dtm: warning: {w}");
             }

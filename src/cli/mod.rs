@@ -7,6 +7,7 @@ pub mod connect;
 pub mod demo_cmd;
 pub mod dtm_cmd;
 pub use rig::exit;
+pub mod progress_bar;
 pub mod scan_cmd;
 pub mod scene_cmd;
 pub mod stage_cmd;

@@ -15,6 +15,7 @@ pub mod pipeline2;
 pub mod pmf_dtm;
 pub mod point;
 pub mod precision;
+pub mod progress;
 pub mod project;
 pub mod project2;
 pub mod regions;

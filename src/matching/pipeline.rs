@@ -211,6 +211,7 @@ pub fn run(
     photos: [&Photo; 2],
     out: &Path,
     max_memory_mb: Option<u64>,
+    progress: &dyn super::progress::Progress,
 ) -> Result<(PmfDtm, RunReport), PipelineError> {
     check_out_dir(out)?;
     let pts = p.points()?;
@@ -255,6 +256,7 @@ pub fn run(
         &budget,
         height_at.as_ref().map(|f| f as &dyn Fn(f64, f64) -> f64),
         p.grid.flying_height_m,
+        progress,
     )
     .map_err(|source| PipelineError::Dtm {
         path: p.path.clone(),

@@ -194,6 +194,7 @@ pub fn run(
     photos: &[Photo],
     out: &Path,
     max_memory_mb: Option<u64>,
+    progress: &dyn super::progress::Progress,
 ) -> Result<Report2, Pipeline2Error> {
     super::pipeline::check_out_dir(out)?;
     let obs = p.observations()?;
@@ -328,6 +329,10 @@ pub fn run(
             &budget,
             None,
             None,
+            &super::progress::Prefixed {
+                inner: progress,
+                prefix: format!("photos {li} × {ri}: "),
+            },
         )
         .map_err(|source| Pipeline2Error::Pair {
             left: li.clone(),

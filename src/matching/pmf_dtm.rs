@@ -6,7 +6,7 @@ use super::grid::{Comparison, ElevationGrid, GridError};
 use super::pmf_set::PmfSet;
 use super::point::MatchedPoint;
 use super::regions::{remove_wrong_heights, RegionParams, RegionStats};
-use super::sweep::{sweep, HeightMap, SweepParams};
+use super::sweep::{sweep_with, HeightMap, SweepParams};
 use crate::coords::GroundM;
 use crate::image::ImageF32;
 use serde::{Deserialize, Serialize};
@@ -146,6 +146,7 @@ pub struct PmfDtm {
 
 /// Runs the method within `budget` (checked first, see [`estimate`]); `reference` (a height at
 /// ground x, y) gives the comparison.
+#[allow(clippy::too_many_arguments)] // the two photos, their mappings, the parameters, the budget and three optional companions
 pub fn pmf_dtm(
     left: &ImageF32,
     right: &ImageF32,
@@ -154,6 +155,7 @@ pub fn pmf_dtm(
     budget: &Budget,
     reference: Option<&dyn Fn(f64, f64) -> f64>,
     flying_height_m: Option<f64>,
+    progress: &dyn super::progress::Progress,
 ) -> Result<PmfDtm, DtmError> {
     estimate(
         (left.width, left.height),
@@ -162,7 +164,7 @@ pub fn pmf_dtm(
         budget,
     )?;
     let t = Instant::now();
-    let mut heights = sweep(left, right, &pmfs.left_to_right, &p.sweep);
+    let mut heights = sweep_with(left, right, &pmfs.left_to_right, &p.sweep, progress);
     let secs = t.elapsed().as_secs_f64();
     let total = heights.cols * heights.rows;
     let matched = heights.matched();

@@ -190,6 +190,17 @@ impl Candidates<'_> {
 
 /// Matches every `stride`-th reference pixel whose window lies inside `left`.
 pub fn sweep(left: &ImageF32, right: &ImageF32, map: &Mapping, p: &SweepParams) -> HeightMap {
+    sweep_with(left, right, map, p, &super::progress::Silent)
+}
+
+/// [`sweep`], reporting the rows matched to `progress`.
+pub fn sweep_with(
+    left: &ImageF32,
+    right: &ImageF32,
+    map: &Mapping,
+    p: &SweepParams,
+    progress: &dyn super::progress::Progress,
+) -> HeightMap {
     let k = p.window / 2;
     let s = p.stride.max(1);
     let (c0, r0) = (k, k);
@@ -197,6 +208,7 @@ pub fn sweep(left: &ImageF32, right: &ImageF32, map: &Mapping, p: &SweepParams) 
     let rows = left.height.saturating_sub(2 * k).div_ceil(s);
     let n_steps = ((p.h_max - p.h_min) / p.h_step).floor() as i64;
     const BAND: usize = 16;
+    progress.begin("sweep (rows)", rows as u64);
     #[allow(clippy::type_complexity)]
     let bands: Vec<(Vec<f32>, Vec<f32>, Vec<f32>, u64)> = (0..rows.div_ceil(BAND))
         .into_par_iter()
@@ -281,9 +293,11 @@ pub fn sweep(left: &ImageF32, right: &ImageF32, map: &Mapping, p: &SweepParams) 
                     sigma[(j - j0) * cols + i] = sd.map_or(f32::NAN, |v| v as f32);
                 }
             }
+            progress.advance((j1 - j0) as u64);
             (h, corr, sigma, tried)
         })
         .collect();
+    progress.end();
     let mut h = Vec::with_capacity(rows * cols);
     let mut corr = Vec::with_capacity(rows * cols);
     let mut sigma = Vec::with_capacity(rows * cols);
