@@ -7,6 +7,7 @@ use cli::{Cli, Command};
 
 fn main() {
     let cli = Cli::parse();
+    cli::init_logging(&cli.verbosity);
     let code = match cli.command {
         Command::Stage(a) => cli::stage_cmd::run(a),
         Command::Camera(a) => cli::camera_cmd::run(a),

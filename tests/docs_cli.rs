@@ -48,6 +48,26 @@ fn version_completions_manual_and_the_exit_table() {
         assert!(t.contains(".TH"), "{page}");
     }
 
+    // -v/-q and RUST_LOG choose the log on standard error; stdout keeps the answer.
+    let log = |env: Option<&str>, flags: &[&str]| {
+        let mut c = rig();
+        c.env_remove("RUST_LOG");
+        if let Some(v) = env {
+            c.env("RUST_LOG", v);
+        }
+        let o = c
+            .args(flags)
+            .args(["stage", "--sim", "--sim-time-scale", "0", "move", "100", "100"])
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        String::from_utf8_lossy(&o.stderr).to_string()
+    };
+    assert!(!log(None, &[]).contains("DEBUG"));
+    assert!(log(None, &["-vv"]).contains("DEBUG rig::stage::driver: move"));
+    assert!(log(Some("rig::stage=debug"), &[]).contains("DEBUG"));
+    assert!(!log(None, &["-q"]).contains("WARN"));
+
     // One table, shown by every command's help, with the codes the commands use.
     let top = stdout(&["--help"]);
     for cmd in ["stage", "camera", "calibrate", "scan", "dtm", "demo"] {
@@ -64,6 +84,8 @@ fn version_completions_manual_and_the_exit_table() {
         &["stage", "--sim", "move", "x", "1"],
         &["dtm"],
         &["scan", "--sim-seed", "x", "plan", "s.toml"],
+        // A file named for a format it would not hold.
+        &["camera", "--sim", "grab", "-o", "frame.png"],
     ] {
         let o = rig().args(args).output().unwrap();
         assert_eq!(o.status.code(), Some(rig::exit::USAGE), "rig {args:?}");

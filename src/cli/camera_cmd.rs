@@ -64,10 +64,26 @@ pub enum CameraAction {
         /// Simulator: drive the stage here first, X,Y mm (default: the plate's central cross).
         #[arg(long, value_name = "X,Y", requires = "sim")]
         at: Option<String>,
-        /// Output TIFF; the sidecar is written beside it with the extension .json.
-        #[arg(short, long, value_name = "FILE.tiff")]
+        /// Output TIFF (named .tif or .tiff: the file is a 16-bit TIFF whatever its name); the
+        /// sidecar is written beside it with the extension .json.
+        #[arg(short, long, value_name = "FILE.tiff", value_parser = tiff_path)]
         output: PathBuf,
     },
+}
+
+/// An output path named for what it holds: a TIFF.
+fn tiff_path(s: &str) -> Result<PathBuf, String> {
+    let p = PathBuf::from(s);
+    let ext = p
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase);
+    match ext.as_deref() {
+        Some("tif" | "tiff") => Ok(p),
+        _ => Err(format!(
+            "`{s}`: the grab is a 16-bit TIFF; name it FILE.tif or FILE.tiff"
+        )),
+    }
 }
 
 pub fn parse_pair(s: &str, what: &str) -> anyhow::Result<(f64, f64)> {

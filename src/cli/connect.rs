@@ -151,6 +151,12 @@ pub fn connect(
     link: &LinkOptions,
 ) -> anyhow::Result<Hardware> {
     let cfg = super::config::resolve(&a.port, Some(&a.camera))?;
+    tracing::info!(
+        stage = ?cfg.stage.value, stage_from = %cfg.stage.source,
+        dialect = ?cfg.dialect(), dialect_from = %cfg.dialect.source,
+        camera = ?cfg.camera.value, sim = a.sim.on,
+        "connecting"
+    );
     if a.sim.on {
         if a.sim_time_scale.is_nan() || a.sim_time_scale < 0.0 {
             bail!("--sim-time-scale must be 0 or more");

@@ -56,6 +56,29 @@ pub const VERSION: &str = if cfg!(feature = "v4l2") {
 pub struct Cli {
     #[command(subcommand)]
     pub command: Command,
+    /// -v: what each step does (info), -vv: details (debug), -vvv: everything; -q: errors
+    /// only. RUST_LOG (e.g. RUST_LOG=rig::stage=debug) overrides both. Log lines go to
+    /// standard error.
+    #[command(flatten)]
+    pub verbosity: clap_verbosity_flag::Verbosity<clap_verbosity_flag::WarnLevel>,
+}
+
+/// Sends the log to standard error at the level -v/-q chose, or as RUST_LOG says.
+pub fn init_logging(v: &clap_verbosity_flag::Verbosity<clap_verbosity_flag::WarnLevel>) {
+    use std::io::IsTerminal;
+    let filter = match std::env::var("RUST_LOG") {
+        Ok(s) if !s.trim().is_empty() => tracing_subscriber::EnvFilter::new(s),
+        _ => {
+            tracing_subscriber::EnvFilter::new(v.tracing_level_filter().to_string().to_lowercase())
+        }
+    };
+    // A second initialisation (never in the binary) is ignored rather than a panic.
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .with_ansi(std::io::stderr().is_terminal())
+        .with_target(true)
+        .try_init();
 }
 
 #[derive(Debug, Subcommand)]

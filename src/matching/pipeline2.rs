@@ -339,6 +339,13 @@ pub fn run(
             right: ri.clone(),
             cause: source,
         })?;
+        tracing::info!(
+            pair = %format!("{li} × {ri}"),
+            h_step_m = h_step,
+            matched_percent = d.report.matched_percent,
+            points = d.points.len(),
+            "pair swept"
+        );
         reports.push(PairReport {
             left: li.clone(),
             right: ri.clone(),
@@ -354,6 +361,7 @@ pub fn run(
     // The matchers' standard deviations scaled by what the pairs' disagreement shows.
     let refs: Vec<&[MatchedPoint]> = per_pair.iter().map(|v| v.as_slice()).collect();
     let factor = variance_factor(&grid, &refs);
+    tracing::info!(?factor, "variance factor from the pairs");
     // The factor is a node's (means of many points compared): it scales the nodes' σ, not
     // the points', which keep the matching's own.
     let s0 = factor.map_or(1.0, |f| f.s0);

@@ -510,6 +510,7 @@ pub fn run(
         sd.manifest.save(&sd.dir)?;
         sd.log
             .event("tile", json!({"id": tile.id, "index": i, "record": rec}))?;
+        tracing::info!(tile = %tile.id, index = i, "tile taken");
         taken += 1;
         let done = sd.manifest.done();
         let pace = started.elapsed().as_secs_f64() / taken as f64;

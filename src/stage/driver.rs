@@ -198,6 +198,7 @@ impl<C: Controller> Stage for Driver<C> {
             self.ctl.clear_fault()?;
         }
         let expected = self.ctl.homing_duration();
+        tracing::info!(bound_s = expected.as_secs_f64(), "homing");
         let st = self.run(|c| c.start_home(), expected)?;
         if !st.homed {
             return Err(StageError::Protocol(format!(
@@ -211,6 +212,7 @@ impl<C: Controller> Stage for Driver<C> {
     fn move_to(&mut self, target: CarriageUm) -> Result<CarriageUm> {
         // Refuse before anything is sent.
         self.limits.check(target)?;
+        tracing::debug!(%target, "move");
         let st = self.ready_to_move()?;
         let mut from = st.position;
         let tol = self.opts.tolerance_um;
