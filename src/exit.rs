@@ -1,6 +1,6 @@
-//! The one table of exit codes of the `rig` command, the same for every subcommand (README, "Exit codes"; `rig
-//! --help`). An error from the stage keeps its code whichever command met it (a timeout during
-//! a calibration exits 4 as in `rig stage`).
+//! The one table of exit codes of the `rig` command, the same for every subcommand (README,
+//! "Exit codes"; `rig --help`). The stage's errors map onto it (`StageError::exit_code`), and
+//! keep their code whichever command met them (`cli::exit_code_of`).
 
 /// Done.
 pub const OK: i32 = 0;
@@ -41,27 +41,13 @@ pub const TABLE: &str = "Exit codes (every command):
     (stages stopped)           130 Ctrl-C (stages stopped)
   5 stage fault, alarm or not homed";
 
-/// The code for an error that ended a command: the stage error's own where one caused it,
-/// otherwise [`OTHER`].
-pub fn code_of(e: &anyhow::Error) -> i32 {
-    e.chain()
-        .find_map(|c| c.downcast_ref::<crate::stage::StageError>())
-        .map_or(OTHER, |s| s.exit_code())
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::stage::StageError;
 
-    /// The stage's codes are the table's, and they survive being wrapped with context.
+    /// Every code in the table is written in it once.
     #[test]
-    fn stage_errors_keep_their_code_through_context() {
-        let e = anyhow::Error::new(StageError::NotHomed).context("calibration: moving to cross 3");
-        assert_eq!(code_of(&e), FAULT);
-        assert_eq!(StageError::Cancelled.exit_code(), INTERRUPTED);
-        assert_eq!(code_of(&anyhow::anyhow!("a file")), OTHER);
-        // Every code in the table is written in it once.
+    fn the_table_names_every_code() {
         for c in [
             OK,
             OTHER,

@@ -23,7 +23,12 @@ fn main() {
         Command::Dtm(a) => cli::dtm_cmd::run(a),
         Command::Demo(a) => cli::demo_cmd::run(&a),
         Command::Config(c) => match c.action {
-            cli::ConfigAction::Show => cli::config::show(&c.port, &c.camera, c.json),
+            cli::ConfigAction::Show => cli::config::show(
+                c.port.stage.as_ref(),
+                c.port.dialect,
+                c.camera.device.as_ref(),
+                c.json,
+            ),
         },
         c @ (Command::Completions { .. } | Command::Man { .. }) => cli::docs(&c),
     };
@@ -31,7 +36,7 @@ fn main() {
         Ok(c) => std::process::exit(c),
         Err(e) => {
             eprintln!("rig: {e:#}");
-            std::process::exit(cli::exit::code_of(&e));
+            std::process::exit(cli::exit_code_of(&e));
         }
     }
 }

@@ -57,7 +57,15 @@ fn version_completions_manual_and_the_exit_table() {
         }
         let o = c
             .args(flags)
-            .args(["stage", "--sim", "--sim-time-scale", "0", "move", "100", "100"])
+            .args([
+                "stage",
+                "--sim",
+                "--sim-time-scale",
+                "0",
+                "move",
+                "100",
+                "100",
+            ])
             .output()
             .unwrap();
         assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));

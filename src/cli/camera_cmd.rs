@@ -130,7 +130,7 @@ pub fn run(a: CameraArgs) -> anyhow::Result<i32> {
     if let CameraAction::List = a.action {
         return list(a.json);
     }
-    let cfg = super::config::resolve(&super::connect::StagePort::none(), Some(&a.camera))?;
+    let cfg = super::config::resolve(None, None, a.camera.device.as_ref())?;
     if cfg.camera.value.is_none() && !a.sim.on {
         eprintln!("rig camera: name a camera with --camera DEVICE (/dev/videoN or sim:SOCKET; or RIG_CAMERA, or rig.toml: see `rig config show`), or use --sim");
         return Ok(rig::exit::USAGE);

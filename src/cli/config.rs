@@ -3,7 +3,6 @@
 //! directory, else `$XDG_CONFIG_HOME/rig/rig.toml` or `~/.config/rig/rig.toml`; keys `stage`,
 //! `dialect`, `camera`), in that order of precedence; `rig config show` shows what wins and why.
 
-use super::connect::{CameraDevice, StagePort};
 use anyhow::{bail, Context};
 use clap::ValueEnum;
 use rig::stage::Dialect;
@@ -83,7 +82,11 @@ fn parse_dialect(v: &str, what: &str) -> anyhow::Result<Dialect> {
 }
 
 /// Resolves the settings: flags (`port`, `camera`) over the environment over the file.
-pub fn resolve(port: &StagePort, camera: Option<&CameraDevice>) -> anyhow::Result<Resolved> {
+pub fn resolve(
+    stage_flag: Option<&PathBuf>,
+    dialect_flag: Option<Dialect>,
+    camera_flag: Option<&String>,
+) -> anyhow::Result<Resolved> {
     let mut files = Vec::new();
     let mut file = None;
     for c in candidates() {
@@ -107,7 +110,7 @@ pub fn resolve(port: &StagePort, camera: Option<&CameraDevice>) -> anyhow::Resul
             .and_then(|(p, f)| get(f).map(|v| (v, Source::File(p.clone()))))
     };
     // stage
-    let stage = match (&port.stage, env("RIG_STAGE")) {
+    let stage = match (stage_flag, env("RIG_STAGE")) {
         (Some(p), _) => Setting {
             value: Some(p.clone()),
             source: Source::Flag,
@@ -128,7 +131,7 @@ pub fn resolve(port: &StagePort, camera: Option<&CameraDevice>) -> anyhow::Resul
         },
     };
     // dialect
-    let dialect = match (port.dialect, env("RIG_DIALECT")) {
+    let dialect = match (dialect_flag, env("RIG_DIALECT")) {
         (Some(d), _) => Setting {
             value: Some(d),
             source: Source::Flag,
@@ -152,8 +155,7 @@ pub fn resolve(port: &StagePort, camera: Option<&CameraDevice>) -> anyhow::Resul
         },
     };
     // camera
-    let flag = camera.and_then(|c| c.device.clone());
-    let camera = match (flag, env("RIG_CAMERA")) {
+    let camera = match (camera_flag.cloned(), env("RIG_CAMERA")) {
         (Some(c), _) => Setting {
             value: Some(c),
             source: Source::Flag,
@@ -187,8 +189,13 @@ pub fn resolve(port: &StagePort, camera: Option<&CameraDevice>) -> anyhow::Resul
 }
 
 /// `rig config show`: the settings in force and where each comes from.
-pub fn show(port: &StagePort, camera: &CameraDevice, json: bool) -> anyhow::Result<i32> {
-    let r = resolve(port, Some(camera))?;
+pub fn show(
+    stage: Option<&PathBuf>,
+    dialect: Option<Dialect>,
+    camera: Option<&String>,
+    json: bool,
+) -> anyhow::Result<i32> {
+    let r = resolve(stage, dialect, camera)?;
     if json {
         println!("{}", serde_json::to_string(&r)?);
         return Ok(rig::exit::OK);

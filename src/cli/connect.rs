@@ -26,17 +26,6 @@ pub struct StagePort {
     pub limits: Option<SoftLimits>,
 }
 
-impl StagePort {
-    /// No stage flags (for commands that take no stage, such as `rig camera`).
-    pub fn none() -> StagePort {
-        StagePort {
-            stage: None,
-            dialect: None,
-            limits: None,
-        }
-    }
-}
-
 /// The camera: every command that takes frames names it so.
 #[derive(Debug, Args)]
 pub struct CameraDevice {
@@ -150,7 +139,11 @@ pub fn connect(
     film: bool,
     link: &LinkOptions,
 ) -> anyhow::Result<Hardware> {
-    let cfg = super::config::resolve(&a.port, Some(&a.camera))?;
+    let cfg = super::config::resolve(
+        a.port.stage.as_ref(),
+        a.port.dialect,
+        a.camera.device.as_ref(),
+    )?;
     tracing::info!(
         stage = ?cfg.stage.value, stage_from = %cfg.stage.source,
         dialect = ?cfg.dialect(), dialect_from = %cfg.dialect.source,

@@ -249,6 +249,14 @@ pub enum ConfigAction {
     Show,
 }
 
+/// The code for an error that ended a command: the stage error's own where one caused it (a
+/// timeout during a calibration exits 4 as in `rig stage`), otherwise [`exit::OTHER`].
+pub fn exit_code_of(e: &anyhow::Error) -> i32 {
+    e.chain()
+        .find_map(|c| c.downcast_ref::<rig::stage::StageError>())
+        .map_or(exit::OTHER, |s| s.exit_code())
+}
+
 /// `rig completions` and `rig man`: generated from the same definitions as the parser, so they
 /// cannot drift from it.
 pub fn docs(command: &Command) -> anyhow::Result<i32> {
@@ -293,5 +301,15 @@ mod tests {
     #[test]
     fn the_command_line_definitions_are_consistent() {
         Cli::command().debug_assert();
+    }
+
+    /// The stage's codes are the table's, and they survive being wrapped with context.
+    #[test]
+    fn stage_errors_keep_their_code_through_context() {
+        use rig::stage::StageError;
+        let e = anyhow::Error::new(StageError::NotHomed).context("calibration: moving to cross 3");
+        assert_eq!(exit_code_of(&e), exit::FAULT);
+        assert_eq!(StageError::Cancelled.exit_code(), exit::INTERRUPTED);
+        assert_eq!(exit_code_of(&anyhow::anyhow!("a file")), exit::OTHER);
     }
 }

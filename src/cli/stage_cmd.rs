@@ -401,7 +401,7 @@ fn label(a: &Action) -> &'static str {
 
 /// Runs `rig stage`; returns the process exit code.
 pub fn run(a: StageArgs) -> anyhow::Result<i32> {
-    let cfg = super::config::resolve(&a.port, None)?;
+    let cfg = super::config::resolve(a.port.stage.as_ref(), a.port.dialect, None)?;
     if cfg.stage.value.is_none() && !a.sim.on {
         eprintln!("rig stage: name the controller with --stage PATH (and --dialect native|grbl), or use --sim");
         return Ok(rig::exit::USAGE);
