@@ -6,6 +6,7 @@ use clap::Parser;
 use cli::{Cli, Command};
 
 fn main() {
+    quiet_on_closed_pipe();
     let cli = Cli::parse();
     cli::init_logging(&cli.verbosity);
     let code = match cli.command {
@@ -38,5 +39,16 @@ fn main() {
             eprintln!("rig: {e:#}");
             std::process::exit(cli::exit_code_of(&e));
         }
+    }
+}
+
+/// A closed pipe (`rig … | head`) ends the program quietly, as it ends any Unix tool, instead of
+/// a panic at the next print. The commands print before or after motion, never during it, and
+/// a scan ended so resumes from its checkpoint.
+fn quiet_on_closed_pipe() {
+    // SAFETY: called first thing in main, before any other thread exists; SIG_DFL is a valid
+    // disposition for SIGPIPE.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
     }
 }

@@ -76,6 +76,23 @@ fn version_completions_manual_and_the_exit_table() {
     assert!(log(Some("rig::stage=debug"), &[]).contains("DEBUG"));
     assert!(!log(None, &["-q"]).contains("WARN"));
 
+    // A reader that goes away (`| head`) ends rig quietly, never with a panic.
+    for args in [
+        &["--help"][..],
+        &["stage", "--sim", "--sim-time-scale", "0", "info"],
+    ] {
+        let mut child = rig()
+            .args(args)
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        drop(child.stdout.take());
+        let o = child.wait_with_output().unwrap();
+        let e = String::from_utf8_lossy(&o.stderr);
+        assert!(!e.contains("panicked"), "rig {args:?}: {e}");
+    }
+
     // One table, shown by every command's help, with the codes the commands use.
     let top = stdout(&["--help"]);
     for cmd in ["stage", "camera", "calibrate", "scan", "dtm", "demo"] {
