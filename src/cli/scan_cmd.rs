@@ -16,6 +16,38 @@ pub const EXIT_PAUSED: i32 = super::exit::PAUSED;
 /// Exit code of a plan refused (soft limits, frame size).
 pub const EXIT_REFUSED: i32 = super::exit::OUTSIDE_LIMITS;
 
+/// The command that continues this scan: the same hardware (or simulator), store and
+/// script, with --resume — what the operator can paste.
+fn resume_command(a: &ScanArgs, script: &std::path::Path, out: Option<&std::path::Path>) -> String {
+    let mut c = String::from("rig scan");
+    let c_ = &a.conn;
+    if c_.sim.on {
+        c += &format!(
+            " --sim --sim-seed {} --sim-photo {}",
+            c_.sim.seed, c_.sim_photo
+        );
+    } else {
+        if let Some(p) = &c_.port.stage {
+            c += &format!(" --stage {}", p.display());
+        }
+        if let Some(d) = c_.port.dialect {
+            c += &format!(" --dialect {}", format!("{d:?}").to_lowercase());
+        }
+        if let Some(cam) = &c_.camera.device {
+            c += &format!(" --camera {cam}");
+        }
+    }
+    c += &format!(
+        " --store {} run {} --resume",
+        a.store.display(),
+        script.display()
+    );
+    if let Some(o) = out {
+        c += &format!(" --out {}", o.display());
+    }
+    c
+}
+
 #[derive(Debug, Args)]
 pub struct ScanArgs {
     #[command(flatten)]
@@ -318,8 +350,9 @@ pub fn run(a: ScanArgs) -> anyhow::Result<i32> {
             }
             let outcome = r.with_context(|| {
                 format!(
-                    "the scan stopped; every tile taken so far is kept in {} — fix the cause and run again with --resume",
-                    dir.display()
+                    "the scan stopped; every tile taken so far is kept in {} — fix the cause and continue with: {}",
+                    dir.display(),
+                    resume_command(&a, script, out.as_deref())
                 )
             })?;
             closed?;
@@ -350,11 +383,8 @@ pub fn run(a: ScanArgs) -> anyhow::Result<i32> {
                         );
                     } else {
                         println!(
-                            "scan paused after {done} of {total} tiles; continue with: rig scan run {} --resume{}",
-                            script.display(),
-                            out.as_ref()
-                                .map(|o| format!(" --out {}", o.display()))
-                                .unwrap_or_default()
+                            "scan paused after {done} of {total} tiles; continue with: {}",
+                            resume_command(&a, script, out.as_deref())
                         );
                     }
                     Ok(EXIT_PAUSED)
@@ -384,5 +414,62 @@ pub fn run(a: ScanArgs) -> anyhow::Result<i32> {
             }
             Ok(0)
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::cli::{Cli, Command};
+    use clap::Parser;
+    use std::path::Path;
+
+    fn args(argv: &[&str]) -> ScanArgs {
+        match Cli::try_parse_from(argv).unwrap().command {
+            Command::Scan(a) => a,
+            _ => unreachable!("a scan command was parsed"),
+        }
+    }
+
+    /// The hint the operator pastes repeats the hardware (or simulator) and the store: a resume
+    /// without --sim would look for a real stage.
+    #[test]
+    fn the_resume_hint_repeats_how_the_scan_was_run() {
+        let a = args(&[
+            "rig",
+            "scan",
+            "--sim",
+            "--sim-seed",
+            "4",
+            "--sim-photo",
+            "2",
+            "--store",
+            "st",
+            "run",
+            "s.toml",
+        ]);
+        assert_eq!(
+            resume_command(&a, Path::new("s.toml"), Some(Path::new("o"))),
+            "rig scan --sim --sim-seed 4 --sim-photo 2 --store st run s.toml --resume --out o"
+        );
+        let a = args(&[
+            "rig",
+            "scan",
+            "--stage",
+            "/dev/ttyUSB0",
+            "--dialect",
+            "grbl",
+            "--camera",
+            "/dev/video0",
+            "run",
+            "s.toml",
+        ]);
+        let c = resume_command(&a, Path::new("s.toml"), None);
+        assert!(
+            c.starts_with(
+                "rig scan --stage /dev/ttyUSB0 --dialect grbl --camera /dev/video0 --store "
+            ) && c.ends_with(" run s.toml --resume"),
+            "{c}"
+        );
     }
 }
