@@ -13,7 +13,7 @@ use super::output::{
 use super::pmf::PmfError;
 use super::pmf_dtm::{pmf_dtm, Budget, DtmError, PmfDtm, PmfDtmParams, PmfDtmReport};
 use super::pmf_set::FitReport;
-use super::precision::{check_sigma, SigmaCheck};
+use super::precision::{sigma_vs_reference, SigmaCheck};
 use super::project::{PmfSource, Project, ProjectError};
 use super::regions::RegionParams;
 use super::sweep::SweepParams;
@@ -264,14 +264,9 @@ pub fn run(
     })?;
     // One pair: no redundancy to scale the matching's σ by (see precision.rs).
     let quality = r.grid.quality(&r.points);
-    let sigma_vs_reference = reference.as_ref().and_then(|g| {
-        let d = r.grid.differences(|x, y| g.interpolate(x, y));
-        check_sigma(
-            d.iter()
-                .zip(&quality.sigma_m)
-                .map(|(&e, &s)| (e as f64, s as f64)),
-        )
-    });
+    let sigma_vs_reference = reference
+        .as_ref()
+        .and_then(|g| sigma_vs_reference(&r.grid, &quality.sigma_m, g));
     let report = RunReport {
         project: p.path.clone(),
         pmf_from: p.pmf.from,

@@ -9,7 +9,9 @@ use super::output::read_geotiff;
 use super::pipeline::{Photo, PipelineError};
 use super::pmf_dtm::{pmf_dtm, Budget, DtmError, PmfDtmParams, PmfDtmReport};
 use super::pmf_set::FitReport;
-use super::precision::{check_sigma, variance_factor, SigmaCheck, VarianceFactor};
+use super::precision::{
+    check_sigma, sigma_vs_reference, variance_factor, SigmaCheck, VarianceFactor,
+};
 use super::project2::{Kind, Observation, Project2, Project2Error, Source};
 use super::regions::RegionParams;
 use super::sweep::SweepParams;
@@ -379,14 +381,9 @@ pub fn run(
         .as_ref()
         .map(|g| grid.compare(|x, y| g.interpolate(x, y)));
     let quality = grid.quality_scaled(&all, s0);
-    let sigma_vs_reference = reference.as_ref().and_then(|g| {
-        let d = grid.differences(|x, y| g.interpolate(x, y));
-        check_sigma(
-            d.iter()
-                .zip(&quality.sigma_m)
-                .map(|(&e, &s)| (e as f64, s as f64)),
-        )
-    });
+    let sigma_vs_reference = reference
+        .as_ref()
+        .and_then(|g| sigma_vs_reference(&grid, &quality.sigma_m, g));
     // One line per observation: each check point once.
     let mut seen = std::collections::HashSet::new();
     let cps = obs
@@ -394,16 +391,9 @@ pub fn run(
         .filter(|o| o.kind == Kind::Cp && seen.insert(o.id.as_str()));
     let check_points = check_sigma(cps.filter_map(|o| {
         let g = o.ground?;
-        let (c, r) = (
-            ((g.x - grid.x0) / grid.cell_m).round(),
-            ((grid.y0 - g.y) / grid.cell_m).round(),
-        );
-        let inside = c >= 0.0 && r >= 0.0 && c < grid.cols as f64 && r < grid.rows as f64;
-        let s = if inside {
-            quality.sigma_m[r as usize * grid.cols + c as usize] as f64
-        } else {
-            f64::NAN
-        };
+        let s = grid
+            .node_index(g.x, g.y)
+            .map_or(f64::NAN, |i| quality.sigma_m[i] as f64);
         Some((grid.interpolate(g.x, g.y) - g.z, s))
     }));
     let write = |source| PipelineError::Write {

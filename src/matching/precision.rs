@@ -116,6 +116,16 @@ pub fn check_sigma(pairs: impl IntoIterator<Item = (f64, f64)>) -> Option<SigmaC
     })
 }
 
+/// `sigma` (one per node of `grid`) against the differences from `reference`, node by node.
+pub fn sigma_vs_reference(
+    grid: &ElevationGrid,
+    sigma: &[f32],
+    reference: &ElevationGrid,
+) -> Option<SigmaCheck> {
+    let d = grid.differences(|x, y| reference.interpolate(x, y));
+    check_sigma(d.iter().zip(sigma).map(|(&e, &s)| (e as f64, s as f64)))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

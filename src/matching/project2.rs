@@ -226,13 +226,6 @@ pub fn format_of(text: &str) -> Result<u32, String> {
     }
 }
 
-pub fn is_format2(text: &str) -> bool {
-    text.parse::<toml::Table>()
-        .ok()
-        .and_then(|t| t.get("format").and_then(|v| v.as_integer()))
-        == Some(2)
-}
-
 const MAX_PHOTOS: usize = 64;
 /// Coordinates of ground points and projection centres, m (any projected CRS fits).
 const MAX_GROUND_M: f64 = 1e8;
