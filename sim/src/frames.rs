@@ -101,9 +101,12 @@ impl FrameSource {
             self.next_seq += 1;
             let ts = self.world.time_scale;
             if ts > 0.0 {
-                let due =
-                    std::time::Duration::from_secs_f64(seq as f64 / self.cfg.frame_rate_hz * ts);
-                if let Some(wait) = due.checked_sub(self.started.elapsed()) {
+                // A time scale or frame rate that makes the due time no duration (NaN, huge)
+                // means no waiting rather than a panic.
+                let due = std::time::Duration::try_from_secs_f64(
+                    seq as f64 / self.cfg.frame_rate_hz * ts,
+                );
+                if let Some(wait) = due.ok().and_then(|d| d.checked_sub(self.started.elapsed())) {
                     std::thread::sleep(wait);
                 }
             }
