@@ -102,12 +102,12 @@ impl FrameSource {
             let ts = self.world.time_scale;
             if ts > 0.0 {
                 // A time scale or frame rate that makes the due time no duration (NaN, huge)
-                // means no waiting rather than a panic.
+                // means no waiting rather than a panic; no frame waits more than a minute.
                 let due = std::time::Duration::try_from_secs_f64(
                     seq as f64 / self.cfg.frame_rate_hz * ts,
                 );
                 if let Some(wait) = due.ok().and_then(|d| d.checked_sub(self.started.elapsed())) {
-                    std::thread::sleep(wait);
+                    std::thread::sleep(wait.min(std::time::Duration::from_secs(60)));
                 }
             }
             if self.rng.chance(self.drop_p) {
