@@ -49,6 +49,17 @@ pub fn write_with(
     Ok(())
 }
 
+/// FNV-1a, 64 bits, as hex: enough to notice a damaged or replaced file (a scan's tiles, a
+/// tiled run's project), no dependency.
+pub fn fnv64(bytes: &[u8]) -> String {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for &b in bytes {
+        h ^= b as u64;
+        h = h.wrapping_mul(0x0000_0100_0000_01b3);
+    }
+    format!("{h:016x}")
+}
+
 /// Writes `bytes` to `path` atomically.
 pub fn write(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
     write_with(path, |w| w.write_all(bytes))
@@ -64,6 +75,13 @@ pub fn write_json<T: serde::Serialize + ?Sized>(path: &Path, value: &T) -> std::
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn fnv_matches_the_published_vectors() {
+        assert_eq!(super::fnv64(b""), "cbf29ce484222325");
+        assert_eq!(super::fnv64(b"a"), "af63dc4c8601ec8c");
+        assert_eq!(super::fnv64(b"foobar"), "85944171f73967e8");
+    }
+
     #[test]
     fn replaces_whole_and_leaves_no_part_file() {
         let d = tempfile::tempdir().unwrap();

@@ -199,6 +199,7 @@ fn three_plain_photos_give_a_dem_a_gis_can_place() {
     let _ = zs;
     check_quality_and_ortho(&out, &r, &photos[0]);
     check_las_against_ply(&out);
+    check_tiles_and_merge(&pf, &out, d.path());
     // A GIS places it: the CRS is in the GeoTIFF (checked when GDAL is installed).
     if let Ok(o) = std::process::Command::new("gdalinfo")
         .arg(out.join("dem.tif"))
@@ -210,6 +211,117 @@ fn three_plain_photos_give_a_dem_a_gis_can_place() {
             "{t}"
         );
     }
+}
+
+/// The run split in four shares (swept in reverse order, one across two pairs) and merged
+/// gives the single run's files byte for byte; a missing share, a share given twice or a
+/// changed project are refused with what to do.
+fn check_tiles_and_merge(pf: &Path, single: &Path, dir: &Path) {
+    let n = 4;
+    for i in (1..=n).rev() {
+        let o = rig()
+            .arg("dtm")
+            .arg(pf)
+            .args(["--tile", &format!("{i}/{n}"), "--json", "--out"])
+            .arg(dir.join(format!("tile-{i}")))
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let m: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+        assert_eq!(m["tile"], i);
+        if i == 2 {
+            assert_eq!(m["parts"].as_array().unwrap().len(), 2, "{m}");
+        }
+    }
+    let tile = |i: usize| dir.join(format!("tile-{i}"));
+    let merged = dir.join("merged");
+    let o = rig()
+        .args(["dtm", "merge"])
+        .args([tile(3), tile(1), tile(4), tile(2)])
+        .arg("--out")
+        .arg(&merged)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    for f in [
+        "dem.tif",
+        "quality.tif",
+        "ortho.tif",
+        "points.ply",
+        "points.las",
+        "hillshade.png",
+        "quality.png",
+        "error.png",
+    ] {
+        let (a, b) = (
+            std::fs::read(single.join(f)).unwrap(),
+            std::fs::read(merged.join(f)).unwrap(),
+        );
+        assert!(a == b, "{f} differs between the single run and the merge");
+    }
+    // The reports agree but for the sweep's timings.
+    let strip = |p: &Path| {
+        let mut v: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(p.join("report.json")).unwrap()).unwrap();
+        for pair in v["pairs"].as_array_mut().unwrap() {
+            pair["dtm"]["matching_seconds"] = 0.into();
+            pair["dtm"]["pixels_per_second"] = 0.into();
+        }
+        v
+    };
+    assert_eq!(strip(single), strip(&merged));
+    // A missing share, a share given twice.
+    let o = rig()
+        .args(["dtm", "merge"])
+        .args([tile(1), tile(2), tile(4)])
+        .arg("--out")
+        .arg(dir.join("x"))
+        .output()
+        .unwrap();
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && e.contains("missing 3/4"), "{e}");
+    let o = rig()
+        .args(["dtm", "merge"])
+        .args([tile(1), tile(2), tile(2), tile(3), tile(4)])
+        .arg("--out")
+        .arg(dir.join("x"))
+        .output()
+        .unwrap();
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && e.contains("given twice"), "{e}");
+    // A damaged part file.
+    let m: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(tile(1).join("tile.json")).unwrap()).unwrap();
+    let part = tile(1).join(m["parts"][0]["file"].as_str().unwrap());
+    let bytes = std::fs::read(&part).unwrap();
+    std::fs::write(&part, &bytes[..bytes.len() - 4]).unwrap();
+    let o = rig()
+        .args(["dtm", "merge"])
+        .args([tile(1), tile(2), tile(3), tile(4)])
+        .arg("--out")
+        .arg(dir.join("x"))
+        .output()
+        .unwrap();
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && e.contains("cut short"), "{e}");
+    std::fs::write(&part, &bytes).unwrap();
+    // The project edited after the sweep.
+    let text = std::fs::read_to_string(pf).unwrap();
+    std::fs::write(pf, text.replace("cell_m = 20.0", "cell_m = 25.0")).unwrap();
+    let o = rig()
+        .args(["dtm", "merge"])
+        .args([tile(1), tile(2), tile(3), tile(4)])
+        .arg("--out")
+        .arg(dir.join("x"))
+        .output()
+        .unwrap();
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && e.contains("sweep the tiles again"),
+        "{e}"
+    );
+    std::fs::write(pf, text).unwrap();
+    assert!(!dir.join("x").join("dem.tif").exists());
 }
 
 /// quality.tif and ortho.tif, checked against what the simulator knows: the standard deviations

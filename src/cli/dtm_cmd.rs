@@ -26,6 +26,10 @@ pub struct DtmArgs {
     /// Most memory the run may take, MiB (overrides the project's [limits] max_memory_mb).
     #[arg(long, value_name = "MIB", value_parser = clap::value_parser!(u64).range(16..=1_048_576))]
     pub max_memory: Option<u64>,
+    /// Sweep only share I of N of the work (I counts from 1) into --out, for a cluster or
+    /// several machines; `rig dtm merge` joins the shares (format-2 projects).
+    #[arg(long, value_name = "I/N")]
+    pub tile: Option<rig::matching::tiles::TileSpec>,
     /// Print the report as JSON.
     #[arg(long)]
     pub json: bool,
@@ -33,6 +37,33 @@ pub struct DtmArgs {
 
 #[derive(Debug, Subcommand)]
 pub enum DtmAction {
+    /// Join the shares of `rig dtm PROJECT --tile I/N --out TILE_DIR` (all N, any order) and
+    /// finish the run: the outputs are byte for byte those of one `rig dtm PROJECT --out DIR`.
+    ///
+    /// Each share sweeps a contiguous part of the work (bands of 16 rows of every pair's
+    /// sweep, the longest step); the merge removes the wrong heights, grids, scales the
+    /// standard deviations and writes the outputs. The project must be the file the shares
+    /// read (its path and a hash are in each TILE_DIR/tile.json), unchanged.
+    ///
+    /// Examples:
+    ///   for i in 1 2 3 4; do rig dtm block.toml --tile $i/4 --out tiles/$i & done; wait
+    ///   rig dtm merge tiles/* --out dtm
+    #[command(verbatim_doc_comment)]
+    Merge {
+        /// The shares' directories.
+        #[arg(value_name = "TILE_DIR", required = true, num_args = 1..)]
+        tiles: Vec<PathBuf>,
+        /// Output directory (as for `rig dtm`).
+        #[arg(long, value_name = "DIR")]
+        out: PathBuf,
+        /// Most memory the run may take, MiB (overrides the project's [limits]
+        /// max_memory_mb).
+        #[arg(long, value_name = "MIB", value_parser = clap::value_parser!(u64).range(16..=1_048_576))]
+        max_memory: Option<u64>,
+        /// Print the report as JSON.
+        #[arg(long)]
+        json: bool,
+    },
     /// Seed 000's method: polynomial mapping functions from the control points (terms chosen by
     /// the check points), a height sweep along their epipolar lines, removal of wrong heights
     /// by the height and population criteria, gridding, comparison with a reference.
@@ -118,6 +149,11 @@ pub fn print_report(pmf: &[FitReport], r: &PmfDtm) {
     }
 }
 
+/// The rig's own scans come through the scan's hand-over.
+fn scan_photo(sidecar: &std::path::Path) -> Result<rig::matching::pipeline::Photo, String> {
+    ScannedPhoto::load_photo(sidecar).map_err(|e| e.to_string())
+}
+
 /// A format-2 project: photos loaded (scans through the scan's hand-over), the N-photo sweep.
 fn run_format2(
     project: &std::path::Path,
@@ -128,19 +164,164 @@ fn run_format2(
     use rig::matching::pipeline2;
     use rig::matching::project2::Project2;
     let p = Project2::load(project)?;
-    // The rig's own scans come through the scan's hand-over.
-    let scan =
-        |sidecar: &std::path::Path| ScannedPhoto::load_photo(sidecar).map_err(|e| e.to_string());
-    let photos = pipeline2::load_photos(&p, &scan)?;
+    let photos = pipeline2::load_photos(&p, &scan_photo)?;
     let bar = super::progress_bar::Bar::new(!json);
     let r = pipeline2::run(&p, &photos, out, max_memory, &bar)?;
+    print_format2(&p, &r, out, json)
+}
+
+/// Share `spec` of a format-2 run into `out`: the plan from every photo's geometry (each
+/// photo read once and let go), then the sweep of this share's bands with only the photos of
+/// their pairs in memory.
+fn run_tile(
+    project: &std::path::Path,
+    spec: rig::matching::tiles::TileSpec,
+    out: &std::path::Path,
+    max_memory: Option<u64>,
+    json: bool,
+) -> anyhow::Result<i32> {
+    use rig::matching::pipeline2;
+    use rig::matching::project2::Project2;
+    use rig::matching::tiles;
+    let bytes = std::fs::read(project).with_context(|| format!("reading {}", project.display()))?;
+    let p = Project2::load(project)?;
+    if out.exists() {
+        let mut foreign = Vec::new();
+        for e in std::fs::read_dir(out).with_context(|| format!("reading {}", out.display()))? {
+            let name = e?.file_name().to_string_lossy().to_string();
+            if !tiles::is_tile_output(&name) {
+                foreign.push(name);
+            }
+        }
+        if !foreign.is_empty() {
+            foreign.sort();
+            anyhow::bail!(
+                "{} holds files that are not a tile's ({}): give an empty or new directory",
+                out.display(),
+                foreign.join(", ")
+            );
+        }
+        // A share that is swept again is whole only when its manifest is written again.
+        let m = out.join(tiles::MANIFEST);
+        if m.exists() {
+            std::fs::remove_file(&m).with_context(|| format!("removing {}", m.display()))?;
+        }
+    }
+    let mut geometry = Vec::new();
+    for k in 0..p.photos.len() {
+        geometry.push(pipeline2::load_photo(&p, k, &scan_photo)?.geometry());
+    }
+    let plan = pipeline2::plan(&p, &geometry, max_memory)?;
+    let units = spec.units(plan.units());
+    let shares = plan.bands_of(units.clone());
+    let mut loaded: Vec<Option<rig::matching::pipeline::Photo>> =
+        (0..p.photos.len()).map(|_| None).collect();
+    for &(k, _) in &shares {
+        for i in [plan.pairs[k].left, plan.pairs[k].right] {
+            if loaded[i].is_none() {
+                loaded[i] = Some(pipeline2::load_photo(&p, i, &scan_photo)?);
+            }
+        }
+    }
+    let refs: Vec<Option<&rig::matching::pipeline::Photo>> =
+        loaded.iter().map(|o| o.as_ref()).collect();
+    let bar = super::progress_bar::Bar::new(!json);
+    let parts = pipeline2::sweep_units(&p, &plan, units.clone(), &refs, &bar)?;
+    let absolute = std::fs::canonicalize(project)
+        .with_context(|| format!("resolving {}", project.display()))?;
+    let ids: Vec<String> = p.photos.iter().map(|ph| ph.id.clone()).collect();
+    let m = tiles::write_tile(out, &absolute, &bytes, spec, &plan, &ids, &parts)?;
+    if json {
+        println!("{}", serde_json::to_string(&m)?);
+    } else {
+        println!(
+            "share {spec}: units {}…{} of {} ({} pairs of {} photos), {} parts written to {}",
+            units.start,
+            units.end,
+            plan.units(),
+            plan.pairs.len(),
+            p.photos.len(),
+            m.parts.len(),
+            out.display()
+        );
+        for e in &m.parts {
+            println!(
+                "  {} × {}: rows {}…{} in {:.1} s",
+                e.left, e.right, e.rows[0], e.rows[1], e.seconds
+            );
+        }
+        println!(
+            "when all {} shares are done: rig dtm merge TILE_DIR… --out DIR",
+            spec.count
+        );
+    }
+    Ok(0)
+}
+
+/// `rig dtm merge`: the shares checked to belong together, their heights joined, the run
+/// finished as a single run would.
+fn merge(
+    dirs: &[PathBuf],
+    out: &std::path::Path,
+    max_memory: Option<u64>,
+    json: bool,
+) -> anyhow::Result<i32> {
+    use rig::matching::pipeline2;
+    use rig::matching::project2::Project2;
+    use rig::matching::tiles;
+    let mut set = Vec::new();
+    for d in dirs {
+        set.push((d.clone(), tiles::read_manifest(d)?));
+    }
+    let set = tiles::check_set(set)?;
+    let m0 = &set[0].1;
+    let bytes = std::fs::read(&m0.project).with_context(|| {
+        format!(
+            "reading the project the tiles name, {}",
+            m0.project.display()
+        )
+    })?;
+    if rig::atomic::fnv64(&bytes) != m0.project_fnv64 {
+        anyhow::bail!(
+            "{} changed since the tiles were swept (hash {} then, {} now): sweep the tiles again",
+            m0.project.display(),
+            m0.project_fnv64,
+            rig::atomic::fnv64(&bytes)
+        );
+    }
+    let p = Project2::load(&m0.project)?;
+    let photos = pipeline2::load_photos(&p, &scan_photo)?;
+    let geometry: Vec<_> = photos.iter().map(|ph| ph.geometry()).collect();
+    let plan = pipeline2::plan(&p, &geometry, max_memory)?;
+    if plan.units() != m0.total_units {
+        anyhow::bail!(
+            "the tiles split {} units of work, the project now gives {}: sweep the tiles again",
+            m0.total_units,
+            plan.units()
+        );
+    }
+    let mut parts = Vec::new();
+    for (d, m) in &set {
+        parts.extend(tiles::read_parts(d, m, &plan)?);
+    }
+    let r = pipeline2::finish(&p, &plan, parts, &photos, out)?;
+    print_format2(&p, &r, out, json)
+}
+
+/// The report of a format-2 run (single or merged).
+fn print_format2(
+    p: &rig::matching::project2::Project2,
+    r: &rig::matching::pipeline2::Report2,
+    out: &std::path::Path,
+    json: bool,
+) -> anyhow::Result<i32> {
     for pr in &r.pairs {
         if let Some(w) = pr.dtm.pile_warning() {
             eprintln!("rig dtm: warning: photos {} × {}: {w}", pr.left, pr.right);
         }
     }
     if json {
-        println!("{}", serde_json::to_string(&r)?);
+        println!("{}", serde_json::to_string(r)?);
         return Ok(0);
     }
     println!(
@@ -209,10 +390,15 @@ pub fn run(a: DtmArgs) -> anyhow::Result<i32> {
         (None, Some(project), Some(out)) => {
             let text = std::fs::read_to_string(&project)
                 .with_context(|| format!("reading {}", project.display()))?;
-            match rig::matching::project2::format_of(&text) {
-                Ok(2) => return run_format2(&project, &out, a.max_memory, a.json),
-                Ok(_) => {}
-                Err(e) => anyhow::bail!("{}: {e}", project.display()),
+            match (rig::matching::project2::format_of(&text), a.tile) {
+                (Ok(2), Some(spec)) => return run_tile(&project, spec, &out, a.max_memory, a.json),
+                (Ok(2), None) => return run_format2(&project, &out, a.max_memory, a.json),
+                (Ok(_), Some(_)) => {
+                    eprintln!("rig dtm: --tile splits format-2 projects; {} is format 1 (one scanned pair): run it whole, or write it as format 2 (see the README)", project.display());
+                    return Ok(rig::exit::USAGE);
+                }
+                (Ok(_), None) => {}
+                (Err(e), _) => anyhow::bail!("{}: {e}", project.display()),
             }
             DtmAction::Pmf {
                 project,
@@ -233,6 +419,12 @@ pub fn run(a: DtmArgs) -> anyhow::Result<i32> {
         }
     };
     match action {
+        DtmAction::Merge {
+            tiles,
+            out,
+            max_memory,
+            json,
+        } => merge(&tiles, &out, max_memory, json),
         DtmAction::Pmf {
             project,
             out,

@@ -20,3 +20,4 @@ pub mod project;
 pub mod project2;
 pub mod regions;
 pub mod sweep;
+pub mod tiles;

@@ -7,14 +7,16 @@ use super::grid::{Comparison, ElevationGrid};
 use super::ortho::View;
 use super::output::read_geotiff;
 use super::pipeline::{Photo, PipelineError};
-use super::pmf_dtm::{pmf_dtm, Budget, DtmError, PmfDtmParams, PmfDtmReport};
+use super::pmf_dtm::{
+    estimate, pmf_dtm_from_heights, Budget, DtmError, PmfDtmParams, PmfDtmReport,
+};
 use super::pmf_set::FitReport;
 use super::precision::{
     check_sigma, sigma_vs_reference, variance_factor, SigmaCheck, VarianceFactor,
 };
 use super::project2::{Kind, Observation, Project2, Project2Error, Source};
 use super::regions::RegionParams;
-use super::sweep::SweepParams;
+use super::sweep::{sweep_bands, HeightMap, SweepLayout, SweepParams, SweptBands};
 use super::{MatchedPoint, PmfSet};
 use crate::coords::{GroundM, PixelXY};
 use crate::geometry::{
@@ -121,39 +123,45 @@ fn frame_of(
     }
 }
 
-/// Loads a plain-image photo of the project (scans come through `scan`, the hardware side's
-/// hand-over), within the project's memory limit.
+/// Loads the project's photos (scans come through `scan`, the hardware side's hand-over),
+/// each within the project's memory limit.
 pub fn load_photos(
     p: &Project2,
     scan: &dyn Fn(&Path) -> Result<Photo, String>,
 ) -> Result<Vec<Photo>, Pipeline2Error> {
-    let max = p.limits.max_memory_mb << 20;
-    p.photos
-        .iter()
-        .map(|ph| {
-            let err = |message: String| Pipeline2Error::Photo {
-                id: ph.id.clone(),
-                message,
-            };
-            match &ph.source {
-                Source::Image { path, camera } => {
-                    let image =
-                        crate::image::load_grey(path, max).map_err(|e| err(e.to_string()))?;
-                    let frame = frame_of(camera, image.width, image.height)
-                        .ok_or_else(|| err("its camera's pixel_to_photo is singular".into()))?;
-                    Ok(Photo {
-                        image,
-                        frame,
-                        interior: Interior {
-                            focal_mm: camera.focal_mm,
-                            principal_point: camera.principal_point,
-                        },
-                    })
-                }
-                Source::Scan { sidecar } => scan(sidecar).map_err(err),
-            }
-        })
+    (0..p.photos.len())
+        .map(|k| load_photo(p, k, scan))
         .collect()
+}
+
+/// Loads photo `k` of the project.
+pub fn load_photo(
+    p: &Project2,
+    k: usize,
+    scan: &dyn Fn(&Path) -> Result<Photo, String>,
+) -> Result<Photo, Pipeline2Error> {
+    let max = p.limits.max_memory_mb << 20;
+    let ph = &p.photos[k];
+    let err = |message: String| Pipeline2Error::Photo {
+        id: ph.id.clone(),
+        message,
+    };
+    match &ph.source {
+        Source::Image { path, camera } => {
+            let image = crate::image::load_grey(path, max).map_err(|e| err(e.to_string()))?;
+            let frame = frame_of(camera, image.width, image.height)
+                .ok_or_else(|| err("its camera's pixel_to_photo is singular".into()))?;
+            Ok(Photo {
+                image,
+                frame,
+                interior: Interior {
+                    focal_mm: camera.focal_mm,
+                    principal_point: camera.principal_point,
+                },
+            })
+        }
+        Source::Scan { sidecar } => scan(sidecar).map_err(err),
+    }
 }
 
 /// The ground rectangle (xmin, ymin, xmax, ymax) the image's corners and middle see at `z`.
@@ -190,15 +198,77 @@ fn parallax_step(l: &dyn Sensor, r: &dyn Sensor, z: f64) -> Option<f64> {
     (px_per_m > 1e-9).then(|| (0.5 / px_per_m).clamp(0.01, 100.0))
 }
 
-/// Runs a format-2 project on its loaded photos into `out`.
-pub fn run(
+/// A photo's geometry without its pixels: what the plan needs.
+#[derive(Debug, Clone, Copy)]
+pub struct PhotoGeometry {
+    pub frame: PixelToPhoto,
+    pub interior: Interior,
+    pub width: usize,
+    pub height: usize,
+}
+
+impl Photo {
+    pub fn geometry(&self) -> PhotoGeometry {
+        PhotoGeometry {
+            frame: self.frame,
+            interior: self.interior,
+            width: self.image.width,
+            height: self.image.height,
+        }
+    }
+}
+
+/// One pair to sweep: photos `left` and `right` (indices into the project's photos).
+#[derive(Debug, Clone)]
+pub struct PlannedPair {
+    pub left: usize,
+    pub right: usize,
+    pub pmfs: PmfSet,
+    pub params: PmfDtmParams,
+    pub layout: SweepLayout,
+}
+
+/// Everything decided before the sweep, from the project and the photos' geometry alone: the
+/// same on every machine of a tiled run.
+#[derive(Debug, Clone)]
+pub struct Plan {
+    pub sensors: Vec<FrameSensor>,
+    pub resected: Vec<(String, Resection)>,
+    pub heights: [f64; 2],
+    pub extent: [f64; 4],
+    pub pairs: Vec<PlannedPair>,
+    pub budget: Budget,
+}
+
+impl Plan {
+    /// The units of work: every band of every pair's sweep, pair by pair.
+    pub fn units(&self) -> usize {
+        self.pairs.iter().map(|p| p.layout.bands()).sum()
+    }
+
+    /// The bands of each pair that units `u` hold: (pair, bands) in order.
+    pub fn bands_of(&self, u: std::ops::Range<usize>) -> Vec<(usize, std::ops::Range<usize>)> {
+        let mut out = Vec::new();
+        let mut first = 0;
+        for (k, pair) in self.pairs.iter().enumerate() {
+            let n = pair.layout.bands();
+            let (a, b) = (u.start.max(first), u.end.min(first + n));
+            if a < b {
+                out.push((k, a - first..b - first));
+            }
+            first += n;
+        }
+        out
+    }
+}
+
+/// The orientations, heights, pairs, mappings and sweep parameters of a project, with each
+/// pair's work checked against the budget.
+pub fn plan(
     p: &Project2,
-    photos: &[Photo],
-    out: &Path,
+    photos: &[PhotoGeometry],
     max_memory_mb: Option<u64>,
-    progress: &dyn super::progress::Progress,
-) -> Result<Report2, Pipeline2Error> {
-    super::pipeline::check_out_dir(out)?;
+) -> Result<Plan, Pipeline2Error> {
     let obs = p.observations()?;
     let control: Vec<&Observation> = obs.iter().filter(|o| o.kind == Kind::Gcp).collect();
     // Orientation: given, or resected from this photo's control points.
@@ -260,13 +330,13 @@ pub fn run(
         .iter()
         .map(|s| footprint(s as &dyn Sensor, mid))
         .collect();
-    let mut pairs = Vec::new();
+    let mut overlapping = Vec::new();
     let mut union: Option<[f64; 4]> = None;
     for i in 0..sensors.len() {
         for j in i + 1..sensors.len() {
             if let (Some(a), Some(b)) = (prints[i], prints[j]) {
                 if let Some(o) = overlap(a, b) {
-                    pairs.push((i, j));
+                    overlapping.push((i, j));
                     union = Some(match union {
                         None => o,
                         Some(u) => [
@@ -285,7 +355,7 @@ pub fn run(
         (None, Some(u)) => u,
         (None, None) => return Err(Pipeline2Error::NoOverlap),
     };
-    if pairs.is_empty() {
+    if overlapping.is_empty() {
         return Err(Pipeline2Error::NoOverlap);
     }
     let budget = Budget {
@@ -293,9 +363,8 @@ pub fn run(
         max_candidates: p.limits.max_candidates_g * 1e9,
     };
     let m = &p.matching;
-    let mut per_pair = Vec::new();
-    let mut reports = Vec::new();
-    for (i, j) in pairs {
+    let mut pairs = Vec::new();
+    for (i, j) in overlapping {
         let (l, r) = (&sensors[i], &sensors[j]);
         let (li, ri) = (&p.photos[i].id, &p.photos[j].id);
         let pmfs =
@@ -323,24 +392,147 @@ pub fn run(
             },
             cell_m: p.cell_m,
         };
-        let d = pmf_dtm(
-            &photos[i].image,
-            &photos[j].image,
-            &pmfs,
-            &params,
-            &budget,
-            None,
-            None,
+        let (a, b) = (&photos[i], &photos[j]);
+        estimate((a.width, a.height), (b.width, b.height), &params, &budget).map_err(|source| {
+            Pipeline2Error::Pair {
+                left: li.clone(),
+                right: ri.clone(),
+                cause: source,
+            }
+        })?;
+        pairs.push(PlannedPair {
+            left: i,
+            right: j,
+            pmfs,
+            layout: SweepLayout::new(a.width, a.height, &params.sweep),
+            params,
+        });
+    }
+    Ok(Plan {
+        sensors,
+        resected,
+        heights,
+        extent,
+        pairs,
+        budget,
+    })
+}
+
+/// One pair's swept bands, with the seconds they took.
+#[derive(Debug, Clone)]
+pub struct PairPart {
+    pub pair: usize,
+    pub bands: SweptBands,
+    pub seconds: f64,
+}
+
+/// Sweeps units `units` of the plan (see [`Plan::units`]); `photos[k]` must hold every photo
+/// of the pairs these units touch.
+pub fn sweep_units(
+    p: &Project2,
+    plan: &Plan,
+    units: std::ops::Range<usize>,
+    photos: &[Option<&Photo>],
+    progress: &dyn super::progress::Progress,
+) -> Result<Vec<PairPart>, Pipeline2Error> {
+    let mut parts = Vec::new();
+    for (k, bands) in plan.bands_of(units) {
+        let pair = &plan.pairs[k];
+        let (li, ri) = (&p.photos[pair.left].id, &p.photos[pair.right].id);
+        let get = |i: usize| {
+            photos
+                .get(i)
+                .copied()
+                .flatten()
+                .ok_or_else(|| Pipeline2Error::Photo {
+                    id: p.photos[i].id.clone(),
+                    message: "not loaded for the sweep (a defect of the caller)".into(),
+                })
+        };
+        let (l, r) = (get(pair.left)?, get(pair.right)?);
+        let t = std::time::Instant::now();
+        let swept = sweep_bands(
+            &l.image,
+            &r.image,
+            &pair.pmfs.left_to_right,
+            &pair.params.sweep,
+            bands,
             &super::progress::Prefixed {
                 inner: progress,
                 prefix: format!("photos {li} × {ri}: "),
             },
-        )
-        .map_err(|source| Pipeline2Error::Pair {
-            left: li.clone(),
-            right: ri.clone(),
-            cause: source,
+        );
+        parts.push(PairPart {
+            pair: k,
+            bands: swept,
+            seconds: t.elapsed().as_secs_f64(),
+        });
+    }
+    Ok(parts)
+}
+
+/// Runs a format-2 project on its loaded photos into `out`.
+pub fn run(
+    p: &Project2,
+    photos: &[Photo],
+    out: &Path,
+    max_memory_mb: Option<u64>,
+    progress: &dyn super::progress::Progress,
+) -> Result<Report2, Pipeline2Error> {
+    super::pipeline::check_out_dir(out)?;
+    let geometry: Vec<PhotoGeometry> = photos.iter().map(Photo::geometry).collect();
+    let plan = plan(p, &geometry, max_memory_mb)?;
+    let refs: Vec<Option<&Photo>> = photos.iter().map(Some).collect();
+    let parts = sweep_units(p, &plan, 0..plan.units(), &refs, progress)?;
+    finish(p, &plan, parts, photos, out)
+}
+
+/// The run after the sweep, from its parts (of one machine or of all tiles): each pair's wrong
+/// heights removed and its points, the merged grid, the variance factor, the comparisons and
+/// the outputs in `out`.
+pub fn finish(
+    p: &Project2,
+    plan: &Plan,
+    parts: Vec<PairPart>,
+    photos: &[Photo],
+    out: &Path,
+) -> Result<Report2, Pipeline2Error> {
+    super::pipeline::check_out_dir(out)?;
+    let obs = p.observations()?;
+    let Plan {
+        sensors,
+        resected,
+        heights,
+        extent,
+        budget,
+        ..
+    } = plan.clone();
+    let mut by_pair: Vec<(Vec<SweptBands>, f64)> = vec![(Vec::new(), 0.0); plan.pairs.len()];
+    for part in parts {
+        let slot = by_pair.get_mut(part.pair).ok_or_else(|| {
+            Pipeline2Error::Grid(format!(
+                "a part of pair {} of {}",
+                part.pair + 1,
+                plan.pairs.len()
+            ))
         })?;
+        slot.0.push(part.bands);
+        slot.1 += part.seconds;
+    }
+    let mut per_pair = Vec::new();
+    let mut reports = Vec::new();
+    for (pair, (bands, secs)) in plan.pairs.iter().zip(by_pair) {
+        let (li, ri) = (&p.photos[pair.left].id, &p.photos[pair.right].id);
+        let hm = HeightMap::from_bands(pair.layout, bands).map_err(|e| {
+            Pipeline2Error::Grid(format!("photos {li} × {ri}: the sweep's parts: {e}"))
+        })?;
+        let d = pmf_dtm_from_heights(hm, &pair.pmfs, &pair.params, &budget, None, None, secs)
+            .map_err(|source| Pipeline2Error::Pair {
+                left: li.clone(),
+                right: ri.clone(),
+                cause: source,
+            })?;
+        let h_step = pair.params.sweep.h_step;
         tracing::info!(
             pair = %format!("{li} × {ri}"),
             h_step_m = h_step,
@@ -352,7 +544,7 @@ pub fn run(
             left: li.clone(),
             right: ri.clone(),
             h_step_m: h_step,
-            pmf: pmfs.report.clone(),
+            pmf: pair.pmfs.report.clone(),
             dtm: d.report,
             points: d.points.len(),
         });

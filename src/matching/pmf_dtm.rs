@@ -164,8 +164,23 @@ pub fn pmf_dtm(
         budget,
     )?;
     let t = Instant::now();
-    let mut heights = sweep_with(left, right, &pmfs.left_to_right, &p.sweep, progress);
+    let heights = sweep_with(left, right, &pmfs.left_to_right, &p.sweep, progress);
     let secs = t.elapsed().as_secs_f64();
+    pmf_dtm_from_heights(heights, pmfs, p, budget, reference, flying_height_m, secs)
+}
+
+/// The method after the sweep (whose heights may have come from several machines, see
+/// `rig dtm --tile`): wrong heights removed, ground coordinates, the grid, the comparison.
+/// `secs` is the time the sweep took.
+pub fn pmf_dtm_from_heights(
+    mut heights: HeightMap,
+    pmfs: &PmfSet,
+    p: &PmfDtmParams,
+    budget: &Budget,
+    reference: Option<&dyn Fn(f64, f64) -> f64>,
+    flying_height_m: Option<f64>,
+    secs: f64,
+) -> Result<PmfDtm, DtmError> {
     let total = heights.cols * heights.rows;
     let matched = heights.matched();
     let stats = remove_wrong_heights(&mut heights, &p.regions);

@@ -193,6 +193,57 @@ pub fn sweep(left: &ImageF32, right: &ImageF32, map: &Mapping, p: &SweepParams) 
     sweep_with(left, right, map, p, &super::progress::Silent)
 }
 
+/// Rows of the height map matched together. The neighbours' heights that narrow the range are
+/// taken only within a band, so every band's result depends on nothing outside it: bands run in
+/// parallel, and split between machines (`rig dtm --tile`) they give the same bytes.
+pub const BAND_ROWS: usize = 16;
+
+/// Where the sweep's height map lies on the reference photo, from its size alone.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct SweepLayout {
+    pub cols: usize,
+    pub rows: usize,
+    pub col0: usize,
+    pub row0: usize,
+    pub stride: usize,
+}
+
+impl SweepLayout {
+    /// The cells of every `stride`-th reference pixel whose window lies inside the photo.
+    pub fn new(width: usize, height: usize, p: &SweepParams) -> SweepLayout {
+        let k = p.window / 2;
+        let s = p.stride.max(1);
+        SweepLayout {
+            cols: width.saturating_sub(2 * k).div_ceil(s),
+            rows: height.saturating_sub(2 * k).div_ceil(s),
+            col0: k,
+            row0: k,
+            stride: s,
+        }
+    }
+
+    /// Bands of [`BAND_ROWS`] rows (the last may be shorter).
+    pub fn bands(&self) -> usize {
+        self.rows.div_ceil(BAND_ROWS)
+    }
+
+    /// The rows of bands `b0..b1`.
+    pub fn band_rows(&self, bands: std::ops::Range<usize>) -> std::ops::Range<usize> {
+        (bands.start * BAND_ROWS).min(self.rows)..(bands.end * BAND_ROWS).min(self.rows)
+    }
+}
+
+/// The heights of some bands of a [`SweepLayout`]: rows `rows` of the height map.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SweptBands {
+    pub bands: std::ops::Range<usize>,
+    pub rows: std::ops::Range<usize>,
+    pub h: Vec<f32>,
+    pub corr: Vec<f32>,
+    pub sigma: Vec<f32>,
+    pub candidates: u64,
+}
+
 /// [`sweep`], reporting the rows matched to `progress`.
 pub fn sweep_with(
     left: &ImageF32,
@@ -201,19 +252,90 @@ pub fn sweep_with(
     p: &SweepParams,
     progress: &dyn super::progress::Progress,
 ) -> HeightMap {
+    let l = SweepLayout::new(left.width, left.height, p);
+    let b = sweep_bands(left, right, map, p, 0..l.bands(), progress);
+    HeightMap::from_bands(l, vec![b]).expect("one part covering every band")
+}
+
+impl HeightMap {
+    /// Joins parts of one layout that cover all its bands once, in any order.
+    pub fn from_bands(l: SweepLayout, mut parts: Vec<SweptBands>) -> Result<HeightMap, String> {
+        parts.sort_by_key(|b| b.bands.start);
+        let mut next = 0;
+        let n = l.rows * l.cols;
+        let (mut h, mut corr, mut sigma) = (
+            Vec::with_capacity(n),
+            Vec::with_capacity(n),
+            Vec::with_capacity(n),
+        );
+        let mut candidates = 0u64;
+        for b in parts {
+            if b.bands.start != next {
+                return Err(format!(
+                    "bands {next}…{} are missing or given twice",
+                    b.bands.start.max(next + 1) - 1
+                ));
+            }
+            let want = l.band_rows(b.bands.clone());
+            let cells = want.len() * l.cols;
+            if b.rows != want || [b.h.len(), b.corr.len(), b.sigma.len()] != [cells; 3] {
+                return Err(format!(
+                    "bands {}…{}: rows {:?} with {} cells, the layout has rows {want:?} with {cells}",
+                    b.bands.start,
+                    b.bands.end.saturating_sub(1),
+                    b.rows,
+                    b.h.len()
+                ));
+            }
+            next = b.bands.end;
+            h.extend(b.h);
+            corr.extend(b.corr);
+            sigma.extend(b.sigma);
+            candidates = candidates.saturating_add(b.candidates);
+        }
+        if next != l.bands() {
+            return Err(format!(
+                "bands {next}…{} are missing",
+                l.bands().max(next + 1) - 1
+            ));
+        }
+        Ok(HeightMap {
+            cols: l.cols,
+            rows: l.rows,
+            col0: l.col0,
+            row0: l.row0,
+            stride: l.stride,
+            h,
+            corr,
+            sigma,
+            candidates,
+        })
+    }
+}
+
+/// Matches the rows of bands `bands` of the layout of `left` (see [`SweepLayout`]).
+pub fn sweep_bands(
+    left: &ImageF32,
+    right: &ImageF32,
+    map: &Mapping,
+    p: &SweepParams,
+    bands: std::ops::Range<usize>,
+    progress: &dyn super::progress::Progress,
+) -> SweptBands {
+    let l = SweepLayout::new(left.width, left.height, p);
+    let bands = bands.start.min(l.bands())..bands.end.min(l.bands());
     let k = p.window / 2;
-    let s = p.stride.max(1);
-    let (c0, r0) = (k, k);
-    let cols = left.width.saturating_sub(2 * k).div_ceil(s);
-    let rows = left.height.saturating_sub(2 * k).div_ceil(s);
+    let (s, cols) = (l.stride, l.cols);
+    let (c0, r0) = (l.col0, l.row0);
+    let rows = l.band_rows(bands.clone());
     let n_steps = ((p.h_max - p.h_min) / p.h_step).floor() as i64;
-    const BAND: usize = 16;
-    progress.begin("sweep (rows)", rows as u64);
+    progress.begin("sweep (rows)", rows.len() as u64);
     #[allow(clippy::type_complexity)]
-    let bands: Vec<(Vec<f32>, Vec<f32>, Vec<f32>, u64)> = (0..rows.div_ceil(BAND))
+    let parts: Vec<(Vec<f32>, Vec<f32>, Vec<f32>, u64)> = bands
+        .clone()
         .into_par_iter()
         .map(|b| {
-            let (j0, j1) = (b * BAND, ((b + 1) * BAND).min(rows));
+            let (j0, j1) = (b * BAND_ROWS, ((b + 1) * BAND_ROWS).min(l.rows));
             let mut h = vec![f32::NAN; (j1 - j0) * cols];
             let mut corr = vec![f32::NAN; (j1 - j0) * cols];
             let mut sigma = vec![f32::NAN; (j1 - j0) * cols];
@@ -298,22 +420,22 @@ pub fn sweep_with(
         })
         .collect();
     progress.end();
-    let mut h = Vec::with_capacity(rows * cols);
-    let mut corr = Vec::with_capacity(rows * cols);
-    let mut sigma = Vec::with_capacity(rows * cols);
+    let cells = rows.len() * cols;
+    let (mut h, mut corr, mut sigma) = (
+        Vec::with_capacity(cells),
+        Vec::with_capacity(cells),
+        Vec::with_capacity(cells),
+    );
     let mut candidates = 0;
-    for (bh, bc, bs, t) in bands {
+    for (bh, bc, bs, t) in parts {
         h.extend(bh);
         corr.extend(bc);
         sigma.extend(bs);
         candidates += t;
     }
-    HeightMap {
-        cols,
+    SweptBands {
+        bands,
         rows,
-        col0: c0,
-        row0: r0,
-        stride: s,
         h,
         corr,
         sigma,

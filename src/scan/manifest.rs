@@ -42,15 +42,7 @@ pub struct Manifest {
     pub complete: bool,
 }
 
-/// FNV-1a, 64 bits: enough to notice a damaged or replaced file, no dependency.
-pub fn fnv64(bytes: &[u8]) -> String {
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-    for &b in bytes {
-        h ^= b as u64;
-        h = h.wrapping_mul(0x0000_0100_0000_01b3);
-    }
-    format!("{h:016x}")
-}
+pub use crate::atomic::fnv64;
 
 pub use crate::atomic::write as write_atomic;
 
@@ -97,16 +89,4 @@ impl Manifest {
 /// Whether the file a record names is there with the bytes it had.
 pub fn intact(dir: &Path, r: &FileRecord) -> bool {
     std::fs::read(dir.join(&r.file)).is_ok_and(|b| fnv64(&b) == r.hash)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn fnv_matches_the_published_vectors() {
-        assert_eq!(fnv64(b""), "cbf29ce484222325");
-        assert_eq!(fnv64(b"a"), "af63dc4c8601ec8c");
-        assert_eq!(fnv64(b"foobar"), "85944171f73967e8");
-    }
 }

@@ -1,0 +1,389 @@
+//! A run split between machines: `rig dtm PROJECT --tile I/N` sweeps a share of the work and
+//! `rig dtm merge TILE_DIR… --out DIR` finishes the run from all shares.
+//!
+//! The unit of work is a band of [`BAND_ROWS`](super::sweep::BAND_ROWS) rows of one pair's
+//! sweep (the longest step by far). A band's heights depend on nothing outside it (the
+//! neighbours that narrow the range are taken within the band; each window reads the photo
+//! rows it needs, the overlap), so the shares hold exactly the heights one machine would find.
+//! What needs the whole model — wrong-height regions that cross shares, the grid, the variance
+//! factor, the orthophoto — runs in the merge, on the joined heights, the same code as a
+//! single run: the merged outputs are the single run's, byte for byte.
+
+use super::pipeline2::{PairPart, Plan};
+use super::sweep::SweptBands;
+use serde::{Deserialize, Serialize};
+use std::ops::Range;
+use std::path::{Path, PathBuf};
+
+/// The tile's description in its directory.
+pub const MANIFEST: &str = "tile.json";
+const FORMAT: &str = "rig dtm tile";
+
+/// Share `index` (1…count) of a run split in `count`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct TileSpec {
+    pub index: usize,
+    pub count: usize,
+}
+
+/// Most shares a run may be split in.
+pub const MAX_TILES: usize = 100_000;
+
+impl std::str::FromStr for TileSpec {
+    type Err = String;
+    fn from_str(s: &str) -> Result<TileSpec, String> {
+        let bad = || {
+            format!("`{s}`: give the share as I/N with 1 ≤ I ≤ N ≤ {MAX_TILES}, e.g. 3/16 (a Slurm array: --tile $SLURM_ARRAY_TASK_ID/$SLURM_ARRAY_TASK_COUNT)")
+        };
+        let (i, n) = s.split_once('/').ok_or_else(bad)?;
+        let i: usize = i.trim().parse().map_err(|_| bad())?;
+        let n: usize = n.trim().parse().map_err(|_| bad())?;
+        if i == 0 || i > n || n > MAX_TILES {
+            return Err(bad());
+        }
+        Ok(TileSpec { index: i, count: n })
+    }
+}
+
+impl std::fmt::Display for TileSpec {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}/{}", self.index, self.count)
+    }
+}
+
+impl TileSpec {
+    /// This share's units of `total`: contiguous, as even as whole units allow, all shares
+    /// together covering 0..total once.
+    pub fn units(&self, total: usize) -> Range<usize> {
+        let at = |k: usize| ((k as u128 * total as u128) / self.count as u128) as usize;
+        at(self.index - 1)..at(self.index)
+    }
+}
+
+/// One pair's bands in a tile directory.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PartEntry {
+    /// The pair's place in the plan (0-based) and its photos.
+    pub pair: usize,
+    pub left: String,
+    pub right: String,
+    pub bands: [usize; 2],
+    pub rows: [usize; 2],
+    /// Cells of the rows: the file holds heights, correlations and σ, each `cells` f32
+    /// little-endian, one after the other.
+    pub cells: usize,
+    pub candidates: u64,
+    pub seconds: f64,
+    pub file: String,
+}
+
+/// `tile.json`: which share of which project a directory holds.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TileManifest {
+    pub format: String,
+    pub rig_version: String,
+    /// The project, absolute, and a hash of its bytes: the merge reads the same file and
+    /// refuses it changed.
+    pub project: PathBuf,
+    pub project_fnv64: String,
+    pub tile: usize,
+    pub of: usize,
+    pub units: [usize; 2],
+    pub total_units: usize,
+    pub parts: Vec<PartEntry>,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum TileError {
+    #[error("{path}: {cause}")]
+    Io {
+        path: PathBuf,
+        cause: std::io::Error,
+    },
+    #[error("{path}: not a tile of `rig dtm --tile` ({cause})")]
+    Manifest {
+        path: PathBuf,
+        cause: serde_json::Error,
+    },
+    #[error("{path}: {message}")]
+    Damaged { path: PathBuf, message: String },
+    #[error("the tiles do not belong together: {0}")]
+    Mismatch(String),
+}
+
+fn io(path: &Path) -> impl FnOnce(std::io::Error) -> TileError + '_ {
+    move |cause| TileError::Io {
+        path: path.to_path_buf(),
+        cause,
+    }
+}
+
+/// The bytes of a part's file: heights, correlations, σ.
+fn encode(b: &SweptBands) -> Vec<u8> {
+    let mut v = Vec::with_capacity(12 * b.h.len());
+    for a in [&b.h, &b.corr, &b.sigma] {
+        for x in a.iter() {
+            v.extend_from_slice(&x.to_le_bytes());
+        }
+    }
+    v
+}
+
+/// Writes a tile's parts and then its manifest (last, so a directory with a manifest is whole)
+/// into `dir`; every file atomically.
+pub fn write_tile(
+    dir: &Path,
+    project: &Path,
+    project_bytes: &[u8],
+    spec: TileSpec,
+    plan: &Plan,
+    photo_ids: &[String],
+    parts: &[PairPart],
+) -> Result<TileManifest, TileError> {
+    std::fs::create_dir_all(dir).map_err(io(dir))?;
+    let mut entries = Vec::new();
+    for p in parts {
+        let file = format!(
+            "pair-{}-bands-{}-{}.f32",
+            p.pair + 1,
+            p.bands.bands.start,
+            p.bands.bands.end
+        );
+        let path = dir.join(&file);
+        crate::atomic::write(&path, &encode(&p.bands)).map_err(io(&path))?;
+        let pair = &plan.pairs[p.pair];
+        entries.push(PartEntry {
+            pair: p.pair,
+            left: photo_ids[pair.left].clone(),
+            right: photo_ids[pair.right].clone(),
+            bands: [p.bands.bands.start, p.bands.bands.end],
+            rows: [p.bands.rows.start, p.bands.rows.end],
+            cells: p.bands.h.len(),
+            candidates: p.bands.candidates,
+            seconds: p.seconds,
+            file,
+        });
+    }
+    let u = spec.units(plan.units());
+    let m = TileManifest {
+        format: FORMAT.into(),
+        rig_version: env!("CARGO_PKG_VERSION").into(),
+        project: project.to_path_buf(),
+        project_fnv64: crate::atomic::fnv64(project_bytes),
+        tile: spec.index,
+        of: spec.count,
+        units: [u.start, u.end],
+        total_units: plan.units(),
+        parts: entries,
+    };
+    let path = dir.join(MANIFEST);
+    crate::atomic::write_json(&path, &m).map_err(io(&path))?;
+    Ok(m)
+}
+
+/// Files a tile directory may hold (a rerun of the same tile replaces them).
+pub fn is_tile_output(name: &str) -> bool {
+    let base = name.strip_suffix(".part").unwrap_or(name);
+    base == MANIFEST || (base.starts_with("pair-") && base.ends_with(".f32"))
+}
+
+/// Reads a tile directory's manifest.
+pub fn read_manifest(dir: &Path) -> Result<TileManifest, TileError> {
+    let path = dir.join(MANIFEST);
+    let text = std::fs::read_to_string(&path).map_err(io(&path))?;
+    let m: TileManifest = serde_json::from_str(&text).map_err(|cause| TileError::Manifest {
+        path: path.clone(),
+        cause,
+    })?;
+    if m.format != FORMAT {
+        return Err(TileError::Damaged {
+            path,
+            message: format!("format `{}`, not `{FORMAT}`", m.format),
+        });
+    }
+    Ok(m)
+}
+
+/// Checks that the manifests are shares 1…N of one run of one project (each once) by this
+/// version of the rig, and returns them in share order.
+pub fn check_set(
+    mut set: Vec<(PathBuf, TileManifest)>,
+) -> Result<Vec<(PathBuf, TileManifest)>, TileError> {
+    let Some((d0, m0)) = set.first().cloned() else {
+        return Err(TileError::Mismatch("no tile directories given".into()));
+    };
+    for (d, m) in &set {
+        let differs = |what: &str, a: &dyn std::fmt::Display, b: &dyn std::fmt::Display| {
+            TileError::Mismatch(format!(
+                "{} has {what} {a}, {} has {b}",
+                d0.display(),
+                d.display()
+            ))
+        };
+        if m.project_fnv64 != m0.project_fnv64 || m.project != m0.project {
+            return Err(differs(
+                "project",
+                &format!("{} ({})", m0.project.display(), m0.project_fnv64),
+                &format!("{} ({})", m.project.display(), m.project_fnv64),
+            ));
+        }
+        if m.of != m0.of {
+            return Err(differs("a split in", &m0.of, &m.of));
+        }
+        if m.total_units != m0.total_units {
+            return Err(differs("work units", &m0.total_units, &m.total_units));
+        }
+        if m.rig_version != m0.rig_version {
+            return Err(differs("rig version", &m0.rig_version, &m.rig_version));
+        }
+        let want = TileSpec {
+            index: m.tile.clamp(1, m.of.max(1)),
+            count: m.of.max(1),
+        }
+        .units(m.total_units);
+        if m.tile == 0 || m.tile > m.of || m.units != [want.start, want.end] {
+            return Err(TileError::Damaged {
+                path: d.join(MANIFEST),
+                message: format!(
+                    "share {}/{} with units {:?}, which is not how the rig splits",
+                    m.tile, m.of, m.units
+                ),
+            });
+        }
+    }
+    set.sort_by_key(|(_, m)| m.tile);
+    for w in set.windows(2) {
+        if w[0].1.tile == w[1].1.tile {
+            return Err(TileError::Mismatch(format!(
+                "share {}/{} is given twice: {} and {}",
+                w[0].1.tile,
+                m0.of,
+                w[0].0.display(),
+                w[1].0.display()
+            )));
+        }
+    }
+    if set.len() != m0.of {
+        let have: std::collections::HashSet<usize> = set.iter().map(|(_, m)| m.tile).collect();
+        let missing: Vec<String> = (1..=m0.of)
+            .filter(|k| !have.contains(k))
+            .take(20)
+            .map(|k| format!("{k}/{}", m0.of))
+            .collect();
+        return Err(TileError::Mismatch(format!(
+            "{} of {} shares given; missing {}{}",
+            set.len(),
+            m0.of,
+            missing.join(", "),
+            if m0.of - set.len() > missing.len() {
+                ", …"
+            } else {
+                ""
+            }
+        )));
+    }
+    Ok(set)
+}
+
+/// Reads the parts a tile's manifest lists, each checked against the plan of the merge.
+pub fn read_parts(dir: &Path, m: &TileManifest, plan: &Plan) -> Result<Vec<PairPart>, TileError> {
+    let mut out = Vec::new();
+    for e in &m.parts {
+        let path = dir.join(&e.file);
+        let damaged = |message: String| TileError::Damaged {
+            path: path.clone(),
+            message,
+        };
+        let pair = plan.pairs.get(e.pair).ok_or_else(|| {
+            damaged(format!(
+                "pair {} of a plan with {}",
+                e.pair + 1,
+                plan.pairs.len()
+            ))
+        })?;
+        let l = pair.layout;
+        let bands = e.bands[0]..e.bands[1];
+        if bands.is_empty() || bands.end > l.bands() {
+            return Err(damaged(format!(
+                "bands {:?} of a sweep with {}",
+                e.bands,
+                l.bands()
+            )));
+        }
+        let rows = l.band_rows(bands.clone());
+        let cells = rows.len() * l.cols;
+        if [rows.start, rows.end] != e.rows || e.cells != cells {
+            return Err(damaged(format!(
+                "rows {:?} with {} cells; the plan has rows {rows:?} with {cells}",
+                e.rows, e.cells
+            )));
+        }
+        let bytes = std::fs::read(&path).map_err(io(&path))?;
+        if bytes.len() != 12 * cells {
+            return Err(damaged(format!(
+                "{} bytes, {} expected (3 × {cells} f32): the file is damaged or cut short",
+                bytes.len(),
+                12 * cells
+            )));
+        }
+        let f = |k: usize| -> Vec<f32> {
+            bytes[4 * k * cells..4 * (k + 1) * cells]
+                .chunks_exact(4)
+                .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+                .collect()
+        };
+        out.push(PairPart {
+            pair: e.pair,
+            bands: SweptBands {
+                bands,
+                rows,
+                h: f(0),
+                corr: f(1),
+                sigma: f(2),
+                candidates: e.candidates,
+            },
+            seconds: if e.seconds.is_finite() && e.seconds >= 0.0 {
+                e.seconds
+            } else {
+                0.0
+            },
+        });
+    }
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn shares_cover_every_unit_once() {
+        for total in [0usize, 1, 7, 16, 1000] {
+            for n in [1usize, 2, 3, 7, 16, 50] {
+                let mut next = 0;
+                for i in 1..=n {
+                    let u = TileSpec { index: i, count: n }.units(total);
+                    assert_eq!(u.start, next, "total {total}, {i}/{n}");
+                    assert!(u.len() <= total.div_ceil(n));
+                    next = u.end;
+                }
+                assert_eq!(next, total);
+            }
+        }
+    }
+
+    #[test]
+    fn share_syntax_is_checked() {
+        assert_eq!(
+            "3/16".parse::<TileSpec>(),
+            Ok(TileSpec {
+                index: 3,
+                count: 16
+            })
+        );
+        for bad in ["0/4", "5/4", "4", "a/b", "1/0", "-1/4", "1/100001", ""] {
+            let e = bad.parse::<TileSpec>().unwrap_err();
+            assert!(e.contains("1 ≤ I ≤ N"), "{bad}: {e}");
+        }
+    }
+}
