@@ -367,6 +367,7 @@ fn a_scan_killed_and_resumed_is_byte_identical_to_an_uninterrupted_one() {
         m["tiles"].as_array().unwrap().len()
     };
     assert!(total >= 8, "{total} tiles");
+    check_mosaic_shares(&whole, d.path());
     // Random interruption points, different each run (the seed is printed).
     let seed = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
@@ -499,6 +500,70 @@ fn bad_scripts_and_plans_outside_the_soft_limits_are_refused_before_anything_mov
         assert!(e.contains(want), "{to}: {e}");
     }
     std::fs::write(&s, text).unwrap();
+}
+
+/// The scan's two photos mosaicked in three shares (one empty) on "other machines" and merged
+/// into a copy of the scan without its photos give the scan's own photos byte for byte; a
+/// missing share, a share of another scan and a damaged file are refused before anything is
+/// copied.
+fn check_mosaic_shares(whole: &Path, tmp: &Path) {
+    let copy = tmp.join("shares-scan");
+    copy_scan(whole, &copy);
+    let photos = ["a.tiff", "a.png", "a.json", "b.tiff", "b.png", "b.json"];
+    for f in photos {
+        std::fs::remove_file(copy.join(f)).unwrap();
+    }
+    let share = |i: usize| tmp.join(format!("share-{i}"));
+    for i in 1..=3 {
+        let o = ok(rig()
+            .args(["scan", "mosaic"])
+            .arg(&copy)
+            .args(["--tile", &format!("{i}/3"), "--out"])
+            .arg(share(i)));
+        let t = String::from_utf8_lossy(&o.stdout);
+        assert!(t.contains(&format!("share {i}/3")), "{t}");
+    }
+    // A missing share: refused, nothing copied.
+    let o = rig()
+        .args(["scan", "merge"])
+        .args([share(1), share(3)])
+        .output()
+        .unwrap();
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && e.contains("missing 2/3"), "{e}");
+    assert!(!copy.join("a.tiff").exists());
+    // A damaged file: refused, nothing copied.
+    let m: Value =
+        serde_json::from_slice(&std::fs::read(share(3).join("mosaic-share.json")).unwrap())
+            .unwrap();
+    let f = share(3).join(m["photos"][0]["files"][0]["file"].as_str().unwrap());
+    let good = std::fs::read(&f).unwrap();
+    std::fs::write(&f, &good[..good.len() / 2]).unwrap();
+    let o = rig()
+        .args(["scan", "merge"])
+        .args([share(1), share(2), share(3)])
+        .output()
+        .unwrap();
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && e.contains("cut short"), "{e}");
+    assert!(!copy.join("a.tiff").exists());
+    std::fs::write(&f, &good).unwrap();
+    // All three, out of order: into the scan they name.
+    ok(rig()
+        .args(["scan", "merge"])
+        .args([share(3), share(1), share(2)]));
+    for f in photos {
+        let (x, y) = (
+            std::fs::read(whole.join(f)).unwrap(),
+            std::fs::read(copy.join(f)).unwrap(),
+        );
+        assert!(
+            x == y,
+            "{f} differs between the whole mosaic and the merged shares"
+        );
+    }
+    let log = std::fs::read_to_string(copy.join("log.jsonl")).unwrap();
+    assert_eq!(log.matches("\"share\"").count(), 2, "{log}");
 }
 
 /// A copy of scan or session directory `from` at `to` (its files and its tiles folder).

@@ -103,9 +103,39 @@ pub enum ScanAction {
         no_home: bool,
     },
     /// Mosaic the photos again from a scan directory's tiles.
+    ///
+    /// With --tile I/N --out SHARE_DIR only share I of N of the scan's photos is mosaicked,
+    /// into SHARE_DIR (for a cluster or several machines); `rig scan merge` puts all shares'
+    /// photos into the scan directory, byte for byte those of one `rig scan mosaic DIR`.
+    ///
+    /// Examples:
+    ///   rig scan mosaic film-1
+    ///   for i in 1 2 3; do rig scan mosaic film-1 --tile $i/3 --out shares/$i & done; wait
+    ///   rig scan merge shares/*
+    #[command(verbatim_doc_comment)]
     Mosaic {
         /// The scan directory.
         dir: PathBuf,
+        /// Mosaic only share I of N of the photos (I counts from 1); needs --out.
+        #[arg(long, value_name = "I/N", requires = "out")]
+        tile: Option<rig::matching::tiles::TileSpec>,
+        /// The share's directory (with --tile).
+        #[arg(long, value_name = "SHARE_DIR", requires = "tile")]
+        out: Option<PathBuf>,
+    },
+    /// Put the photos of all shares of `rig scan mosaic DIR --tile I/N --out SHARE_DIR` (all N,
+    /// any order) into the scan directory, after checking every file against its hash.
+    ///
+    /// Example:
+    ///   rig scan merge shares/1 shares/2 shares/3
+    #[command(verbatim_doc_comment)]
+    Merge {
+        /// The shares' directories.
+        #[arg(value_name = "SHARE_DIR", required = true, num_args = 1..)]
+        shares: Vec<PathBuf>,
+        /// The scan directory (default: the one the shares were mosaicked from).
+        #[arg(long, value_name = "DIR")]
+        into: Option<PathBuf>,
     },
 }
 
@@ -391,7 +421,61 @@ pub fn run(a: ScanArgs) -> anyhow::Result<i32> {
                 }
             }
         }
-        ScanAction::Mosaic { dir } => {
+        ScanAction::Merge { shares, into } => {
+            let (dir, photos) = rig::scan::mosaic_shares::merge_shares(shares, into.as_deref())?;
+            if a.json {
+                println!("{}", json!({"dir": dir, "photos": photos}));
+            } else {
+                for p in photos {
+                    println!("photo {} (+ .tiff, .png)", p.display());
+                }
+            }
+            Ok(0)
+        }
+        ScanAction::Mosaic {
+            dir,
+            tile: Some(spec),
+            out: Some(out),
+        } => {
+            let sd = ScanDir::open(
+                dir,
+                &Reopen {
+                    limits: None,
+                    max_memory_mib: a.max_memory,
+                },
+            )?;
+            let (done, total) = (sd.manifest.done(), sd.manifest.tiles.len());
+            if done < total {
+                eprintln!("rig: only {done} of {total} tiles are taken: the photos have holes (nodata 0) where the others belong");
+            }
+            let m = rig::scan::mosaic_shares::mosaic_share(
+                &sd,
+                *spec,
+                out,
+                rig::scan::mosaic::Interpolation::Bicubic,
+            )?;
+            if a.json {
+                println!("{}", serde_json::to_string(&m)?);
+            } else {
+                println!(
+                    "share {spec}: {} of the scan's {} photos into {}{}",
+                    m.photos.len(),
+                    sd.manifest.plan.regions.len(),
+                    out.display(),
+                    if m.photos.is_empty() {
+                        " (none: more shares than photos)"
+                    } else {
+                        ""
+                    }
+                );
+                println!(
+                    "when all {} shares are done: rig scan merge SHARE_DIR…",
+                    spec.count
+                );
+            }
+            Ok(0)
+        }
+        ScanAction::Mosaic { dir, .. } => {
             let mut sd = ScanDir::open(
                 dir,
                 &Reopen {

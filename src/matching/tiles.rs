@@ -207,7 +207,7 @@ pub fn read_manifest(dir: &Path) -> Result<TileManifest, TileError> {
 /// Checks that the manifests are shares 1…N of one run of one project (each once) by this
 /// version of the rig, and returns them in share order.
 pub fn check_set(
-    mut set: Vec<(PathBuf, TileManifest)>,
+    set: Vec<(PathBuf, TileManifest)>,
 ) -> Result<Vec<(PathBuf, TileManifest)>, TileError> {
     let Some((d0, m0)) = set.first().cloned() else {
         return Err(TileError::Mismatch("no tile directories given".into()));
@@ -251,38 +251,65 @@ pub fn check_set(
             });
         }
     }
-    set.sort_by_key(|(_, m)| m.tile);
-    for w in set.windows(2) {
-        if w[0].1.tile == w[1].1.tile {
-            return Err(TileError::Mismatch(format!(
-                "share {}/{} is given twice: {} and {}",
-                w[0].1.tile,
-                m0.of,
-                w[0].0.display(),
-                w[1].0.display()
-            )));
-        }
-    }
-    if set.len() != m0.of {
-        let have: std::collections::HashSet<usize> = set.iter().map(|(_, m)| m.tile).collect();
-        let missing: Vec<String> = (1..=m0.of)
-            .filter(|k| !have.contains(k))
-            .take(20)
-            .map(|k| format!("{k}/{}", m0.of))
-            .collect();
+    let shares: Vec<(&Path, usize, usize)> = set
+        .iter()
+        .map(|(d, m)| (d.as_path(), m.tile, m.of))
+        .collect();
+    let order = check_shares(&shares)?;
+    let mut set: Vec<Option<(PathBuf, TileManifest)>> = set.into_iter().map(Some).collect();
+    let set = order.into_iter().filter_map(|k| set[k].take()).collect();
+    Ok(set)
+}
+
+/// Checks that `shares` (directory, I, N) are shares 1…N of one split, each once; returns
+/// their places in share order.
+pub fn check_shares(shares: &[(&Path, usize, usize)]) -> Result<Vec<usize>, TileError> {
+    let Some(&(d0, _, n)) = shares.first() else {
+        return Err(TileError::Mismatch("no tile directories given".into()));
+    };
+    if n == 0 || n > MAX_TILES {
         return Err(TileError::Mismatch(format!(
-            "{} of {} shares given; missing {}{}",
-            set.len(),
-            m0.of,
-            missing.join(", "),
-            if m0.of - set.len() > missing.len() {
-                ", …"
-            } else {
-                ""
-            }
+            "{}: a split in {n}; the rig splits in 1 to {MAX_TILES}",
+            d0.display()
         )));
     }
-    Ok(set)
+    let mut at: Vec<Option<usize>> = vec![None; n];
+    for (k, &(d, i, of)) in shares.iter().enumerate() {
+        if of != n {
+            return Err(TileError::Mismatch(format!(
+                "{} is share {i}/{of}, {} a share of {n}",
+                d.display(),
+                d0.display()
+            )));
+        }
+        if i == 0 || i > n {
+            return Err(TileError::Mismatch(format!(
+                "{}: share {i}/{of} does not exist",
+                d.display()
+            )));
+        }
+        if let Some(j) = at[i - 1] {
+            return Err(TileError::Mismatch(format!(
+                "share {i}/{n} is given twice: {} and {}",
+                shares[j].0.display(),
+                d.display()
+            )));
+        }
+        at[i - 1] = Some(k);
+    }
+    let missing: Vec<String> = (1..=n)
+        .filter(|k| at[k - 1].is_none())
+        .map(|k| format!("{k}/{n}"))
+        .collect();
+    if !missing.is_empty() {
+        return Err(TileError::Mismatch(format!(
+            "{} of {n} shares given; missing {}{}",
+            n - missing.len(),
+            missing[..missing.len().min(20)].join(", "),
+            if missing.len() > 20 { ", …" } else { "" }
+        )));
+    }
+    Ok(at.into_iter().flatten().collect())
 }
 
 /// Reads the parts a tile's manifest lists, each checked against the plan of the merge.

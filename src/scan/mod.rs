@@ -7,6 +7,7 @@
 pub mod calibration;
 pub mod manifest;
 pub mod mosaic;
+pub mod mosaic_shares;
 pub mod plan;
 pub mod plan_plot;
 pub mod run;

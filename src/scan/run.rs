@@ -531,45 +531,10 @@ pub fn run(
 /// Mosaics every region from the tiles on disk; writes `<region>.tiff` and `<region>.json`.
 pub fn mosaic_all(sd: &mut ScanDir, interp: Interpolation) -> Result<Vec<PathBuf>, ScanError> {
     let mut out = Vec::new();
-    for (ri, region) in sd.manifest.plan.regions.iter().enumerate() {
-        let sources: Vec<TileSource> = sd
-            .manifest
-            .plan
-            .tiles
-            .iter()
-            .zip(&sd.manifest.tiles)
-            .filter(|(t, _)| t.region == ri)
-            .filter_map(|(_, r)| r.as_ref())
-            .map(|r| {
-                let dir = sd.dir.clone();
-                let rec = r.file.clone();
-                TileSource {
-                    stage_um: r.stage_um,
-                    load: Box::new(move || {
-                        read_recorded(&dir, &rec).map_err(|e| match e {
-                            ScanError::Io(e) => e,
-                            e => {
-                                std::io::Error::new(std::io::ErrorKind::InvalidData, e.to_string())
-                            }
-                        })
-                    }),
-                }
-            })
-            .collect();
-        let px = mosaic::mosaic(&sd.cal, &region.grid, &sources, interp, &|_, _| {})?;
-        let tiff = sd.dir.join(format!("{}.tiff", region.name));
-        write_tiff16(&tiff, region.grid.width, region.grid.height, &px)?;
-        preview(
-            &sd.dir.join(format!("{}.png", region.name)),
-            &region.grid,
-            &px,
-        )?;
-        let side = sidecar_for(sd, &region.name, &region.grid, sources.len(), interp);
-        let json_path = sd.dir.join(format!("{}.json", region.name));
-        write_json(
-            &json_path,
-            &serde_json::to_value(&side).map_err(std::io::Error::other)?,
-        )?;
+    for ri in 0..sd.manifest.plan.regions.len() {
+        let dir = sd.dir.clone();
+        let (tiff, json_path) = mosaic_region(sd, ri, interp, &dir)?;
+        let region = &sd.manifest.plan.regions[ri];
         sd.log.event(
             "photo",
             json!({"region": region.name, "image": tiff, "sidecar": json_path,
@@ -578,6 +543,51 @@ pub fn mosaic_all(sd: &mut ScanDir, interp: Interpolation) -> Result<Vec<PathBuf
         out.push(json_path);
     }
     Ok(out)
+}
+
+/// Mosaics region `ri` from the tiles on disk into `dir` (the scan's, or a share's of `rig
+/// scan mosaic --tile`): `<region>.tiff`, its preview `<region>.png` and its sidecar
+/// `<region>.json`, each written atomically; returns the TIFF's and the sidecar's paths.
+pub fn mosaic_region(
+    sd: &ScanDir,
+    ri: usize,
+    interp: Interpolation,
+    dir: &Path,
+) -> Result<(PathBuf, PathBuf), ScanError> {
+    let region = &sd.manifest.plan.regions[ri];
+    let sources: Vec<TileSource> = sd
+        .manifest
+        .plan
+        .tiles
+        .iter()
+        .zip(&sd.manifest.tiles)
+        .filter(|(t, _)| t.region == ri)
+        .filter_map(|(_, r)| r.as_ref())
+        .map(|r| {
+            let dir = sd.dir.clone();
+            let rec = r.file.clone();
+            TileSource {
+                stage_um: r.stage_um,
+                load: Box::new(move || {
+                    read_recorded(&dir, &rec).map_err(|e| match e {
+                        ScanError::Io(e) => e,
+                        e => std::io::Error::new(std::io::ErrorKind::InvalidData, e.to_string()),
+                    })
+                }),
+            }
+        })
+        .collect();
+    let px = mosaic::mosaic(&sd.cal, &region.grid, &sources, interp, &|_, _| {})?;
+    let tiff = dir.join(format!("{}.tiff", region.name));
+    write_tiff16(&tiff, region.grid.width, region.grid.height, &px)?;
+    preview(&dir.join(format!("{}.png", region.name)), &region.grid, &px)?;
+    let side = sidecar_for(sd, &region.name, &region.grid, sources.len(), interp);
+    let json_path = dir.join(format!("{}.json", region.name));
+    write_json(
+        &json_path,
+        &serde_json::to_value(&side).map_err(std::io::Error::other)?,
+    )?;
+    Ok((tiff, json_path))
 }
 
 /// An 8-bit look at the photo for the operator (at most 1600 px across, contrast stretched
