@@ -108,6 +108,66 @@ pub fn trim(v: f64) -> String {
     }
 }
 
+/// The colour at t (0…1, NaN as 0) along a ramp of stops (t, colour).
+fn lerp(stops: &[(f64, [u8; 3])], t: f64) -> Rgb<u8> {
+    let t = if t.is_nan() { 0.0 } else { t.clamp(0.0, 1.0) };
+    for w in stops.windows(2) {
+        let ((a, ca), (b, cb)) = (w[0], w[1]);
+        if t <= b {
+            let u = if b > a { (t - a) / (b - a) } else { 0.0 };
+            let m = |i: usize| (ca[i] as f64 + u * (cb[i] as f64 - ca[i] as f64)).round() as u8;
+            return Rgb([m(0), m(1), m(2)]);
+        }
+    }
+    Rgb(stops.last().map_or([0; 3], |s| s.1))
+}
+
+/// Greens through ochre to brown, low to high.
+pub fn terrain(t: f64) -> Rgb<u8> {
+    lerp(
+        &[
+            (0.0, [40, 120, 70]),
+            (0.35, [150, 195, 100]),
+            (0.65, [225, 205, 135]),
+            (1.0, [150, 100, 70]),
+        ],
+        t,
+    )
+}
+
+/// Blue (−1) through white (0) to red (+1).
+pub fn diverging(t: f64) -> Rgb<u8> {
+    lerp(
+        &[
+            (0.0, [40, 70, 200]),
+            (0.5, [255, 255, 255]),
+            (1.0, [200, 40, 40]),
+        ],
+        t,
+    )
+}
+
+/// Pale yellow (0) to dark violet (1).
+pub fn sequential(t: f64) -> Rgb<u8> {
+    lerp(
+        &[
+            (0.0, [255, 250, 200]),
+            (0.5, [230, 110, 80]),
+            (1.0, [70, 20, 100]),
+        ],
+        t,
+    )
+}
+
+/// `v` rounded to `digits` significant digits (for labels).
+pub fn significant(v: f64, digits: i32) -> f64 {
+    if v == 0.0 || !v.is_finite() {
+        return v;
+    }
+    let p = 10f64.powi(digits - 1 - v.abs().log10().floor() as i32);
+    (v * p).round() / p
+}
+
 /// A vertical colour bar at (x, y) of `w × h`, `colour(t)` for t from 0 (bottom) to 1 (top),
 /// labelled with round values between `lo` and `hi` and `unit` above it.
 #[allow(clippy::too_many_arguments)]

@@ -214,4 +214,29 @@ fn the_demo_runs_the_whole_chain_and_meets_half_the_height_step() {
         std::fs::read(again.join("dem.tif")).unwrap(),
         "the moved demo's model differs"
     );
+    // The pages link what is there, relative to themselves, and their pictures are at least
+    // 800 px wide.
+    for page in ["report.html", "dtm/report.html"] {
+        let path = moved.join(page);
+        let html = std::fs::read_to_string(&path).unwrap();
+        let base = path.parent().unwrap();
+        let mut pictures = 0;
+        for attr in ["src=\"", "href=\""] {
+            for part in html.split(attr).skip(1) {
+                let target = part.split('"').next().unwrap();
+                assert!(!target.starts_with('/'), "{page}: absolute link {target}");
+                let f = base.join(target.replace("%20", " "));
+                assert!(f.is_file(), "{page} links {target}, which is not there");
+                if attr == "src=\"" {
+                    let (w, _) = image::image_dimensions(&f).unwrap();
+                    // The scans' previews are the photos themselves, at their size.
+                    if !target.ends_with("stereo.png") {
+                        assert!(w >= 800, "{target}: {w} px wide");
+                    }
+                    pictures += 1;
+                }
+            }
+        }
+        assert!(pictures >= 3, "{page}: {pictures} pictures");
+    }
 }

@@ -313,7 +313,15 @@ pub fn calibrate_interior(
     for v in &versions {
         if let Some(f) = &v.fit {
             let name = format!("residuals-{}.png", v.name);
-            super::plot::residual_plot(f, "um", &rig.session.dir.join(name))?;
+            let title = format!("carriage -> photo, affine: {}", v.name);
+            let labels = super::plot::Labels {
+                title: &title,
+                from: "carriage (mm)",
+                from_per_label: 1000.0,
+                unit: "µm",
+                residuals: "on the photo",
+            };
+            super::plot::residual_plot(f, &labels, &rig.session.dir.join(name))?;
         }
     }
     rig.session.event(

@@ -430,9 +430,24 @@ pub fn calibrate_pixel(
             mark = Some(m);
         }
     }
-    super::plot::residual_plot(&affine, "um", &rig.session.dir.join("residuals-affine.png"))?;
+    let labels = |title| super::plot::Labels {
+        title,
+        from: "camera pixel (px)",
+        from_per_label: 1.0,
+        unit: "µm",
+        residuals: "on the carriage",
+    };
+    super::plot::residual_plot(
+        &affine,
+        &labels("pixel -> carriage, affine (6 parameters)"),
+        &rig.session.dir.join("residuals-affine.png"),
+    )?;
     if let Some(l) = &linear4 {
-        super::plot::residual_plot(l, "um", &rig.session.dir.join("residuals-linear4.png"))?;
+        super::plot::residual_plot(
+            l,
+            &labels("pixel -> carriage, linear (4 parameters)"),
+            &rig.session.dir.join("residuals-linear4.png"),
+        )?;
     }
     let matching = super::measure::match_table(grid.iter().chain(&crosses).map(|o| &o.result));
     Ok(PixelCalibration {

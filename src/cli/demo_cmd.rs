@@ -240,6 +240,16 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<i32> {
         "photo_centre_mm": PhotoMm::new(0.0, 0.0),
     });
     rig::digitise::output::write_json(&out.join("report.json"), &report)?;
+    demo_page(
+        &out,
+        a.seed,
+        t0.elapsed().as_secs_f64(),
+        &pixel,
+        &interiors,
+        &sidecars,
+        &dtm,
+    )
+    .write(&out.join("report.html"))?;
     println!(
         "\nrig demo (seed {}), {:.0} s, in {}:",
         a.seed,
@@ -294,10 +304,121 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<i32> {
         );
     }
     println!(
-        "  look at: {}/hillshade.png, error.png, quality.png; the model: dem.tif, quality.tif, ortho.tif, points.las; everything: report.json",
+        "  look at: {} (the plots and maps on one page); the model: {}/dem.tif, quality.tif, ortho.tif, points.las; everything: report.json",
+        out.join("report.html").display(),
         dtm_dir.display(),
     );
     Ok(0)
+}
+
+/// `report.html` of the demo: what each step found, its plots and maps, links to the data. Paths
+/// relative to `out`, so the folder can be moved.
+fn demo_page(
+    out: &std::path::Path,
+    seed: u64,
+    seconds: f64,
+    pixel: &PixelResults,
+    interiors: &[InteriorResults],
+    sidecars: &[PathBuf],
+    dtm: &Report2,
+) -> rig::matching::html::Page {
+    use rig::matching::html::{Page, Section};
+    let rel = |p: &std::path::Path| {
+        p.strip_prefix(out)
+            .unwrap_or(p)
+            .to_string_lossy()
+            .into_owned()
+    };
+    let af = &pixel.calibration;
+    let mut calibration = Section {
+        heading: "Calibration".into(),
+        rows: vec![(
+            "pixel → carriage".into(),
+            format!(
+                "x-scale {:.4}, y-scale {:.4}, x-shear {:.4}, y-shear {:.4} µm (simulator: 10.19, 10.96, 0.09, 0.10), RMS {:.3} µm",
+                af.x_scale, af.y_scale, af.x_shear, af.y_shear, af.rms_um
+            ),
+        )],
+        pictures: vec![(
+            rel(&pixel.session.join("residuals-affine.png")),
+            "pixel → carriage: residuals of the affine fit".into(),
+        )],
+        ..Default::default()
+    };
+    for (k, i) in interiors.iter().enumerate() {
+        if let Some(v) = i.calibration.versions.first() {
+            calibration.rows.push((
+                format!("photo {}: interior orientation", PHOTOS[k]),
+                format!(
+                    "{} fiducials, RMS {:.2} µm",
+                    v.name,
+                    v.rms_um.unwrap_or(f64::NAN)
+                ),
+            ));
+            calibration.pictures.push((
+                rel(&i.session.join(format!("residuals-{}.png", v.name))),
+                format!(
+                    "photo {}: carriage → photo residuals at the fiducials",
+                    PHOTOS[k]
+                ),
+            ));
+        }
+    }
+    let scans = Section {
+        heading: "Scans".into(),
+        pictures: sidecars
+            .iter()
+            .enumerate()
+            .map(|(k, f)| {
+                (
+                    rel(&f.with_extension("png")),
+                    format!("photo {}: the scanned overlap at 25 µm", PHOTOS[k]),
+                )
+            })
+            .collect(),
+        links: sidecars
+            .iter()
+            .map(|f| {
+                (
+                    rel(f),
+                    "the scan's hand-over (image, grid, interior orientation)".into(),
+                )
+            })
+            .collect(),
+        ..Default::default()
+    };
+    let model = Section {
+        heading: "Elevation model".into(),
+        rows: dtm.summary(),
+        pictures: [
+            ("hillshade.png", "heights, shaded"),
+            ("error.png", "the model minus the true DEM"),
+            ("quality.png", "each node's standard deviation"),
+        ]
+        .iter()
+        .map(|(f, c)| (format!("dtm/{f}"), (*c).to_string()))
+        .collect(),
+        links: vec![
+            (
+                "dtm/report.html".into(),
+                "the elevation model's own page".into(),
+            ),
+            ("dtm/dem.tif".into(), "heights, GeoTIFF".into()),
+            (
+                "project.toml".into(),
+                "the matching project (format 2)".into(),
+            ),
+            ("points.csv".into(), "control and check points".into()),
+            ("report.json".into(), "everything, for scripts".into()),
+        ],
+    };
+    Page {
+        title: "rig demo".into(),
+        intro: format!(
+            "The whole chain on the simulator (seed {seed}, {seconds:.0} s): calibrate the rig, orient and scan three overlapping photos, compute their elevation model, compare it with the true DEM."
+        ),
+        sections: vec![calibration, scans, model],
+    }
 }
 
 /// Appends `n` points of photo 1's scanned area to the points file: their ground (in the

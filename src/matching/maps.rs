@@ -6,7 +6,8 @@
 use super::grid::ElevationGrid;
 use crate::geometry::Crs;
 use crate::picture::{
-    colour_bar, frame, north_arrow, save_png, scale_bar, swatch, text, BLACK, WHITE,
+    colour_bar, diverging, frame, north_arrow, save_png, scale_bar, sequential, swatch, terrain,
+    text, BLACK, WHITE,
 };
 use image::{Rgb, RgbImage};
 use std::path::Path;
@@ -132,56 +133,6 @@ fn draw(
         x += 60 + crate::picture::text_width(label, 2);
     }
     img
-}
-
-fn lerp(stops: &[(f64, [u8; 3])], t: f64) -> Rgb<u8> {
-    let t = if t.is_nan() { 0.0 } else { t.clamp(0.0, 1.0) };
-    for w in stops.windows(2) {
-        let ((a, ca), (b, cb)) = (w[0], w[1]);
-        if t <= b {
-            let u = if b > a { (t - a) / (b - a) } else { 0.0 };
-            let m = |i: usize| (ca[i] as f64 + u * (cb[i] as f64 - ca[i] as f64)).round() as u8;
-            return Rgb([m(0), m(1), m(2)]);
-        }
-    }
-    Rgb(stops.last().map_or([0; 3], |s| s.1))
-}
-
-/// Greens through ochre to brown, low to high.
-fn terrain(t: f64) -> Rgb<u8> {
-    lerp(
-        &[
-            (0.0, [40, 120, 70]),
-            (0.35, [150, 195, 100]),
-            (0.65, [225, 205, 135]),
-            (1.0, [150, 100, 70]),
-        ],
-        t,
-    )
-}
-
-/// Blue (−1) through white (0) to red (+1).
-fn diverging(t: f64) -> Rgb<u8> {
-    lerp(
-        &[
-            (0.0, [40, 70, 200]),
-            (0.5, [255, 255, 255]),
-            (1.0, [200, 40, 40]),
-        ],
-        t,
-    )
-}
-
-/// Pale yellow (0) to dark violet (1).
-fn sequential(t: f64) -> Rgb<u8> {
-    lerp(
-        &[
-            (0.0, [255, 250, 200]),
-            (0.5, [230, 110, 80]),
-            (1.0, [70, 20, 100]),
-        ],
-        t,
-    )
 }
 
 fn range(v: &[f32]) -> Option<(f64, f64)> {

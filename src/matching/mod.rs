@@ -7,6 +7,7 @@ pub mod pmf_set;
 pub use pmf_set::{PmfSet, StereoPoint};
 pub use point::MatchedPoint;
 pub mod grid;
+pub mod html;
 pub mod maps;
 pub mod ortho;
 pub mod output;

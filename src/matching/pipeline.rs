@@ -88,9 +88,59 @@ pub struct RunReport {
     pub sigma_vs_reference: Option<SigmaCheck>,
 }
 
+impl RunReport {
+    /// The figures a person looks at first, for report.html.
+    pub fn summary(&self) -> Vec<(String, String)> {
+        let d = &self.dtm;
+        let mut v = vec![
+            (
+                "mapping functions".into(),
+                format!("{:?}, {} mappings", self.pmf_from, self.pmf.len()),
+            ),
+            (
+                "matched".into(),
+                format!(
+                    "{} of {} points ({:.1} %), {:.1} % kept after the wrong-height criteria",
+                    d.points_matched, d.points_total, d.matched_percent, d.remaining_percent
+                ),
+            ),
+            (
+                "grid".into(),
+                format!(
+                    "{} of {} nodes with a height, cell {} m",
+                    d.grid_filled, d.grid_nodes, d.params.cell_m
+                ),
+            ),
+        ];
+        if let Some(c) = &d.comparison {
+            v.push((
+                "against the reference".into(),
+                format!(
+                    "RMSE {:.2} m, mean {:+.2} m, max +{:.2} / {:.2} m over {} nodes",
+                    c.rmse_m, c.mean_m, c.max_positive_m, c.max_negative_m, c.nodes
+                ),
+            ));
+        }
+        if let Some(c) = &self.sigma_vs_reference {
+            v.push((
+                "σ against true errors".into(),
+                format!(
+                    "errors {:.1} × σ (RMS σ {:.2} m), {:.0} % within 2σ",
+                    c.ratio, c.rms_sigma_m, c.within_2_sigma_percent
+                ),
+            ));
+        }
+        if let Some(w) = d.pile_warning() {
+            v.push(("warning".into(), w));
+        }
+        v
+    }
+}
+
 /// The files a run writes into its directory (and their temporary `.part` names meanwhile).
-pub const OUTPUTS: [&str; 10] = [
+pub const OUTPUTS: [&str; 11] = [
     "dem.tif",
+    "report.html",
     "quality.tif",
     "quality.png",
     "ortho.tif",
@@ -306,6 +356,7 @@ pub fn run(
         reference.as_ref().zip(r.report.comparison.as_ref()),
         p.crs,
         &report,
+        &report.summary(),
     )
     .map_err(write)?;
     crate::atomic::write_json(&out.join("pmfs.json"), &pmfs).map_err(write)?;
@@ -326,6 +377,7 @@ pub(crate) fn write_outputs(
     reference: Option<(&ElevationGrid, &Comparison)>,
     crs: Crs,
     report: &impl Serialize,
+    summary: &[(String, String)],
 ) -> std::io::Result<()> {
     std::fs::create_dir_all(out)?;
     write_geotiff(&out.join("dem.tif"), grid, crs)?;
@@ -362,5 +414,51 @@ pub(crate) fn write_outputs(
             let _ = std::fs::remove_file(out.join("error.png"));
         }
     }
-    crate::atomic::write_json(&out.join("report.json"), report)
+    crate::atomic::write_json(&out.join("report.json"), report)?;
+    let mut maps = vec![
+        (
+            "hillshade.png".to_string(),
+            format!("Heights in colour, shaded from the north-west ({crs})"),
+        ),
+        (
+            "quality.png".to_string(),
+            "Each node's standard deviation, m".to_string(),
+        ),
+    ];
+    if reference.is_some() {
+        maps.push((
+            "error.png".into(),
+            "The model minus the reference, m".into(),
+        ));
+    }
+    let file = |f: &str, what: &str| (f.to_string(), what.to_string());
+    super::html::Page {
+        title: "rig dtm: elevation model".into(),
+        intro: format!("Every file of this run is in this folder; the figures below are from report.json. Ground coordinates in {crs}."),
+        sections: vec![
+            super::html::Section {
+                heading: "Figures".into(),
+                rows: summary.to_vec(),
+                ..Default::default()
+            },
+            super::html::Section {
+                heading: "Maps".into(),
+                pictures: maps,
+                ..Default::default()
+            },
+            super::html::Section {
+                heading: "Data".into(),
+                links: vec![
+                    file("dem.tif", "heights, float32 GeoTIFF, nodata −9999"),
+                    file("quality.tif", "band 1 σ of each height (m), band 2 its correlation"),
+                    file("ortho.tif", "orthophoto on the DEM grid"),
+                    file("points.las", "matched points, LAS 1.2"),
+                    file("points.ply", "matched points with correlation and σ"),
+                    file("report.json", "everything the run found"),
+                ],
+                ..Default::default()
+            },
+        ],
+    }
+    .write(&out.join("report.html"))
 }

@@ -97,6 +97,81 @@ pub struct Report2 {
     pub sigma_vs_reference: Option<SigmaCheck>,
 }
 
+impl Report2 {
+    /// The figures a person looks at first, for report.html.
+    pub fn summary(&self) -> Vec<(String, String)> {
+        let mut v = vec![(
+            "heights tried".into(),
+            format!("{:.1} … {:.1} m", self.heights_m[0], self.heights_m[1]),
+        )];
+        for (id, r) in &self.resected {
+            v.push((
+                format!("photo {id}"),
+                format!(
+                    "resected from {} control points, σ0 {:.4} mm on the photo",
+                    r.residuals_mm.len(),
+                    r.sigma0_mm
+                ),
+            ));
+        }
+        for pr in &self.pairs {
+            v.push((
+                format!("photos {} × {}", pr.left, pr.right),
+                format!(
+                    "step {:.2} m, {:.1} % matched, {} points kept",
+                    pr.h_step_m, pr.dtm.matched_percent, pr.points
+                ),
+            ));
+            if let Some(w) = pr.dtm.pile_warning() {
+                v.push(("warning".into(), w));
+            }
+        }
+        v.push((
+            "grid".into(),
+            format!(
+                "{} × {} nodes, {} with a height",
+                self.grid.cols, self.grid.rows, self.grid_filled
+            ),
+        ));
+        if let Some(c) = &self.comparison {
+            v.push((
+                "against the reference".into(),
+                format!(
+                    "RMSE {:.2} m, mean {:+.2} m, max +{:.2} / {:.2} m over {} nodes",
+                    c.rmse_m, c.mean_m, c.max_positive_m, c.max_negative_m, c.nodes
+                ),
+            ));
+        }
+        v.push((
+            "standard deviations".into(),
+            match &self.variance_factor {
+                Some(f) => format!(
+                    "the matching's × {:.2} (from {} node heights compared between pairs)",
+                    f.s0, f.comparisons
+                ),
+                None => {
+                    "the matching's alone (too few nodes seen by two pairs to scale them)".into()
+                }
+            },
+        ));
+        for (what, c) in [
+            ("check points", &self.check_points),
+            ("the reference", &self.sigma_vs_reference),
+        ] {
+            if let Some(c) = c {
+                v.push((
+                    format!("σ against {what}"),
+                    format!(
+                        "RMSE {:.2} m, RMS σ {:.2} m, errors {:.1} × σ, {:.0} % within 2σ over {}",
+                        c.rmse_m, c.rms_sigma_m, c.ratio, c.within_2_sigma_percent, c.points
+                    ),
+                ));
+            }
+        }
+        v
+    }
+}
+
 /// The grid of a plain image with square pixels of `pixel_mm`, its centre on the photo
 /// coordinates' origin: x = (col − (W−1)/2)·p, y = ((H−1)/2 − row)·p at pixel centres.
 pub fn centred_grid(width: usize, height: usize, pixel_mm: f64) -> PhotoGrid {
@@ -628,6 +703,7 @@ pub fn finish(
         reference.as_ref().zip(report.comparison.as_ref()),
         p.crs,
         &report,
+        &report.summary(),
     )
     .map_err(write)?;
     Ok(report)
