@@ -39,6 +39,11 @@ pub struct SimArgs {
     /// host opens it as `--camera sim:PATH`.
     #[arg(long, value_name = "PATH")]
     pub camera_socket: Option<PathBuf>,
+    /// Write the certificates that come with this world into DIR, as a manufacturer ships
+    /// them: plate-cert.toml (the carriage plate's crosses) and, with --film, camera-cert.toml
+    /// (the film camera's fiducials), for `rig calibrate --plate-cert / --camera-cert`.
+    #[arg(long, value_name = "DIR")]
+    pub certificates: Option<PathBuf>,
     /// Lay a film (an RC10-like frame with 8 fiducials and an aerial photo rendered from a
     /// DEM) on the carriage.
     #[arg(long)]
@@ -141,6 +146,24 @@ pub fn run(args: SimArgs) -> std::io::Result<()> {
         repeatable: args.repeatable,
     };
     let world = crate::server::World::new(&cfg);
+    if let Some(dir) = &args.certificates {
+        let write = |name: &str, text: String| {
+            let p = dir.join(name);
+            std::fs::create_dir_all(dir)
+                .and_then(|_| std::fs::write(&p, text))
+                .map_err(|e| std::io::Error::new(e.kind(), format!("writing {}: {e}", p.display())))
+        };
+        write(
+            "plate-cert.toml",
+            crate::certificates::plate_certificate(&world.plate, world.seed),
+        )?;
+        if let Some(film) = &world.film {
+            write(
+                "camera-cert.toml",
+                crate::certificates::camera_certificate(film, world.seed),
+            )?;
+        }
+    }
     if !(0.0..=0.5).contains(&args.camera_drop) {
         return Err(std::io::Error::other(format!(
             "--camera-drop {} must be between 0 and 0.5",

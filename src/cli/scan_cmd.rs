@@ -493,7 +493,7 @@ pub fn run(a: ScanArgs) -> anyhow::Result<i32> {
                 println!("{}", json!({"dir": dir, "photos": photos}));
             } else {
                 for p in photos {
-                    println!("photo {} (+ .tiff)", p.display());
+                    println!("photo {} (+ .tiff, .png preview)", p.display());
                 }
             }
             Ok(0)
