@@ -267,22 +267,45 @@ pub fn expose(cfg: &CameraConfig, ideal: &[f32], seed: u64, seq: u64) -> Vec<u16
     let level = cfg.white_dn8 * cfg.gain * flicker * cfg.exposure_ms / 20.0;
     let field = cfg.field_shift_dn8 + cfg.field_jitter_dn8 * rng.normal();
     let mut out = vec![0u16; w * h];
+    let mut t = vec![0f64; w];
+    let mut spare = None;
     for row in 0..h {
         let top = 1.0 + cfg.top_noise_factor * (-(row as f64) / cfg.top_noise_rows).exp();
         let read = cfg.read_noise_dn8 * top;
         let field_dn = if row % 2 == 1 { field } else { 0.0 };
-        for col in 0..w {
-            let mut t = ideal[row * w + col] as f64;
-            for &(dc, dr, r, depth) in &cfg.dust {
-                let q = ((col as f64 - dc).powi(2) + (row as f64 - dr).powi(2)) / (r * r);
+        for (tv, &iv) in t.iter_mut().zip(&ideal[row * w..(row + 1) * w]) {
+            *tv = iv as f64;
+        }
+        // Dust darkens within three radii of its centre (beyond, exp(−9) is nothing).
+        for &(dc, dr, r, depth) in &cfg.dust {
+            let dy = row as f64 - dr;
+            if dy.abs() >= 3.0 * r {
+                continue;
+            }
+            let c0 = (dc - 3.0 * r).floor().max(0.0) as usize;
+            let c1 = ((dc + 3.0 * r).ceil().max(0.0) as usize).min(w);
+            for (col, tv) in t.iter_mut().enumerate().take(c1).skip(c0) {
+                let q = ((col as f64 - dc).powi(2) + dy * dy) / (r * r);
                 if q < 9.0 {
-                    t *= 1.0 - (1.0 - depth) * (-q).exp();
+                    *tv *= 1.0 - (1.0 - depth) * (-q).exp();
                 }
             }
-            let s = level * t;
+        }
+        for (col, &tv) in t.iter().enumerate() {
+            let s = level * tv;
             let sigma = (cfg.shot_dn8 * s * top * top + read * read).sqrt();
-            let v = s + sigma * rng.normal() + field_dn + cfg.stripe_dn8(col);
-            out[row * w + col] = (v * sc).round().clamp(0.0, max) as u16;
+            // Box–Muller gives normals in pairs: both are used.
+            let z = match spare.take() {
+                Some(z) => z,
+                None => {
+                    let [a, b] = rng.normal_pair();
+                    spare = Some(b);
+                    a
+                }
+            };
+            let v = s + sigma * z + field_dn + cfg.stripe_dn8(col);
+            // Rounded half up (non-negative after the clamp); NaN becomes 0.
+            out[row * w + col] = ((v * sc).clamp(0.0, max) + 0.5) as u16;
         }
     }
     out

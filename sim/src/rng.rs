@@ -27,6 +27,15 @@ impl Rng {
         p > 0.0 && self.uniform() < p
     }
 
+    /// Two independent standard normals (Box–Muller: the cosine and the sine of one draw).
+    pub fn normal_pair(&mut self) -> [f64; 2] {
+        let u1 = self.uniform().max(1e-300);
+        let u2 = self.uniform();
+        let r = (-2.0 * u1.ln()).sqrt();
+        let (s, c) = (2.0 * std::f64::consts::PI * u2).sin_cos();
+        [r * c, r * s]
+    }
+
     /// Standard normal (Box–Muller).
     pub fn normal(&mut self) -> f64 {
         let u1 = self.uniform().max(1e-300);
@@ -36,5 +45,38 @@ impl Rng {
 
     pub fn below(&mut self, n: u64) -> u64 {
         self.next_u64() % n.max(1)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn normal_pairs_are_standard_and_independent() {
+        let mut r = Rng::new(7);
+        let n = 200_000;
+        let (mut s, mut ss, mut sab) = ([0.0f64; 2], [0.0f64; 2], 0.0);
+        for _ in 0..n {
+            let [a, b] = r.normal_pair();
+            s = [s[0] + a, s[1] + b];
+            ss = [ss[0] + a * a, ss[1] + b * b];
+            sab += a * b;
+        }
+        let nf = n as f64;
+        for k in 0..2 {
+            // Mean 0 ± 4 standard errors (1/√n), variance 1 ± 4·√(2/n).
+            assert!((s[k] / nf).abs() < 4.0 / nf.sqrt(), "mean {}", s[k] / nf);
+            assert!(
+                (ss[k] / nf - 1.0).abs() < 4.0 * (2.0 / nf).sqrt(),
+                "var {}",
+                ss[k] / nf
+            );
+        }
+        assert!(
+            (sab / nf).abs() < 4.0 / nf.sqrt(),
+            "correlation {}",
+            sab / nf
+        );
     }
 }

@@ -91,6 +91,40 @@ fn downsample(img: &ImageF32, s: usize) -> ImageF32 {
     out
 }
 
+/// Σt, Σt², Σg, Σg², Σt·g of two rows of equal length, in four lanes so that the compiler
+/// can keep them in vector registers (one running sum per quantity cannot be vectorised: it
+/// fixes the order of the additions).
+#[inline]
+fn row_sums(t: &[f32], g: &[f32]) -> [f32; 5] {
+    const L: usize = 4;
+    let (mut a, mut aa, mut b, mut bb, mut ab) =
+        ([0f32; L], [0f32; L], [0f32; L], [0f32; L], [0f32; L]);
+    let (tc, gc) = (t.chunks_exact(L), g.chunks_exact(L));
+    let (tr, gr) = (tc.remainder(), gc.remainder());
+    for (tv, gv) in tc.zip(gc) {
+        // Whole lanes: no bounds check is left in the loop below.
+        let (Ok(tv), Ok(gv)) = (<&[f32; L]>::try_from(tv), <&[f32; L]>::try_from(gv)) else {
+            continue;
+        };
+        for k in 0..L {
+            a[k] += tv[k];
+            aa[k] += tv[k] * tv[k];
+            b[k] += gv[k];
+            bb[k] += gv[k] * gv[k];
+            ab[k] += tv[k] * gv[k];
+        }
+    }
+    let mut s = [a, aa, b, bb, ab].map(|v| v.iter().sum::<f32>());
+    for (&tv, &gv) in tr.iter().zip(gr) {
+        s[0] += tv;
+        s[1] += tv * tv;
+        s[2] += gv;
+        s[3] += gv * gv;
+        s[4] += tv * gv;
+    }
+    s
+}
+
 /// Normalised correlation of template `t` with the image `g` with the template's top-left at
 /// (ox, oy) (may be negative), over their overlap; and the share of the template's sum inside.
 fn score_at(g: &ImageF32, t: &ImageF32, t_sum: f64, ox: i64, oy: i64) -> (f64, f64) {
@@ -107,14 +141,7 @@ fn score_at(g: &ImageF32, t: &ImageF32, t_sum: f64, ox: i64, oy: i64) -> (f64, f
         let trow = &t.data[r * t.width + c0..r * t.width + c1];
         let gi = (oy + r as i64) as usize * g.width + (ox + c0 as i64) as usize;
         let grow = &g.data[gi..gi + (c1 - c0)];
-        let (mut a, mut aa, mut b, mut bb, mut ab) = (0f32, 0f32, 0f32, 0f32, 0f32);
-        for (&tv, &gv) in trow.iter().zip(grow) {
-            a += tv;
-            aa += tv * tv;
-            b += gv;
-            bb += gv * gv;
-            ab += tv * gv;
-        }
+        let [a, aa, b, bb, ab] = row_sums(trow, grow);
         n += (c1 - c0) as f64;
         st += a as f64;
         stt += aa as f64;
@@ -145,9 +172,10 @@ pub fn locate(
 ) -> Result<CoarseMatch, CoarseError> {
     let gi = gradient_magnitude(img);
     let gt = gradient_magnitude(&tpl.image);
-    // The coarsest level keeps the template at about 40 px.
+    // The coarsest level keeps the template at 25 to 50 px: the exhaustive search there costs
+    // (image + template)² × template², so each level less makes it about 16 times dearer.
     let mut levels = 0;
-    while tpl.size() >> (levels + 1) >= 40 {
+    while tpl.size() >> levels > 50 {
         levels += 1;
     }
     let pyr: Vec<(ImageF32, ImageF32)> = (0..=levels)
