@@ -5,17 +5,21 @@ use std::path::Path;
 
 /// Writes `px` (row-major, `width × height`) as a 16-bit greyscale TIFF at `path`, atomically.
 pub fn write_tiff16(path: &Path, width: usize, height: usize, px: &[u16]) -> std::io::Result<()> {
-    let bytes: Vec<u8> = px.iter().flat_map(|v| v.to_ne_bytes()).collect();
-    crate::atomic::write_with(path, |w| {
-        image::write_buffer_with_format(
-            w,
-            &bytes,
-            width as u32,
-            height as u32,
-            image::ExtendedColorType::L16,
-            image::ImageFormat::Tiff,
-        )
-        .map_err(std::io::Error::other)
+    use tiff::encoder::{colortype, Compression, DeflateLevel, Predictor, TiffEncoder};
+    let (w, h) = (
+        u32::try_from(width).map_err(std::io::Error::other)?,
+        u32::try_from(height).map_err(std::io::Error::other)?,
+    );
+    crate::atomic::write_with(path, |out| {
+        // Deflate after horizontal differencing (TIFF predictor 2), lossless: neighbouring
+        // pixels differ little, so their differences compress where the raw 16-bit values do
+        // not; every TIFF reader (GDAL, libtiff, QGIS) takes it.
+        TiffEncoder::new(out)
+            .map_err(std::io::Error::other)?
+            .with_predictor(Predictor::Horizontal)
+            .with_compression(Compression::Deflate(DeflateLevel::Fast))
+            .write_image::<colortype::Gray16>(w, h, px)
+            .map_err(std::io::Error::other)
     })
 }
 
@@ -192,5 +196,23 @@ mod tests {
                 "{what}: {e}"
             );
         }
+    }
+
+    #[test]
+    fn tiffs_are_deflate_compressed_and_read_back_exactly() {
+        let d = tempfile::tempdir().unwrap();
+        let p = d.path().join("a.tiff");
+        // A smooth picture with noise in the lowest bits, as a scan is.
+        let (w, h) = (300usize, 200usize);
+        let px: Vec<u16> = (0..w * h)
+            .map(|i| (20_000 + (i % w) * 50 + (i / w) * 30 + (i * 7919 % 13)) as u16)
+            .collect();
+        super::write_tiff16(&p, w, h, &px).unwrap();
+        assert_eq!(super::read_tiff16(&p).unwrap(), (w, h, px.clone()));
+        let mut dec = tiff::decoder::Decoder::new(std::fs::File::open(&p).unwrap()).unwrap();
+        let c = dec.get_tag_u32(tiff::tags::Tag::Compression).unwrap();
+        assert_eq!(c, 8, "Deflate (Adobe) is compression 8");
+        let size = std::fs::metadata(&p).unwrap().len();
+        assert!(size < (w * h * 2) as u64 / 2, "{size} bytes");
     }
 }
