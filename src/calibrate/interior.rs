@@ -201,13 +201,17 @@ pub fn calibrate_interior(
         for (i, j) in spiral(rings) {
             searched += 1;
             let at = pred + CarriageUm::new(i as f64 * field[0], j as f64 * field[1]);
-            (rig.progress)(&format!(
-                "fiducial {} ({}/{}): looking at ({:.2}, {:.2}) mm",
-                f.id,
+            (rig.progress)(super::pixel::Step::counted(
+                &format!(
+                    "fiducial {} ({}/{}): looking at ({:.2}, {:.2}) mm",
+                    f.id,
+                    k + 1,
+                    order.len(),
+                    at.x_mm(),
+                    at.y_mm()
+                ),
                 k + 1,
                 order.len(),
-                at.x_mm(),
-                at.y_mm()
             ));
             if rig.stage.limits().check(at).is_err() {
                 continue;
@@ -235,11 +239,10 @@ pub fn calibrate_interior(
             continue;
         };
         // Centre it under the measuring mark and measure it properly.
-        (rig.progress)(&format!(
-            "fiducial {} ({}/{}): measuring",
-            f.id,
+        (rig.progress)(super::pixel::Step::counted(
+            &format!("fiducial {} ({}/{}): measuring", f.id, k + 1, order.len()),
             k + 1,
-            order.len()
+            order.len(),
         ));
         let (s, img) = rig.look(rough, opt.frames)?;
         let r = measure(&img, &tpl, q);

@@ -153,13 +153,34 @@ fn mul2(m: [[f64; 2]; 2], v: [f64; 2]) -> [f64; 2] {
     ]
 }
 
+/// One step of a calibration drive, for the operator: what it does and, in a series (the grid,
+/// the crosses, the fiducials), which of how many it is (from 1).
+#[derive(Debug, Clone, Copy)]
+pub struct Step<'a> {
+    pub what: &'a str,
+    pub of: Option<(usize, usize)>,
+}
+
+impl<'a> Step<'a> {
+    pub fn note(what: &'a str) -> Step<'a> {
+        Step { what, of: None }
+    }
+
+    pub fn counted(what: &'a str, k: usize, n: usize) -> Step<'a> {
+        Step {
+            what,
+            of: Some((k, n)),
+        }
+    }
+}
+
 /// The hardware and the record of one session.
 pub struct Rig<'a> {
     pub stage: &'a mut dyn Stage,
     pub camera: &'a mut dyn Camera,
     pub session: &'a mut Session,
     /// Progress messages for the operator.
-    pub progress: &'a mut dyn FnMut(&str),
+    pub progress: &'a mut dyn FnMut(Step<'_>),
     /// Divides every image taken (dust, the measuring mark): the pixel session takes it, the
     /// sessions after it reuse it.
     pub flat: Option<crate::digitise::FlatField>,
@@ -197,13 +218,13 @@ pub fn calibrate_pixel(
     opt: &PixelOptions,
 ) -> Result<PixelCalibration, CalibrateError> {
     if opt.home {
-        (rig.progress)("homing");
+        (rig.progress)(Step::note("homing"));
         rig.stage.home()?;
         rig.session.event("homed", json!({}))?;
     }
     if opt.flat_field {
         let at = clear_spot(plate);
-        (rig.progress)("flat field on clear plate glass");
+        (rig.progress)(Step::note("flat field on clear plate glass"));
         rig.flat = None;
         let (s, img) = rig.look(at, 4 * opt.frames)?;
         let f = crate::digitise::FlatField::from_image(&img);
@@ -231,7 +252,7 @@ pub fn calibrate_pixel(
         [0.0, opt.nominal_um_per_px[1]],
     ];
     // First look: the cross under the mark, then one step in x and one in y.
-    (rig.progress)(&format!("first look at cross {}", central.id));
+    (rig.progress)(Step::note(&format!("first look at cross {}", central.id)));
     let t_nom = MarkTemplates::new(
         &plate.shape,
         plate.polarity,
@@ -310,12 +331,16 @@ pub fn calibrate_pixel(
             let d = mul2(a, [q_px[0] - p0.col, q_px[1] - p0.row]);
             let target = s0 - CarriageUm::new(d[0], d[1]);
             let k = grid.len() + 1;
-            (rig.progress)(&format!(
-                "grid {k}/{}: cross {} toward pixel ({:.0}, {:.0})",
+            (rig.progress)(Step::counted(
+                &format!(
+                    "grid {k}/{}: cross {} toward pixel ({:.0}, {:.0})",
+                    n * n,
+                    central.id,
+                    q_px[0],
+                    q_px[1]
+                ),
+                k,
                 n * n,
-                central.id,
-                q_px[0],
-                q_px[1]
             ));
             let (s, img) = rig.look(target, opt.frames)?;
             let r = measure(&img, &tpl, q);
@@ -377,11 +402,15 @@ pub fn calibrate_pixel(
     if opt.all_crosses {
         let mut per = Vec::new();
         for (k, c) in plate.crosses.iter().enumerate() {
-            (rig.progress)(&format!(
-                "cross {} ({}/{}) under the measuring mark",
-                c.id,
+            (rig.progress)(Step::counted(
+                &format!(
+                    "cross {} ({}/{}) under the measuring mark",
+                    c.id,
+                    k + 1,
+                    plate.crosses.len()
+                ),
                 k + 1,
-                plate.crosses.len()
+                plate.crosses.len(),
             ));
             let (s, img) = rig.look(c.position(), opt.frames)?;
             let r = measure(&img, &tpl, q);

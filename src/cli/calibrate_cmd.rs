@@ -9,7 +9,6 @@ use rig::calibrate::{
     PixelCalibration, PixelOptions, Rig, Session,
 };
 use rig::targets::certificate::{CameraCertificate, PlateCertificate};
-use std::io::IsTerminal;
 use std::path::PathBuf;
 
 /// Options of `rig calibrate` (its help text is on `Command::Calibrate`).
@@ -159,15 +158,8 @@ impl Running {
         kind: &str,
         body: impl FnOnce(&mut Rig) -> Result<T, CalibrateError>,
     ) -> anyhow::Result<(T, serde_json::Value, PathBuf)> {
-        let tty = std::io::stderr().is_terminal();
-        let json_out = a.json;
-        let mut progress = |m: &str| {
-            if tty {
-                eprint!("\r\x1b[K{m}");
-            } else if !json_out {
-                eprintln!("{m}");
-            }
-        };
+        let mut steps = super::progress_bar::Steps::new(a.json);
+        let mut progress = |st: rig::calibrate::pixel::Step<'_>| steps.step(st.what, st.of);
         let r = body(&mut Rig {
             stage: self.hw.stage.as_mut(),
             camera: self.hw.camera.as_mut(),
@@ -175,9 +167,7 @@ impl Running {
             progress: &mut progress,
             flat: self.flat.take(),
         });
-        if tty {
-            eprintln!();
-        }
+        steps.finish();
         let result = match r {
             Ok(c) => {
                 let results = Results {
@@ -408,7 +398,7 @@ pub fn run(a: CalibrateArgs) -> anyhow::Result<i32> {
             let home = !no_home;
             let (c, doc, dir) = run.run(&a, "interior", |rig| {
                 if home {
-                    (rig.progress)("homing");
+                    (rig.progress)(rig::calibrate::pixel::Step::note("homing"));
                     rig.stage.home()?;
                 }
                 calibrate_interior(rig, &cert, &pixel, &opt)

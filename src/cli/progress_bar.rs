@@ -59,3 +59,75 @@ impl Progress for Bar {
         }
     }
 }
+
+/// A drive's steps for the operator: a series (the grid, the crosses, the fiducials, the
+/// tiles, the bands of a mosaic) as a bar with its rate and time left, single steps as lines
+/// above it. On a terminal only; otherwise one line per step on standard error, or nothing
+/// with `--json`.
+pub struct Steps {
+    bar: Option<ProgressBar>,
+    tty: bool,
+    json: bool,
+}
+
+impl Steps {
+    pub fn new(json: bool) -> Steps {
+        Steps {
+            bar: None,
+            tty: std::io::stderr().is_terminal(),
+            json,
+        }
+    }
+
+    /// Step `what`; `of` = (k, n): the k-th (from 1) of a series of n.
+    pub fn step(&mut self, what: &str, of: Option<(usize, usize)>) {
+        if self.json {
+            return;
+        }
+        if !self.tty {
+            eprintln!("{what}");
+            return;
+        }
+        match of {
+            Some((k, n)) => {
+                let (k, n) = (k as u64, n as u64);
+                let same = self
+                    .bar
+                    .as_ref()
+                    .is_some_and(|b| b.length() == Some(n) && b.position() < k);
+                if !same {
+                    self.finish();
+                    let b = ProgressBar::with_draw_target(Some(n), ProgressDrawTarget::stderr());
+                    if let Ok(style) = ProgressStyle::with_template(
+                        "[{bar:30}] {pos}/{len} ({per_sec}, {eta} left) {msg}",
+                    ) {
+                        b.set_style(style.progress_chars("=> "));
+                    }
+                    self.bar = Some(b);
+                }
+                if let Some(b) = &self.bar {
+                    // The steps before this one are done.
+                    b.set_position(k.saturating_sub(1));
+                    b.set_message(what.to_string());
+                }
+            }
+            None => match &self.bar {
+                Some(b) => b.println(what),
+                None => eprintln!("{what}"),
+            },
+        }
+    }
+
+    /// The series is over: the bar is cleared.
+    pub fn finish(&mut self) {
+        if let Some(b) = self.bar.take() {
+            b.finish_and_clear();
+        }
+    }
+}
+
+impl Drop for Steps {
+    fn drop(&mut self) {
+        self.finish();
+    }
+}

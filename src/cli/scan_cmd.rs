@@ -240,36 +240,37 @@ fn print_plan(s: &ScanScript, cal: &ScanCalibration, p: &Plan) {
     println!("  output: {}", s.out_dir.display());
 }
 
-/// Draws the progress line (a bar on a terminal, a line per tile otherwise).
+/// A photo's mosaic, band `b` of `n` done, on the bar.
+fn mosaic_progress(bar: &super::progress_bar::Bar, region: &str, b: usize, n: usize) {
+    use rig::matching::progress::Progress as _;
+    if b == 1 {
+        bar.begin(&format!("mosaic of {region} (bands)"), n as u64);
+    }
+    bar.advance(1);
+    if b == n {
+        bar.end();
+    }
+}
+
+/// Draws the tiles' progress (a bar on a terminal, a line per tile otherwise, nothing with
+/// --json off a terminal).
 fn progress_printer(json: bool) -> impl FnMut(Progress) {
-    let tty = std::io::stderr().is_terminal();
+    let mut steps = super::progress_bar::Steps::new(json);
     move |p: Progress| {
-        if json && !tty {
+        if p.tile.is_empty() {
             return;
         }
-        let frac = p.done as f64 / p.total.max(1) as f64;
-        if tty {
-            let n = 30;
-            let k = (frac * n as f64).round() as usize;
-            eprint!(
-                "\r\x1b[K[{}{}] {}/{} tiles {:3.0} %  {}  {} left",
-                "#".repeat(k),
-                "-".repeat(n - k),
-                p.done,
-                p.total,
-                100.0 * frac,
-                p.tile,
-                duration(p.eta_s)
-            );
-        } else if !p.tile.is_empty() {
-            eprintln!(
+        steps.step(
+            &format!(
                 "tile {}/{} {} ({} left)",
                 p.done,
                 p.total,
                 p.tile,
                 duration(p.eta_s)
-            );
-        }
+            ),
+            // The tiles taken so far are done: the bar stands at the next.
+            Some((p.done + 1, p.total.max(p.done))),
+        );
     }
 }
 
@@ -448,11 +449,13 @@ pub fn run(a: ScanArgs) -> anyhow::Result<i32> {
             if done < total {
                 eprintln!("rig: only {done} of {total} tiles are taken: the photos have holes (nodata 0) where the others belong");
             }
+            let bar = super::progress_bar::Bar::new(!a.json);
             let m = rig::scan::mosaic_shares::mosaic_share(
                 &sd,
                 *spec,
                 out,
                 rig::scan::mosaic::Interpolation::Bicubic,
+                &|r, b, n| mosaic_progress(&bar, r, b, n),
             )?;
             if a.json {
                 println!("{}", serde_json::to_string(&m)?);
@@ -487,8 +490,12 @@ pub fn run(a: ScanArgs) -> anyhow::Result<i32> {
             if done < total {
                 eprintln!("rig: only {done} of {total} tiles are taken: the photos have holes (nodata 0) where the others belong");
             }
-            let photos =
-                rig::scan::run::mosaic_all(&mut sd, rig::scan::mosaic::Interpolation::Bicubic)?;
+            let bar = super::progress_bar::Bar::new(!a.json);
+            let photos = rig::scan::run::mosaic_all(
+                &mut sd,
+                rig::scan::mosaic::Interpolation::Bicubic,
+                &|r, b, n| mosaic_progress(&bar, r, b, n),
+            )?;
             if a.json {
                 println!("{}", json!({"dir": dir, "photos": photos}));
             } else {

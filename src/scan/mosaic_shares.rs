@@ -73,6 +73,7 @@ pub fn mosaic_share(
     spec: TileSpec,
     out: &Path,
     interp: Interpolation,
+    progress: &(dyn Fn(&str, usize, usize) + Sync),
 ) -> Result<ShareManifest, ShareError> {
     let regions = &sd.manifest.plan.regions;
     let mine = spec.units(regions.len());
@@ -110,7 +111,7 @@ pub fn mosaic_share(
     std::fs::create_dir_all(out).map_err(io(out))?;
     let mut photos = Vec::new();
     for ri in mine.clone() {
-        mosaic_region(sd, ri, interp, out)?;
+        mosaic_region(sd, ri, interp, out, progress)?;
         let name = &regions[ri].name;
         let mut files = Vec::new();
         for f in photo_files(name) {

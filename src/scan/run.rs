@@ -521,7 +521,7 @@ pub fn run(
             eta_s: pace * (total - done) as f64,
         });
     }
-    let photos = mosaic_all(sd, Interpolation::Bicubic)?;
+    let photos = mosaic_all(sd, Interpolation::Bicubic, &|_, _, _| {})?;
     sd.manifest.complete = true;
     sd.manifest.save(&sd.dir)?;
     sd.log.stop("done", None)?;
@@ -529,11 +529,16 @@ pub fn run(
 }
 
 /// Mosaics every region from the tiles on disk; writes `<region>.tiff` and `<region>.json`.
-pub fn mosaic_all(sd: &mut ScanDir, interp: Interpolation) -> Result<Vec<PathBuf>, ScanError> {
+/// `progress(region, band, bands)` follows each photo's bands.
+pub fn mosaic_all(
+    sd: &mut ScanDir,
+    interp: Interpolation,
+    progress: &(dyn Fn(&str, usize, usize) + Sync),
+) -> Result<Vec<PathBuf>, ScanError> {
     let mut out = Vec::new();
     for ri in 0..sd.manifest.plan.regions.len() {
         let dir = sd.dir.clone();
-        let (tiff, json_path) = mosaic_region(sd, ri, interp, &dir)?;
+        let (tiff, json_path) = mosaic_region(sd, ri, interp, &dir, progress)?;
         let region = &sd.manifest.plan.regions[ri];
         sd.log.event(
             "photo",
@@ -553,6 +558,7 @@ pub fn mosaic_region(
     ri: usize,
     interp: Interpolation,
     dir: &Path,
+    progress: &(dyn Fn(&str, usize, usize) + Sync),
 ) -> Result<(PathBuf, PathBuf), ScanError> {
     let region = &sd.manifest.plan.regions[ri];
     let sources: Vec<TileSource> = sd
@@ -577,7 +583,9 @@ pub fn mosaic_region(
             }
         })
         .collect();
-    let px = mosaic::mosaic(&sd.cal, &region.grid, &sources, interp, &|_, _| {})?;
+    let px = mosaic::mosaic(&sd.cal, &region.grid, &sources, interp, &|b, n| {
+        progress(&region.name, b, n)
+    })?;
     let tiff = dir.join(format!("{}.tiff", region.name));
     write_tiff16(&tiff, region.grid.width, region.grid.height, &px)?;
     preview(&dir.join(format!("{}.png", region.name)), &region.grid, &px)?;
