@@ -23,13 +23,20 @@ pub struct DtmArgs {
     /// replaced).
     #[arg(long, value_name = "DIR")]
     pub out: Option<PathBuf>,
-    /// Most memory the run may take, MiB (overrides the project's [limits] max_memory_mb).
-    #[arg(long, value_name = "MIB", value_parser = clap::value_parser!(u64).range(16..=1_048_576))]
-    pub max_memory: Option<u64>,
+    #[command(flatten)]
+    pub run: RunOptions,
     /// Sweep only share I of N of the work (I counts from 1) into --out, for a cluster or
     /// several machines; `rig dtm merge` joins the shares (format-2 projects).
     #[arg(long, value_name = "I/N")]
     pub tile: Option<rig::matching::tiles::TileSpec>,
+}
+
+/// What every `rig dtm` run takes: its memory limit and the report's form.
+#[derive(Debug, Clone, Copy, Args)]
+pub struct RunOptions {
+    /// Most memory the run may take, MiB (overrides the project's [limits] max_memory_mb).
+    #[arg(long, value_name = "MIB", value_parser = clap::value_parser!(u64).range(16..=1_048_576))]
+    pub max_memory: Option<u64>,
     /// Print the report as JSON.
     #[arg(long)]
     pub json: bool,
@@ -56,13 +63,8 @@ pub enum DtmAction {
         /// Output directory (as for `rig dtm`).
         #[arg(long, value_name = "DIR")]
         out: PathBuf,
-        /// Most memory the run may take, MiB (overrides the project's [limits]
-        /// max_memory_mb).
-        #[arg(long, value_name = "MIB", value_parser = clap::value_parser!(u64).range(16..=1_048_576))]
-        max_memory: Option<u64>,
-        /// Print the report as JSON.
-        #[arg(long)]
-        json: bool,
+        #[command(flatten)]
+        run: RunOptions,
     },
     /// Seed 000's method: polynomial mapping functions from the control points (terms chosen by
     /// the check points), a height sweep along their epipolar lines, removal of wrong heights
@@ -85,13 +87,8 @@ pub enum DtmAction {
         /// are replaced).
         #[arg(long, value_name = "DIR")]
         out: PathBuf,
-        /// Most memory the run may take, MiB (overrides the project's [limits]
-        /// max_memory_mb).
-        #[arg(long, value_name = "MIB", value_parser = clap::value_parser!(u64).range(16..=1_048_576))]
-        max_memory: Option<u64>,
-        /// Print the report as JSON.
-        #[arg(long)]
-        json: bool,
+        #[command(flatten)]
+        run: RunOptions,
     },
 }
 
@@ -377,7 +374,7 @@ fn print_format2(
         }
     }
     println!(
-        "written to {}: dem.tif, quality.tif (σ, correlation), ortho.tif, points.ply, points.las, hillshade.png, quality.png{}, report.json",
+        "written to {}: dem.tif, quality.tif (σ, correlation), ortho.tif, points.ply, points.las, hillshade.png, quality.png{}, report.json, report.html",
         out.display(),
         if r.comparison.is_some() { ", error.png" } else { "" }
     );
@@ -391,8 +388,10 @@ pub fn run(a: DtmArgs) -> anyhow::Result<i32> {
             let text = std::fs::read_to_string(&project)
                 .with_context(|| format!("reading {}", project.display()))?;
             match (rig::matching::project2::format_of(&text), a.tile) {
-                (Ok(2), Some(spec)) => return run_tile(&project, spec, &out, a.max_memory, a.json),
-                (Ok(2), None) => return run_format2(&project, &out, a.max_memory, a.json),
+                (Ok(2), Some(spec)) => {
+                    return run_tile(&project, spec, &out, a.run.max_memory, a.run.json)
+                }
+                (Ok(2), None) => return run_format2(&project, &out, a.run.max_memory, a.run.json),
                 (Ok(_), Some(_)) => {
                     eprintln!("rig dtm: --tile splits format-2 projects; {} is format 1 (one scanned pair): run it whole, or write it as format 2 (see the README)", project.display());
                     return Ok(rig::exit::USAGE);
@@ -403,8 +402,7 @@ pub fn run(a: DtmArgs) -> anyhow::Result<i32> {
             DtmAction::Pmf {
                 project,
                 out,
-                json: a.json,
-                max_memory: a.max_memory,
+                run: a.run,
             }
         }
         (None, None, _) => {
@@ -419,18 +417,9 @@ pub fn run(a: DtmArgs) -> anyhow::Result<i32> {
         }
     };
     match action {
-        DtmAction::Merge {
-            tiles,
-            out,
-            max_memory,
-            json,
-        } => merge(&tiles, &out, max_memory, json),
-        DtmAction::Pmf {
-            project,
-            out,
-            json,
-            max_memory,
-        } => {
+        DtmAction::Merge { tiles, out, run } => merge(&tiles, &out, run.max_memory, run.json),
+        DtmAction::Pmf { project, out, run } => {
+            let RunOptions { max_memory, json } = run;
             let p = Project::load(&project)?;
             let load = |f: &PathBuf| {
                 ScannedPhoto::load_photo(f)
@@ -453,7 +442,7 @@ pub fn run(a: DtmArgs) -> anyhow::Result<i32> {
                     );
                 }
                 println!(
-                "written to {}: dem.tif, quality.tif, ortho.tif, points.ply, points.las, hillshade.png, quality.png{}, report.json, pmfs.json",
+                "written to {}: dem.tif, quality.tif, ortho.tif, points.ply, points.las, hillshade.png, quality.png{}, report.json, report.html, pmfs.json",
                 out.display(),
                 if report.dtm.comparison.is_some() { ", error.png" } else { "" }
             );

@@ -182,6 +182,12 @@ pub enum Command {
     ///   points.las   the same as LAS 1.2 with the CRS's GeoTIFF keys
     ///   hillshade.png, quality.png, error.png (with a reference): maps ≥ 800 px wide
     ///   report.json  what was done and found, with how far the σ agree with true errors
+    ///   report.html  the figures, maps and files on one page
+    ///
+    /// On several machines (a Slurm array, GNU parallel; format 2): each sweeps one share,
+    /// then one joins them; the result is the single run's, byte for byte:
+    ///   rig dtm PROJECT.toml --tile I/N --out tiles/I      (I = 1 … N)
+    ///   rig dtm merge tiles/* --out dtm
     ///
     /// Example:
     ///   rig sim scene --out scene && rig dtm scene/project.toml --out dtm

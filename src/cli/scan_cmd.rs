@@ -240,6 +240,22 @@ fn print_plan(s: &ScanScript, cal: &ScanCalibration, p: &Plan) {
     println!("  output: {}", s.out_dir.display());
 }
 
+/// A scan directory opened to mosaic its photos, with a warning when tiles are missing.
+fn open_for_mosaic(dir: &std::path::Path, max_memory_mib: u64) -> anyhow::Result<ScanDir> {
+    let sd = ScanDir::open(
+        dir,
+        &Reopen {
+            limits: None,
+            max_memory_mib,
+        },
+    )?;
+    let (done, total) = (sd.manifest.done(), sd.manifest.tiles.len());
+    if done < total {
+        eprintln!("rig: only {done} of {total} tiles are taken: the photos have holes (nodata 0) where the others belong");
+    }
+    Ok(sd)
+}
+
 /// A photo's mosaic, band `b` of `n` done, on the bar.
 fn mosaic_progress(bar: &super::progress_bar::Bar, region: &str, b: usize, n: usize) {
     use rig::matching::progress::Progress as _;
@@ -438,17 +454,7 @@ pub fn run(a: ScanArgs) -> anyhow::Result<i32> {
             tile: Some(spec),
             out: Some(out),
         } => {
-            let sd = ScanDir::open(
-                dir,
-                &Reopen {
-                    limits: None,
-                    max_memory_mib: a.max_memory,
-                },
-            )?;
-            let (done, total) = (sd.manifest.done(), sd.manifest.tiles.len());
-            if done < total {
-                eprintln!("rig: only {done} of {total} tiles are taken: the photos have holes (nodata 0) where the others belong");
-            }
+            let sd = open_for_mosaic(dir, a.max_memory)?;
             let bar = super::progress_bar::Bar::new(!a.json);
             let m = rig::scan::mosaic_shares::mosaic_share(
                 &sd,
@@ -479,17 +485,7 @@ pub fn run(a: ScanArgs) -> anyhow::Result<i32> {
             Ok(0)
         }
         ScanAction::Mosaic { dir, .. } => {
-            let mut sd = ScanDir::open(
-                dir,
-                &Reopen {
-                    limits: None,
-                    max_memory_mib: a.max_memory,
-                },
-            )?;
-            let (done, total) = (sd.manifest.done(), sd.manifest.tiles.len());
-            if done < total {
-                eprintln!("rig: only {done} of {total} tiles are taken: the photos have holes (nodata 0) where the others belong");
-            }
+            let mut sd = open_for_mosaic(dir, a.max_memory)?;
             let bar = super::progress_bar::Bar::new(!a.json);
             let photos = rig::scan::run::mosaic_all(
                 &mut sd,

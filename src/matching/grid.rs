@@ -42,6 +42,16 @@ pub struct Comparison {
     pub rmse_m: f64,
 }
 
+impl Comparison {
+    /// One line for a person: RMSE, mean, the extremes and the nodes.
+    pub fn summary(&self) -> String {
+        format!(
+            "RMSE {:.2} m, mean {:+.2} m, max +{:.2} / {:.2} m over {} nodes",
+            self.rmse_m, self.mean_m, self.max_positive_m, self.max_negative_m, self.nodes
+        )
+    }
+}
+
 /// A grid that cannot be made.
 #[derive(Debug, thiserror::Error)]
 pub enum GridError {

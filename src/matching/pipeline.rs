@@ -113,13 +113,7 @@ impl RunReport {
             ),
         ];
         if let Some(c) = &d.comparison {
-            v.push((
-                "against the reference".into(),
-                format!(
-                    "RMSE {:.2} m, mean {:+.2} m, max +{:.2} / {:.2} m over {} nodes",
-                    c.rmse_m, c.mean_m, c.max_positive_m, c.max_negative_m, c.nodes
-                ),
-            ));
+            v.push(("against the reference".into(), c.summary()));
         }
         if let Some(c) = &self.sigma_vs_reference {
             v.push((

@@ -134,13 +134,7 @@ impl Report2 {
             ),
         ));
         if let Some(c) = &self.comparison {
-            v.push((
-                "against the reference".into(),
-                format!(
-                    "RMSE {:.2} m, mean {:+.2} m, max +{:.2} / {:.2} m over {} nodes",
-                    c.rmse_m, c.mean_m, c.max_positive_m, c.max_negative_m, c.nodes
-                ),
-            ));
+            v.push(("against the reference".into(), c.summary()));
         }
         v.push((
             "standard deviations".into(),
