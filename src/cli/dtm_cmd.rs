@@ -232,13 +232,14 @@ fn run_tile(
         println!("{}", serde_json::to_string(&m)?);
     } else {
         println!(
-            "share {spec}: units {}…{} of {} ({} pairs of {} photos), {} parts written to {}",
+            "share {spec}: units {}…{} of {} ({} pairs of {} photos), {} part{} written to {}",
             units.start,
             units.end,
             plan.units(),
             plan.pairs.len(),
             p.photos.len(),
             m.parts.len(),
+            if m.parts.len() == 1 { "" } else { "s" },
             out.display()
         );
         for e in &m.parts {

@@ -190,7 +190,19 @@ pub fn is_tile_output(name: &str) -> bool {
 /// Reads a tile directory's manifest.
 pub fn read_manifest(dir: &Path) -> Result<TileManifest, TileError> {
     let path = dir.join(MANIFEST);
-    let text = std::fs::read_to_string(&path).map_err(io(&path))?;
+    let text = std::fs::read_to_string(&path).map_err(|cause| {
+        if cause.kind() == std::io::ErrorKind::NotFound {
+            TileError::Damaged {
+                path: dir.to_path_buf(),
+                message: format!("no {MANIFEST}: not a share of `rig dtm PROJECT --tile I/N --out DIR`, or its sweep has not finished (run that share again)"),
+            }
+        } else {
+            TileError::Io {
+                path: path.clone(),
+                cause,
+            }
+        }
+    })?;
     let m: TileManifest = serde_json::from_str(&text).map_err(|cause| TileError::Manifest {
         path: path.clone(),
         cause,

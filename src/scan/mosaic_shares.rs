@@ -146,7 +146,19 @@ pub fn mosaic_share(
 
 fn read_manifest(dir: &Path) -> Result<ShareManifest, ShareError> {
     let path = dir.join(MANIFEST);
-    let text = std::fs::read_to_string(&path).map_err(io(&path))?;
+    let text = std::fs::read_to_string(&path).map_err(|cause| {
+        if cause.kind() == std::io::ErrorKind::NotFound {
+            ShareError::Refused(format!(
+                "{}: no {MANIFEST}: not a share of `rig scan mosaic DIR --tile I/N --out SHARE_DIR`, or it has not finished (run that share again)",
+                dir.display()
+            ))
+        } else {
+            ShareError::Io {
+                path: path.clone(),
+                cause,
+            }
+        }
+    })?;
     let m: ShareManifest = serde_json::from_str(&text).map_err(|e| {
         ShareError::Refused(format!(
             "{}: not a share of `rig scan mosaic --tile` ({e})",
