@@ -305,6 +305,22 @@ fn check_tiles_and_merge(pf: &Path, single: &Path, dir: &Path) {
     let e = String::from_utf8_lossy(&o.stderr);
     assert!(!o.status.success() && e.contains("cut short"), "{e}");
     std::fs::write(&part, &bytes).unwrap();
+    // A manifest naming a file outside its directory.
+    let manifest = tile(1).join("tile.json");
+    let good = std::fs::read(&manifest).unwrap();
+    let mut m: serde_json::Value = serde_json::from_slice(&good).unwrap();
+    m["parts"][0]["file"] = "../tile-2/tile.json".into();
+    std::fs::write(&manifest, serde_json::to_vec(&m).unwrap()).unwrap();
+    let o = rig()
+        .args(["dtm", "merge"])
+        .args([tile(1), tile(2), tile(3), tile(4)])
+        .arg("--out")
+        .arg(dir.join("x"))
+        .output()
+        .unwrap();
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && e.contains("a part named"), "{e}");
+    std::fs::write(&manifest, &good).unwrap();
     // The project edited after the sweep.
     let text = std::fs::read_to_string(pf).unwrap();
     std::fs::write(pf, text.replace("cell_m = 20.0", "cell_m = 25.0")).unwrap();

@@ -143,12 +143,7 @@ pub fn write_tile(
     std::fs::create_dir_all(dir).map_err(io(dir))?;
     let mut entries = Vec::new();
     for p in parts {
-        let file = format!(
-            "pair-{}-bands-{}-{}.f32",
-            p.pair + 1,
-            p.bands.bands.start,
-            p.bands.bands.end
-        );
+        let file = part_file(p.pair, p.bands.bands.clone());
         let path = dir.join(&file);
         crate::atomic::write(&path, &encode(&p.bands)).map_err(io(&path))?;
         let pair = &plan.pairs[p.pair];
@@ -179,6 +174,11 @@ pub fn write_tile(
     let path = dir.join(MANIFEST);
     crate::atomic::write_json(&path, &m).map_err(io(&path))?;
     Ok(m)
+}
+
+/// The name of a part's file in its tile directory.
+fn part_file(pair: usize, bands: Range<usize>) -> String {
+    format!("pair-{}-bands-{}-{}.f32", pair + 1, bands.start, bands.end)
 }
 
 /// Files a tile directory may hold (a rerun of the same tile replaces them).
@@ -328,6 +328,14 @@ pub fn check_shares(shares: &[(&Path, usize, usize)]) -> Result<Vec<usize>, Tile
 pub fn read_parts(dir: &Path, m: &TileManifest, plan: &Plan) -> Result<Vec<PairPart>, TileError> {
     let mut out = Vec::new();
     for e in &m.parts {
+        // Only the name the rig gives such a part: nothing outside the directory is read.
+        let want = part_file(e.pair, e.bands[0]..e.bands[1]);
+        if e.file != want {
+            return Err(TileError::Damaged {
+                path: dir.join(MANIFEST),
+                message: format!("a part named `{}`, not `{want}`", e.file),
+            });
+        }
         let path = dir.join(&e.file);
         let damaged = |message: String| TileError::Damaged {
             path: path.clone(),
