@@ -252,6 +252,7 @@ fn check_tiles_and_merge(pf: &Path, single: &Path, dir: &Path) {
         "hillshade.png",
         "quality.png",
         "error.png",
+        "report.html",
     ] {
         let (a, b) = (
             std::fs::read(single.join(f)).unwrap(),
@@ -321,6 +322,23 @@ fn check_tiles_and_merge(pf: &Path, single: &Path, dir: &Path) {
     let e = String::from_utf8_lossy(&o.stderr);
     assert!(!o.status.success() && e.contains("a part named"), "{e}");
     std::fs::write(&manifest, &good).unwrap();
+    // A photo replaced after the sweep (same size, other pixels), the project untouched.
+    let photo = dir.join("photo_3.tif");
+    let original = std::fs::read(&photo).unwrap();
+    std::fs::copy(dir.join("photo_1.tif"), &photo).unwrap();
+    let o = rig()
+        .args(["dtm", "merge"])
+        .args([tile(1), tile(2), tile(3), tile(4)])
+        .arg("--out")
+        .arg(dir.join("x"))
+        .output()
+        .unwrap();
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && e.contains("changed since the tiles were swept"),
+        "{e}"
+    );
+    std::fs::write(&photo, &original).unwrap();
     // The project edited after the sweep.
     let text = std::fs::read_to_string(pf).unwrap();
     std::fs::write(pf, text.replace("cell_m = 20.0", "cell_m = 25.0")).unwrap();

@@ -7,7 +7,8 @@
 use std::collections::BTreeMap;
 use std::process::Command;
 
-/// Each package of `cargo tree`'s answer with its features.
+/// Each package of `cargo tree`'s answer with its features; a package resolved twice with
+/// different features (for the host and the target) is itself a second compile.
 fn features(args: &[&str]) -> BTreeMap<String, String> {
     let o = Command::new(env!("CARGO"))
         .current_dir(env!("CARGO_MANIFEST_DIR"))
@@ -20,16 +21,23 @@ fn features(args: &[&str]) -> BTreeMap<String, String> {
         "cargo tree {args:?}: {}",
         String::from_utf8_lossy(&o.stderr)
     );
-    String::from_utf8_lossy(&o.stdout)
-        .lines()
-        .filter_map(|l| {
-            let (p, f) = l.split_once('|')?;
-            Some((
-                p.replace(" (*)", "").trim().to_string(),
-                f.replace(" (*)", "").trim().to_string(),
-            ))
-        })
-        .collect()
+    let mut m = BTreeMap::new();
+    for l in String::from_utf8_lossy(&o.stdout).lines() {
+        let Some((p, f)) = l.split_once('|') else {
+            continue;
+        };
+        let (p, f) = (
+            p.replace(" (*)", "").trim().to_string(),
+            f.replace(" (*)", "").trim().to_string(),
+        );
+        if let Some(other) = m.insert(p.clone(), f.clone()) {
+            assert_eq!(
+                other, f,
+                "{p} is resolved twice with different features ({args:?})"
+            );
+        }
+    }
+    m
 }
 
 #[test]

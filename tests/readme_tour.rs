@@ -26,14 +26,17 @@ fn tour() -> String {
 #[test]
 fn the_readme_tour_runs_as_written() {
     let d = tempfile::tempdir().unwrap();
-    let bin = std::path::Path::new(env!("CARGO_BIN_EXE_rig"))
-        .parent()
-        .unwrap()
-        .to_path_buf();
-    let path = format!(
-        "{}:{}",
-        bin.display(),
-        std::env::var("PATH").unwrap_or_default()
+    // The directory stands for the checkout after the set-up's build: the rig under test at
+    // target/release/rig, which the tour's first line puts on the PATH (the test does not).
+    let release = d.path().join("target/release");
+    std::fs::create_dir_all(&release).unwrap();
+    std::os::unix::fs::symlink(env!("CARGO_BIN_EXE_rig"), release.join("rig")).unwrap();
+    let path = std::env::var("PATH").unwrap_or_default();
+    assert!(
+        !path
+            .split(':')
+            .any(|p| std::path::Path::new(p).join("rig").exists()),
+        "a rig on the PATH already would hide the tour's own PATH line"
     );
     let script = format!("set -e\n{}\n", tour());
     let mut child = Command::new("bash")
@@ -53,6 +56,16 @@ fn the_readme_tour_runs_as_written() {
         .spawn()
         .unwrap();
     let pgid = child.id() as i32;
+    // Both pipes drained as the tour runs, so that no amount of output blocks it.
+    let drain = |mut r: Box<dyn Read + Send>| {
+        std::thread::spawn(move || {
+            let mut t = String::new();
+            let _ = r.read_to_string(&mut t);
+            t
+        })
+    };
+    let out_t = drain(Box::new(child.stdout.take().unwrap()));
+    let err_t = drain(Box::new(child.stderr.take().unwrap()));
     let deadline = Instant::now() + Duration::from_secs(400);
     let status = loop {
         if let Some(s) = child.try_wait().unwrap() {
@@ -67,19 +80,7 @@ fn the_readme_tour_runs_as_written() {
     unsafe {
         libc::kill(-pgid, libc::SIGTERM);
     }
-    let (mut out, mut err) = (String::new(), String::new());
-    child
-        .stdout
-        .take()
-        .unwrap()
-        .read_to_string(&mut out)
-        .unwrap();
-    child
-        .stderr
-        .take()
-        .unwrap()
-        .read_to_string(&mut err)
-        .unwrap();
+    let (out, err) = (out_t.join().unwrap(), err_t.join().unwrap());
     let status = status.unwrap_or_else(|| panic!("the tour ran over 400 s\n{out}\n{err}"));
     assert!(
         status.success(),

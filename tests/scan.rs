@@ -504,7 +504,7 @@ fn bad_scripts_and_plans_outside_the_soft_limits_are_refused_before_anything_mov
 
 /// The scan's two photos mosaicked in three shares (one empty) on "other machines" and merged
 /// into a copy of the scan without its photos give the scan's own photos byte for byte; a
-/// missing share, a share of another scan and a damaged file are refused before anything is
+/// missing share and a damaged file are refused before anything is
 /// copied.
 fn check_mosaic_shares(whole: &Path, tmp: &Path) {
     let copy = tmp.join("shares-scan");

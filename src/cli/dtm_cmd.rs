@@ -205,8 +205,11 @@ fn run_tile(
         }
     }
     let mut geometry = Vec::new();
+    let mut pixels = Vec::new();
     for k in 0..p.photos.len() {
-        geometry.push(pipeline2::load_photo(&p, k, &scan_photo)?.geometry());
+        let ph = pipeline2::load_photo(&p, k, &scan_photo)?;
+        geometry.push(ph.geometry());
+        pixels.push(tiles::pixels_fnv64(&ph.image));
     }
     let plan = pipeline2::plan(&p, &geometry, max_memory)?;
     let units = spec.units(plan.units());
@@ -227,7 +230,12 @@ fn run_tile(
     let absolute = std::fs::canonicalize(project)
         .with_context(|| format!("resolving {}", project.display()))?;
     let ids: Vec<String> = p.photos.iter().map(|ph| ph.id.clone()).collect();
-    let m = tiles::write_tile(out, &absolute, &bytes, spec, &plan, &ids, &parts)?;
+    let source = tiles::Inputs {
+        project: &absolute,
+        project_bytes: &bytes,
+        inputs_fnv64: tiles::inputs_fingerprint(&plan, &pixels),
+    };
+    let m = tiles::write_tile(out, &source, spec, &plan, &ids, &parts)?;
     if json {
         println!("{}", serde_json::to_string(&m)?);
     } else {
@@ -273,6 +281,11 @@ fn merge(
     }
     let set = tiles::check_set(set)?;
     let m0 = &set[0].1;
+    eprintln!(
+        "rig dtm merge: {} shares of {}",
+        set.len(),
+        m0.project.display()
+    );
     let bytes = std::fs::read(&m0.project).with_context(|| {
         format!(
             "reading the project the tiles name, {}",
@@ -291,6 +304,18 @@ fn merge(
     let photos = pipeline2::load_photos(&p, &scan_photo)?;
     let geometry: Vec<_> = photos.iter().map(|ph| ph.geometry()).collect();
     let plan = pipeline2::plan(&p, &geometry, max_memory)?;
+    let pixels: Vec<String> = photos
+        .iter()
+        .map(|ph| tiles::pixels_fnv64(&ph.image))
+        .collect();
+    let now = tiles::inputs_fingerprint(&plan, &pixels);
+    if now != m0.inputs_fnv64 {
+        anyhow::bail!(
+            "the photos, points or orientations of {} changed since the tiles were swept (their hash was {}, it is {now}): sweep the tiles again",
+            m0.project.display(),
+            m0.inputs_fnv64
+        );
+    }
     if plan.units() != m0.total_units {
         anyhow::bail!(
             "the tiles split {} units of work, the project now gives {}: sweep the tiles again",

@@ -86,6 +86,10 @@ pub struct TileManifest {
     /// refuses it changed.
     pub project: PathBuf,
     pub project_fnv64: String,
+    /// A hash of everything the sweep's heights depend on besides the project file: the plan
+    /// (orientations from the points, mappings, parameters) and every photo's pixels. Shares
+    /// and the merge must agree on it.
+    pub inputs_fnv64: String,
     pub tile: usize,
     pub of: usize,
     pub units: [usize; 2],
@@ -133,8 +137,7 @@ fn encode(b: &SweptBands) -> Vec<u8> {
 /// into `dir`; every file atomically.
 pub fn write_tile(
     dir: &Path,
-    project: &Path,
-    project_bytes: &[u8],
+    source: &Inputs<'_>,
     spec: TileSpec,
     plan: &Plan,
     photo_ids: &[String],
@@ -163,8 +166,9 @@ pub fn write_tile(
     let m = TileManifest {
         format: FORMAT.into(),
         rig_version: env!("CARGO_PKG_VERSION").into(),
-        project: project.to_path_buf(),
-        project_fnv64: crate::atomic::fnv64(project_bytes),
+        project: source.project.to_path_buf(),
+        project_fnv64: crate::atomic::fnv64(source.project_bytes),
+        inputs_fnv64: source.inputs_fnv64.clone(),
         tile: spec.index,
         of: spec.count,
         units: [u.start, u.end],
@@ -178,7 +182,43 @@ pub fn write_tile(
 
 /// The name of a part's file in its tile directory.
 fn part_file(pair: usize, bands: Range<usize>) -> String {
-    format!("pair-{}-bands-{}-{}.f32", pair + 1, bands.start, bands.end)
+    format!(
+        "pair-{}-bands-{}-{}.f32",
+        pair.saturating_add(1),
+        bands.start,
+        bands.end
+    )
+}
+
+/// What a share was swept from: the project file (its absolute path and bytes) and the hash of
+/// the plan and the photos' pixels ([`inputs_fingerprint`]).
+pub struct Inputs<'a> {
+    pub project: &'a Path,
+    pub project_bytes: &'a [u8],
+    pub inputs_fnv64: String,
+}
+
+/// The hash of a plan and of each photo's pixels (`pixels[k]`: [`pixels_fnv64`] of photo k).
+pub fn inputs_fingerprint(plan: &Plan, pixels: &[String]) -> String {
+    // The plan's Debug form writes every number exactly (shortest round-trip form); the
+    // budget (--max-memory) may differ between machines and changes no height.
+    let mut q = plan.clone();
+    q.budget = super::pmf_dtm::Budget {
+        max_memory_mb: 0,
+        max_candidates: 0.0,
+    };
+    let mut text = format!("{q:?}");
+    for p in pixels {
+        text.push('\n');
+        text.push_str(p);
+    }
+    crate::atomic::fnv64(text.as_bytes())
+}
+
+/// The hash of an image's pixels.
+pub fn pixels_fnv64(img: &crate::image::ImageF32) -> String {
+    let bytes: Vec<u8> = img.data.iter().flat_map(|v| v.to_le_bytes()).collect();
+    crate::atomic::fnv64(&bytes)
 }
 
 /// Files a tile directory may hold (a rerun of the same tile replaces them).
@@ -190,6 +230,14 @@ pub fn is_tile_output(name: &str) -> bool {
 /// Reads a tile directory's manifest.
 pub fn read_manifest(dir: &Path) -> Result<TileManifest, TileError> {
     let path = dir.join(MANIFEST);
+    if std::fs::symlink_metadata(&path)
+        .is_ok_and(|m| !m.file_type().is_file() || m.len() > 64 << 20)
+    {
+        return Err(TileError::Damaged {
+            path,
+            message: "not a regular file of at most 64 MiB".into(),
+        });
+    }
     let text = std::fs::read_to_string(&path).map_err(|cause| {
         if cause.kind() == std::io::ErrorKind::NotFound {
             TileError::Damaged {
@@ -237,6 +285,13 @@ pub fn check_set(
                 "project",
                 &format!("{} ({})", m0.project.display(), m0.project_fnv64),
                 &format!("{} ({})", m.project.display(), m.project_fnv64),
+            ));
+        }
+        if m.inputs_fnv64 != m0.inputs_fnv64 {
+            return Err(differs(
+                "inputs (photos, points, orientations) hashing to",
+                &m0.inputs_fnv64,
+                &m.inputs_fnv64,
             ));
         }
         if m.of != m0.of {
@@ -326,6 +381,23 @@ pub fn check_shares(shares: &[(&Path, usize, usize)]) -> Result<Vec<usize>, Tile
 
 /// Reads the parts a tile's manifest lists, each checked against the plan of the merge.
 pub fn read_parts(dir: &Path, m: &TileManifest, plan: &Plan) -> Result<Vec<PairPart>, TileError> {
+    // Exactly the parts the rig sweeps for this share, in order: nothing twice, nothing of
+    // another share, so memory stays that of the share.
+    let want: Vec<(usize, [usize; 2])> = plan
+        .bands_of(m.units[0]..m.units[1])
+        .into_iter()
+        .map(|(k, b)| (k, [b.start, b.end]))
+        .collect();
+    let have: Vec<(usize, [usize; 2])> = m.parts.iter().map(|e| (e.pair, e.bands)).collect();
+    if have != want {
+        return Err(TileError::Damaged {
+            path: dir.join(MANIFEST),
+            message: format!(
+                "its parts (pair, bands) {have:?} are not those of share {}/{}, {want:?}",
+                m.tile, m.of
+            ),
+        });
+    }
     let mut out = Vec::new();
     for e in &m.parts {
         // Only the name the rig gives such a part: nothing outside the directory is read.
@@ -363,6 +435,16 @@ pub fn read_parts(dir: &Path, m: &TileManifest, plan: &Plan) -> Result<Vec<PairP
             return Err(damaged(format!(
                 "rows {:?} with {} cells; the plan has rows {rows:?} with {cells}",
                 e.rows, e.cells
+            )));
+        }
+        // A regular file of the right size before anything is read (not a device or a pipe).
+        let meta = std::fs::symlink_metadata(&path).map_err(io(&path))?;
+        if !meta.file_type().is_file() || meta.len() != 12 * cells as u64 {
+            return Err(damaged(format!(
+                "{} bytes of a {}, 3 × {cells} f32 ({} bytes) expected: the file is damaged or cut short",
+                meta.len(),
+                if meta.file_type().is_file() { "file" } else { "non-file" },
+                12 * cells
             )));
         }
         let bytes = std::fs::read(&path).map_err(io(&path))?;

@@ -144,8 +144,33 @@ pub fn mosaic_share(
     Ok(m)
 }
 
+/// A share's file, read only when it is a regular file of at most `max` bytes (not a device,
+/// a pipe or a link to one).
+fn read_regular(path: &Path, max: u64) -> Result<Vec<u8>, ShareError> {
+    let meta = std::fs::symlink_metadata(path).map_err(io(path))?;
+    if !meta.file_type().is_file() || meta.len() > max {
+        return Err(ShareError::Refused(format!(
+            "{}: not a regular file of at most {} MiB",
+            path.display(),
+            max >> 20
+        )));
+    }
+    std::fs::read(path).map_err(io(path))
+}
+
+/// Largest file of a share read: a photo's TIFF within the rig's TIFF limit, with room.
+const MAX_SHARE_FILE: u64 = (crate::digitise::output::MAX_TIFF_BYTES as u64) + (64 << 20);
+
 fn read_manifest(dir: &Path) -> Result<ShareManifest, ShareError> {
     let path = dir.join(MANIFEST);
+    if std::fs::symlink_metadata(&path)
+        .is_ok_and(|m| !m.file_type().is_file() || m.len() > 64 << 20)
+    {
+        return Err(ShareError::Refused(format!(
+            "{}: not a regular file of at most 64 MiB",
+            path.display()
+        )));
+    }
     let text = std::fs::read_to_string(&path).map_err(|cause| {
         if cause.kind() == std::io::ErrorKind::NotFound {
             ShareError::Refused(format!(
@@ -213,6 +238,11 @@ pub fn merge_shares(
         .collect();
     let order = check_shares(&shares)?;
     let into = into.map_or_else(|| m0.scan.clone(), Path::to_path_buf);
+    eprintln!(
+        "rig scan merge: {} shares into {}",
+        set.len(),
+        into.display()
+    );
     let mut sd = ScanDir::open(&into, &Reopen::default())?;
     let scan_manifest = into.join(SCAN_MANIFEST);
     let now = fnv64(&std::fs::read(&scan_manifest).map_err(io(&scan_manifest))?);
@@ -257,7 +287,7 @@ pub fn merge_shares(
             }
             for f in &p.files {
                 let path = d.join(&f.file);
-                let bytes = std::fs::read(&path).map_err(io(&path))?;
+                let bytes = read_regular(&path, MAX_SHARE_FILE)?;
                 if fnv64(&bytes) != f.hash {
                     return Err(ShareError::Refused(format!(
                         "{}: its bytes changed since the share was mosaicked (damaged or cut short): mosaic share {}/{} again",
@@ -275,7 +305,7 @@ pub fn merge_shares(
         for p in &m.photos {
             for f in &p.files {
                 let (from, to) = (d.join(&f.file), into.join(&f.file));
-                let bytes = std::fs::read(&from).map_err(io(&from))?;
+                let bytes = read_regular(&from, MAX_SHARE_FILE)?;
                 if fnv64(&bytes) != f.hash {
                     return Err(ShareError::Refused(format!(
                         "{}: changed while the shares were merged",
