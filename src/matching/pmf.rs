@@ -95,6 +95,8 @@ pub struct Polynomial {
 pub enum PmfError {
     #[error("{points} control points for {terms} terms: a fit needs more points than terms")]
     TooFewPoints { points: usize, terms: usize },
+    #[error("{points} control points: mapping functions need at least {need} (the first-order form's 4 terms and {REDUNDANCY} to check the fit); measure more control points, or use from = \"rigorous\" (4 or more points per photo)")]
+    TooFewForMappings { points: usize, need: usize },
     #[error("the control points do not determine the terms (all in a line or at one height?)")]
     Singular,
     #[error("no check points: the terms are chosen by the check points' RMSE")]
@@ -187,6 +189,9 @@ fn independent(terms: &[Term], norm: &Normaliser, gcps: &[Sample]) -> Vec<Term> 
     kept
 }
 
+/// Control points a fit must have beyond its terms, so that its residuals show something.
+pub const REDUNDANCY: usize = 2;
+
 /// Seed 000 §2.1: from the full form of `order`, remove in turn the term whose removal lowers
 /// the check points' RMSE most, until no removal lowers it. Coefficients always from the
 /// control points alone.
@@ -194,12 +199,13 @@ pub fn select(order: u8, gcps: &[Sample], cps: &[Sample]) -> Result<Selection, P
     if cps.is_empty() {
         return Err(PmfError::NoCheckPoints);
     }
-    // Even a first-order mapping (x, y and the height, and a constant) needs more points than
-    // its four terms; with fewer there is nothing to fit or to choose from.
-    if gcps.len() < 5 {
-        return Err(PmfError::TooFewPoints {
+    // Even a first-order mapping (x, y and the height, and a constant) needs its four terms
+    // and a redundancy that shows whether it fits; with fewer there is nothing to choose from.
+    let need = 4 + REDUNDANCY;
+    if gcps.len() < need {
+        return Err(PmfError::TooFewForMappings {
             points: gcps.len(),
-            terms: 4,
+            need,
         });
     }
     if gcps
@@ -224,8 +230,9 @@ pub fn select(order: u8, gcps: &[Sample], cps: &[Sample]) -> Result<Selection, P
             missing: missing.join(", "),
         });
     }
-    // Too few points for the full form: the highest terms go first.
-    while terms.len() >= gcps.len() && terms.len() > 1 {
+    // Too few points for the full form with its redundancy: the highest terms go first (the
+    // first-order ones, the height's among them, stay: there are points enough for them).
+    while terms.len() + REDUNDANCY > gcps.len() && terms.len() > 4 {
         terms.pop();
     }
     let mut best = Polynomial::fit(&terms, &norm, gcps)?;
@@ -237,6 +244,12 @@ pub fn select(order: u8, gcps: &[Sample], cps: &[Sample]) -> Result<Selection, P
         for k in 0..terms.len() {
             let mut t = terms.clone();
             t.remove(k);
+            // The height's last term never goes: without it a sweep along the mapping sees no
+            // parallax and every height would score the same (a flat block's check points may
+            // prefer it, their heights varying too little to show its use).
+            if !t.iter().any(|u| u.2 > 0) {
+                continue;
+            }
             let Ok(p) = Polynomial::fit(&t, &norm, gcps) else {
                 continue;
             };
@@ -323,5 +336,58 @@ mod tests {
             assert!(kept.contains(&t), "{t} dropped: {kept:?}");
         }
         assert!(kept.len() < 20, "nothing removed");
+    }
+
+    /// A nearly flat block: the value hardly depends on the height, and the control points'
+    /// errors happen to grow with it, so the check points (at another height) prefer a form
+    /// without any height term. The selection keeps one: a sweep along a mapping without the
+    /// height would see no parallax at all.
+    #[test]
+    fn a_height_term_is_always_kept() {
+        let f = |v: [f64; 3]| 1.0 + 0.5 * v[0] - 0.3 * v[1] + 1e-4 * v[2];
+        let mut gcps = Vec::new();
+        let mut cps = Vec::new();
+        for i in 0..3 {
+            for j in 0..3 {
+                let h = 400.0 + ((i * 3 + j) % 4) as f64;
+                let v = [i as f64 * 100.0, j as f64 * 100.0, h];
+                gcps.push((v, f(v) + 0.1 * (h - 401.5)));
+                let w = [v[0] + 50.0, v[1] + 50.0, 412.0];
+                cps.push((w, f(w)));
+            }
+        }
+        // Without the rule, the check points would drop h (verified by fitting both forms).
+        let norm = Normaliser::over(&gcps.iter().map(|g| g.0).collect::<Vec<_>>());
+        let with = Polynomial::fit(
+            &[Term(0, 0, 0), Term(1, 0, 0), Term(0, 1, 0), Term(0, 0, 1)],
+            &norm,
+            &gcps,
+        )
+        .unwrap();
+        let without =
+            Polynomial::fit(&[Term(0, 0, 0), Term(1, 0, 0), Term(0, 1, 0)], &norm, &gcps).unwrap();
+        assert!(
+            without.rmse(&cps) < with.rmse(&cps),
+            "the case does not test the rule"
+        );
+        let sel = select(2, &gcps, &cps).unwrap();
+        assert!(
+            sel.poly.terms.iter().any(|t| t.2 > 0),
+            "{:?}",
+            sel.poly.terms
+        );
+    }
+
+    #[test]
+    fn too_few_control_points_are_refused_saying_how_many_are_needed() {
+        let g: Vec<Sample> = (0..5)
+            .map(|k| ([k as f64, (k * k) as f64, (k % 3) as f64], k as f64))
+            .collect();
+        let e = select(2, &g, &g).unwrap_err();
+        assert!(
+            matches!(e, PmfError::TooFewForMappings { points: 5, need: 6 }),
+            "{e:?}"
+        );
+        assert!(e.to_string().contains("at least 6"), "{e}");
     }
 }
