@@ -268,3 +268,35 @@ fn a_killed_run_can_be_run_again_and_foreign_files_are_kept() {
     assert!(refused.stderr.contains("notes.txt"), "{}", refused.stderr);
     assert_eq!(std::fs::read(out.join("notes.txt")).unwrap(), b"mine");
 }
+
+/// Heights that miss the terrain: the run finishes and warns (matches piled at a bound, few
+/// matched), exit 0; with --strict the same outputs and exit 12.
+#[test]
+fn heights_that_miss_the_terrain_warn_and_strict_makes_it_an_exit_code() {
+    let text = with("matching", "h_min", "1500.0");
+    let text: String = text
+        .lines()
+        .map(|l| {
+            if l.split('=').next().map(str::trim) == Some("h_max") {
+                "h_max = 1600.0".to_string()
+            } else {
+                l.to_string()
+            }
+        })
+        .collect::<Vec<_>>()
+        .join("\n");
+    assert!(text.contains("h_max = 1600.0"), "{text}");
+    let (code, said) = dtm(&text, &[]);
+    assert_eq!(code, Some(0), "{said}");
+    assert!(said.contains("rig dtm: warning:"), "{said}");
+    let (code, said) = dtm(&text, &["--strict"]);
+    assert_eq!(code, Some(rig::exit::DOUBTFUL), "{said}");
+    assert!(said.contains("rig dtm: warning:"), "{said}");
+    // A run that finds the terrain does not warn, --strict or not.
+    let (code, said) = dtm(
+        &std::fs::read_to_string(scene().join("project.toml")).unwrap(),
+        &["--strict"],
+    );
+    assert_eq!(code, Some(0), "{said}");
+    assert!(!said.contains("warning"), "{said}");
+}

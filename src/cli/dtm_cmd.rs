@@ -40,6 +40,10 @@ pub struct RunOptions {
     /// Print the report as JSON.
     #[arg(long)]
     pub json: bool,
+    /// Exit 12 when the run warns (heights piled at a bound of the range tried, few points
+    /// matched); the outputs are written all the same.
+    #[arg(long)]
+    pub strict: bool,
 }
 
 #[derive(Debug, Subcommand)]
@@ -155,8 +159,11 @@ fn scan_photo(sidecar: &std::path::Path) -> Result<rig::matching::pipeline::Phot
 fn run_format2(
     project: &std::path::Path,
     out: &std::path::Path,
-    max_memory: Option<u64>,
-    json: bool,
+    RunOptions {
+        max_memory,
+        json,
+        strict,
+    }: RunOptions,
 ) -> anyhow::Result<i32> {
     use rig::matching::pipeline2;
     use rig::matching::project2::Project2;
@@ -164,7 +171,7 @@ fn run_format2(
     let photos = pipeline2::load_photos(&p, &scan_photo)?;
     let bar = super::progress_bar::Bar::new(!json);
     let r = pipeline2::run(&p, &photos, out, max_memory, &bar)?;
-    print_format2(&p, &r, out, json)
+    print_format2(&p, &r, out, json, strict)
 }
 
 /// Share `spec` of a format-2 run into `out`: the plan from every photo's geometry (each
@@ -269,8 +276,11 @@ fn run_tile(
 fn merge(
     dirs: &[PathBuf],
     out: &std::path::Path,
-    max_memory: Option<u64>,
-    json: bool,
+    RunOptions {
+        max_memory,
+        json,
+        strict,
+    }: RunOptions,
 ) -> anyhow::Result<i32> {
     use rig::matching::pipeline2;
     use rig::matching::project2::Project2;
@@ -328,7 +338,7 @@ fn merge(
         parts.extend(tiles::read_parts(d, m, &plan)?);
     }
     let r = pipeline2::finish(&p, &plan, parts, &photos, out)?;
-    print_format2(&p, &r, out, json)
+    print_format2(&p, &r, out, json, strict)
 }
 
 /// The report of a format-2 run (single or merged).
@@ -337,15 +347,23 @@ fn print_format2(
     r: &rig::matching::pipeline2::Report2,
     out: &std::path::Path,
     json: bool,
+    strict: bool,
 ) -> anyhow::Result<i32> {
+    let mut warned = false;
     for pr in &r.pairs {
-        if let Some(w) = pr.dtm.pile_warning() {
+        for w in pr.dtm.warnings() {
             eprintln!("rig dtm: warning: photos {} × {}: {w}", pr.left, pr.right);
+            warned = true;
         }
     }
+    let code = if strict && warned {
+        rig::exit::DOUBTFUL
+    } else {
+        rig::exit::OK
+    };
     if json {
         println!("{}", serde_json::to_string(r)?);
-        return Ok(0);
+        return Ok(code);
     }
     println!(
         "{} photos, {} pairs swept, heights {:.0}…{:.0} m; CRS {}",
@@ -404,7 +422,7 @@ fn print_format2(
         out.display(),
         if r.comparison.is_some() { ", error.png" } else { "" }
     );
-    Ok(0)
+    Ok(code)
 }
 
 pub fn run(a: DtmArgs) -> anyhow::Result<i32> {
@@ -417,7 +435,7 @@ pub fn run(a: DtmArgs) -> anyhow::Result<i32> {
                 (Ok(2), Some(spec)) => {
                     return run_tile(&project, spec, &out, a.run.max_memory, a.run.json)
                 }
-                (Ok(2), None) => return run_format2(&project, &out, a.run.max_memory, a.run.json),
+                (Ok(2), None) => return run_format2(&project, &out, a.run),
                 (Ok(_), Some(_)) => {
                     eprintln!("rig dtm: --tile splits format-2 projects; {} is format 1 (one scanned pair): run it whole, or write it as format 2 (see the README)", project.display());
                     return Ok(rig::exit::USAGE);
@@ -443,9 +461,13 @@ pub fn run(a: DtmArgs) -> anyhow::Result<i32> {
         }
     };
     match action {
-        DtmAction::Merge { tiles, out, run } => merge(&tiles, &out, run.max_memory, run.json),
+        DtmAction::Merge { tiles, out, run } => merge(&tiles, &out, run),
         DtmAction::Pmf { project, out, run } => {
-            let RunOptions { max_memory, json } = run;
+            let RunOptions {
+                max_memory,
+                json,
+                strict,
+            } = run;
             let p = Project::load(&project)?;
             let load = |f: &PathBuf| {
                 ScannedPhoto::load_photo(f)
@@ -454,7 +476,8 @@ pub fn run(a: DtmArgs) -> anyhow::Result<i32> {
             let (left, right) = (load(&p.photos.left)?, load(&p.photos.right)?);
             let bar = super::progress_bar::Bar::new(!json);
             let (r, report) = pipeline::run(&p, [&left, &right], &out, max_memory, &bar)?;
-            if let Some(w) = r.report.pile_warning() {
+            let warnings = r.report.warnings();
+            for w in &warnings {
                 eprintln!("rig dtm: warning: {w}");
             }
             if json {
@@ -473,7 +496,11 @@ pub fn run(a: DtmArgs) -> anyhow::Result<i32> {
                 if report.dtm.comparison.is_some() { ", error.png" } else { "" }
             );
             }
-            Ok(0)
+            Ok(if strict && !warnings.is_empty() {
+                rig::exit::DOUBTFUL
+            } else {
+                rig::exit::OK
+            })
         }
     }
 }

@@ -124,7 +124,7 @@ impl RunReport {
                 ),
             ));
         }
-        if let Some(w) = d.pile_warning() {
+        for w in d.warnings() {
             v.push(("warning".into(), w));
         }
         v

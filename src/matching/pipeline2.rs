@@ -122,7 +122,7 @@ impl Report2 {
                     pr.h_step_m, pr.dtm.matched_percent, pr.points
                 ),
             ));
-            if let Some(w) = pr.dtm.pile_warning() {
+            for w in pr.dtm.warnings() {
                 v.push(("warning".into(), w));
             }
         }

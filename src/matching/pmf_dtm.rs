@@ -117,7 +117,23 @@ fn highest_tried(s: &super::sweep::SweepParams) -> f64 {
 /// The share of matches piled at a bound above which a run warns, %.
 pub const PILE_WARNING_PERCENT: f64 = 2.0;
 
+/// Below this share of the reference photo's points matched, a run warns, %: seed 000 matched
+/// most of its photo; far fewer means heights or mappings that miss the terrain.
+pub const LOW_COVERAGE_PERCENT: f64 = 50.0;
+
 impl PmfDtmReport {
+    /// Every warning of the pair's run: heights piled at a bound, few points matched.
+    pub fn warnings(&self) -> Vec<String> {
+        let mut v: Vec<String> = self.pile_warning().into_iter().collect();
+        if self.matched_percent < LOW_COVERAGE_PERCENT {
+            v.push(format!(
+                "only {:.1} % of the reference photo's points matched (a run that finds the terrain matches most of them): the heights tried or the mappings may miss the terrain",
+                self.matched_percent
+            ));
+        }
+        v
+    }
+
     /// A warning when the matches pile at a bound of the heights tried; `None` when not.
     pub fn pile_warning(&self) -> Option<String> {
         let s = &self.params.sweep;
