@@ -300,3 +300,22 @@ fn heights_that_miss_the_terrain_warn_and_strict_makes_it_an_exit_code() {
     assert_eq!(code, Some(0), "{said}");
     assert!(!said.contains("warning"), "{said}");
 }
+
+/// `order = "auto"`: the check points choose each mapping's order; the report says which. A
+/// word other than "auto" is refused naming the field.
+#[test]
+fn the_mapping_order_can_be_left_to_the_check_points() {
+    let (code, said) = dtm(&with("pmf", "order", "\"auto\""), &["--json"]);
+    assert_eq!(code, Some(0), "{said}");
+    let json = said.lines().find(|l| l.starts_with('{')).unwrap();
+    let v: serde_json::Value = serde_json::from_str(json).unwrap();
+    let fits = v["pmf"].as_array().unwrap();
+    assert!(!fits.is_empty());
+    for f in fits {
+        let o = f["order"].as_u64().unwrap();
+        assert!((1..=3).contains(&o), "{f}");
+    }
+    let (code, said) = dtm(&with("pmf", "order", "\"cubic\""), &[]);
+    assert_ne!(code, Some(0));
+    assert!(said.contains("order") && said.contains("auto"), "{said}");
+}

@@ -277,6 +277,43 @@ pub fn select(order: u8, gcps: &[Sample], cps: &[Sample]) -> Result<Selection, P
     })
 }
 
+/// The highest order a mapping is fitted with.
+pub const MAX_ORDER: u8 = 3;
+
+/// The share of the lower order's check-point RMSE a higher order must stay below to be taken.
+pub const HIGHER_ORDER_GAIN: f64 = 0.95;
+
+/// The order by evidence (seed 000's own criterion, one level up): [`select`] from the full
+/// form of each order 1…[`MAX_ORDER`], the one whose check points fit best kept (a higher
+/// order only when it fits them clearly better, see [`HIGHER_ORDER_GAIN`]). Returns it with its
+/// order.
+pub fn select_order(gcps: &[Sample], cps: &[Sample]) -> Result<(u8, Selection), PmfError> {
+    let mut best: Option<(u8, Selection)> = None;
+    let mut first_error = None;
+    for order in 1..=MAX_ORDER {
+        match select(order, gcps, cps) {
+            Ok(s) => {
+                // A higher order must lower the check points' RMSE by more than 5 %: what is
+                // within their noise does not buy the extra terms.
+                if best
+                    .as_ref()
+                    .is_none_or(|b| s.cp_rmse < HIGHER_ORDER_GAIN * b.1.cp_rmse)
+                {
+                    best = Some((order, s));
+                }
+            }
+            Err(e) => {
+                first_error.get_or_insert(e);
+            }
+        }
+    }
+    match (best, first_error) {
+        (Some(b), _) => Ok(b),
+        (None, Some(e)) => Err(e),
+        (None, None) => Err(PmfError::Singular),
+    }
+}
+
 /// Two polynomials of the same variables: a mapping to a 2-D space.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Mapping {
@@ -389,5 +426,40 @@ mod tests {
             "{e:?}"
         );
         assert!(e.to_string().contains("at least 6"), "{e}");
+    }
+
+    /// A cubic in x: the order chosen by the check points is 3, and its check points fit
+    /// better than the best of order 2; a plane stays at order 1.
+    #[test]
+    fn the_order_is_chosen_by_the_check_points() {
+        let grid = |f: &dyn Fn([f64; 3]) -> f64, off: f64| -> Vec<Sample> {
+            let mut v = Vec::new();
+            for i in 0..6 {
+                for j in 0..5 {
+                    for k in 0..3 {
+                        let p = [i as f64 + off, j as f64 + off, k as f64 + 0.5 * off];
+                        // Measuring noise of ±0.005, the same draw every run.
+                        let seed = (i * 31 + j * 17 + k * 7) as f64 + 1000.0 * off;
+                        let n = ((seed * 12.9898).sin() * 43_758.545).fract() * 0.01 - 0.005;
+                        v.push((p, f(p) + n));
+                    }
+                }
+            }
+            v
+        };
+        let cubic = |p: [f64; 3]| 1.0 + p[0] - 0.5 * p[2] + 0.05 * p[0].powi(3);
+        let (g, c) = (grid(&cubic, 0.0), grid(&cubic, 0.37));
+        let (order, s) = select_order(&g, &c).unwrap();
+        assert_eq!(order, 3, "{s:?}");
+        let two = select(2, &g, &c).unwrap();
+        assert!(
+            s.cp_rmse < 0.1 * two.cp_rmse,
+            "{} vs {}",
+            s.cp_rmse,
+            two.cp_rmse
+        );
+        let plane = |p: [f64; 3]| 2.0 + 0.3 * p[0] - p[1] + 0.1 * p[2];
+        let (g, c) = (grid(&plane, 0.0), grid(&plane, 0.37));
+        assert_eq!(select_order(&g, &c).unwrap().0, 1);
     }
 }

@@ -5,7 +5,7 @@
 //! three heights (seed 004 §4), the check points then at the cells' centres at two heights in
 //! between. Image coordinates are pixels of each photo (continuous, corner origin).
 
-use super::pmf::{select, Mapping, PmfError, Polynomial, Sample, Selection};
+use super::pmf::{select, select_order, Mapping, PmfError, Polynomial, Sample, Selection};
 use crate::coords::{GroundM, PixelXY};
 use crate::geometry::Sensor;
 use serde::{Deserialize, Serialize};
@@ -24,6 +24,9 @@ pub struct StereoPoint {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct FitReport {
     pub name: String,
+    /// The order whose full form the terms were chosen from (given, or by the check points).
+    #[serde(default)]
+    pub order: u8,
     pub terms: usize,
     pub gcp_rmse: f64,
     pub cp_rmse: f64,
@@ -55,9 +58,15 @@ fn chosen(
     c: &[Sample],
     report: &mut Vec<FitReport>,
 ) -> Result<Polynomial, PmfError> {
-    let s: Selection = select(order, g, c)?;
+    // Order 0: chosen by the check points among 1 … 3.
+    let (order, s): (u8, Selection) = if order == 0 {
+        select_order(g, c)?
+    } else {
+        (order, select(order, g, c)?)
+    };
     report.push(FitReport {
         name: name.into(),
+        order,
         terms: s.poly.terms.len(),
         gcp_rmse: s.gcp_rmse,
         cp_rmse: s.cp_rmse,

@@ -33,11 +33,29 @@ pub struct Points {
     pub file: PathBuf,
 }
 
+/// A mapping order: a number, or "auto" (0: chosen by the check points).
+pub(crate) fn order_or_auto<'de, D: serde::Deserializer<'de>>(d: D) -> Result<u8, D::Error> {
+    #[derive(Deserialize)]
+    #[serde(untagged)]
+    enum O {
+        N(u8),
+        S(String),
+    }
+    match O::deserialize(d)? {
+        O::N(n) => Ok(n),
+        O::S(s) if s == "auto" => Ok(0),
+        O::S(s) => Err(serde::de::Error::custom(format!(
+            "order `{s}`: 1, 2, 3, or \"auto\""
+        ))),
+    }
+}
+
 #[derive(Debug, Clone, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct PmfSection {
-    /// Terms are chosen from the full form of this order (seed 000 started from 2).
-    #[serde(default = "two")]
+    /// Terms are chosen from the full form of this order (seed 000 started from 2); 0, or
+    /// "auto", lets the check points choose it among 1 … 3.
+    #[serde(default = "two", deserialize_with = "order_or_auto")]
     pub order: u8,
     /// Where the mappings come from: fitted to the control points (seed 000), or derived
     /// from each photo's exterior orientation, resected from the control points, on a 5×5
@@ -296,8 +314,11 @@ impl Project {
                 m.h_step
             ));
         }
-        if !(1..=3).contains(&self.pmf.order) {
-            return Err(format!("[pmf] order {}: 1, 2 or 3", self.pmf.order));
+        if !(0..=3).contains(&self.pmf.order) {
+            return Err(format!(
+                "[pmf] order {}: 1, 2, 3, or \"auto\" (the check points choose)",
+                self.pmf.order
+            ));
         }
         let r = &self.regions;
         check_sweep(

@@ -101,8 +101,12 @@ pub struct Matching2 {
     pub stride: usize,
     #[serde(default = "d_true")]
     pub neighbours: bool,
-    /// Order of the mapping functions derived from the sensors (seed 004: 3).
-    #[serde(default = "d_order")]
+    /// Order of the mapping functions derived from the sensors (seed 004: 3); "auto": chosen
+    /// by the check points among 1 … 3.
+    #[serde(
+        default = "d_order",
+        deserialize_with = "super::project::order_or_auto"
+    )]
     pub order: u8,
     #[serde(default = "d_search")]
     pub search_distance: usize,
@@ -403,8 +407,11 @@ impl Project2 {
                 return Err(bad(format!("[matching] h_step {s}: 0.001 to 1000 m")));
             }
         }
-        if !(1..=3).contains(&m.order) {
-            return Err(bad(format!("[matching] order {}: 1, 2 or 3", m.order)));
+        if !(0..=3).contains(&m.order) {
+            return Err(bad(format!(
+                "[matching] order {}: 1, 2, 3, or \"auto\" (the check points choose)",
+                m.order
+            )));
         }
         check_sweep(
             ("[matching]", "[matching]"),
