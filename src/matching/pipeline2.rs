@@ -702,3 +702,37 @@ pub fn finish(
     .map_err(write)?;
     Ok(report)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::coords::PhotoMm;
+    use crate::geometry::Exterior;
+
+    fn vertical(x0: f64, z0: f64) -> FrameSensor {
+        FrameSensor {
+            camera: FrameCamera {
+                interior: Interior {
+                    focal_mm: 153.0,
+                    principal_point: PhotoMm::new(0.0, 0.0),
+                },
+                exterior: Exterior::from_degrees(0.0, 0.0, 0.0, GroundM::new(x0, 0.0, z0)),
+            },
+            frame: centred_grid(2000, 2000, 0.1).into(),
+        }
+    }
+
+    /// Two vertical photos with base B at height Z₀: x-parallax p = f·B/(Z₀ − h) (in pixels of
+    /// size s: /s), so dp/dh = f·B/(s·(Z₀ − h)²); the step is half a pixel of it, in metres.
+    #[test]
+    fn the_step_is_half_a_pixel_of_parallax() {
+        let (b, z0, h) = (2500.0, 6900.0, 400.0);
+        let (l, r) = (vertical(0.0, z0), vertical(b, z0));
+        let got = parallax_step(&l, &r, h).unwrap();
+        let px_per_m = 153.0 * b / (0.1 * (z0 - h) * (z0 - h));
+        let want = 0.5 / px_per_m;
+        assert!((got - want).abs() < 0.01 * want, "{got} m vs {want} m");
+        // A pair with no base has no parallax: no step from it.
+        assert_eq!(parallax_step(&l, &vertical(0.0, z0), h), None);
+    }
+}
