@@ -156,18 +156,35 @@ impl Candidates<'_> {
         )
     }
 
+    /// Whether the search window of step `i` lies inside the right photo (bilinear
+    /// resampling reads one pixel beyond each sample).
+    fn seen(&self, i: i64) -> bool {
+        let h = self.p.h_min + i as f64 * self.p.h_step;
+        let q = self.map.eval([self.px[0], self.px[1], h]);
+        let k = (self.p.window / 2) as f64;
+        let (w, hh) = (self.right.width as f64, self.right.height as f64);
+        q[0] - k >= 0.0
+            && q[1] - k >= 0.0
+            && q[0] + k + 1.0 <= w - 0.5
+            && q[1] + k + 1.0 <= hh - 0.5
+    }
+
     /// The best over steps `lo..=hi`: (step, correlation, the correlations one step below
-    /// and above it).
+    /// and above it); `unseen` is set when a step's window lies beyond the right photo.
     fn best(
         &self,
         lo: i64,
         hi: i64,
         tried: &mut u64,
+        unseen: &mut bool,
     ) -> Option<(i64, f32, Option<f32>, Option<f32>)> {
         let mut best: Option<(i64, f32)> = None;
         let (mut prev, mut below, mut above) = (None, None, None);
         let mut after_best = false;
         for i in lo..=hi {
+            if !self.seen(i) {
+                *unseen = true;
+            }
             let c = self.corr(i, tried);
             if after_best {
                 above = c;
@@ -378,7 +395,8 @@ pub fn sweep_bands(
                         refw,
                         refn,
                     };
-                    let mut got = cand.best(range.0, range.1, &mut tried);
+                    let mut unseen = false;
+                    let mut got = cand.best(range.0, range.1, &mut tried, &mut unseen);
                     let narrowed = range != full;
                     let poor = got.is_none_or(|g| {
                         g.1 < p.threshold as f32
@@ -386,7 +404,14 @@ pub fn sweep_bands(
                             || (g.0 == range.1 && range.1 < n_steps)
                     });
                     if narrowed && poor {
-                        got = cand.best(0, n_steps, &mut tried);
+                        unseen = false;
+                        got = cand.best(0, n_steps, &mut tried, &mut unseen);
+                    }
+                    // Heights the right photo cannot show were not scored: the ground may be
+                    // at one of them, so the best of the others is no answer (seed 000's
+                    // sweep took it, and invented heights along the photos' edges).
+                    if unseen {
+                        continue;
                     }
                     let Some((bi, bc, below, above)) = got else {
                         continue;
@@ -468,5 +493,80 @@ mod tests {
         assert_eq!(height_sigma(f64::NAN, -0.1, 1.0, 81), None);
         assert_eq!(height_sigma(0.9, f64::NAN, 1.0, 81), None);
         assert_eq!(height_sigma(0.9, -0.1, 1.0, 0), None);
+    }
+
+    /// The right photo sees less than the left: where the true height's window lies beyond
+    /// its edge, the sweep must find nothing rather than the best of the heights it can still
+    /// score. Every height it gives is the true one (within two steps), and the columns whose
+    /// match lies outside get none.
+    #[test]
+    fn no_height_is_invented_where_the_right_photo_does_not_see() {
+        use super::super::pmf::{Normaliser, Polynomial, Term};
+        let (w, h) = (160usize, 40usize);
+        // A texture with detail at every scale, the same every run.
+        let tex = |x: f64, y: f64| -> f32 {
+            ((x * 0.71).sin() * (y * 0.53).cos()
+                + (x * 0.23 + y * 0.37).sin()
+                + (x * 1.7 - y * 1.3).sin() * 0.5) as f32
+        };
+        let mut left = ImageF32::new(w, h);
+        for r in 0..h {
+            for c in 0..w {
+                left.data[r * w + c] = tex(c as f64, r as f64);
+            }
+        }
+        // x″ = x′ + 0.5·h: at the true height 40 m the right photo is the left moved 20 px,
+        // and it is 40 px narrower.
+        let (h0, wr) = (40.0, w - 40);
+        let mut right = ImageF32::new(wr, h);
+        for r in 0..h {
+            for c in 0..wr {
+                right.data[r * wr + c] = tex(c as f64 - 0.5 * h0, r as f64);
+            }
+        }
+        let samples: Vec<([f64; 3], f64)> = (0..4)
+            .flat_map(|i| {
+                (0..3).map(move |k| [i as f64 * 50.0, 10.0 + i as f64 * 7.0, k as f64 * 50.0])
+            })
+            .map(|v| (v, v[0] + 0.5 * v[2]))
+            .collect();
+        let norm = Normaliser::over(&samples.iter().map(|s| s.0).collect::<Vec<_>>());
+        let terms = [Term(0, 0, 0), Term(1, 0, 0), Term(0, 0, 1)];
+        let x = Polynomial::fit(&terms, &norm, &samples).unwrap();
+        let ys: Vec<_> = samples.iter().map(|s| (s.0, s.0[1])).collect();
+        let y = Polynomial::fit(&[Term(0, 0, 0), Term(0, 1, 0)], &norm, &ys).unwrap();
+        let map = Mapping { x, y };
+        let p = SweepParams {
+            h_min: 0.0,
+            h_max: 100.0,
+            h_step: 1.0,
+            ..Default::default()
+        };
+        let hm = sweep(&left, &right, &map, &p);
+        let (mut inside, mut outside_matched) = (0, 0);
+        for j in 0..hm.rows {
+            for i in 0..hm.cols {
+                let v = hm.h[j * hm.cols + i];
+                let [c, _] = hm.pixel(i, j);
+                // The true match's window, 9 px wide, centred at c + 20.
+                let sees = c + 0.5 * h0 + 4.5 < wr as f64;
+                if v.is_finite() {
+                    assert!(
+                        (v as f64 - h0).abs() < 2.0,
+                        "column {c}: {v} m, true {h0} m"
+                    );
+                    if sees {
+                        inside += 1;
+                    } else {
+                        outside_matched += 1;
+                    }
+                }
+            }
+        }
+        assert_eq!(
+            outside_matched, 0,
+            "heights invented beyond the right photo's edge"
+        );
+        assert!(inside > 1000, "{inside} matched where the right photo sees");
     }
 }
