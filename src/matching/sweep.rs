@@ -142,9 +142,20 @@ struct Candidates<'a> {
 }
 
 impl Candidates<'_> {
-    fn corr(&self, i: i64, tried: &mut u64) -> Option<f32> {
+    /// The correlation at step `i`; `unseen` is set when its window lies beyond the right
+    /// photo (bilinear resampling reads one pixel beyond each sample).
+    fn corr(&self, i: i64, tried: &mut u64, unseen: &mut bool) -> Option<f32> {
         let h = self.p.h_min + i as f64 * self.p.h_step;
         let q = self.map.eval([self.px[0], self.px[1], h]);
+        let k = (self.p.window / 2) as f64;
+        let (w, hh) = (self.right.width as f64, self.right.height as f64);
+        if !(q[0] - k >= 0.0
+            && q[1] - k >= 0.0
+            && q[0] + k + 1.0 <= w - 0.5
+            && q[1] + k + 1.0 <= hh - 0.5)
+        {
+            *unseen = true;
+        }
         *tried += 1;
         ncc_at(
             self.right,
@@ -154,19 +165,6 @@ impl Candidates<'_> {
             &self.refw,
             self.refn,
         )
-    }
-
-    /// Whether the search window of step `i` lies inside the right photo (bilinear
-    /// resampling reads one pixel beyond each sample).
-    fn seen(&self, i: i64) -> bool {
-        let h = self.p.h_min + i as f64 * self.p.h_step;
-        let q = self.map.eval([self.px[0], self.px[1], h]);
-        let k = (self.p.window / 2) as f64;
-        let (w, hh) = (self.right.width as f64, self.right.height as f64);
-        q[0] - k >= 0.0
-            && q[1] - k >= 0.0
-            && q[0] + k + 1.0 <= w - 0.5
-            && q[1] + k + 1.0 <= hh - 0.5
     }
 
     /// The best over steps `lo..=hi`: (step, correlation, the correlations one step below
@@ -182,10 +180,7 @@ impl Candidates<'_> {
         let (mut prev, mut below, mut above) = (None, None, None);
         let mut after_best = false;
         for i in lo..=hi {
-            if !self.seen(i) {
-                *unseen = true;
-            }
-            let c = self.corr(i, tried);
+            let c = self.corr(i, tried, unseen);
             if after_best {
                 above = c;
                 after_best = false;
