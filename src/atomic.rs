@@ -60,6 +60,24 @@ pub fn fnv64(bytes: &[u8]) -> String {
     format!("{h:016x}")
 }
 
+/// The files in `dir` (none when it does not exist) that are neither `ours` nor the temporary
+/// `NAME.part` of one of ours (a write that was cut short), sorted: what a command must not
+/// write over when it is given an output directory.
+pub fn foreign_files(dir: &Path, ours: impl Fn(&str) -> bool) -> std::io::Result<Vec<String>> {
+    if !dir.exists() {
+        return Ok(Vec::new());
+    }
+    let mut foreign = Vec::new();
+    for e in std::fs::read_dir(dir)? {
+        let name = e?.file_name().to_string_lossy().into_owned();
+        if !ours(name.strip_suffix(".part").unwrap_or(&name)) {
+            foreign.push(name);
+        }
+    }
+    foreign.sort();
+    Ok(foreign)
+}
+
 /// Writes `bytes` to `path` atomically.
 pub fn write(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
     write_with(path, |w| w.write_all(bytes))

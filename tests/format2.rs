@@ -271,40 +271,32 @@ fn check_tiles_and_merge(pf: &Path, single: &Path, dir: &Path) {
         v
     };
     assert_eq!(strip(single), strip(&merged));
+    // A merge that must be refused: its exit code, and what it said.
+    let refused = |tiles: &[std::path::PathBuf]| -> String {
+        let o = rig()
+            .args(["dtm", "merge"])
+            .args(tiles)
+            .arg("--out")
+            .arg(dir.join("x"))
+            .output()
+            .unwrap();
+        let e = String::from_utf8_lossy(&o.stderr).into_owned();
+        assert!(!o.status.success(), "{e}");
+        e
+    };
     // A missing share, a share given twice.
-    let o = rig()
-        .args(["dtm", "merge"])
-        .args([tile(1), tile(2), tile(4)])
-        .arg("--out")
-        .arg(dir.join("x"))
-        .output()
-        .unwrap();
-    let e = String::from_utf8_lossy(&o.stderr);
-    assert!(!o.status.success() && e.contains("missing 3/4"), "{e}");
-    let o = rig()
-        .args(["dtm", "merge"])
-        .args([tile(1), tile(2), tile(2), tile(3), tile(4)])
-        .arg("--out")
-        .arg(dir.join("x"))
-        .output()
-        .unwrap();
-    let e = String::from_utf8_lossy(&o.stderr);
-    assert!(!o.status.success() && e.contains("given twice"), "{e}");
+    let e = refused(&[tile(1), tile(2), tile(4)]);
+    assert!(e.contains("missing 3/4"), "{e}");
+    let e = refused(&[tile(1), tile(2), tile(2), tile(3), tile(4)]);
+    assert!(e.contains("given twice"), "{e}");
     // A damaged part file.
     let m: serde_json::Value =
         serde_json::from_slice(&std::fs::read(tile(1).join("tile.json")).unwrap()).unwrap();
     let part = tile(1).join(m["parts"][0]["file"].as_str().unwrap());
     let bytes = std::fs::read(&part).unwrap();
     std::fs::write(&part, &bytes[..bytes.len() - 4]).unwrap();
-    let o = rig()
-        .args(["dtm", "merge"])
-        .args([tile(1), tile(2), tile(3), tile(4)])
-        .arg("--out")
-        .arg(dir.join("x"))
-        .output()
-        .unwrap();
-    let e = String::from_utf8_lossy(&o.stderr);
-    assert!(!o.status.success() && e.contains("cut short"), "{e}");
+    let e = refused(&[tile(1), tile(2), tile(3), tile(4)]);
+    assert!(e.contains("cut short"), "{e}");
     std::fs::write(&part, &bytes).unwrap();
     // A manifest naming a file outside its directory.
     let manifest = tile(1).join("tile.json");
@@ -312,48 +304,21 @@ fn check_tiles_and_merge(pf: &Path, single: &Path, dir: &Path) {
     let mut m: serde_json::Value = serde_json::from_slice(&good).unwrap();
     m["parts"][0]["file"] = "../tile-2/tile.json".into();
     std::fs::write(&manifest, serde_json::to_vec(&m).unwrap()).unwrap();
-    let o = rig()
-        .args(["dtm", "merge"])
-        .args([tile(1), tile(2), tile(3), tile(4)])
-        .arg("--out")
-        .arg(dir.join("x"))
-        .output()
-        .unwrap();
-    let e = String::from_utf8_lossy(&o.stderr);
-    assert!(!o.status.success() && e.contains("a part named"), "{e}");
+    let e = refused(&[tile(1), tile(2), tile(3), tile(4)]);
+    assert!(e.contains("a part named"), "{e}");
     std::fs::write(&manifest, &good).unwrap();
     // A photo replaced after the sweep (same size, other pixels), the project untouched.
     let photo = dir.join("photo_3.tif");
     let original = std::fs::read(&photo).unwrap();
     std::fs::copy(dir.join("photo_1.tif"), &photo).unwrap();
-    let o = rig()
-        .args(["dtm", "merge"])
-        .args([tile(1), tile(2), tile(3), tile(4)])
-        .arg("--out")
-        .arg(dir.join("x"))
-        .output()
-        .unwrap();
-    let e = String::from_utf8_lossy(&o.stderr);
-    assert!(
-        !o.status.success() && e.contains("changed since the tiles were swept"),
-        "{e}"
-    );
+    let e = refused(&[tile(1), tile(2), tile(3), tile(4)]);
+    assert!(e.contains("changed since the tiles were swept"), "{e}");
     std::fs::write(&photo, &original).unwrap();
     // The project edited after the sweep.
     let text = std::fs::read_to_string(pf).unwrap();
     std::fs::write(pf, text.replace("cell_m = 20.0", "cell_m = 25.0")).unwrap();
-    let o = rig()
-        .args(["dtm", "merge"])
-        .args([tile(1), tile(2), tile(3), tile(4)])
-        .arg("--out")
-        .arg(dir.join("x"))
-        .output()
-        .unwrap();
-    let e = String::from_utf8_lossy(&o.stderr);
-    assert!(
-        !o.status.success() && e.contains("sweep the tiles again"),
-        "{e}"
-    );
+    let e = refused(&[tile(1), tile(2), tile(3), tile(4)]);
+    assert!(e.contains("sweep the tiles again"), "{e}");
     std::fs::write(pf, text).unwrap();
     assert!(!dir.join("x").join("dem.tif").exists());
 }

@@ -256,11 +256,7 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<i32> {
         t0.elapsed().as_secs_f64(),
         out.display()
     );
-    let af = &pixel.calibration;
-    println!(
-        "  pixel → carriage: x-scale {:.4}, y-scale {:.4}, x-shear {:.4}, y-shear {:.4} µm (simulator: 10.19, 10.96, 0.09, 0.10), RMS {:.3} µm",
-        af.x_scale, af.y_scale, af.x_shear, af.y_shear, af.rms_um
-    );
+    println!("  pixel → carriage: {}", pixel_line(&pixel));
     for (k, i) in interiors.iter().enumerate() {
         let v = i.calibration.versions.first();
         println!(
@@ -311,6 +307,16 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<i32> {
     Ok(0)
 }
 
+/// The pixel → carriage calibration against the simulator's values, for the terminal and the
+/// page.
+fn pixel_line(pixel: &PixelResults) -> String {
+    let af = &pixel.calibration;
+    format!(
+        "x-scale {:.4}, y-scale {:.4}, x-shear {:.4}, y-shear {:.4} µm (simulator: 10.19, 10.96, 0.09, 0.10), RMS {:.3} µm",
+        af.x_scale, af.y_scale, af.x_shear, af.y_shear, af.rms_um
+    )
+}
+
 /// `report.html` of the demo: what each step found, its plots and maps, links to the data. Paths
 /// relative to `out`, so the folder can be moved.
 fn demo_page(
@@ -329,16 +335,9 @@ fn demo_page(
             .to_string_lossy()
             .into_owned()
     };
-    let af = &pixel.calibration;
     let mut calibration = Section {
         heading: "Calibration".into(),
-        rows: vec![(
-            "pixel → carriage".into(),
-            format!(
-                "x-scale {:.4}, y-scale {:.4}, x-shear {:.4}, y-shear {:.4} µm (simulator: 10.19, 10.96, 0.09, 0.10), RMS {:.3} µm",
-                af.x_scale, af.y_scale, af.x_shear, af.y_shear, af.rms_um
-            ),
-        )],
+        rows: vec![("pixel → carriage".into(), pixel_line(pixel))],
         pictures: vec![(
             rel(&pixel.session.join("residuals-affine.png")),
             "pixel → carriage: residuals of the affine fit".into(),

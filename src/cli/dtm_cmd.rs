@@ -189,28 +189,7 @@ fn run_tile(
     use rig::matching::tiles;
     let bytes = std::fs::read(project).with_context(|| format!("reading {}", project.display()))?;
     let p = Project2::load(project)?;
-    if out.exists() {
-        let mut foreign = Vec::new();
-        for e in std::fs::read_dir(out).with_context(|| format!("reading {}", out.display()))? {
-            let name = e?.file_name().to_string_lossy().to_string();
-            if !tiles::is_tile_output(&name) {
-                foreign.push(name);
-            }
-        }
-        if !foreign.is_empty() {
-            foreign.sort();
-            anyhow::bail!(
-                "{} holds files that are not a tile's ({}): give an empty or new directory",
-                out.display(),
-                foreign.join(", ")
-            );
-        }
-        // A share that is swept again is whole only when its manifest is written again.
-        let m = out.join(tiles::MANIFEST);
-        if m.exists() {
-            std::fs::remove_file(&m).with_context(|| format!("removing {}", m.display()))?;
-        }
-    }
+    tiles::prepare_dir(out)?;
     let mut geometry = Vec::new();
     let mut pixels = Vec::new();
     for k in 0..p.photos.len() {
@@ -384,10 +363,7 @@ fn print_format2(
         r.grid.cols, r.grid.rows, p.cell_m, r.grid_filled
     );
     if let Some(c) = &r.comparison {
-        println!(
-            "against the reference: RMSE {:.2} m, mean {:+.2} m, max +{:.2} / {:.2} m over {} nodes",
-            c.rmse_m, c.mean_m, c.max_positive_m, c.max_negative_m, c.nodes
-        );
+        println!("against the reference: {}", c.summary());
     }
     match &r.variance_factor {
         Some(f) => println!(

@@ -150,25 +150,16 @@ pub const OUTPUTS: [&str; 11] = [
 /// was killed half way left some of them, or `.part` files): anything else is not ours to
 /// replace.
 pub(crate) fn check_out_dir(out: &Path) -> Result<(), PipelineError> {
-    if !out.exists() {
-        return Ok(());
-    }
-    let write = |source| PipelineError::Write {
-        dir: out.to_path_buf(),
-        cause: source,
-    };
-    let mut foreign = Vec::new();
-    for e in std::fs::read_dir(out).map_err(write)? {
-        let name = e.map_err(write)?.file_name().to_string_lossy().to_string();
-        let base = name.strip_suffix(".part").unwrap_or(&name);
-        if !OUTPUTS.contains(&base) {
-            foreign.push(name);
-        }
-    }
+    let foreign =
+        crate::atomic::foreign_files(out, |f| OUTPUTS.contains(&f)).map_err(|source| {
+            PipelineError::Write {
+                dir: out.to_path_buf(),
+                cause: source,
+            }
+        })?;
     if foreign.is_empty() {
         return Ok(());
     }
-    foreign.sort();
     Err(PipelineError::Foreign {
         dir: out.to_path_buf(),
         files: foreign.join(", "),

@@ -414,9 +414,9 @@ pub fn sweep_bands(
                     if bc.is_nan() || bc < p.threshold as f32 {
                         continue;
                     }
-                    // A peak whose neighbouring height could not be scored (its window left
-                    // the right photo) is not a peak but the edge of what the right photo
-                    // sees: the ground may lie beyond it, so no height is invented here.
+                    // A peak whose neighbouring height could not be scored (a flat or
+                    // not-a-number window there; windows beyond the photo were refused above)
+                    // is no peak that a parabola can refine or trust.
                     if (bi > 0 && below.is_none()) || (bi < n_steps && above.is_none()) {
                         continue;
                     }

@@ -222,9 +222,29 @@ pub fn pixels_fnv64(img: &crate::image::ImageF32) -> String {
 }
 
 /// Files a tile directory may hold (a rerun of the same tile replaces them).
-pub fn is_tile_output(name: &str) -> bool {
-    let base = name.strip_suffix(".part").unwrap_or(name);
-    base == MANIFEST || (base.starts_with("pair-") && base.ends_with(".f32"))
+fn is_tile_output(name: &str) -> bool {
+    name == MANIFEST || (name.starts_with("pair-") && name.ends_with(".f32"))
+}
+
+/// Readies `dir` for a share: refused when it holds anything but a share's files; an earlier
+/// share's manifest removed first, so that the directory counts as whole again only when the
+/// new manifest is written, last.
+pub fn prepare_dir(dir: &Path) -> Result<(), TileError> {
+    let foreign = crate::atomic::foreign_files(dir, is_tile_output).map_err(io(dir))?;
+    if !foreign.is_empty() {
+        return Err(TileError::Damaged {
+            path: dir.to_path_buf(),
+            message: format!(
+                "holds files that are not a tile's ({}): give an empty or new directory",
+                foreign.join(", ")
+            ),
+        });
+    }
+    let m = dir.join(MANIFEST);
+    if m.exists() {
+        std::fs::remove_file(&m).map_err(io(&m))?;
+    }
+    Ok(())
 }
 
 /// Reads a tile directory's manifest.

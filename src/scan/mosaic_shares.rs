@@ -77,36 +77,24 @@ pub fn mosaic_share(
 ) -> Result<ShareManifest, ShareError> {
     let regions = &sd.manifest.plan.regions;
     let mine = spec.units(regions.len());
-    if out.exists() {
-        let allowed: Vec<String> = regions
-            .iter()
-            .flat_map(|r| photo_files(&r.name))
-            .chain([MANIFEST.to_string()])
-            .collect();
-        let mut foreign = Vec::new();
-        for e in std::fs::read_dir(out).map_err(io(out))? {
-            let name = e
-                .map_err(io(out))?
-                .file_name()
-                .to_string_lossy()
-                .to_string();
-            let base = name.strip_suffix(".part").unwrap_or(&name);
-            if !allowed.iter().any(|a| a == base) {
-                foreign.push(name);
-            }
-        }
-        if !foreign.is_empty() {
-            foreign.sort();
-            return Err(ShareError::Refused(format!(
-                "{} holds files that are not this scan's mosaics ({}): give an empty or new directory",
-                out.display(),
-                foreign.join(", ")
-            )));
-        }
-        let m = out.join(MANIFEST);
-        if m.exists() {
-            std::fs::remove_file(&m).map_err(io(&m))?;
-        }
+    let allowed: Vec<String> = regions
+        .iter()
+        .flat_map(|r| photo_files(&r.name))
+        .chain([MANIFEST.to_string()])
+        .collect();
+    let foreign =
+        crate::atomic::foreign_files(out, |f| allowed.iter().any(|a| a == f)).map_err(io(out))?;
+    if !foreign.is_empty() {
+        return Err(ShareError::Refused(format!(
+            "{} holds files that are not this scan's mosaics ({}): give an empty or new directory",
+            out.display(),
+            foreign.join(", ")
+        )));
+    }
+    // A share mosaicked again is whole only when its manifest is written again, last.
+    let m = out.join(MANIFEST);
+    if m.exists() {
+        std::fs::remove_file(&m).map_err(io(&m))?;
     }
     std::fs::create_dir_all(out).map_err(io(out))?;
     let mut photos = Vec::new();
