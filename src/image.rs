@@ -154,6 +154,45 @@ pub fn load_grey(path: &std::path::Path, max_bytes: u64) -> std::io::Result<Imag
     })
 }
 
+/// Reads an image for a plain stereo pair: grey as [`load_grey`] reads it, colour (PNG or
+/// TIFF, 8 or 16 bits per sample, with or without alpha) turned grey with Rec. 601 weights
+/// 0.299 R + 0.587 G + 0.114 B (as OpenCV's cvtColor does), on a 0–255 scale.
+pub fn load_luma(path: &std::path::Path, max_bytes: u64) -> std::io::Result<ImageF32> {
+    let grey_error = match load_grey(path, max_bytes) {
+        Ok(img) => return Ok(img),
+        Err(e) => e,
+    };
+    let colour = (|| -> Option<ImageF32> {
+        let r = image::ImageReader::open(path)
+            .ok()?
+            .with_guessed_format()
+            .ok()?;
+        let (w, h) = r.into_dimensions().ok()?;
+        if w == 0 || h == 0 || 4 * w as u64 * h as u64 > max_bytes {
+            return None;
+        }
+        let img = image::ImageReader::open(path)
+            .ok()?
+            .with_guessed_format()
+            .ok()?;
+        let img = img.decode().ok()?;
+        if !img.color().has_color() {
+            return None;
+        }
+        let rgb = img.to_rgb32f();
+        let data = rgb
+            .pixels()
+            .map(|p| 255.0 * (0.299 * p[0] + 0.587 * p[1] + 0.114 * p[2]))
+            .collect();
+        Some(ImageF32 {
+            width: w as usize,
+            height: h as usize,
+            data,
+        })
+    })();
+    colour.ok_or(grey_error)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

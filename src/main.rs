@@ -22,6 +22,7 @@ fn main() {
             .map(|_| 0)
             .map_err(anyhow::Error::from),
         Command::Dtm(a) => cli::dtm_cmd::run(a),
+        Command::Match(a) => cli::match_cmd::run(a),
         Command::Demo(a) => cli::demo_cmd::run(&a),
         Command::Config(c) => match c.action {
             cli::ConfigAction::Show => cli::config::show(

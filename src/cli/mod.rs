@@ -6,6 +6,7 @@ pub mod config;
 pub mod connect;
 pub mod demo_cmd;
 pub mod dtm_cmd;
+pub mod match_cmd;
 pub use rig::exit;
 pub mod progress_bar;
 pub mod scan_cmd;
@@ -194,6 +195,13 @@ pub enum Command {
     ///
     #[command(verbatim_doc_comment, after_help = exit::TABLE)]
     Dtm(dtm_cmd::DtmArgs),
+    /// Match photos outside a project: disparities of a rectified stereo pair.
+    ///
+    /// Example:
+    ///   rig match pair left.png right.png --disparity 0 63 --out match
+    ///
+    #[command(verbatim_doc_comment, after_help = exit::TABLE)]
+    Match(match_cmd::MatchArgs),
     /// The settings in force (stage, dialect, camera) and where each comes from.
     ///
     /// Precedence: a flag, then the environment (RIG_STAGE, RIG_DIALECT, RIG_CAMERA), then

@@ -1,0 +1,199 @@
+//! `rig match pair`: disparities of an epipolar-rectified stereo pair.
+
+use anyhow::Context;
+use clap::{Args, Subcommand, ValueEnum};
+use rig::matching::pair_match::{match_pair, Filter, PairParams, Subpixel};
+use rig::matching::pair_output;
+use rig::matching::regions::RegionParams;
+use rig::matching::sgm::SgmParams;
+use std::path::PathBuf;
+
+#[derive(Debug, Args)]
+pub struct MatchArgs {
+    #[command(subcommand)]
+    pub action: MatchAction,
+}
+
+#[derive(Debug, Clone, Copy, ValueEnum)]
+pub enum FilterArg {
+    /// Semi-global aggregation of the correlations along 8 paths (Hirschmüller 2008).
+    Sgm,
+    /// Seed 000's region filter: small regions and islands of other disparities removed.
+    Regions,
+    /// The best correlation per pixel, nothing more.
+    None,
+}
+
+#[derive(Debug, Clone, Copy, ValueEnum)]
+pub enum SubpixelArg {
+    /// A parabola through the best three correlations (fast).
+    Parabola,
+    /// Least-squares matching of the winning window, with its σ (slower, more exact).
+    Lsm,
+}
+
+#[derive(Debug, Subcommand)]
+pub enum MatchAction {
+    /// Disparities of an epipolar-rectified pair (rows correspond; PNG or TIFF, grey or
+    /// colour, colour turned grey as 0.299 R + 0.587 G + 0.114 B).
+    ///
+    /// The disparity is d = x_left − x_right in whole and fractional pixels, on the left
+    /// photo's pixels (Middlebury's and OpenCV's convention). MIN and MAX are inclusive and
+    /// may be negative. Every pixel is compared with the right photo at each disparity by
+    /// normalised cross-correlation over a window; a pixel gets no disparity where the right
+    /// photo does not see every disparity searched (near its left edge when MIN ≥ 0), where
+    /// the best correlation is below --threshold, or where the right photo's own best match
+    /// points elsewhere (left-right check).
+    ///
+    /// Writes into --out: disparity.tif (float32, NaN where there is no match),
+    /// correlation.tif, sigma.tif (σ of each disparity, px), disparity.png (a preview with its
+    /// colour bar) and report.json (what was done, and why pixels have no disparity).
+    ///
+    /// Examples:
+    ///   rig match pair left.png right.png --disparity 0 63 --out match
+    ///   rig match pair l.tif r.tif --disparity -20 40 --filter regions --subpixel lsm --out m
+    ///   rig match pair l.png r.png --disparity 0 127 --out m --json | jq .stats.matched
+    #[command(verbatim_doc_comment)]
+    Pair {
+        left: PathBuf,
+        right: PathBuf,
+        /// The disparities searched, whole pixels, both inclusive.
+        #[arg(long, num_args = 2, value_names = ["MIN", "MAX"], allow_negative_numbers = true, required = true)]
+        disparity: Vec<i64>,
+        /// Output directory (created; empty, or holding only an earlier run's outputs).
+        #[arg(long, value_name = "DIR")]
+        out: PathBuf,
+        /// Side of the correlation window, px (odd, 3 … 31).
+        #[arg(long, default_value_t = 5)]
+        window: usize,
+        /// Lowest correlation accepted at the match (−1 … 1).
+        #[arg(long, default_value_t = 0.3, allow_negative_numbers = true)]
+        threshold: f64,
+        #[arg(long, value_enum, default_value = "sgm")]
+        filter: FilterArg,
+        #[arg(long, value_enum, default_value = "parabola")]
+        subpixel: SubpixelArg,
+        /// Largest disagreement between the left's and the right's disparity, px; 0 turns the
+        /// check off.
+        #[arg(long, default_value_t = 1.0)]
+        lr_tolerance: f64,
+        /// SGM penalties for a change of one disparity and of more, in cost units (256 is the
+        /// cost of an uncorrelated window).
+        #[arg(long, default_value_t = SgmParams::default().p1)]
+        p1: u16,
+        #[arg(long, default_value_t = SgmParams::default().p2)]
+        p2: u16,
+        /// Most memory the run may take, MiB.
+        #[arg(long, value_name = "MIB", default_value_t = 4096, value_parser = clap::value_parser!(u64).range(16..=1_048_576))]
+        max_memory: u64,
+        /// Print the report as JSON.
+        #[arg(long)]
+        json: bool,
+    },
+}
+
+pub fn run(a: MatchArgs) -> anyhow::Result<i32> {
+    let MatchAction::Pair {
+        left,
+        right,
+        disparity,
+        out,
+        window,
+        threshold,
+        filter,
+        subpixel,
+        lr_tolerance,
+        p1,
+        p2,
+        max_memory,
+        json,
+    } = a.action;
+    if !(lr_tolerance.is_finite() && (0.0..=1000.0).contains(&lr_tolerance)) {
+        eprintln!("rig match pair: --lr-tolerance {lr_tolerance}: 0 (no check) to 1000 px");
+        return Ok(rig::exit::USAGE);
+    }
+    if p1 >= p2 {
+        eprintln!("rig match pair: --p1 {p1} must be below --p2 {p2}");
+        return Ok(rig::exit::USAGE);
+    }
+    let foreign = rig::atomic::foreign_files(&out, |f| pair_output::OUTPUTS.contains(&f))
+        .with_context(|| format!("reading {}", out.display()))?;
+    if !foreign.is_empty() {
+        eprintln!(
+            "rig match pair: {} holds other files ({}): give a new or empty directory",
+            out.display(),
+            foreign.join(", ")
+        );
+        return Ok(rig::exit::USAGE);
+    }
+    let max_bytes = max_memory.saturating_mul(1 << 20);
+    let l = rig::image::load_luma(&left, max_bytes)?;
+    let r = rig::image::load_luma(&right, max_bytes)?;
+    let p = PairParams {
+        d_min: disparity[0],
+        d_max: disparity[1],
+        window,
+        threshold,
+        filter: match filter {
+            FilterArg::Sgm => Filter::Sgm,
+            FilterArg::Regions => Filter::Regions,
+            FilterArg::None => Filter::None,
+        },
+        sgm: SgmParams { p1, p2 },
+        regions: RegionParams {
+            search_distance: 2,
+            height_threshold: 1.5,
+            population_threshold: 50,
+        },
+        lr_tolerance: (lr_tolerance > 0.0).then_some(lr_tolerance),
+        subpixel: match subpixel {
+            SubpixelArg::Parabola => Subpixel::Parabola,
+            SubpixelArg::Lsm => Subpixel::Lsm,
+        },
+    };
+    let bar = super::progress_bar::Bar::new(!json);
+    let m = match match_pair(&l, &r, &p, max_memory, &bar) {
+        Ok(m) => m,
+        Err(e) => {
+            eprintln!("rig match pair: {e}");
+            return Ok(rig::exit::USAGE);
+        }
+    };
+    pair_output::write_all(&out, &m, &p, &left, &right)?;
+    let report = pair_output::report(&m, &p, &left, &right);
+    if json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+        return Ok(0);
+    }
+    let s = &m.stats;
+    let pct = |n: usize| 100.0 * n as f64 / s.pixels.max(1) as f64;
+    println!(
+        "{} × {} px, disparities {} … {} ({}), window {} px, filter {:?}, sub-pixel {:?}",
+        s.width, s.height, p.d_min, p.d_max, s.disparities, p.window, p.filter, p.subpixel
+    );
+    println!(
+        "matched {:.1} % of {} pixels; no match: right photo does not see {:.1} %, flat {:.1} %, below threshold {:.1} %, left-right check {:.1} %, regions {:.1} %",
+        pct(s.matched),
+        s.pixels,
+        pct(s.unseen),
+        pct(s.unscored),
+        pct(s.below_threshold),
+        pct(s.left_right),
+        pct(s.regions)
+    );
+    if p.subpixel == Subpixel::Lsm {
+        println!(
+            "least squares refined {:.1} % of the matches; failed: {:?}",
+            100.0 * s.lsm_refined as f64 / s.matched.max(1) as f64,
+            s.lsm_failures
+        );
+    }
+    println!(
+        "{:.2} s ({:.2} s scoring: {:.0} M pixel-candidates/s); written to {}/ (disparity.tif, correlation.tif, sigma.tif, disparity.png, report.json)",
+        s.seconds_total,
+        s.seconds_score,
+        s.candidates as f64 / s.seconds_score.max(1e-9) / 1e6,
+        out.display()
+    );
+    Ok(0)
+}

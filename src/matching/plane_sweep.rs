@@ -1,0 +1,758 @@
+//! The plane sweep that both matchers share: the height sweep of seed 000 (§2.2), where the
+//! planes are heights mapped into the search photo by the image→image polynomials, and
+//! rectified pairs, where the planes are whole-pixel disparities (d = x_left − x_right, as in
+//! Middlebury and OpenCV). For each plane the search photo is read once into the reference
+//! photo's geometry (resampled bilinearly for heights, an index shift for disparities), and
+//! every window's normalised cross-correlation comes from running sums of the five NCC sums
+//! (Σl, Σl², Σw, Σw², Σl·w), so a candidate costs a few additions whatever the window size.
+//!
+//! A score is NaN when the window on that plane lies beyond the search photo or on its nodata
+//! (the photo does not see it: the pixel then gets no match, since the ground may be on that
+//! plane), −∞ when the search window is flat (scored, no correlation), else the NCC.
+
+use super::pmf::Mapping;
+use crate::image::ImageF32;
+
+/// The planes swept.
+#[derive(Debug, Clone, Copy)]
+pub enum Planes<'a> {
+    /// Rectified pair: reference pixel (c, r) on plane p meets search pixel (c − first − p, r).
+    Shifts { first: i64, count: usize },
+    /// Heights h0 + p·step, mapped by `map` (pixel coordinates with pixel c over [c, c + 1)).
+    Heights {
+        map: &'a Mapping,
+        h0: f64,
+        step: f64,
+        count: usize,
+    },
+}
+
+impl Planes<'_> {
+    pub fn count(&self) -> usize {
+        match *self {
+            Planes::Shifts { count, .. } | Planes::Heights { count, .. } => count,
+        }
+    }
+
+    /// Where the reference point (x, y) (continuous, pixel c over [c, c + 1)) lands in the
+    /// search photo on plane `t` (continuous: a plane between two swept ones).
+    pub fn locate(&self, x: f64, y: f64, t: f64) -> [f64; 2] {
+        match *self {
+            Planes::Shifts { first, .. } => [x - first as f64 - t, y],
+            Planes::Heights { map, h0, step, .. } => map.eval([x, y, h0 + t * step]),
+        }
+    }
+}
+
+/// A photo ready for the sweep: grey values less their mean (so that the running sums keep
+/// their precision in f32), not-a-number pixels set to 0 and flagged.
+#[derive(Debug, Clone)]
+pub struct Prepared {
+    pub img: ImageF32,
+    /// 1 where the photo had no value (NaN), else 0.
+    pub nodata: Vec<f32>,
+}
+
+impl Prepared {
+    pub fn new(src: &ImageF32) -> Prepared {
+        let (mut s, mut n) = (0.0f64, 0usize);
+        for v in src.data.iter().filter(|v| v.is_finite()) {
+            s += *v as f64;
+            n += 1;
+        }
+        let mean = if n > 0 { (s / n as f64) as f32 } else { 0.0 };
+        let mut img = src.clone();
+        let mut nodata = vec![0.0; img.data.len()];
+        for (v, bad) in img.data.iter_mut().zip(nodata.iter_mut()) {
+            if v.is_finite() {
+                *v -= mean;
+            } else {
+                *v = 0.0;
+                *bad = 1.0;
+            }
+        }
+        Prepared { img, nodata }
+    }
+}
+
+/// The reference pixels scored: columns `col0 + i·stride` (i < cols) of pixel rows `rows`.
+#[derive(Debug, Clone)]
+pub struct Cells {
+    pub col0: usize,
+    pub stride: usize,
+    pub cols: usize,
+    /// Pixel rows, ascending, each at least `k` from the photo's top and bottom.
+    pub rows: Vec<usize>,
+}
+
+/// Scores of every plane for some cells: `v[(j·cols + i)·planes + p]`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Scores {
+    pub planes: usize,
+    pub cols: usize,
+    pub rows: usize,
+    pub v: Vec<f32>,
+}
+
+impl Scores {
+    pub fn cell(&self, i: usize, j: usize) -> &[f32] {
+        let o = (j * self.cols + i) * self.planes;
+        &self.v[o..o + self.planes]
+    }
+}
+
+/// Bytes [`score`] holds at once for `cells` of a photo `width` wide with `planes` planes and
+/// a window of half-size `k`: the score slab, the running sums and, for heights, the search
+/// photo read into the reference geometry over the rows' span.
+pub fn bytes_needed(width: usize, cells: &Cells, planes: usize, k: usize, heights: bool) -> f64 {
+    let cells_n = (cells.cols * cells.rows.len()) as f64;
+    let span = match (cells.rows.first(), cells.rows.last()) {
+        (Some(a), Some(b)) => (b - a + 2 * k + 1) as f64,
+        _ => 0.0,
+    };
+    let per_plane_px = if heights { 4.0 } else { 1.0 };
+    4.0 * planes as f64
+        * (cells_n + width as f64 * (per_plane_px + 2.0 * span * heights as u8 as f64))
+}
+
+/// Sums of a window of half-size `k` over the reference photo: (Σl, Σl², number of nodata).
+fn window_sums(p: &Prepared, c: usize, r: usize, k: usize) -> (f32, f32, f32) {
+    let w = p.img.width;
+    let (mut s, mut s2, mut bad) = (0.0f32, 0.0f32, 0.0f32);
+    for rr in r - k..=r + k {
+        let row = &p.img.data[rr * w + c - k..][..2 * k + 1];
+        let nd = &p.nodata[rr * w + c - k..][..2 * k + 1];
+        for (v, b) in row.iter().zip(nd) {
+            s += v;
+            s2 += v * v;
+            bad += b;
+        }
+    }
+    (s, s2, bad)
+}
+
+/// The NCC from the five sums over n pixels; −∞ for a flat search window.
+#[inline]
+fn ncc(n: f32, sl: f32, var_l: f32, sw: f32, sw2: f32, slw: f32) -> f32 {
+    let var_w = sw2 - sw * sw / n;
+    // Flat to the f32 precision of the running sums (1e-5 of the window's energy).
+    if var_w <= 1e-5 * sw2.max(1e-12) || var_w <= 1e-9 {
+        return f32::NEG_INFINITY;
+    }
+    let s = (slw - sl * sw / n) / (var_l * var_w).sqrt();
+    s.clamp(-1.0, 1.0)
+}
+
+/// Scores every plane for `cells` of `left` (windows of (2k + 1)², wholly inside `left`)
+/// against `right`.
+pub fn score(
+    left: &Prepared,
+    right: &Prepared,
+    planes: &Planes,
+    k: usize,
+    cells: &Cells,
+) -> Scores {
+    let np = planes.count();
+    let mut out = Scores {
+        planes: np,
+        cols: cells.cols,
+        rows: cells.rows.len(),
+        v: vec![f32::NEG_INFINITY; cells.cols * cells.rows.len() * np],
+    };
+    if np == 0 || cells.rows.is_empty() || cells.cols == 0 {
+        return out;
+    }
+    match *planes {
+        Planes::Shifts { first, .. } => score_shifts(left, right, first, np, k, cells, &mut out),
+        Planes::Heights { .. } => score_warped(left, right, planes, k, cells, &mut out),
+    }
+    out
+}
+
+/// Keeps Σ over the window's rows of per-row values (f32 vectors of `width·planes`), moving
+/// the window down by adding the rows that enter and subtracting those that leave.
+struct Running {
+    top: usize,
+    bottom: usize,
+    empty: bool,
+}
+
+impl Running {
+    /// The rows to subtract and to add to move the window to `top..=bottom`.
+    fn moves(
+        &mut self,
+        top: usize,
+        bottom: usize,
+    ) -> (std::ops::Range<usize>, std::ops::Range<usize>, bool) {
+        let reset = self.empty || top > self.bottom;
+        let r = if reset {
+            (0..0, top..bottom + 1, true)
+        } else {
+            (self.top..top, self.bottom + 1..bottom + 1, false)
+        };
+        self.top = top;
+        self.bottom = bottom;
+        self.empty = false;
+        r
+    }
+}
+
+/// The window sums (Σv, Σv², nodata count) of row `r` for every window centre x in
+/// `k..w − k` (index x; the others are left as they were), from column sums.
+fn row_window_sums(
+    p: &Prepared,
+    r: usize,
+    k: usize,
+    out: &mut [(f32, f32, f32)],
+    cs: &mut Vec<(f32, f32, f32)>,
+) {
+    let w = p.img.width;
+    cs.clear();
+    cs.resize(w, (0.0, 0.0, 0.0));
+    for rr in r - k..=r + k {
+        let row = &p.img.data[rr * w..(rr + 1) * w];
+        let nd = &p.nodata[rr * w..(rr + 1) * w];
+        for ((c, v), b) in cs.iter_mut().zip(row).zip(nd) {
+            c.0 += v;
+            c.1 += v * v;
+            c.2 += b;
+        }
+    }
+    for x in k..w.saturating_sub(k) {
+        let mut t = (0.0f32, 0.0f32, 0.0f32);
+        for c in &cs[x - k..=x + k] {
+            t.0 += c.0;
+            t.1 += c.1;
+            t.2 += c.2;
+        }
+        out[x] = t;
+    }
+}
+
+/// 1/√(Σ(l − l̄)²) of a window from its sums, or None when it has nodata or is flat.
+#[inline]
+fn inverse_deviation((s, s2, bad): (f32, f32, f32), n: f32) -> Option<(f32, f32)> {
+    let var = s2 - s * s / n;
+    (bad == 0.0 && var > 1e-5 * s2.max(1e-12) && var > 1e-9).then(|| (s / n, 1.0 / var.sqrt()))
+}
+
+/// Cells between two re-summings of the running horizontal sums (f32 drift stays far below
+/// the correlation's precision).
+const RESUM: usize = 32;
+
+/// Σ over the window's columns `c − k ..= c + k` of the per-column vectors `v` (`np` each),
+/// into `acc`: summed afresh, or moved on from the previous cell one column to the left.
+#[inline]
+fn window_columns(v: &[f32], np: usize, c: usize, k: usize, acc: &mut [f32], afresh: bool) {
+    if afresh {
+        acc.iter_mut().for_each(|a| *a = 0.0);
+        for cc in c - k..=c + k {
+            add_into(acc, &v[cc * np..(cc + 1) * np]);
+        }
+    } else {
+        let (enter, leave) = (
+            &v[(c + k) * np..(c + k + 1) * np],
+            &v[(c - k - 1) * np..(c - k) * np],
+        );
+        for ((a, e), l) in acc.iter_mut().zip(enter).zip(leave) {
+            *a += e - l;
+        }
+    }
+}
+
+/// Disparities: the search window of plane p is the right photo's window moved by a whole
+/// pixel, so Σw and 1/√var(w) are the right photo's own, per column; only Σl·w is summed per
+/// plane, and a score is two multiplications.
+fn score_shifts(
+    left: &Prepared,
+    right: &Prepared,
+    first: i64,
+    np: usize,
+    k: usize,
+    cells: &Cells,
+    out: &mut Scores,
+) {
+    let (wl, wr) = (left.img.width, right.img.width);
+    let n = ((2 * k + 1) * (2 * k + 1)) as f32;
+    let right_h = right.img.height;
+    let mut vlw = vec![0.0f32; wl * np];
+    let mut run = Running {
+        top: 0,
+        bottom: 0,
+        empty: true,
+    };
+    let mut rrow = vec![0.0f32; wr];
+    let mut cs = Vec::new();
+    let mut lsum = vec![(0.0f32, 0.0f32, 1.0f32); wl];
+    let mut rsum = vec![(0.0f32, 0.0f32, 1.0f32); wr];
+    // Right window mean·n and inverse deviation per column, reversed (index wr − 1 − x) so
+    // that the planes of one reference column read them ascending; NaN where unseen.
+    let mut r_mean = vec![0.0f32; wr];
+    let mut r_inv = vec![f32::NAN; wr];
+    let mut acc = vec![0.0f32; np];
+    for (j, &r) in cells.rows.iter().enumerate() {
+        let (sub, add, reset) = run.moves(r - k, r + k);
+        if reset {
+            vlw.iter_mut().for_each(|v| *v = 0.0);
+        }
+        for (rows, sign) in [(sub, -1.0f32), (add, 1.0f32)] {
+            for rr in rows {
+                if rr >= right_h {
+                    continue;
+                }
+                rrow.copy_from_slice(&right.img.data[rr * wr..(rr + 1) * wr]);
+                rrow.reverse();
+                let lrow = &left.img.data[rr * wl..(rr + 1) * wl];
+                for c in 0..wl {
+                    let l = sign * lrow[c];
+                    // Right column x = c − first − p, reversed index wr − 1 − x; valid p:
+                    // 0 ≤ x ≤ wr − 1.
+                    let x0 = c as i64 - first;
+                    let p_lo = (x0 - (wr as i64 - 1)).max(0);
+                    let p_hi = x0.min(np as i64 - 1);
+                    if p_lo > p_hi {
+                        continue;
+                    }
+                    let (p_lo, p_hi) = (p_lo as usize, p_hi as usize);
+                    let i0 = (wr as i64 - 1 - x0) as usize + p_lo;
+                    let dst = &mut vlw[c * np + p_lo..c * np + p_hi + 1];
+                    let src = &rrow[i0..i0 + dst.len()];
+                    for (d, s) in dst.iter_mut().zip(src) {
+                        *d += l * s;
+                    }
+                }
+            }
+        }
+        let o_row = j * cells.cols * np;
+        if r + k >= right_h {
+            // The right photo has no such rows: nothing is seen.
+            out.v[o_row..o_row + cells.cols * np]
+                .iter_mut()
+                .for_each(|v| *v = f32::NAN);
+            continue;
+        }
+        row_window_sums(left, r, k, &mut lsum, &mut cs);
+        row_window_sums(right, r, k, &mut rsum, &mut cs);
+        for x in 0..wr {
+            let inside = x >= k && x + k < wr;
+            let (m, inv) = match inside.then(|| inverse_deviation(rsum[x], n)) {
+                // A flat right window: scored, uncorrelated.
+                Some(None) if rsum[x].2 == 0.0 => (0.0, 0.0),
+                Some(Some(v)) => v,
+                _ => (0.0, f32::NAN),
+            };
+            r_mean[wr - 1 - x] = m * n;
+            r_inv[wr - 1 - x] = inv;
+        }
+        for i in 0..cells.cols {
+            let c = cells.col0 + i * cells.stride;
+            let afresh = cells.stride != 1 || i % RESUM == 0;
+            window_columns(&vlw, np, c, k, &mut acc, afresh);
+            let Some((ml, inv_l)) = inverse_deviation(lsum[c], n) else {
+                continue; // no reference: every plane stays −∞
+            };
+            let dst = &mut out.v[o_row + i * np..o_row + (i + 1) * np];
+            // Seen planes: k ≤ x ≤ wr − 1 − k with x = c − first − p.
+            let x0 = c as i64 - first;
+            let p_lo = (x0 - (wr as i64 - 1 - k as i64)).clamp(0, np as i64) as usize;
+            let p_hi = (x0 - k as i64 + 1).clamp(p_lo as i64, np as i64) as usize;
+            dst[..p_lo].iter_mut().for_each(|v| *v = f32::NAN);
+            dst[p_hi..].iter_mut().for_each(|v| *v = f32::NAN);
+            if p_lo == p_hi {
+                continue;
+            }
+            let base = (wr as i64 - 1 - x0) as usize;
+            let (rm, ri) = (
+                &r_mean[base + p_lo..base + p_hi],
+                &r_inv[base + p_lo..base + p_hi],
+            );
+            // Σ(l − l̄)(w − w̄) = Σl·w − l̄·Σw.
+            for (((d, a), m), v) in dst[p_lo..p_hi]
+                .iter_mut()
+                .zip(&acc[p_lo..p_hi])
+                .zip(rm)
+                .zip(ri)
+            {
+                *d = ((a - ml * m) * inv_l * v).clamp(-1.0, 1.0);
+            }
+        }
+    }
+}
+
+/// Heights: the search photo is resampled once per plane over the rows' span, then the four
+/// search sums (Σw, Σw², Σl·w and the count of samples it does not see) run down and across.
+fn score_warped(
+    left: &Prepared,
+    right: &Prepared,
+    planes: &Planes,
+    k: usize,
+    cells: &Cells,
+    out: &mut Scores,
+) {
+    let Planes::Heights { map, .. } = *planes else {
+        return;
+    };
+    let np = planes.count();
+    let wl = left.img.width;
+    let n = ((2 * k + 1) * (2 * k + 1)) as f32;
+    let (top, bottom) = (cells.rows[0] - k, cells.rows[cells.rows.len() - 1] + k);
+    let span = bottom - top + 1;
+    // The mapping as a polynomial in the normalised height for each reference pixel:
+    // q(u) = Σ a_e·uᵉ, so a plane costs a Horner per coordinate, not the full polynomial.
+    let order = map
+        .x
+        .terms
+        .iter()
+        .chain(&map.y.terms)
+        .map(|t| t.2 as usize)
+        .max()
+        .unwrap_or(0);
+    let height = |p: usize| match *planes {
+        Planes::Heights { h0, step, .. } => h0 + p as f64 * step,
+        Planes::Shifts { .. } => 0.0,
+    };
+    let normalised = |n: &super::pmf::Normaliser| -> Vec<f64> {
+        (0..np)
+            .map(|p| (height(p) - n.centre[2]) / n.scale[2])
+            .collect()
+    };
+    let (us, uy) = (normalised(&map.x.norm), normalised(&map.y.norm));
+    // Warped values and their "unseen" flags, row-major over the span, planes innermost.
+    let mut wv = vec![0.0f32; span * wl * np];
+    let mut wn = vec![0.0f32; span * wl * np];
+    let (rw, rh) = (right.img.width as f64, right.img.height as f64);
+    let mut ax = vec![0.0f64; order + 1];
+    let mut ay = vec![0.0f64; order + 1];
+    for rr in 0..span {
+        let y = (top + rr) as f64 + 0.5;
+        for c in 0..wl {
+            let x = c as f64 + 0.5;
+            collapse(&map.x, x, y, &mut ax);
+            collapse(&map.y, x, y, &mut ay);
+            let o = (rr * wl + c) * np;
+            for p in 0..np {
+                let qx = horner(&ax, us[p]);
+                let qy = horner(&ay, uy[p]);
+                // Bilinear, pixel centres at +0.5; the sample must have its four pixels.
+                // A millionth of a pixel beyond the outermost centres is on them: a fitted
+                // mapping lands there, not exactly on them.
+                let (u, v) = (qx - 0.5, qy - 0.5);
+                if !(u >= -1e-6 && v >= -1e-6 && u <= rw - 1.0 + 1e-6 && v <= rh - 1.0 + 1e-6) {
+                    wn[o + p] = 1.0;
+                    continue;
+                }
+                let (u, v) = (u.clamp(0.0, rw - 1.0), v.clamp(0.0, rh - 1.0));
+                let (i, jj) = (
+                    (u as usize).min(right.img.width.saturating_sub(2)),
+                    (v as usize).min(right.img.height.saturating_sub(2)),
+                );
+                let (fx, fy) = ((u - i as f64) as f32, (v - jj as f64) as f32);
+                let base = jj * right.img.width + i;
+                let d = &right.img.data;
+                let nd = &right.nodata;
+                let rwid = right.img.width;
+                if nd[base] + nd[base + 1] + nd[base + rwid] + nd[base + rwid + 1] > 0.0 {
+                    wn[o + p] = 1.0;
+                    continue;
+                }
+                let a = d[base] + fx * (d[base + 1] - d[base]);
+                let b = d[base + rwid] + fx * (d[base + rwid + 1] - d[base + rwid]);
+                wv[o + p] = a + fy * (b - a);
+            }
+        }
+    }
+    let mut vw = vec![0.0f32; wl * np];
+    let mut vw2 = vec![0.0f32; wl * np];
+    let mut vlw = vec![0.0f32; wl * np];
+    let mut vn = vec![0.0f32; wl * np];
+    let mut run = Running {
+        top: 0,
+        bottom: 0,
+        empty: true,
+    };
+    let (mut a_w, mut a_w2, mut a_lw, mut a_n) = (
+        vec![0.0f32; np],
+        vec![0.0f32; np],
+        vec![0.0f32; np],
+        vec![0.0f32; np],
+    );
+    for (j, &r) in cells.rows.iter().enumerate() {
+        let (sub, add, reset) = run.moves(r - k, r + k);
+        if reset {
+            for v in [&mut vw, &mut vw2, &mut vlw, &mut vn] {
+                v.iter_mut().for_each(|x| *x = 0.0);
+            }
+        }
+        for (rows, sign) in [(sub, -1.0f32), (add, 1.0f32)] {
+            for rr in rows {
+                let lrow = &left.img.data[rr * wl..(rr + 1) * wl];
+                let o = (rr - top) * wl * np;
+                for c in 0..wl {
+                    let l = lrow[c];
+                    let src = &wv[o + c * np..o + (c + 1) * np];
+                    let srcn = &wn[o + c * np..o + (c + 1) * np];
+                    let s = c * np..(c + 1) * np;
+                    for (((w, w2), lw), v) in vw[s.clone()]
+                        .iter_mut()
+                        .zip(&mut vw2[s.clone()])
+                        .zip(&mut vlw[s.clone()])
+                        .zip(src)
+                    {
+                        *w += sign * v;
+                        *w2 += sign * v * v;
+                        *lw += sign * l * v;
+                    }
+                    for (d, m) in vn[s].iter_mut().zip(srcn) {
+                        *d += sign * m;
+                    }
+                }
+            }
+        }
+        for i in 0..cells.cols {
+            let c = cells.col0 + i * cells.stride;
+            let (sl, sl2, lbad) = window_sums(left, c, r, k);
+            let var_l = sl2 - sl * sl / n;
+            if lbad > 0.0 || var_l <= 1e-5 * sl2.max(1e-12) || var_l <= 1e-9 {
+                continue;
+            }
+            for a in [&mut a_w, &mut a_w2, &mut a_lw, &mut a_n] {
+                a.iter_mut().for_each(|x| *x = 0.0);
+            }
+            for cc in c - k..=c + k {
+                let s = cc * np..(cc + 1) * np;
+                add_into(&mut a_w, &vw[s.clone()]);
+                add_into(&mut a_w2, &vw2[s.clone()]);
+                add_into(&mut a_lw, &vlw[s.clone()]);
+                add_into(&mut a_n, &vn[s]);
+            }
+            let o = (j * cells.cols + i) * np;
+            for p in 0..np {
+                out.v[o + p] = if a_n[p] > 0.5 {
+                    f32::NAN
+                } else {
+                    ncc(n, sl, var_l, a_w[p], a_w2[p], a_lw[p])
+                };
+            }
+        }
+    }
+}
+
+#[inline]
+fn add_into(a: &mut [f32], b: &[f32]) {
+    for (x, y) in a.iter_mut().zip(b) {
+        *x += y;
+    }
+}
+
+/// The coefficients of `poly` at (x, y) as a polynomial in its normalised third variable.
+fn collapse(poly: &super::pmf::Polynomial, x: f64, y: f64, a: &mut [f64]) {
+    a.iter_mut().for_each(|v| *v = 0.0);
+    let u = poly.norm.apply([x, y, poly.norm.centre[2]]);
+    for (t, c) in poly.terms.iter().zip(&poly.coef) {
+        a[t.2 as usize] += c * u[0].powi(t.0 as i32) * u[1].powi(t.1 as i32);
+    }
+}
+
+#[inline]
+fn horner(a: &[f64], u: f64) -> f64 {
+    a.iter().rev().fold(0.0, |acc, c| acc * u + c)
+}
+
+/// The best plane of one cell's scores.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Winner {
+    pub plane: usize,
+    pub score: f32,
+    /// The scores one plane below and above (None at the ends of the range).
+    pub below: Option<f32>,
+    pub above: Option<f32>,
+}
+
+impl Winner {
+    /// The peak below the plane step by a parabola through the three scores (−0.5 … 0.5),
+    /// and the second difference (negative at a peak).
+    pub fn parabola(&self) -> Option<(f64, f64)> {
+        let (a, b) = (self.below? as f64, self.above? as f64);
+        let den = a - 2.0 * self.score as f64 + b;
+        (den < 0.0).then(|| ((0.5 * (a - b) / den).clamp(-0.5, 0.5), den))
+    }
+}
+
+/// What a plane the search photo does not see (a NaN score) does to a pixel's winner.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Unseen {
+    /// The pixel gets no winner: its match may lie on that plane (the height sweep, where
+    /// nothing else checks the winner).
+    Refuse,
+    /// The plane is left out, and the winner must have seen neighbours on both sides (a peak
+    /// against the unseen part may be the flank of a match beyond it). For a check that
+    /// catches a winner whose true match is unseen: left-right consistency.
+    Skip,
+}
+
+/// The plane with the highest score, scored on both sides (a neighbour not scored — flat,
+/// unseen — is no peak that a parabola can refine or trust; the ends of the range excepted).
+pub fn winner(s: &[f32], unseen: Unseen) -> Option<Winner> {
+    if unseen == Unseen::Refuse && s.iter().any(|v| v.is_nan()) {
+        return None;
+    }
+    let mut best: Option<(usize, f32)> = None;
+    for (p, &v) in s.iter().enumerate() {
+        // NaN fails the comparison: never the best.
+        if v > f32::NEG_INFINITY && best.is_none_or(|b| v > b.1) {
+            best = Some((p, v));
+        }
+    }
+    let (p, v) = best?;
+    let side = |q: Option<usize>| q.and_then(|q| s.get(q).copied());
+    let below = side(p.checked_sub(1));
+    let above = side(Some(p + 1));
+    let scored = |x: Option<f32>| x.is_none_or(|b| b > f32::NEG_INFINITY);
+    if !scored(below) || !scored(above) {
+        return None;
+    }
+    Some(Winner {
+        plane: p,
+        score: v,
+        below,
+        above,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn tex(x: f64, y: f64) -> f32 {
+        ((x * 0.71).sin() * (y * 0.53).cos()
+            + (x * 0.23 + y * 0.37).sin()
+            + (x * 1.7 - y * 1.3).sin() * 0.5) as f32
+            * 40.0
+            + 100.0
+    }
+
+    /// The running sums give the NCC that a direct computation over each window gives, for
+    /// every plane, cell and stride; a window beyond the right photo is NaN.
+    #[test]
+    fn running_sums_equal_the_direct_correlation() {
+        let (w, h) = (60usize, 30usize);
+        let mut left = ImageF32::new(w, h);
+        let mut right = ImageF32::new(w - 7, h);
+        for r in 0..h {
+            for c in 0..w {
+                left.data[r * w + c] = tex(c as f64, r as f64);
+            }
+            for c in 0..w - 7 {
+                right.data[r * (w - 7) + c] = tex(c as f64 * 1.1 + 3.0, r as f64) + (c % 3) as f32;
+            }
+        }
+        let (lp, rp) = (Prepared::new(&left), Prepared::new(&right));
+        let k = 3;
+        for stride in [1, 2] {
+            let cells = Cells {
+                col0: k,
+                stride,
+                cols: (w - 2 * k).div_ceil(stride),
+                rows: (k..h - k).step_by(stride).collect(),
+            };
+            let planes = Planes::Shifts {
+                first: -2,
+                count: 12,
+            };
+            let s = score(&lp, &rp, &planes, k, &cells);
+            for (j, &r) in cells.rows.iter().enumerate() {
+                for i in 0..cells.cols {
+                    let c = cells.col0 + i * stride;
+                    for p in 0..12 {
+                        let x = c as i64 + 2 - p as i64;
+                        let got = s.cell(i, j)[p];
+                        if x < k as i64 || x + k as i64 >= (w - 7) as i64 {
+                            assert!(got.is_nan(), "({c},{r}) plane {p}: {got}");
+                            continue;
+                        }
+                        let (mut a, mut b) = (Vec::new(), Vec::new());
+                        for rr in r - k..=r + k {
+                            for d in -(k as i64)..=k as i64 {
+                                a.push(left.at((c as i64 + d) as usize, rr) as f64);
+                                b.push(right.at((x + d) as usize, rr) as f64);
+                            }
+                        }
+                        let want = crate::correlation::ncc(&a, &b) as f32;
+                        assert!(
+                            (got - want).abs() < 2e-4,
+                            "({c},{r}) plane {p}: {got} vs {want}"
+                        );
+                    }
+                }
+            }
+        }
+    }
+
+    /// Heights mapped by a polynomial that is a pure shift (x″ = x′ − 2 − h) score what the
+    /// disparities score: the resampling lands on pixel centres, the sums are the same.
+    #[test]
+    fn warped_heights_agree_with_shifts() {
+        use super::super::pmf::{Normaliser, Polynomial, Term};
+        let (w, h) = (50usize, 24usize);
+        let mut left = ImageF32::new(w, h);
+        let mut right = ImageF32::new(w, h);
+        for r in 0..h {
+            for c in 0..w {
+                left.data[r * w + c] = tex(c as f64, r as f64);
+                right.data[r * w + c] = tex(c as f64 + 5.0, r as f64 * 0.9);
+            }
+        }
+        let samples: Vec<([f64; 3], f64)> = (0..4)
+            .flat_map(|i| {
+                (0..3).map(move |q| [i as f64 * 15.0, 3.0 + i as f64 * 5.0, q as f64 * 4.0])
+            })
+            .map(|v| (v, v[0] - 2.0 - v[2]))
+            .collect();
+        let norm = Normaliser::over(&samples.iter().map(|s| s.0).collect::<Vec<_>>());
+        let x = Polynomial::fit(
+            &[Term(0, 0, 0), Term(1, 0, 0), Term(0, 0, 1)],
+            &norm,
+            &samples,
+        )
+        .unwrap();
+        let ys: Vec<_> = samples.iter().map(|s| (s.0, s.0[1])).collect();
+        let y = Polynomial::fit(&[Term(0, 0, 0), Term(0, 1, 0)], &norm, &ys).unwrap();
+        let map = Mapping { x, y };
+        let (lp, rp) = (Prepared::new(&left), Prepared::new(&right));
+        let k = 4;
+        let cells = Cells {
+            col0: k,
+            stride: 1,
+            cols: w - 2 * k,
+            rows: (k..h - k).collect(),
+        };
+        let a = score(&lp, &rp, &Planes::Shifts { first: 2, count: 9 }, k, &cells);
+        let b = score(
+            &lp,
+            &rp,
+            &Planes::Heights {
+                map: &map,
+                h0: 0.0,
+                step: 1.0,
+                count: 9,
+            },
+            k,
+            &cells,
+        );
+        let (mut compared, mut skipped) = (0, 0);
+        for (x, y) in a.v.iter().zip(&b.v) {
+            if x.is_nan() != y.is_nan() {
+                skipped += 1;
+            }
+            if x.is_nan() || y.is_nan() {
+                continue;
+            }
+            assert!((x - y).abs() < 1e-3, "{x} vs {y}");
+            compared += 1;
+        }
+        assert!(
+            compared > 2000 && skipped == 0,
+            "{compared} compared, {skipped} unseen by one only"
+        );
+    }
+}
