@@ -175,7 +175,9 @@ mod tests {
             rows,
             v: v.clone(),
         };
-        let sum = aggregate(&s, &SgmParams::default());
+        // Penalties below the evidence's cost difference (384 − 3 for the strong cell).
+        let pen = SgmParams { p1: 24, p2: 128 };
+        let sum = aggregate(&s, &pen);
         let best = |i: usize, j: usize| {
             let o = (j * cols + i) * np;
             (0..np).min_by_key(|&p| sum[o + p]).unwrap()
@@ -193,7 +195,7 @@ mod tests {
             rows,
             v: v2,
         };
-        let sum2 = aggregate(&s2, &SgmParams::default());
+        let sum2 = aggregate(&s2, &pen);
         let b = (0..np).min_by_key(|&p| sum2[o + p]).unwrap();
         assert_eq!(b, 6, "strong evidence survives");
     }
