@@ -181,7 +181,7 @@ fn the_demo_runs_the_whole_chain_and_meets_half_the_height_step() {
         // Most of the overlap matched (the edges where the other photo cannot show every
         // height tried get none), and the wrong-height criteria removed little of it.
         let d = &p["dtm"];
-        assert!(d["matched_percent"].as_f64().unwrap() > 75.0, "{p}");
+        assert!(d["matched_percent"].as_f64().unwrap() > 70.0, "{p}");
         let removed = d["regions"]["points_removed"].as_f64().unwrap();
         let matched = d["points_matched"].as_f64().unwrap();
         assert!(removed < 0.1 * matched, "{p}");

@@ -1,6 +1,6 @@
 //! A regular elevation model from the matched points (seed 000 §3.6): each point goes to the
-//! grid node it falls nearest to, several points on one node are averaged, nodes no point
-//! reached are nodata. And the comparison with a reference model in the figures of seed 000
+//! grid node it falls nearest to, several points on one node are averaged (after the slope of
+//! the plane through them is taken out), nodes no point reached are nodata. And the comparison with a reference model in the figures of seed 000
 //! Table 5: largest positive and negative difference, mean, mean absolute, RMSE.
 
 use super::point::MatchedPoint;
@@ -127,47 +127,35 @@ impl ElevationGrid {
         ]
     }
 
-    /// Averages the points falling nearest each node.
-    pub fn fill(&mut self, pts: &[GroundM]) {
-        let mut sum = vec![0.0f64; self.z.len()];
-        let mut n = vec![0u32; self.z.len()];
+    /// The points falling nearest each node, as (x − node x, y − node y, z).
+    fn per_node(&self, pts: &[GroundM]) -> Vec<Vec<[f64; 3]>> {
+        let mut per: Vec<Vec<[f64; 3]>> = vec![Vec::new(); self.z.len()];
         for p in pts {
-            let Some(i) = self.node_index(p.x, p.y).filter(|_| p.z.is_finite()) else {
-                continue;
-            };
-            sum[i] += p.z;
-            n[i] += 1;
+            if let Some(i) = self.node_index(p.x, p.y).filter(|_| p.z.is_finite()) {
+                let [nx, ny] = self.node(i % self.cols, i / self.cols);
+                per[i].push([p.x - nx, p.y - ny, p.z]);
+            }
         }
-        for i in 0..self.z.len() {
-            self.z[i] = if n[i] > 0 {
-                (sum[i] / n[i] as f64) as f32
-            } else {
-                f32::NAN
-            };
+        per
+    }
+
+    /// Each node's height from the points falling nearest it: their mean, each point first
+    /// moved to the node along the plane fitted to them (seed 000 §3.6 averages the points; on
+    /// a slope the mean lands where the points' centroid is, not at the node, so the plane's
+    /// slope is taken out first). Fewer than 3 points, or points in a line: the plain mean.
+    pub fn fill(&mut self, pts: &[GroundM]) {
+        let per = self.per_node(pts);
+        for (z, v) in self.z.iter_mut().zip(&per) {
+            *z = node_height(v, self.cell_m, false);
         }
     }
 
-    /// Like [`ElevationGrid::fill`] but with the median of each node's points: for heights
-    /// merged from several pairs, where one pair's blunders must not pull the others' mean.
+    /// Like [`ElevationGrid::fill`] but with the median of the slope-corrected heights: for
+    /// heights merged from several pairs, where one pair's blunders must not pull the others'.
     pub fn fill_median(&mut self, pts: &[GroundM]) {
-        let mut per: Vec<Vec<f32>> = vec![Vec::new(); self.z.len()];
-        for p in pts {
-            if let Some(i) = self.node_index(p.x, p.y).filter(|_| p.z.is_finite()) {
-                per[i].push(p.z as f32);
-            }
-        }
-        for (z, v) in self.z.iter_mut().zip(&mut per) {
-            *z = if v.is_empty() {
-                f32::NAN
-            } else {
-                v.sort_by(f32::total_cmp);
-                let n = v.len();
-                if n % 2 == 1 {
-                    v[n / 2]
-                } else {
-                    0.5 * (v[n / 2 - 1] + v[n / 2])
-                }
-            };
+        let per = self.per_node(pts);
+        for (z, v) in self.z.iter_mut().zip(&per) {
+            *z = node_height(v, self.cell_m, true);
         }
     }
 
@@ -269,6 +257,57 @@ impl ElevationGrid {
     }
 }
 
+/// The slope (∂z/∂x, ∂z/∂y) of the least-squares plane through points given relative to a
+/// node; None for fewer than 3 points or points spread along a line (less than a tenth of the
+/// cell across it).
+fn plane_slope(v: &[[f64; 3]], cell: f64) -> Option<[f64; 2]> {
+    if v.len() < 3 {
+        return None;
+    }
+    let n = v.len() as f64;
+    let (mx, my, mz) = v
+        .iter()
+        .fold((0.0, 0.0, 0.0), |a, p| (a.0 + p[0], a.1 + p[1], a.2 + p[2]));
+    let (mx, my, mz) = (mx / n, my / n, mz / n);
+    let (mut sxx, mut sxy, mut syy, mut sxz, mut syz) = (0.0, 0.0, 0.0, 0.0, 0.0);
+    for p in v {
+        let (x, y, z) = (p[0] - mx, p[1] - my, p[2] - mz);
+        sxx += x * x;
+        sxy += x * y;
+        syy += y * y;
+        sxz += x * z;
+        syz += y * z;
+    }
+    let det = sxx * syy - sxy * sxy;
+    // The smaller spread (an eigenvalue of the scatter over n) must reach (cell/10)².
+    let tr = sxx + syy;
+    let small = 0.5 * (tr - ((sxx - syy).powi(2) + 4.0 * sxy * sxy).sqrt()) / n;
+    if !(det > 0.0 && small >= (0.1 * cell).powi(2)) {
+        return None;
+    }
+    Some([(syy * sxz - sxy * syz) / det, (sxx * syz - sxy * sxz) / det])
+}
+
+/// A node's height from its points (relative to it): mean or median of the heights moved to
+/// the node along the fitted plane (or unmoved when no plane is fitted); NaN without points.
+fn node_height(v: &[[f64; 3]], cell: f64, median: bool) -> f32 {
+    if v.is_empty() {
+        return f32::NAN;
+    }
+    let [gx, gy] = plane_slope(v, cell).unwrap_or([0.0, 0.0]);
+    let mut z: Vec<f64> = v.iter().map(|p| p[2] - gx * p[0] - gy * p[1]).collect();
+    if !median {
+        return (z.iter().sum::<f64>() / z.len() as f64) as f32;
+    }
+    z.sort_by(f64::total_cmp);
+    let n = z.len();
+    (if n % 2 == 1 {
+        z[n / 2]
+    } else {
+        0.5 * (z[n / 2 - 1] + z[n / 2])
+    }) as f32
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -308,6 +347,37 @@ mod tests {
         assert_eq!(BYTES_PER_NODE, 80.0);
         assert!(ElevationGrid::covering([0.0, 0.0, 1023.0, 1023.0], 1.0, 80).is_ok());
         assert!(ElevationGrid::covering([0.0, 0.0, 1024.0, 1023.0], 1.0, 80).is_err());
+    }
+
+    /// Points on a steep plane, all on one side of their node: the mean would be the height
+    /// at their centroid, the slope-corrected mean (and median) is the plane's height at the
+    /// node, exactly.
+    #[test]
+    fn a_slope_is_taken_out_before_the_points_are_averaged() {
+        let mut g = ElevationGrid::covering([0.0, 0.0, 20.0, 20.0], 10.0, 64).unwrap();
+        let plane = |x: f64, y: f64| 300.0 + 0.8 * x - 0.5 * y;
+        // Node (1, 1) is at (10, 10); points in its cell's north-east quarter only.
+        let pts: Vec<GroundM> = (0..20)
+            .map(|k| {
+                let (x, y) = (10.5 + (k % 5) as f64, 10.5 + (k / 5) as f64);
+                GroundM::new(x, y, plane(x, y))
+            })
+            .collect();
+        g.fill(&pts);
+        let z = g.z[g.cols + 1] as f64;
+        assert!(
+            (z - plane(10.0, 10.0)).abs() < 1e-3,
+            "{z} vs {}",
+            plane(10.0, 10.0)
+        );
+        g.fill_median(&pts);
+        assert!((g.z[g.cols + 1] as f64 - plane(10.0, 10.0)).abs() < 1e-3);
+        // Points in a line: no plane, the plain mean.
+        let line: Vec<GroundM> = (0..5)
+            .map(|k| GroundM::new(10.5 + k as f64, 10.5, 7.0 + k as f64))
+            .collect();
+        g.fill(&line);
+        assert_eq!(g.z[g.cols + 1], 9.0);
     }
 
     #[test]

@@ -4,6 +4,7 @@
 //! sub-pixel disparity by a parabola or by least-squares matching with its σ.
 
 use super::plane_sweep::{score, winner, Cells, Planes, Prepared, Scores, Unseen, Winner};
+pub use super::refine::Subpixel;
 use super::refine::{refine, RefineFailure, Window};
 use super::regions::{remove_wrong_heights, RegionParams};
 use super::sgm::{aggregate, SgmParams};
@@ -23,17 +24,6 @@ pub enum Filter {
     Regions,
     /// Semi-global aggregation along 8 paths before the winner (Hirschmüller 2008).
     Sgm,
-}
-
-/// How the disparity is refined below a pixel.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Subpixel {
-    /// A parabola through the winner's and its neighbours' scores.
-    Parabola,
-    /// Least-squares matching of the winning window (σ from its normal matrix); the parabola
-    /// where it fails.
-    Lsm,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -373,7 +363,8 @@ pub fn match_pair(
                 let mut sd =
                     (den < 0.0).then(|| ((1.0 - (rho as f64).min(0.999)) / (n * -den)).sqrt());
                 if p.subpixel == Subpixel::Lsm {
-                    let locate = |t: f64| planes.locate(c as f64 + 0.5, r as f64 + 0.5, t);
+                    let (x, y) = (c as f64 + 0.5, r as f64 + 0.5);
+                    let locate = |u: f64, v: f64, t: f64| planes.locate(x + u, y + v, t);
                     match refine(left, Window { c, r, k }, right, &locate, t, 1.0) {
                         Ok(f) => {
                             t = f.t;

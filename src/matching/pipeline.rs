@@ -258,7 +258,7 @@ pub fn run(
             h_step: p.matching.h_step,
             window: p.matching.window,
             threshold: p.matching.threshold,
-            neighbours: p.matching.neighbours,
+            subpixel: p.matching.subpixel,
             stride: p.matching.stride,
             ..Default::default()
         },

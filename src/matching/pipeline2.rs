@@ -450,7 +450,7 @@ pub fn plan(
                 h_step,
                 window: m.window,
                 threshold: m.threshold,
-                neighbours: m.neighbours,
+                subpixel: m.subpixel,
                 stride: m.stride,
                 ..Default::default()
             },

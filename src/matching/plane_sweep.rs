@@ -7,8 +7,9 @@
 //! (Σl, Σl², Σw, Σw², Σl·w), so a candidate costs a few additions whatever the window size.
 //!
 //! A score is NaN when the window on that plane lies beyond the search photo or on its nodata
-//! (the photo does not see it: the pixel then gets no match, since the ground may be on that
-//! plane), −∞ when the search window is flat (scored, no correlation), else the NCC.
+//! (the photo does not see it: see [`Unseen`] for what that does to the pixel), 0 when the
+//! search window is flat (scored, uncorrelated), −∞ on every plane when the reference window
+//! is flat or has nodata (nothing to match), else the NCC.
 
 use super::pmf::Mapping;
 use crate::image::ImageF32;
@@ -129,18 +130,6 @@ fn window_sums(p: &Prepared, c: usize, r: usize, k: usize) -> (f32, f32, f32) {
         }
     }
     (s, s2, bad)
-}
-
-/// The NCC from the five sums over n pixels; −∞ for a flat search window.
-#[inline]
-fn ncc(n: f32, sl: f32, var_l: f32, sw: f32, sw2: f32, slw: f32) -> f32 {
-    let var_w = sw2 - sw * sw / n;
-    // Flat to the f32 precision of the running sums (1e-5 of the window's energy).
-    if var_w <= 1e-5 * sw2.max(1e-12) || var_w <= 1e-9 {
-        return f32::NEG_INFINITY;
-    }
-    let s = (slw - sl * sw / n) / (var_l * var_w).sqrt();
-    s.clamp(-1.0, 1.0)
 }
 
 /// Scores every plane for `cells` of `left` (windows of (2k + 1)², wholly inside `left`)
@@ -421,6 +410,7 @@ fn score_warped(
     let mut wv = vec![0.0f32; span * wl * np];
     let mut wn = vec![0.0f32; span * wl * np];
     let (rw, rh) = (right.img.width as f64, right.img.height as f64);
+    let any_nodata = right.nodata.iter().any(|&v| v > 0.0);
     let mut ax = vec![0.0f64; order + 1];
     let mut ay = vec![0.0f64; order + 1];
     for rr in 0..span {
@@ -451,7 +441,9 @@ fn score_warped(
                 let d = &right.img.data;
                 let nd = &right.nodata;
                 let rwid = right.img.width;
-                if nd[base] + nd[base + 1] + nd[base + rwid] + nd[base + rwid + 1] > 0.0 {
+                if any_nodata
+                    && nd[base] + nd[base + 1] + nd[base + rwid] + nd[base + rwid + 1] > 0.0
+                {
                     wn[o + p] = 1.0;
                     continue;
                 }
@@ -526,11 +518,28 @@ fn score_warped(
                 add_into(&mut a_n, &vn[s]);
             }
             let o = (j * cells.cols + i) * np;
-            for p in 0..np {
-                out.v[o + p] = if a_n[p] > 0.5 {
+            let inv_n = 1.0 / n;
+            // Without branches, so that it runs on vector lanes: a flat search window scores
+            // 0 (uncorrelated), an unseen one NaN.
+            for ((((d, &w), &w2), &lw), &un) in out.v[o..o + np]
+                .iter_mut()
+                .zip(&a_w)
+                .zip(&a_w2)
+                .zip(&a_lw)
+                .zip(&a_n)
+            {
+                let var_w = w2 - w * w * inv_n;
+                let cov = lw - sl * w * inv_n;
+                let flat = var_w <= 1e-5 * w2.max(1e-12) || var_w <= 1e-9;
+                let v = if flat {
+                    0.0
+                } else {
+                    cov / (var_l * var_w).sqrt()
+                };
+                *d = if un > 0.5 {
                     f32::NAN
                 } else {
-                    ncc(n, sl, var_l, a_w[p], a_w2[p], a_lw[p])
+                    v.clamp(-1.0, 1.0)
                 };
             }
         }

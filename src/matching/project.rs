@@ -90,6 +90,12 @@ pub struct Matching {
     pub window: usize,
     #[serde(default = "half")]
     pub threshold: f64,
+    /// Below the height step: "lsm" (least squares on a plane tilted across the window;
+    /// pixels where it fails get no height) or "parabola".
+    #[serde(default = "super::sweep::default_subpixel")]
+    pub subpixel: super::refine::Subpixel,
+    /// Obsolete: the plane sweep scores every height at every pixel, so there is no range to
+    /// narrow. Accepted (and ignored) so that older projects still load.
     #[serde(default = "yes")]
     pub neighbours: bool,
     #[serde(default = "one")]

@@ -95,10 +95,16 @@ pub struct Matching2 {
     pub window: usize,
     #[serde(default = "d_threshold")]
     pub threshold: f64,
+    /// Below the height step: "lsm" (least squares on a plane tilted across the window;
+    /// pixels where it fails get no height) or "parabola".
+    #[serde(default = "super::sweep::default_subpixel")]
+    pub subpixel: super::refine::Subpixel,
     /// Height step of the sweep, m; default: half a pixel of parallax in each pair.
     pub h_step: Option<f64>,
     #[serde(default = "d_stride")]
     pub stride: usize,
+    /// Obsolete: the plane sweep scores every height at every pixel, so there is no range to
+    /// narrow. Accepted (and ignored) so that older projects still load.
     #[serde(default = "d_true")]
     pub neighbours: bool,
     /// Order of the mapping functions derived from the sensors (seed 004: 3); "auto": chosen

@@ -1,20 +1,38 @@
-//! Sub-plane refinement of a sweep's winner by least-squares matching (Gruen 1985, in the one
-//! dimension the sweep searches): the reference window l(u, v) = a + b·s(q(t) + (u, v)), s the
-//! search photo resampled bilinearly, q(t) where the window centre lands on the continuous
-//! plane t (a disparity, or a height in steps). Unknowns t, a, b, iterated from the winning
-//! plane; σ_t = σ₀·√Q_tt from the normal matrix. The window is moved rigidly: for the short
-//! windows of the sweep the mapping's change of scale across the window is far below a pixel.
+//! Sub-plane refinement of a sweep's winner by least-squares matching (Gruen 1985) in the
+//! plane sweep's own terms: the reference window l(u, v) = a + b·s(q(u, v)), s the search photo
+//! resampled bilinearly, q(u, v) where reference point (c + u, r + v) lands on the plane
+//! t + t_u·u + t_v·v — a plane tilted across the window, so that a slope (a height or a
+//! disparity changing across the window) distorts the search window as it does on the ground.
+//! The mapping is linearised at the window centre: q(u, v) = q₀ + J·(u, v) + ∂q/∂t·(t_u·u +
+//! t_v·v). Unknowns t, t_u, t_v, a, b, iterated from the winning plane; σ_t = σ₀·√Q_tt from
+//! the normal matrix.
 
 use crate::image::ImageF32;
-use nalgebra::{Matrix3, Vector3};
+use nalgebra::{SMatrix, SVector};
+
+type M5 = SMatrix<f64, 5, 5>;
+type V5 = SVector<f64, 5>;
+
+/// How a sweep's winner is refined below the plane step.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Subpixel {
+    /// A parabola through the winner's and its neighbours' correlations (fast; biased
+    /// towards the swept planes, and blind to slopes across the window).
+    Parabola,
+    /// Least-squares matching of the winning window on a tilted plane ([`refine`]).
+    Lsm,
+}
 
 /// A refined plane.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Refined {
-    /// The continuous plane.
+    /// The continuous plane at the window centre.
     pub t: f64,
     /// Its standard deviation, planes.
     pub sigma_t: f64,
+    /// The plane's change per pixel across the window (columns, rows).
+    pub tilt: [f64; 2],
     /// The grey-value residual's standard deviation (σ₀).
     pub sigma0: f64,
     pub iterations: usize,
@@ -29,13 +47,13 @@ pub enum RefineFailure {
     Singular,
     #[error("no convergence within the iterations allowed")]
     NoConvergence,
-    #[error("the solution moved more than a plane from the winner")]
+    #[error("the solution moved more than its reach from the winner, or tilted until the window folds")]
     Wandered,
     #[error("the radiometric gain turned negative or vanished")]
     Inverted,
 }
 
-const MAX_ITERATIONS: usize = 12;
+const MAX_ITERATIONS: usize = 15;
 /// Converged when the plane changes by less than this.
 const CONVERGED: f64 = 1e-3;
 
@@ -47,66 +65,67 @@ pub struct Window {
     pub k: usize,
 }
 
-/// Refines plane `t0` for reference window `w` of `left`; `locate(t)` is where the window
-/// centre lands in `right` on plane t. The solution must stay within `reach` planes of `t0`.
+/// Refines plane `t0` for reference window `w` of `left`. `locate(u, v, t)` is where reference
+/// point (c + u, r + v) (offsets in pixels from the window centre) lands in `right` on plane
+/// t. The solution must stay within `reach` planes of `t0`.
 pub fn refine(
     left: &ImageF32,
     Window { c, r, k }: Window,
     right: &ImageF32,
-    locate: &dyn Fn(f64) -> [f64; 2],
+    locate: &dyn Fn(f64, f64, f64) -> [f64; 2],
     t0: f64,
     reach: f64,
 ) -> Result<Refined, RefineFailure> {
-    let ki = k as i64;
-    let mut t = t0;
-    let (mut a, mut b) = (0.0f64, 1.0f64);
-    // Start a and b from the window means and deviations, so that the first step is small.
-    let q0 = locate(t);
-    let (mut sl, mut sl2, mut ss, mut ss2, mut n) = (0.0, 0.0, 0.0, 0.0, 0.0);
-    for v in -ki..=ki {
-        for u in -ki..=ki {
-            let l = left.at((c as i64 + u) as usize, (r as i64 + v) as usize) as f64;
-            let s = right
-                .bilinear(q0[0] + u as f64, q0[1] + v as f64)
-                .ok_or(RefineFailure::OutsideImage)? as f64;
-            sl += l;
-            sl2 += l * l;
-            ss += s;
-            ss2 += s * s;
-            n += 1.0;
-        }
+    let side = 2 * k + 1;
+    let mut lw = Vec::with_capacity(side * side);
+    for rr in r - k..=r + k {
+        lw.extend(
+            left.data[rr * left.width + c - k..][..side]
+                .iter()
+                .map(|&v| v as f64),
+        );
     }
-    let var_s = ss2 / n - (ss / n).powi(2);
-    let var_l = sl2 / n - (sl / n).powi(2);
-    if var_s > 0.0 && var_l > 0.0 {
-        b = (var_l / var_s).sqrt();
-        a = sl / n - b * ss / n;
-    }
-    for it in 1..=MAX_ITERATIONS {
-        let q = locate(t);
-        let (qa, qb) = (locate(t - 0.5), locate(t + 0.5));
+    let n = (side * side) as f64;
+    let mut sw = vec![0.0f64; side * side];
+    let mut gw = vec![0.0f64; side * side];
+    let (mut t, mut tu, mut tv) = (t0, 0.0f64, 0.0f64);
+    let mut a = 0.0f64;
+    let mut b = 1.0f64;
+    for it in 0..=MAX_ITERATIONS {
+        let q0 = locate(0.0, 0.0, t);
+        let qu = locate(1.0, 0.0, t);
+        let qv = locate(0.0, 1.0, t);
+        let (qa, qb) = (locate(0.0, 0.0, t - 0.5), locate(0.0, 0.0, t + 0.5));
         let dir = [qb[0] - qa[0], qb[1] - qa[1]];
-        let mut nm = Matrix3::<f64>::zeros();
-        let mut rhs = Vector3::<f64>::zeros();
-        let mut vv = 0.0;
-        for v in -ki..=ki {
-            for u in -ki..=ki {
-                let (x, y) = (q[0] + u as f64, q[1] + v as f64);
-                let s = right.bilinear(x, y).ok_or(RefineFailure::OutsideImage)? as f64;
-                let sp = right
-                    .bilinear(x + 0.5 * dir[0], y + 0.5 * dir[1])
-                    .ok_or(RefineFailure::OutsideImage)? as f64;
-                let sm = right
-                    .bilinear(x - 0.5 * dir[0], y - 0.5 * dir[1])
-                    .ok_or(RefineFailure::OutsideImage)? as f64;
-                let l = left.at((c as i64 + u) as usize, (r as i64 + v) as usize) as f64;
-                let e = l - (a + b * s);
-                // ∂/∂(t, a, b) of a + b·s(q(t)).
-                let g = Vector3::new(b * (sp - sm), 1.0, s);
-                nm += g * g.transpose();
-                rhs += g * e;
-                vv += e * e;
+        // Where sample (u, v) lands: q₀ + (J + dir·tiltᵀ)·(u, v).
+        let ju = [qu[0] - q0[0] + dir[0] * tu, qu[1] - q0[1] + dir[1] * tu];
+        let jv = [qv[0] - q0[0] + dir[0] * tv, qv[1] - q0[1] + dir[1] * tv];
+        sample(right, q0, [ju, jv], k, dir, &mut sw, &mut gw)?;
+        if it == 0 {
+            // a and b from the windows' means and deviations, so that the first step is small.
+            let (ml, ms) = (lw.iter().sum::<f64>() / n, sw.iter().sum::<f64>() / n);
+            let var_l = lw.iter().map(|v| (v - ml).powi(2)).sum::<f64>();
+            let var_s = sw.iter().map(|v| (v - ms).powi(2)).sum::<f64>();
+            if var_s > 0.0 && var_l > 0.0 {
+                b = (var_l / var_s).sqrt();
+                a = ml - b * ms;
             }
+        }
+        let mut nm = M5::zeros();
+        let mut rhs = V5::zeros();
+        let mut vv = 0.0;
+        for (idx, ((&l, &s), &g)) in lw.iter().zip(&sw).zip(&gw).enumerate() {
+            let (u, v) = (
+                (idx % side) as f64 - k as f64,
+                (idx / side) as f64 - k as f64,
+            );
+            let e = l - (a + b * s);
+            // ∂/∂(t, t_u, t_v, a, b) of a + b·s(q(u, v)).
+            let bg = b * g;
+            let d = V5::new(bg, bg * u, bg * v, 1.0, s);
+            nm += d * d.transpose();
+            rhs += d * e;
+            vv += e * e;
         }
         let q_inv = nm.try_inverse().ok_or(RefineFailure::Singular)?;
         let dx = q_inv * rhs;
@@ -114,27 +133,74 @@ pub fn refine(
             return Err(RefineFailure::Singular);
         }
         t += dx[0];
-        a += dx[1];
-        b += dx[2];
-        if (t - t0).abs() > reach {
+        tu += dx[1];
+        tv += dx[2];
+        a += dx[3];
+        b += dx[4];
+        // A tilt whose parallax changes by a pixel per pixel folds the window over itself.
+        let fold = dir[0].hypot(dir[1]) * tu.abs().max(tv.abs());
+        if (t - t0).abs() > reach || fold.is_nan() || fold >= 0.9 {
             return Err(RefineFailure::Wandered);
         }
         if b <= 1e-6 {
             return Err(RefineFailure::Inverted);
         }
-        if dx[0].abs() < CONVERGED {
-            let dof = n - 3.0;
-            // The residuals of this iteration's linearisation: the step taken is tiny.
-            let sigma0 = (vv / dof).sqrt();
+        let sigma0 = (vv / (n - 5.0)).sqrt();
+        // Converged: a step below a thousandth of a plane, or below a fifth of the plane's own
+        // σ (the bilinear surface's gradient jumps at pixel borders, so the last steps jitter
+        // at the level of the noise rather than shrink).
+        let sigma_t = sigma0 * q_inv[(0, 0)].sqrt();
+        if it > 0 && (dx[0].abs() < CONVERGED || dx[0].abs() < 0.2 * sigma_t) {
             return Ok(Refined {
                 t,
-                sigma_t: sigma0 * q_inv[(0, 0)].sqrt(),
+                sigma_t,
+                tilt: [tu, tv],
                 sigma0,
                 iterations: it,
             });
         }
     }
     Err(RefineFailure::NoConvergence)
+}
+
+/// The search photo's window of half-size `k` at `q0 + j[0]·u + j[1]·v` (bilinear) into `s`,
+/// and each sample's derivative along `dir` (the bilinear surface's own gradient) into `g`.
+fn sample(
+    img: &ImageF32,
+    q0: [f64; 2],
+    j: [[f64; 2]; 2],
+    k: usize,
+    dir: [f64; 2],
+    s: &mut [f64],
+    g: &mut [f64],
+) -> Result<(), RefineFailure> {
+    let side = 2 * k + 1;
+    let (w, h) = (img.width, img.height);
+    let wd = img.width;
+    for jj in 0..side {
+        let v = jj as f64 - k as f64;
+        for ii in 0..side {
+            let u = ii as f64 - k as f64;
+            // Pixel centres at +0.5.
+            let x = q0[0] + j[0][0] * u + j[1][0] * v - 0.5;
+            let y = q0[1] + j[0][1] * u + j[1][1] * v - 0.5;
+            if !(x >= 0.0 && y >= 0.0 && x < (w - 1) as f64 && y < (h - 1) as f64) {
+                return Err(RefineFailure::OutsideImage);
+            }
+            let (i0, j0) = (x as usize, y as usize);
+            let (fx, fy) = (x - i0 as f64, y - j0 as f64);
+            let o = j0 * wd + i0;
+            let (p00, p01) = (img.data[o] as f64, img.data[o + 1] as f64);
+            let (p10, p11) = (img.data[o + wd] as f64, img.data[o + wd + 1] as f64);
+            let top = p00 + fx * (p01 - p00);
+            let bottom = p10 + fx * (p11 - p10);
+            let gx = (1.0 - fy) * (p01 - p00) + fy * (p11 - p10);
+            let gy = bottom - top;
+            s[jj * side + ii] = top + fy * (bottom - top);
+            g[jj * side + ii] = gx * dir[0] + gy * dir[1];
+        }
+    }
+    Ok(())
 }
 
 #[cfg(test)]
@@ -164,7 +230,7 @@ mod tests {
             }
         }
         // Right x = left x − t (disparity t).
-        let locate = |t: f64| [20.5 - t, 15.5];
+        let locate = |u: f64, v: f64, t: f64| [20.5 + u - t, 15.5 + v];
         let got = refine(
             &left,
             Window { c: 20, r: 15, k: 4 },
@@ -208,7 +274,7 @@ mod tests {
                 img.data[r * w + c] = (r as f32 * 0.7).sin() * 50.0;
             }
         }
-        let locate = |t: f64| [15.5 - t, 15.5];
+        let locate = |u: f64, v: f64, t: f64| [15.5 + u - t, 15.5 + v];
         let got = refine(&img, Window { c: 15, r: 15, k: 4 }, &img, &locate, 0.3, 1.0);
         assert!(
             matches!(

@@ -7,7 +7,9 @@
 //! range is narrowed to the heights already found next to the pixel (widened again when the
 //! best lands on the narrowed range's edge). Bands of rows run in parallel.
 
+use super::plane_sweep::{score, winner, Cells, Planes, Prepared, Unseen};
 use super::pmf::Mapping;
+use super::refine::{refine, Subpixel, Window};
 use crate::image::ImageF32;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -21,11 +23,11 @@ pub struct SweepParams {
     pub window: usize,
     /// Lowest correlation accepted (seed 000: 0.5).
     pub threshold: f64,
-    /// Narrow the range to the neighbours' heights ± `neighbour_steps` steps.
-    pub neighbours: bool,
-    pub neighbour_steps: usize,
-    /// Refine below the height step by a parabola.
+    /// Refine below the height step.
     pub refine: bool,
+    /// How: least squares on a tilted plane (a pixel where it fails gets no height), or a
+    /// parabola.
+    pub subpixel: Subpixel,
     /// Match every `stride`-th pixel in each direction.
     pub stride: usize,
 }
@@ -38,12 +40,16 @@ impl Default for SweepParams {
             h_step: 4.0,
             window: 9,
             threshold: 0.5,
-            neighbours: true,
-            neighbour_steps: 4,
             refine: true,
+            subpixel: Subpixel::Lsm,
             stride: 1,
         }
     }
+}
+
+/// The projects' default refinement: least squares.
+pub fn default_subpixel() -> Subpixel {
+    Subpixel::Lsm
 }
 
 /// Heights per matched reference pixel: `h[i + j·cols]` belongs to reference pixel
@@ -78,43 +84,6 @@ impl HeightMap {
     }
 }
 
-/// The reference window centred (zero mean) and its norm; `None` if flat.
-fn reference(img: &ImageF32, c: usize, r: usize, k: usize) -> Option<(Vec<f32>, f32)> {
-    let mut v = Vec::with_capacity((2 * k + 1) * (2 * k + 1));
-    for rr in r - k..=r + k {
-        v.extend_from_slice(&img.data[rr * img.width + c - k..][..2 * k + 1]);
-    }
-    let m = v.iter().sum::<f32>() / v.len() as f32;
-    let mut ss = 0.0;
-    for x in v.iter_mut() {
-        *x -= m;
-        ss += *x * *x;
-    }
-    (ss > 1e-6).then(|| (v, ss.sqrt()))
-}
-
-/// Correlation of the reference window with the search window centred at (x, y).
-#[inline]
-fn ncc_at(right: &ImageF32, x: f64, y: f64, k: usize, refw: &[f32], refn: f32) -> Option<f32> {
-    let w = 2 * k + 1;
-    let (mut s, mut ss, mut sr) = (0.0f32, 0.0f32, 0.0f32);
-    for dy in 0..w {
-        for dx in 0..w {
-            let v = right.bilinear(x + dx as f64 - k as f64, y + dy as f64 - k as f64)?;
-            s += v;
-            ss += v * v;
-            sr += v * refw[dy * w + dx];
-        }
-    }
-    let n = (w * w) as f32;
-    let var = ss - s * s / n;
-    if var <= 1e-6 {
-        return None;
-    }
-    // Σ(v − mean)·ref = Σ v·ref, the reference having zero mean.
-    Some(sr / (refn * var.sqrt()))
-}
-
 /// The standard deviation of a height from its correlation peak, after Förstner's precision of
 /// matching: σ_p² = σ_n² / Σ g′² over the n window pixels, with the noise-to-signal ratio from
 /// the correlation, σ_n²/σ_g² = (1 − ρ)/ρ, and the gradients' share σ_g′²/σ_g² = |ρ″|/ρ from
@@ -129,75 +98,6 @@ pub fn height_sigma(rho: f64, second_difference: f64, step_m: f64, n: usize) -> 
     // A correlation of 1 is noise-free only in theory: resampling alone leaves ~1e-3.
     let rho = rho.min(0.999);
     Some(((1.0 - rho) / (n as f64 * curvature)).sqrt())
-}
-
-/// One reference pixel being matched: its window and where the candidates go.
-struct Candidates<'a> {
-    right: &'a ImageF32,
-    map: &'a Mapping,
-    p: &'a SweepParams,
-    px: [f64; 2],
-    refw: Vec<f32>,
-    refn: f32,
-}
-
-impl Candidates<'_> {
-    /// The correlation at step `i`; `unseen` is set when its window lies beyond the right
-    /// photo (bilinear resampling reads one pixel beyond each sample).
-    fn corr(&self, i: i64, tried: &mut u64, unseen: &mut bool) -> Option<f32> {
-        let h = self.p.h_min + i as f64 * self.p.h_step;
-        let q = self.map.eval([self.px[0], self.px[1], h]);
-        let k = (self.p.window / 2) as f64;
-        let (w, hh) = (self.right.width as f64, self.right.height as f64);
-        if !(q[0] - k >= 0.0
-            && q[1] - k >= 0.0
-            && q[0] + k + 1.0 <= w - 0.5
-            && q[1] + k + 1.0 <= hh - 0.5)
-        {
-            *unseen = true;
-        }
-        *tried += 1;
-        ncc_at(
-            self.right,
-            q[0],
-            q[1],
-            self.p.window / 2,
-            &self.refw,
-            self.refn,
-        )
-    }
-
-    /// The best over steps `lo..=hi`: (step, correlation, the correlations one step below
-    /// and above it); `unseen` is set when a step's window lies beyond the right photo.
-    fn best(
-        &self,
-        lo: i64,
-        hi: i64,
-        tried: &mut u64,
-        unseen: &mut bool,
-    ) -> Option<(i64, f32, Option<f32>, Option<f32>)> {
-        let mut best: Option<(i64, f32)> = None;
-        let (mut prev, mut below, mut above) = (None, None, None);
-        let mut after_best = false;
-        for i in lo..=hi {
-            let c = self.corr(i, tried, unseen);
-            if after_best {
-                above = c;
-                after_best = false;
-            }
-            // A NaN correlation (NaN grey values in a float image) is never the best.
-            if let Some(v) = c.filter(|v| v.is_finite()) {
-                if best.is_none_or(|b| v > b.1) {
-                    best = Some((i, v));
-                    below = prev;
-                    after_best = true;
-                    above = None;
-                }
-            }
-            prev = c;
-        }
-        best.map(|(i, v)| (i, v, below, above))
-    }
 }
 
 /// Matches every `stride`-th reference pixel whose window lies inside `left`.
@@ -325,7 +225,11 @@ impl HeightMap {
     }
 }
 
-/// Matches the rows of bands `bands` of the layout of `left` (see [`SweepLayout`]).
+/// Matches the rows of bands `bands` of the layout of `left` (see [`SweepLayout`]): each band
+/// is one plane sweep over every height (see [`super::plane_sweep`]); per pixel the best
+/// correlation above the threshold, refined below the step by least squares (or, where that
+/// fails or is not asked for, a parabola). A pixel for which some height puts the window
+/// beyond the right photo gets no height: the ground may be at that height.
 pub fn sweep_bands(
     left: &ImageF32,
     right: &ImageF32,
@@ -338,105 +242,88 @@ pub fn sweep_bands(
     let bands = bands.start.min(l.bands())..bands.end.min(l.bands());
     let k = p.window / 2;
     let (s, cols) = (l.stride, l.cols);
-    let (c0, r0) = (l.col0, l.row0);
     let rows = l.band_rows(bands.clone());
-    let n_steps = ((p.h_max - p.h_min) / p.h_step).floor() as i64;
+    let n_planes = planes_of(p);
+    let planes = Planes::Heights {
+        map,
+        h0: p.h_min,
+        step: p.h_step,
+        count: n_planes,
+    };
+    let (lp, rp) = (Prepared::new(left), Prepared::new(right));
     progress.begin("sweep (rows)", rows.len() as u64);
-    #[allow(clippy::type_complexity)]
-    let parts: Vec<(Vec<f32>, Vec<f32>, Vec<f32>, u64)> = bands
+    type Band = (Vec<f32>, Vec<f32>, Vec<f32>, u64);
+    let parts: Vec<Band> = bands
         .clone()
         .into_par_iter()
         .map(|b| {
             let (j0, j1) = (b * BAND_ROWS, ((b + 1) * BAND_ROWS).min(l.rows));
-            let mut h = vec![f32::NAN; (j1 - j0) * cols];
-            let mut corr = vec![f32::NAN; (j1 - j0) * cols];
-            let mut sigma = vec![f32::NAN; (j1 - j0) * cols];
-            let mut tried = 0u64;
-            for j in j0..j1 {
+            let cells = Cells {
+                col0: l.col0,
+                stride: s,
+                cols,
+                rows: (j0..j1).map(|j| l.row0 + j * s).collect(),
+            };
+            let scores = score(&lp, &rp, &planes, k, &cells);
+            let n = (j1 - j0) * cols;
+            let (mut h, mut corr, mut sigma) =
+                (vec![f32::NAN; n], vec![f32::NAN; n], vec![f32::NAN; n]);
+            // Pass 1: winners the right photo saw at every height. Pass 2: a pixel for which
+            // some heights are unseen keeps its best seen one only if its neighbours of pass 1
+            // bracket it and every height of that bracket is seen (the terrain does not jump
+            // from all its neighbours to a height the photo cannot show).
+            let rows_n = cells.rows.len();
+            let mut first: Vec<Option<super::plane_sweep::Winner>> = Vec::with_capacity(n);
+            for jj in 0..rows_n {
                 for i in 0..cols {
-                    let (c, r) = (c0 + i * s, r0 + j * s);
-                    let Some((refw, refn)) = reference(left, c, r, k) else {
-                        continue;
-                    };
-                    let px = [c as f64 + 0.5, r as f64 + 0.5];
-                    // The neighbours' heights (left, and above within the band).
-                    let mut near = Vec::new();
-                    if p.neighbours {
-                        let at = |jj: usize, ii: usize| h[(jj - j0) * cols + ii];
-                        if i > 0 && at(j, i - 1).is_finite() {
-                            near.push(at(j, i - 1));
+                    first.push(winner(scores.cell(i, jj), Unseen::Refuse));
+                }
+            }
+            for (jj, &r) in cells.rows.iter().enumerate() {
+                for i in 0..cols {
+                    let c = l.col0 + i * s;
+                    let cell = scores.cell(i, jj);
+                    let w = match first[jj * cols + i] {
+                        Some(w) => w,
+                        None => {
+                            let Some(w) = winner(cell, Unseen::Skip) else {
+                                continue;
+                            };
+                            if !bracketed(&first, cols, rows_n, i, jj, w.plane, cell) {
+                                continue;
+                            }
+                            w
                         }
-                        if j > j0 && at(j - 1, i).is_finite() {
-                            near.push(at(j - 1, i));
+                    };
+                    if (w.score as f64) < p.threshold {
+                        continue;
+                    }
+                    let (off, den) = w.parabola().unwrap_or((0.0, f64::NAN));
+                    let mut t = w.plane as f64 + if p.refine { off } else { 0.0 };
+                    let mut sd = height_sigma(w.score as f64, den, p.h_step, p.window * p.window);
+                    if p.refine && p.subpixel == Subpixel::Lsm {
+                        let px = [c as f64 + 0.5, r as f64 + 0.5];
+                        let locate =
+                            |u: f64, v: f64, t: f64| planes.locate(px[0] + u, px[1] + v, t);
+                        let win = Window { c, r, k };
+                        match refine(left, win, right, &locate, t, 2.0) {
+                            Ok(f) if f.t >= 0.0 && f.t <= (n_planes - 1) as f64 => {
+                                t = f.t;
+                                sd = Some(f.sigma_t * p.h_step);
+                            }
+                            // Where least squares cannot place the window (an occlusion, a
+                            // fold, no texture along the line) the coarse peak is no better.
+                            _ => continue,
                         }
                     }
-                    let full = (0, n_steps);
-                    let range = if near.is_empty() {
-                        full
-                    } else {
-                        let lo = near.iter().cloned().fold(f32::MAX, f32::min) as f64;
-                        let hi = near.iter().cloned().fold(f32::MIN, f32::max) as f64;
-                        let m = p.neighbour_steps as i64;
-                        (
-                            (((lo - p.h_min) / p.h_step).floor() as i64 - m).max(0),
-                            (((hi - p.h_min) / p.h_step).ceil() as i64 + m).min(n_steps),
-                        )
-                    };
-                    let cand = Candidates {
-                        right,
-                        map,
-                        p,
-                        px,
-                        refw,
-                        refn,
-                    };
-                    let mut unseen = false;
-                    let mut got = cand.best(range.0, range.1, &mut tried, &mut unseen);
-                    let narrowed = range != full;
-                    let poor = got.is_none_or(|g| {
-                        g.1 < p.threshold as f32
-                            || (g.0 == range.0 && range.0 > 0)
-                            || (g.0 == range.1 && range.1 < n_steps)
-                    });
-                    if narrowed && poor {
-                        unseen = false;
-                        got = cand.best(0, n_steps, &mut tried, &mut unseen);
-                    }
-                    // Heights the right photo cannot show were not scored: the ground may be
-                    // at one of them, so the best of the others is no answer (seed 000's
-                    // sweep took it, and invented heights along the photos' edges).
-                    if unseen {
-                        continue;
-                    }
-                    let Some((bi, bc, below, above)) = got else {
-                        continue;
-                    };
-                    if bc.is_nan() || bc < p.threshold as f32 {
-                        continue;
-                    }
-                    // A peak whose neighbouring height could not be scored (a flat or
-                    // not-a-number window there; windows beyond the photo were refused above)
-                    // is no peak that a parabola can refine or trust.
-                    if (bi > 0 && below.is_none()) || (bi < n_steps && above.is_none()) {
-                        continue;
-                    }
-                    let mut hv = p.h_min + bi as f64 * p.h_step;
-                    let mut sd = None;
-                    if let (Some(a), Some(b)) = (below, above) {
-                        let den = a as f64 - 2.0 * bc as f64 + b as f64;
-                        if p.refine && den < 0.0 {
-                            let t = 0.5 * (a as f64 - b as f64) / den;
-                            hv += t.clamp(-0.5, 0.5) * p.h_step;
-                        }
-                        sd = height_sigma(bc as f64, den, p.h_step, p.window * p.window);
-                    }
-                    h[(j - j0) * cols + i] = hv as f32;
-                    corr[(j - j0) * cols + i] = bc;
-                    sigma[(j - j0) * cols + i] = sd.map_or(f32::NAN, |v| v as f32);
+                    let o = jj * cols + i;
+                    h[o] = (p.h_min + t * p.h_step) as f32;
+                    corr[o] = w.score;
+                    sigma[o] = sd.map_or(f32::NAN, |v| v as f32);
                 }
             }
             progress.advance((j1 - j0) as u64);
-            (h, corr, sigma, tried)
+            (h, corr, sigma, (n * n_planes) as u64)
         })
         .collect();
     progress.end();
@@ -460,6 +347,51 @@ pub fn sweep_bands(
         corr,
         sigma,
         candidates,
+    }
+}
+
+/// Cells either side searched for the neighbours that bracket a pixel's height.
+const BRACKET_REACH: usize = 4;
+/// Steps the bracket is widened by on both sides.
+const BRACKET_MARGIN: usize = 2;
+
+/// Whether plane `plane` of cell (i, j) lies within the planes of its band neighbours'
+/// pass-1 winners (at least 3 of them, within [`BRACKET_REACH`] cells), widened by
+/// [`BRACKET_MARGIN`] steps, with every plane of that bracket seen for this cell.
+fn bracketed(
+    first: &[Option<super::plane_sweep::Winner>],
+    cols: usize,
+    rows: usize,
+    i: usize,
+    j: usize,
+    plane: usize,
+    cell: &[f32],
+) -> bool {
+    let (mut lo, mut hi, mut n) = (usize::MAX, 0usize, 0);
+    for jj in j.saturating_sub(BRACKET_REACH)..(j + BRACKET_REACH + 1).min(rows) {
+        for ii in i.saturating_sub(BRACKET_REACH)..(i + BRACKET_REACH + 1).min(cols) {
+            if let Some(w) = first[jj * cols + ii] {
+                lo = lo.min(w.plane);
+                hi = hi.max(w.plane);
+                n += 1;
+            }
+        }
+    }
+    if n < 3 {
+        return false;
+    }
+    let lo = lo.saturating_sub(BRACKET_MARGIN);
+    let hi = (hi + BRACKET_MARGIN).min(cell.len() - 1);
+    (lo..=hi).contains(&plane) && cell[lo..=hi].iter().all(|v| !v.is_nan())
+}
+
+/// The heights tried: h_min and every whole step up to h_max.
+pub fn planes_of(p: &SweepParams) -> usize {
+    let n = ((p.h_max - p.h_min) / p.h_step).floor();
+    if n.is_finite() && n >= 0.0 {
+        n as usize + 1
+    } else {
+        0
     }
 }
 
