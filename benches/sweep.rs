@@ -1,8 +1,8 @@
-//! Height-sweep throughput in pixel·candidate-heights per second: the matcher (reference
-//! window statistics computed once per pixel, bands of rows in parallel) against a
-//! straightforward per-pixel baseline (both windows' means and deviations recomputed for every
-//! candidate, one thread), on the same simulator pair and the same full height range; then
-//! the matcher with its neighbour narrowing, in pixels per second.
+//! Height-sweep throughput in pixel·candidate-heights per second: the plane sweep (the search
+//! photo resampled once per height, NCC from running sums, bands of rows in parallel) against
+//! a straightforward per-pixel baseline (both windows' means and deviations recomputed for
+//! every candidate, one thread), on the same simulator pair and the same full height range;
+//! then the sweep with its least-squares refinement of every winner.
 
 mod common;
 
@@ -10,6 +10,7 @@ use criterion::{criterion_group, Criterion};
 use rig::digitise::ImageF32;
 use rig::geometry::FrameSensor;
 use rig::matching::pmf::Mapping;
+use rig::matching::refine::Subpixel;
 use rig::matching::sweep::{sweep, SweepParams};
 use rig::matching::PmfSet;
 use rig::scan::PhotoGrid;
@@ -54,7 +55,7 @@ fn case() -> Case {
             h_min: 340.0,
             h_max: 600.0,
             h_step: 2.0,
-            neighbours: false,
+            subpixel: Subpixel::Parabola,
             ..Default::default()
         },
     }
@@ -134,8 +135,8 @@ fn matching(cr: &mut Criterion) {
         b.iter(|| black_box(sweep(&c.left, &c.right, &c.map, &c.p)))
     });
     let mut pn = c.p.clone();
-    pn.neighbours = true;
-    g.bench_function("matcher_neighbours", |b| {
+    pn.subpixel = Subpixel::Lsm;
+    g.bench_function("matcher_lsm", |b| {
         b.iter(|| black_box(sweep(&c.left, &c.right, &c.map, &pn)))
     });
     g.finish();
@@ -153,7 +154,7 @@ fn main() {
     let (base_h, base_n) = naive(&c);
     let full = sweep(&c.left, &c.right, &c.map, &c.p);
     let mut pn = c.p.clone();
-    pn.neighbours = true;
+    pn.subpixel = Subpixel::Lsm;
     let near = sweep(&c.left, &c.right, &c.map, &pn);
     let same = base_h
         .iter()
@@ -164,11 +165,11 @@ fn main() {
     if let (Some(tb), Some(tf), Some(tn)) = (
         common::mean_ns(name, "per_pixel_baseline"),
         common::mean_ns(name, "matcher_full_range"),
-        common::mean_ns(name, "matcher_neighbours"),
+        common::mean_ns(name, "matcher_lsm"),
     ) {
         let px = (full.cols * full.rows) as f64;
         println!(
-            "\nheight sweep, {} px × {} heights: per-pixel baseline {:.2} M pixel·heights/s; matcher {:.2} M/s ({:.1}×); with neighbour narrowing {:.0} px/s against the baseline's {:.0} px/s ({:.1}×, {:.1} candidates per pixel). Same height (±1 step) as the baseline at {:.1} % of pixels.",
+            "\nheight sweep, {} px × {} heights: per-pixel baseline {:.2} M pixel·heights/s; plane sweep {:.2} M/s ({:.1}×); with least squares on every winner {:.0} px/s against the baseline's {:.0} px/s ({:.1}×; {:.1} % of pixels given a height). Same height (±1 step) as the baseline at {:.1} % of pixels.",
             px,
             base_n as f64 / px,
             base_n as f64 / tb * 1e3,
@@ -177,7 +178,7 @@ fn main() {
             px / tn * 1e9,
             px / tb * 1e9,
             tb / tn,
-            near.candidates as f64 / px,
+            100.0 * near.matched() as f64 / px,
             100.0 * same as f64 / px
         );
     }

@@ -47,7 +47,9 @@ pub enum RefineFailure {
     Singular,
     #[error("no convergence within the iterations allowed")]
     NoConvergence,
-    #[error("the solution moved more than its reach from the winner, or tilted until the window folds")]
+    #[error(
+        "the solution moved more than its reach from the winner, or tilted until the window folds"
+    )]
     Wandered,
     #[error("the radiometric gain turned negative or vanished")]
     Inverted,
