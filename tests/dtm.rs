@@ -142,8 +142,8 @@ fn elevation_model_from_a_rendered_pair_meets_half_the_height_step() {
     assert!(!e.contains("sweep (rows)"), "{e}");
     // A project with a bad value names the file and the field.
     let bad = scene.join("bad.toml");
-    let text = project.replace("h_step = 2", "h_step = -2");
-    assert_ne!(text, project, "the scene's project has no `h_step = 2`");
+    let text = project.replace("[matching]\n", "[matching]\nh_step = -2\n");
+    assert_ne!(text, project, "the scene's project has no [matching]");
     std::fs::write(&bad, text).unwrap();
     let o = rig()
         .args(["dtm", "pmf", "--project"])
@@ -242,4 +242,76 @@ fn the_demo_runs_the_whole_chain_and_meets_half_the_height_step() {
         }
         assert!(pictures >= 3, "{page}: {pictures} pictures");
     }
+}
+
+/// The sweep's own accuracy, apart from any orientation error: a rendered pair with the
+/// simulator's exact orientations as a format-2 project (mapping functions derived from the
+/// sensors). The model's RMSE against the true DEM, in pixels of parallax (the step is half a
+/// pixel), is at most 0.15 px.
+#[test]
+fn with_exact_orientations_the_model_is_within_a_seventh_of_a_pixel_of_parallax() {
+    let d = tempfile::tempdir().unwrap();
+    let scene = d.path().join("scene");
+    run_ok(
+        rig()
+            .args([
+                "sim",
+                "scene",
+                "--seed",
+                "3",
+                "--area",
+                "38,-6,52,6",
+                "--out",
+            ])
+            .arg(&scene),
+    );
+    let truth: Value =
+        serde_json::from_slice(&std::fs::read(scene.join("truth.json")).unwrap()).unwrap();
+    let [ox, oy] = rig::sim_scene::ORIGIN_M;
+    let mut toml = String::from("format = 2\ncrs = \"EPSG:32616\"\n");
+    for ph in truth["photos"].as_array().unwrap() {
+        let e = &ph["exterior"];
+        let f = |k: &str| e[k].as_f64().unwrap();
+        toml += &format!(
+            "[[photo]]\nid = \"{n}\"\nscan = \"photo-{n}.json\"\nposition = [{}, {}, {}]\nangles_deg = [{}, {}, {}]\n",
+            f("x0_m") + ox,
+            f("y0_m") + oy,
+            f("z0_m"),
+            f("omega_deg"),
+            f("phi_deg"),
+            f("kappa_deg"),
+            n = ph["number"]
+        );
+    }
+    let [lo, hi] = [
+        truth["terrain_m"][0].as_f64().unwrap(),
+        truth["terrain_m"][1].as_f64().unwrap(),
+    ];
+    toml += &format!(
+        "[dem]\ncell_m = 10.0\nheights = [{}, {}]\n[check]\nreference = \"truth-dem.tif\"\n",
+        lo - 30.0,
+        hi + 30.0
+    );
+    let p = scene.join("exact.toml");
+    std::fs::write(&p, toml).unwrap();
+    let out = d.path().join("exact");
+    let o = run_ok(
+        rig()
+            .arg("dtm")
+            .arg(&p)
+            .arg("--json")
+            .arg("--out")
+            .arg(&out),
+    );
+    let v: Value = serde_json::from_slice(&o.stdout).unwrap();
+    let pair = &v["pairs"][0];
+    let px_m = 2.0 * pair["h_step_m"].as_f64().unwrap();
+    let rmse = v["comparison"]["rmse_m"].as_f64().unwrap();
+    let matched = pair["dtm"]["matched_percent"].as_f64().unwrap();
+    eprintln!(
+        "RMSE {rmse:.3} m = {:.3} px of parallax ({px_m:.3} m per px), {matched:.1} % matched",
+        rmse / px_m
+    );
+    assert!(rmse / px_m <= 0.15, "{:.3} px", rmse / px_m);
+    assert!(matched > 85.0, "{matched:.1} % matched");
 }

@@ -107,11 +107,15 @@ pub fn print_report(pmf: &[FitReport], r: &PmfDtm) {
     let t = &r.report;
     let s = &t.params.sweep;
     println!(
-        "matching (Table 3): heights {:.0}…{:.0} m by {} m, window {w}×{w}, threshold {}",
+        "matching (Table 3): heights {:.0}…{:.0} m by {:.3} m, window {w}×{w}, threshold {}, sub-step by {}",
         s.h_min,
         s.h_max,
         s.h_step,
         s.threshold,
+        match s.subpixel {
+            rig::matching::refine::Subpixel::Lsm => "least squares",
+            rig::matching::refine::Subpixel::Parabola => "parabola",
+        },
         w = s.window
     );
     println!(

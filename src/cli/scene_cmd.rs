@@ -242,10 +242,6 @@ pub fn truth_grid(
     Ok(rig::sim_scene::grid_to_crs(grid))
 }
 
-/// Height step of the projects the scene and the demo write, m (about twice the accuracy
-/// expected at 25 µm on the film: seed 000 §2.2).
-pub const HEIGHT_STEP_M: f64 = 2.0;
-
 /// A project for `left`/`right` (sidecars) with seed 000's parameters over the terrain range
 /// `hs` (± 30 m), the points in points.json and the true DEM in truth-dem.tif.
 pub fn project_toml(header: &str, [left, right]: [&Path; 2], hs: [f64; 2]) -> String {
@@ -267,15 +263,14 @@ from = "points"      # or "rigorous": resect both photos from the control points
 [matching]
 h_min = {lo:.0}
 h_max = {hi:.0}
-h_step = {step}
+# h_step = 2.0      # m; default: half a pixel of parallax where it is largest
 window = 9
 threshold = 0.5
-neighbours = true
 stride = 1
 
 [regions]
 search_distance = 2
-height_threshold = {thr}
+# height_threshold = 3.0   # m; default: 1.5 × the step
 population_threshold = 200
 
 [grid]
@@ -288,8 +283,6 @@ flying_height_m = 6500.0
         r = right.display(),
         lo = hs[0] - 30.0,
         hi = hs[1] + 30.0,
-        step = HEIGHT_STEP_M,
-        thr = 1.5 * HEIGHT_STEP_M,
     )
 }
 

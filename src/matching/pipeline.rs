@@ -16,7 +16,7 @@ use super::pmf_set::FitReport;
 use super::precision::{sigma_vs_reference, SigmaCheck};
 use super::project::{PmfSource, Project, ProjectError};
 use super::regions::RegionParams;
-use super::sweep::SweepParams;
+use super::sweep::{step_for_parallax, SweepParams};
 use super::{MatchedPoint, PmfSet, StereoPoint};
 use crate::coords::{GroundM, PixelXY};
 use crate::geometry::Crs;
@@ -40,6 +40,8 @@ pub struct Photo {
 pub enum PipelineError {
     #[error(transparent)]
     Project(#[from] ProjectError),
+    #[error("the mapping functions show no parallax (the photos have no base?): no height step can be derived; give [matching] h_step")]
+    NoParallax,
     #[error("fitting the mapping functions to {path}: {cause}")]
     Fit { path: PathBuf, cause: PmfError },
     #[error("the mappings {path}: {message}")]
@@ -251,11 +253,18 @@ pub fn run(
     check_out_dir(out)?;
     let pts = p.points()?;
     let (pmfs, orientation) = mappings(p, photos, &pts)?;
+    let heights = [p.matching.h_min, p.matching.h_max];
+    let (w, h) = (photos[0].image.width, photos[0].image.height);
+    let h_step = p
+        .matching
+        .h_step
+        .or_else(|| step_for_parallax(&pmfs.left_to_right, w, h, heights, 0.5))
+        .ok_or(PipelineError::NoParallax)?;
     let params = PmfDtmParams {
         sweep: SweepParams {
             h_min: p.matching.h_min,
             h_max: p.matching.h_max,
-            h_step: p.matching.h_step,
+            h_step,
             window: p.matching.window,
             threshold: p.matching.threshold,
             subpixel: p.matching.subpixel,
@@ -264,7 +273,7 @@ pub fn run(
         },
         regions: RegionParams {
             search_distance: p.regions.search_distance,
-            height_threshold: p.height_threshold(),
+            height_threshold: p.height_threshold(h_step),
             population_threshold: p.regions.population_threshold,
         },
         cell_m: p.grid.cell_m,

@@ -16,7 +16,9 @@ use super::precision::{
 };
 use super::project2::{Kind, Observation, Project2, Project2Error, Source};
 use super::regions::RegionParams;
-use super::sweep::{sweep_bands, HeightMap, SweepLayout, SweepParams, SweptBands};
+use super::sweep::{
+    step_for_parallax, sweep_bands, HeightMap, SweepLayout, SweepParams, SweptBands,
+};
 use super::{MatchedPoint, PmfSet};
 use crate::coords::{GroundM, PixelXY};
 use crate::geometry::{
@@ -255,18 +257,6 @@ fn overlap(a: [f64; 4], b: [f64; 4]) -> Option<[f64; 4]> {
     (o[2] > o[0] && o[3] > o[1]).then_some(o)
 }
 
-/// Half a pixel of parallax in the right photo, in metres of height, at the left photo's
-/// centre: the sweep's step, so that the correlation peak is sampled finely enough for its
-/// parabola (seed 000 used 2 m where that was 4–9 px: too coarse).
-fn parallax_step(l: &dyn Sensor, r: &dyn Sensor, z: f64) -> Option<f64> {
-    let (w, h) = l.image_size();
-    let q = PixelXY::new(0.5 * w as f64, 0.5 * h as f64);
-    let a = r.ground_to_image(l.image_to_ground(q, z)?)?;
-    let b = r.ground_to_image(l.image_to_ground(q, z + 1.0)?)?;
-    let px_per_m = (a.col - b.col).hypot(a.row - b.row);
-    (px_per_m > 1e-9).then(|| (0.5 / px_per_m).clamp(0.01, 100.0))
-}
-
 /// A photo's geometry without its pixels: what the plan needs.
 #[derive(Debug, Clone, Copy)]
 pub struct PhotoGeometry {
@@ -442,7 +432,11 @@ pub fn plan(
                 right: ri.clone(),
                 message: e.to_string(),
             })?;
-        let h_step = m.h_step.or_else(|| parallax_step(l, r, mid)).unwrap_or(1.0);
+        let (w, h) = l.image_size();
+        let h_step = m
+            .h_step
+            .or_else(|| step_for_parallax(&pmfs.left_to_right, w, h, heights, 0.5))
+            .unwrap_or(1.0);
         let params = PmfDtmParams {
             sweep: SweepParams {
                 h_min: heights[0],
@@ -723,16 +717,22 @@ mod tests {
     }
 
     /// Two vertical photos with base B at height Z₀: x-parallax p = f·B/(Z₀ − h) (in pixels of
-    /// size s: /s), so dp/dh = f·B/(s·(Z₀ − h)²); the step is half a pixel of it, in metres.
+    /// size s: /s), so dp/dh = f·B/(s·(Z₀ − h)²), largest at the top of the range; the step
+    /// from the mapping functions is half a pixel of it there, in metres.
     #[test]
     fn the_step_is_half_a_pixel_of_parallax() {
-        let (b, z0, h) = (2500.0, 6900.0, 400.0);
+        let (b, z0, heights) = (2500.0, 6900.0, [300.0, 700.0]);
         let (l, r) = (vertical(0.0, z0), vertical(b, z0));
-        let got = parallax_step(&l, &r, h).unwrap();
-        let px_per_m = 153.0 * b / (0.1 * (z0 - h) * (z0 - h));
-        let want = 0.5 / px_per_m;
+        let set = PmfSet::from_sensors(&l, &r, heights, 3).unwrap();
+        let got = step_for_parallax(&set.left_to_right, 2000, 2000, heights, 0.5).unwrap();
+        let top = z0 - heights[1];
+        let want = 0.5 / (153.0 * b / (0.1 * top * top));
         assert!((got - want).abs() < 0.01 * want, "{got} m vs {want} m");
         // A pair with no base has no parallax: no step from it.
-        assert_eq!(parallax_step(&l, &vertical(0.0, z0), h), None);
+        let none = PmfSet::from_sensors(&l, &vertical(0.0, z0), heights, 3).unwrap();
+        assert_eq!(
+            step_for_parallax(&none.left_to_right, 2000, 2000, heights, 0.5),
+            None
+        );
     }
 }

@@ -85,7 +85,10 @@ fn two() -> u8 {
 pub struct Matching {
     pub h_min: f64,
     pub h_max: f64,
-    pub h_step: f64,
+    /// Height step, m; default: half a pixel of parallax where it is largest (derived from
+    /// the mapping functions).
+    #[serde(default)]
+    pub h_step: Option<f64>,
     #[serde(default = "nine")]
     pub window: usize,
     #[serde(default = "half")]
@@ -313,12 +316,13 @@ impl Project {
                 HEIGHT_RANGE.end()
             ));
         }
-        let steps = (m.h_max - m.h_min) / m.h_step;
-        if !(m.h_step.is_finite() && m.h_step > 0.0 && steps <= MAX_HEIGHTS) {
-            return Err(format!(
-                "[matching] h_step {}: positive, and at most {MAX_HEIGHTS} steps from h_min to h_max (here {steps:.3e})",
-                m.h_step
-            ));
+        if let Some(step) = m.h_step {
+            let steps = (m.h_max - m.h_min) / step;
+            if !(step.is_finite() && step > 0.0 && steps <= MAX_HEIGHTS) {
+                return Err(format!(
+                    "[matching] h_step {step}: positive, and at most {MAX_HEIGHTS} steps from h_min to h_max (here {steps:.3e}); or leave it out for half a pixel of parallax"
+                ));
+            }
         }
         if !(0..=3).contains(&self.pmf.order) {
             return Err(format!(
@@ -380,9 +384,8 @@ impl Project {
         Ok(pts)
     }
 
-    pub fn height_threshold(&self) -> f64 {
-        self.regions
-            .height_threshold
-            .unwrap_or(1.5 * self.matching.h_step)
+    /// The region filter's height threshold: given, or 1.5 × the step the sweep takes.
+    pub fn height_threshold(&self, h_step: f64) -> f64 {
+        self.regions.height_threshold.unwrap_or(1.5 * h_step)
     }
 }
