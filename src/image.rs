@@ -154,43 +154,57 @@ pub fn load_grey(path: &std::path::Path, max_bytes: u64) -> std::io::Result<Imag
     })
 }
 
-/// Reads an image for a plain stereo pair: grey as [`load_grey`] reads it, colour (PNG or
-/// TIFF, 8 or 16 bits per sample, with or without alpha) turned grey with Rec. 601 weights
-/// 0.299 R + 0.587 G + 0.114 B (as OpenCV's cvtColor does), on a 0–255 scale.
+/// Reads an image for a plain stereo pair: grey as [`load_grey`] reads it; anything else the
+/// `image` crate decodes (colour or grey with alpha, 8/16-bit or float samples) turned grey
+/// with Rec. 601 weights 0.299 R + 0.587 G + 0.114 B (as OpenCV's cvtColor does), on a 0–255
+/// scale, alpha ignored. Multi-page TIFFs: the first page.
 pub fn load_luma(path: &std::path::Path, max_bytes: u64) -> std::io::Result<ImageF32> {
     let grey_error = match load_grey(path, max_bytes) {
         Ok(img) => return Ok(img),
         Err(e) => e,
     };
-    let colour = (|| -> Option<ImageF32> {
-        let r = image::ImageReader::open(path)
-            .ok()?
+    let bad = |what: String| {
+        std::io::Error::new(
+            std::io::ErrorKind::InvalidData,
+            format!("{}: {what}", path.display()),
+        )
+    };
+    let open = || -> std::io::Result<_> {
+        image::ImageReader::open(path)?
             .with_guessed_format()
-            .ok()?;
-        let (w, h) = r.into_dimensions().ok()?;
+            .map_err(|e| bad(e.to_string()))
+    };
+    let decoded = (|| -> std::io::Result<ImageF32> {
+        let (w, h) = open()?
+            .into_dimensions()
+            .map_err(|e| bad(format!("not a readable image ({e})")))?;
         if w == 0 || h == 0 || 4 * w as u64 * h as u64 > max_bytes {
-            return None;
+            return Err(bad(format!(
+                "{w} × {h} px needs {} MiB as an image; the limit is {} MiB",
+                (4 * w as u64 * h as u64) >> 20,
+                max_bytes >> 20
+            )));
         }
-        let img = image::ImageReader::open(path)
-            .ok()?
-            .with_guessed_format()
-            .ok()?;
-        let img = img.decode().ok()?;
-        if !img.color().has_color() {
-            return None;
-        }
+        let img = open()?
+            .decode()
+            .map_err(|e| bad(format!("not a readable image ({e})")))?;
         let rgb = img.to_rgb32f();
         let data = rgb
             .pixels()
             .map(|p| 255.0 * (0.299 * p[0] + 0.587 * p[1] + 0.114 * p[2]))
             .collect();
-        Some(ImageF32 {
+        Ok(ImageF32 {
             width: w as usize,
             height: h as usize,
             data,
         })
     })();
-    colour.ok_or(grey_error)
+    match decoded {
+        Ok(img) => Ok(img),
+        // A colour image the decoder could not read: its own reason. Else the grey reader's.
+        Err(e) if grey_error.to_string().contains("pixels: a") => Err(e),
+        Err(_) => Err(grey_error),
+    }
 }
 
 #[cfg(test)]

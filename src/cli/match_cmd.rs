@@ -40,10 +40,11 @@ pub enum MatchAction {
     /// The disparity is d = x_left − x_right in whole and fractional pixels, on the left
     /// photo's pixels (Middlebury's and OpenCV's convention). MIN and MAX are inclusive and
     /// may be negative. Every pixel is compared with the right photo at each disparity by
-    /// normalised cross-correlation over a window; a pixel gets no disparity where the right
-    /// photo does not see every disparity searched (near its left edge when MIN ≥ 0), where
-    /// the best correlation is below --threshold, or where the right photo's own best match
-    /// points elsewhere (left-right check).
+    /// normalised cross-correlation over a window. Disparities whose window lies beyond the
+    /// right photo are never a match; a pixel gets no disparity where its best one has such a
+    /// neighbour, lies at MIN or MAX (the match may be beyond: a warning says to widen the
+    /// range), correlates below --threshold, or where the right photo's own best match points
+    /// elsewhere (left-right check). At most 4096 disparities, within ±1 000 000 px.
     ///
     /// Writes into --out: disparity.tif (float32, NaN where there is no match),
     /// correlation.tif, sigma.tif (σ of each disparity, px), disparity.png (a preview with its
@@ -55,7 +56,9 @@ pub enum MatchAction {
     ///   rig match pair l.png r.png --disparity 0 127 --out m --json | jq .stats.matched
     #[command(verbatim_doc_comment)]
     Pair {
+        /// The left photo (the disparities lie on its pixels).
         left: PathBuf,
+        /// The right photo: the same number of rows.
         right: PathBuf,
         /// The disparities searched, whole pixels, both inclusive.
         #[arg(long, num_args = 2, value_names = ["MIN", "MAX"], allow_negative_numbers = true, required = true)]
@@ -75,12 +78,13 @@ pub enum MatchAction {
         subpixel: SubpixelArg,
         /// Largest disagreement between the left's and the right's disparity, px; 0 turns the
         /// check off.
-        #[arg(long, default_value_t = 1.0)]
+        #[arg(long, default_value_t = 1.0, allow_negative_numbers = true)]
         lr_tolerance: f64,
-        /// SGM penalties for a change of one disparity and of more, in cost units (256 is the
-        /// cost of an uncorrelated window).
+        /// SGM penalty for a change of one disparity between neighbours, in cost units (256
+        /// is the cost of an uncorrelated window; 0 … 65534, below --p2).
         #[arg(long, default_value_t = SgmParams::default().p1)]
         p1: u16,
+        /// SGM penalty for a larger change (a discontinuity), in the same units.
         #[arg(long, default_value_t = SgmParams::default().p2)]
         p2: u16,
         /// Most memory the run may take, MiB.
@@ -116,6 +120,13 @@ pub fn run(a: MatchArgs) -> anyhow::Result<i32> {
         eprintln!("rig match pair: --p1 {p1} must be below --p2 {p2}");
         return Ok(rig::exit::USAGE);
     }
+    if out.exists() && !out.is_dir() {
+        eprintln!(
+            "rig match pair: --out {} is a file: give a directory (new, or holding an earlier run's outputs)",
+            out.display()
+        );
+        return Ok(rig::exit::USAGE);
+    }
     let foreign = rig::atomic::foreign_files(&out, |f| pair_output::OUTPUTS.contains(&f))
         .with_context(|| format!("reading {}", out.display()))?;
     if !foreign.is_empty() {
@@ -126,6 +137,13 @@ pub fn run(a: MatchArgs) -> anyhow::Result<i32> {
         );
         return Ok(rig::exit::USAGE);
     }
+    // Found out before the work, not after it.
+    std::fs::create_dir_all(&out).with_context(|| {
+        format!(
+            "creating the output directory {} (give a directory you can write to)",
+            out.display()
+        )
+    })?;
     let max_bytes = max_memory.saturating_mul(1 << 20);
     let l = rig::image::load_luma(&left, max_bytes)?;
     let r = rig::image::load_luma(&right, max_bytes)?;
@@ -161,22 +179,31 @@ pub fn run(a: MatchArgs) -> anyhow::Result<i32> {
     };
     pair_output::write_all(&out, &m, &p, &left, &right)?;
     let report = pair_output::report(&m, &p, &left, &right);
+    let s = &m.stats;
+    if s.at_range_end as f64 > 0.01 * s.pixels.max(1) as f64 {
+        eprintln!(
+            "rig match pair: warning: {:.1} % of the pixels had their best correlation at MIN or MAX: the disparities may reach beyond {} … {}; widen --disparity",
+            100.0 * s.at_range_end as f64 / s.pixels as f64,
+            p.d_min,
+            p.d_max
+        );
+    }
     if json {
         println!("{}", serde_json::to_string_pretty(&report)?);
         return Ok(0);
     }
-    let s = &m.stats;
     let pct = |n: usize| 100.0 * n as f64 / s.pixels.max(1) as f64;
     println!(
         "{} × {} px, disparities {} … {} ({}), window {} px, filter {:?}, sub-pixel {:?}",
         s.width, s.height, p.d_min, p.d_max, s.disparities, p.window, p.filter, p.subpixel
     );
     println!(
-        "matched {:.1} % of {} pixels; no match: right photo does not see {:.1} %, flat {:.1} %, below threshold {:.1} %, left-right check {:.1} %, regions {:.1} %",
+        "matched {:.1} % of {} pixels; no match: right photo does not see {:.1} %, flat {:.1} %, best at MIN or MAX {:.1} %, below threshold {:.1} %, left-right check {:.1} %, regions {:.1} %",
         pct(s.matched),
         s.pixels,
         pct(s.unseen),
         pct(s.unscored),
+        pct(s.at_range_end),
         pct(s.below_threshold),
         pct(s.left_right),
         pct(s.regions)
@@ -189,10 +216,9 @@ pub fn run(a: MatchArgs) -> anyhow::Result<i32> {
         );
     }
     println!(
-        "{:.2} s ({:.2} s scoring: {:.0} M pixel-candidates/s); written to {}/ (disparity.tif, correlation.tif, sigma.tif, disparity.png, report.json)",
+        "{:.2} s ({:.0} M pixel-candidates/s); written to {}/ (disparity.tif, correlation.tif, sigma.tif, disparity.png, report.json)",
         s.seconds_total,
-        s.seconds_score,
-        s.candidates as f64 / s.seconds_score.max(1e-9) / 1e6,
+        s.candidates as f64 / s.seconds_total.max(1e-9) / 1e6,
         out.display()
     );
     Ok(0)

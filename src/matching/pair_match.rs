@@ -73,10 +73,12 @@ pub struct PairStats {
     pub candidates: u64,
     /// Pixels whose window lies inside the left photo.
     pub pixels: usize,
-    /// Pixels for which the right photo does not see every disparity searched.
+    /// Pixels without a winner the right photo sees with seen neighbours on both sides.
     pub unseen: usize,
     /// Pixels with a flat window, or a winner with a flat neighbour.
     pub unscored: usize,
+    /// Pixels whose best disparity was MIN or MAX (the match may lie beyond the range).
+    pub at_range_end: usize,
     pub below_threshold: usize,
     pub left_right: usize,
     pub regions: usize,
@@ -84,7 +86,8 @@ pub struct PairStats {
     pub lsm_refined: usize,
     /// Why least squares failed, and how often (the parabola's value was kept).
     pub lsm_failures: BTreeMap<String, usize>,
-    pub seconds_score: f64,
+    /// Seconds of the semi-global aggregation (0 without it), and of the whole match.
+    pub seconds_aggregate: f64,
     pub seconds_total: f64,
 }
 
@@ -103,41 +106,44 @@ pub struct DisparityMap {
 pub enum PairError {
     #[error("the photos have {left} and {right} rows: a rectified pair has the same number of rows in both (rectify it first)")]
     Rows { left: usize, right: usize },
-    #[error("disparities {min} … {max}: MIN must not exceed MAX, and at most {MAX_DISPARITIES} disparities are searched")]
+    #[error("--disparity {min} {max}: MIN must not exceed MAX, both within ±{MAX_ABS_DISPARITY} px, and at most {MAX_DISPARITIES} disparities searched")]
     Range { min: i64, max: i64 },
-    #[error("window {0}: odd, from 3 to 31 px")]
+    #[error("--window {0}: odd, from 3 to 31 px")]
     Window(usize),
-    #[error("the left photo ({w} × {h} px) is smaller than the window ({window} px)")]
-    TooSmall { w: usize, h: usize, window: usize },
-    #[error("threshold {0}: a correlation from −1 to 1")]
+    #[error("the {which} photo ({w} × {h} px) is smaller than the window ({window} px)")]
+    TooSmall {
+        which: &'static str,
+        w: usize,
+        h: usize,
+        window: usize,
+    },
+    #[error("--threshold {0}: a correlation from −1 to 1")]
     Threshold(f64),
-    #[error("matching needs about {need_mb:.0} MB; the limit is {limit_mb} MB: crop the photos, narrow the disparities, use --filter none or regions (no volume kept), or raise --max-memory")]
-    Memory { need_mb: f64, limit_mb: u64 },
+    #[error("matching needs about {need_mib:.0} MiB; the limit is {limit_mib} MiB: crop the photos, narrow the disparities, use --filter none or regions (no cost volume kept), or raise --max-memory")]
+    Memory { need_mib: f64, limit_mib: u64 },
 }
 
 pub const MAX_DISPARITIES: i64 = 4096;
+/// Largest |MIN| and |MAX|, px (far beyond any photo, far from overflow).
+pub const MAX_ABS_DISPARITY: i64 = 1_000_000;
 /// Rows scored together (one rayon task).
 const BAND: usize = 32;
 
-/// Bytes that matching `left` against `right` holds at once.
+/// Bytes that matching `left` against `right` holds at once: the photos (as read, and
+/// prepared), the outputs and matches, the bands being scored, and for SGM the whole score volume (f32)
+/// with, while it is aggregated, its costs and the two sweeps' sums (u16 each).
 pub fn bytes_needed(w: usize, h: usize, wr: usize, p: &PairParams) -> f64 {
-    let np = (p.d_max - p.d_min + 1).max(0) as usize;
+    let np = (p.d_max as f64 - p.d_min as f64 + 1.0).max(0.0);
     let k = p.window / 2;
-    let cols = w.saturating_sub(2 * k);
-    let rows = h.saturating_sub(2 * k);
-    let images = 8.0 * (w * h + wr * h) as f64 + 12.0 * (w * h) as f64;
-    let band = Cells {
-        col0: k,
-        stride: 1,
-        cols,
-        rows: (0..BAND.min(rows)).collect(),
-    };
-    let bands = super::plane_sweep::bytes_needed(w, &band, np, k, false)
-        * rayon::current_num_threads() as f64;
+    let cols = w.saturating_sub(2 * k) as f64;
+    let rows = h.saturating_sub(2 * k) as f64;
+    // The photos as read and as prepared; the three outputs and the rows' matches (24 B).
+    let images = 8.0 * (w * h + wr * h) as f64 + 36.0 * (w * h) as f64;
+    let threads = rayon::current_num_threads() as f64;
+    // A band's slab (f32), its running sums, and its "higher is better" copy.
+    let bands = threads * np * (8.0 * BAND as f64 * cols + 4.0 * w as f64);
     let volume = match p.filter {
-        Filter::Sgm => {
-            4.0 * (cols * rows * np) as f64 + super::sgm::bytes_needed(cols * rows, np, cols)
-        }
+        Filter::Sgm => cols * rows * np * (4.0 + 6.0) + 7.0 * 2.0 * cols * np,
         _ => 0.0,
     };
     images + bands + volume
@@ -150,7 +156,11 @@ fn check(left: &ImageF32, right: &ImageF32, p: &PairParams) -> Result<(), PairEr
             right: right.height,
         });
     }
-    if p.d_min > p.d_max || p.d_max - p.d_min >= MAX_DISPARITIES {
+    let bounded = |d: i64| (-MAX_ABS_DISPARITY..=MAX_ABS_DISPARITY).contains(&d);
+    if !(bounded(p.d_min) && bounded(p.d_max))
+        || p.d_min > p.d_max
+        || p.d_max - p.d_min >= MAX_DISPARITIES
+    {
         return Err(PairError::Range {
             min: p.d_min,
             max: p.d_max,
@@ -159,12 +169,15 @@ fn check(left: &ImageF32, right: &ImageF32, p: &PairParams) -> Result<(), PairEr
     if p.window.is_multiple_of(2) || !(3..=31).contains(&p.window) {
         return Err(PairError::Window(p.window));
     }
-    if left.width < p.window || left.height < p.window {
-        return Err(PairError::TooSmall {
-            w: left.width,
-            h: left.height,
-            window: p.window,
-        });
+    for (which, img) in [("left", left), ("right", right)] {
+        if img.width < p.window || img.height < p.window {
+            return Err(PairError::TooSmall {
+                which,
+                w: img.width,
+                h: img.height,
+                window: p.window,
+            });
+        }
     }
     if !(-1.0..=1.0).contains(&p.threshold) {
         return Err(PairError::Threshold(p.threshold));
@@ -212,6 +225,94 @@ fn right_best(
 /// what happened to the rest.
 type RowMatches = (usize, Vec<(usize, f32, f32, f32)>, PairStats);
 
+/// What every row's matching needs.
+struct Ctx<'a> {
+    left: &'a ImageF32,
+    right: &'a ImageF32,
+    p: &'a PairParams,
+    planes: Planes<'a>,
+    k: usize,
+    np: usize,
+    cols: usize,
+}
+
+/// The matches of pixel row `r` from its cells' chosen ("higher is better") and raw scores.
+fn row_matches(x: &Ctx, r: usize, chosen: &[f32], raw: &[f32]) -> RowMatches {
+    let (p, np, cols, k) = (x.p, x.np, x.cols, x.k);
+    let first = p.d_min;
+    let wins = row_winners(chosen, cols, np);
+    let rb = p
+        .lr_tolerance
+        .map(|_| right_best(chosen, cols, np, k, first, x.right.width));
+    let mut st = PairStats::default();
+    let mut got = Vec::new();
+    for (i, win) in wins.iter().enumerate() {
+        let c = k + i;
+        let cell = &raw[i * np..(i + 1) * np];
+        let Some(win) = win else {
+            if cell.iter().any(|v| v.is_nan()) {
+                st.unseen += 1;
+            } else {
+                st.unscored += 1;
+            }
+            continue;
+        };
+        // The best at an end of the range is, as a rule, the flank of a match beyond it.
+        if np > 1 && (win.plane == 0 || win.plane == np - 1) {
+            st.at_range_end += 1;
+            continue;
+        }
+        let rho = cell[win.plane];
+        if (rho as f64) < p.threshold {
+            st.below_threshold += 1;
+            continue;
+        }
+        if let (Some(tol), Some(rb)) = (p.lr_tolerance, &rb) {
+            let xr = c as i64 - first - win.plane as i64;
+            let ok = (0..x.right.width as i64).contains(&xr)
+                && rb[xr as usize].is_some_and(|q| (q as f64 - win.plane as f64).abs() <= tol);
+            if !ok {
+                st.left_right += 1;
+                continue;
+            }
+        }
+        // The parabola on the raw correlations (around the chosen plane).
+        let raw_win = Winner {
+            plane: win.plane,
+            score: rho,
+            below: win
+                .plane
+                .checked_sub(1)
+                .map(|q| cell[q])
+                .filter(|v| v.is_finite()),
+            above: cell.get(win.plane + 1).copied().filter(|v| v.is_finite()),
+        };
+        let (off, den) = raw_win.parabola().unwrap_or((0.0, f64::NAN));
+        let mut t = win.plane as f64 + off;
+        let n = (p.window * p.window) as f64;
+        let mut sd = (den < 0.0).then(|| ((1.0 - (rho as f64).min(0.999)) / (n * -den)).sqrt());
+        if p.subpixel == Subpixel::Lsm {
+            let (xc, yc) = (c as f64 + 0.5, r as f64 + 0.5);
+            let locate = |u: f64, v: f64, t: f64| x.planes.locate(xc + u, yc + v, t);
+            match refine(x.left, Window { c, r, k }, x.right, &locate, t, 1.0) {
+                Ok(f) => {
+                    t = f.t;
+                    sd = Some(f.sigma_t);
+                    st.lsm_refined += 1;
+                }
+                Err(e) => *st.lsm_failures.entry(failure_name(e)).or_default() += 1,
+            }
+        }
+        got.push((
+            c,
+            (first as f64 + t) as f32,
+            rho,
+            sd.map_or(f32::NAN, |v| v as f32),
+        ));
+    }
+    (r, got, st)
+}
+
 /// Matches a rectified pair.
 pub fn match_pair(
     left: &ImageF32,
@@ -224,8 +325,8 @@ pub fn match_pair(
     let need = bytes_needed(left.width, left.height, right.width, p);
     if need > max_memory_mb as f64 * 1048576.0 {
         return Err(PairError::Memory {
-            need_mb: need / 1048576.0,
-            limit_mb: max_memory_mb,
+            need_mib: need / 1048576.0,
+            limit_mib: max_memory_mb,
         });
     }
     let t0 = std::time::Instant::now();
@@ -233,66 +334,104 @@ pub fn match_pair(
     let k = p.window / 2;
     let np = (p.d_max - p.d_min + 1) as usize;
     let first = p.d_min;
-    let planes = Planes::Shifts { first, count: np };
     let (lp, rp) = (Prepared::new(left), Prepared::new(right));
     let cols = w - 2 * k;
     let rows: Vec<usize> = (k..h - k).collect();
     let bands: Vec<&[usize]> = rows.chunks(BAND).collect();
-    progress.begin("score (rows)", rows.len() as u64);
-    let band_scores: Vec<Scores> = bands
-        .par_iter()
-        .map(|b| {
-            let cells = Cells {
-                col0: k,
-                stride: 1,
-                cols,
-                rows: b.to_vec(),
-            };
-            let s = score(&lp, &rp, &planes, k, &cells);
-            progress.advance(b.len() as u64);
-            s
-        })
-        .collect();
-    progress.end();
-    let seconds_score = t0.elapsed().as_secs_f64();
-    // The "higher is better" volume the winners are taken from: the scores, or −S.
-    let chosen: Vec<Vec<f32>> = match p.filter {
+    let x = Ctx {
+        left,
+        right,
+        p,
+        planes: Planes::Shifts { first, count: np },
+        k,
+        np,
+        cols,
+    };
+    let score_band = |b: &[usize]| {
+        let cells = Cells {
+            col0: k,
+            stride: 1,
+            cols,
+            rows: b.to_vec(),
+        };
+        score(&lp, &rp, &x.planes, k, &cells)
+    };
+    let row_len = cols * np;
+    let mut seconds_aggregate = 0.0;
+    let per_row: Vec<RowMatches> = match p.filter {
         Filter::Sgm => {
+            progress.begin("score (rows)", rows.len() as u64);
+            let band_scores: Vec<Scores> = bands
+                .par_iter()
+                .map(|b| {
+                    let s = score_band(b);
+                    progress.advance(b.len() as u64);
+                    s
+                })
+                .collect();
+            progress.end();
             let mut all = Scores {
                 planes: np,
                 cols,
                 rows: rows.len(),
                 v: Vec::with_capacity(cols * rows.len() * np),
             };
-            for b in &band_scores {
+            for b in band_scores {
                 all.v.extend_from_slice(&b.v);
             }
+            let ta = std::time::Instant::now();
             let s = aggregate(&all, &p.sgm);
-            let mut out: Vec<Vec<f32>> = Vec::with_capacity(band_scores.len());
-            let mut o = 0;
-            for b in &band_scores {
-                let n = b.v.len();
-                let mut v: Vec<f32> = s[o..o + n].iter().map(|&x| -(x as f32)).collect();
-                // Unseen and unscored stay what they were.
-                for (x, raw) in v.iter_mut().zip(&b.v) {
-                    if raw.is_nan() {
-                        *x = f32::NAN;
+            seconds_aggregate = ta.elapsed().as_secs_f64();
+            progress.begin("winners (rows)", rows.len() as u64);
+            let out = rows
+                .par_iter()
+                .enumerate()
+                .map(|(j, &r)| {
+                    let raw = &all.v[j * row_len..(j + 1) * row_len];
+                    let agg = &s[j * row_len..(j + 1) * row_len];
+                    // −S, unseen (NaN) and unscored cells (all −∞) kept as they were.
+                    let mut chosen: Vec<f32> = agg.iter().map(|&v| -(v as f32)).collect();
+                    for (i, cell) in chosen.chunks_mut(np).enumerate() {
+                        let rc = &raw[i * np..(i + 1) * np];
+                        if rc.iter().all(|v| *v == f32::NEG_INFINITY) {
+                            cell.iter_mut().for_each(|v| *v = f32::NEG_INFINITY);
+                        }
+                        for (v, q) in cell.iter_mut().zip(rc) {
+                            if q.is_nan() {
+                                *v = f32::NAN;
+                            }
+                        }
                     }
-                }
-                for i in 0..n / np {
-                    let raw = &b.v[i * np..(i + 1) * np];
-                    if raw.iter().all(|x| *x == f32::NEG_INFINITY) {
-                        v[i * np..(i + 1) * np]
-                            .iter_mut()
-                            .for_each(|x| *x = f32::NEG_INFINITY);
-                    }
-                }
-                out.push(v);
-                o += n;
-            }
+                    let m = row_matches(&x, r, &chosen, raw);
+                    progress.advance(1);
+                    m
+                })
+                .collect();
+            progress.end();
             out
         }
-        _ => band_scores.iter().map(|b| b.v.clone()).collect(),
+        _ => {
+            // Each band scored, matched and let go: no volume is kept.
+            progress.begin("match (rows)", rows.len() as u64);
+            let out = bands
+                .par_iter()
+                .flat_map_iter(|b| {
+                    let sc = score_band(b);
+                    let m: Vec<RowMatches> = b
+                        .iter()
+                        .enumerate()
+                        .map(|(jb, &r)| {
+                            let row = &sc.v[jb * row_len..(jb + 1) * row_len];
+                            row_matches(&x, r, row, row)
+                        })
+                        .collect();
+                    progress.advance(b.len() as u64);
+                    m
+                })
+                .collect();
+            progress.end();
+            out
+        }
     };
     let mut stats = PairStats {
         width: w,
@@ -305,87 +444,6 @@ pub fn match_pair(
     let mut d = vec![f32::NAN; w * h];
     let mut corr = vec![f32::NAN; w * h];
     let mut sigma = vec![f32::NAN; w * h];
-    // Winners, thresholds, the left-right check, the sub-pixel step; rows in parallel.
-    progress.begin("sub-pixel (rows)", rows.len() as u64);
-    let per_row: Vec<RowMatches> = rows
-        .par_iter()
-        .enumerate()
-        .map(|(j, &r)| {
-            let (b, jb) = (j / BAND, j % BAND);
-            let row = &chosen[b][jb * cols * np..(jb + 1) * cols * np];
-            let raw = &band_scores[b].v[jb * cols * np..(jb + 1) * cols * np];
-            let wins = row_winners(row, cols, np);
-            let rb = p
-                .lr_tolerance
-                .map(|_| right_best(row, cols, np, k, first, right.width));
-            let mut st = PairStats::default();
-            let mut got = Vec::new();
-            for (i, win) in wins.iter().enumerate() {
-                let c = k + i;
-                let cell = &raw[i * np..(i + 1) * np];
-                let Some(win) = win else {
-                    if cell.iter().any(|v| v.is_nan()) {
-                        st.unseen += 1;
-                    } else {
-                        st.unscored += 1;
-                    }
-                    continue;
-                };
-                let rho = cell[win.plane];
-                if (rho as f64) < p.threshold {
-                    st.below_threshold += 1;
-                    continue;
-                }
-                if let (Some(tol), Some(rb)) = (p.lr_tolerance, &rb) {
-                    let x = c as i64 - first - win.plane as i64;
-                    let ok = (0..right.width as i64).contains(&x)
-                        && rb[x as usize]
-                            .is_some_and(|q| (q as f64 - win.plane as f64).abs() <= tol);
-                    if !ok {
-                        st.left_right += 1;
-                        continue;
-                    }
-                }
-                // The parabola on the raw correlations (around the chosen plane).
-                let raw_win = Winner {
-                    plane: win.plane,
-                    score: rho,
-                    below: win
-                        .plane
-                        .checked_sub(1)
-                        .map(|q| cell[q])
-                        .filter(|v| v.is_finite()),
-                    above: cell.get(win.plane + 1).copied().filter(|v| v.is_finite()),
-                };
-                let (off, den) = raw_win.parabola().unwrap_or((0.0, f64::NAN));
-                let mut t = win.plane as f64 + off;
-                let n = (p.window * p.window) as f64;
-                let mut sd =
-                    (den < 0.0).then(|| ((1.0 - (rho as f64).min(0.999)) / (n * -den)).sqrt());
-                if p.subpixel == Subpixel::Lsm {
-                    let (x, y) = (c as f64 + 0.5, r as f64 + 0.5);
-                    let locate = |u: f64, v: f64, t: f64| planes.locate(x + u, y + v, t);
-                    match refine(left, Window { c, r, k }, right, &locate, t, 1.0) {
-                        Ok(f) => {
-                            t = f.t;
-                            sd = Some(f.sigma_t);
-                            st.lsm_refined += 1;
-                        }
-                        Err(e) => *st.lsm_failures.entry(failure_name(e)).or_default() += 1,
-                    }
-                }
-                got.push((
-                    c,
-                    (first as f64 + t) as f32,
-                    rho,
-                    sd.map_or(f32::NAN, |v| v as f32),
-                ));
-            }
-            progress.advance(1);
-            (r, got, st)
-        })
-        .collect();
-    progress.end();
     for (r, got, st) in per_row {
         for (c, dv, rho, sd) in got {
             d[r * w + c] = dv;
@@ -394,6 +452,7 @@ pub fn match_pair(
         }
         stats.unseen += st.unseen;
         stats.unscored += st.unscored;
+        stats.at_range_end += st.at_range_end;
         stats.below_threshold += st.below_threshold;
         stats.left_right += st.left_right;
         stats.lsm_refined += st.lsm_refined;
@@ -425,7 +484,7 @@ pub fn match_pair(
         }
     }
     stats.matched = d.iter().filter(|v| v.is_finite()).count();
-    stats.seconds_score = seconds_score;
+    stats.seconds_aggregate = seconds_aggregate;
     stats.seconds_total = t0.elapsed().as_secs_f64();
     Ok(DisparityMap {
         width: w,

@@ -106,9 +106,8 @@ struct Report<'a> {
     candidates: u64,
     params: &'a PairParams,
     stats: &'a PairStats,
-    /// Pixel-candidates per second of the sweep (scoring alone, and the whole match).
+    /// Pixel-candidates per second of the whole match.
     candidates_per_second: f64,
-    candidates_per_second_total: f64,
     /// Median σ of the disparities, px.
     sigma_median: Option<f64>,
 }
@@ -121,7 +120,6 @@ pub fn write_all(
     left: &Path,
     right: &Path,
 ) -> std::io::Result<()> {
-    std::fs::create_dir_all(dir)?;
     write_f32_tiff(
         &dir.join("disparity.tif"),
         m.width,
@@ -162,8 +160,7 @@ pub fn report(m: &DisparityMap, p: &PairParams, left: &Path, right: &Path) -> se
         candidates: st.candidates,
         params: p,
         stats: st,
-        candidates_per_second: st.candidates as f64 / st.seconds_score.max(1e-9),
-        candidates_per_second_total: st.candidates as f64 / st.seconds_total.max(1e-9),
+        candidates_per_second: st.candidates as f64 / st.seconds_total.max(1e-9),
         sigma_median: s.get(s.len() / 2).map(|v| *v as f64),
     };
     serde_json::to_value(r).unwrap_or(serde_json::Value::Null)

@@ -45,8 +45,10 @@ impl Planes<'_> {
     }
 }
 
-/// A photo ready for the sweep: grey values less their mean (so that the running sums keep
-/// their precision in f32), not-a-number pixels set to 0 and flagged.
+/// A photo ready for the sweep: grey values less their mean and divided by their standard
+/// deviation (so that the running sums keep their precision in f32 whatever the photo's grey
+/// scale, and "flat" means flat against the photo's own contrast), not-a-number pixels set to
+/// 0 and flagged.
 #[derive(Debug, Clone)]
 pub struct Prepared {
     pub img: ImageF32,
@@ -61,12 +63,22 @@ impl Prepared {
             s += *v as f64;
             n += 1;
         }
-        let mean = if n > 0 { (s / n as f64) as f32 } else { 0.0 };
+        let mean = if n > 0 { s / n as f64 } else { 0.0 };
+        let mut ss = 0.0f64;
+        for v in src.data.iter().filter(|v| v.is_finite()) {
+            ss += (*v as f64 - mean).powi(2);
+        }
+        let sd = if n > 0 { (ss / n as f64).sqrt() } else { 0.0 };
+        let scale = if sd > 0.0 && sd.is_finite() {
+            1.0 / sd
+        } else {
+            1.0
+        };
         let mut img = src.clone();
         let mut nodata = vec![0.0; img.data.len()];
         for (v, bad) in img.data.iter_mut().zip(nodata.iter_mut()) {
             if v.is_finite() {
-                *v -= mean;
+                *v = ((*v as f64 - mean) * scale) as f32;
             } else {
                 *v = 0.0;
                 *bad = 1.0;

@@ -307,8 +307,10 @@ pub fn sweep_bands(
                             |u: f64, v: f64, t: f64| planes.locate(px[0] + u, px[1] + v, t);
                         let win = Window { c, r, k };
                         match refine(left, win, right, &locate, t, 2.0) {
-                            Ok(f) if f.t >= 0.0 && f.t <= (n_planes - 1) as f64 => {
-                                t = f.t;
+                            // Beyond the range: the ground is higher or lower than tried;
+                            // kept at the bound, where the pile warning counts it.
+                            Ok(f) => {
+                                t = f.t.clamp(0.0, (n_planes - 1) as f64);
                                 sd = Some(f.sigma_t * p.h_step);
                             }
                             // Where least squares cannot place the window (an occlusion, a
