@@ -53,6 +53,8 @@ pub enum RefineFailure {
     Wandered,
     #[error("the radiometric gain turned negative or vanished")]
     Inverted,
+    #[error("converged, but with a σ above a plane: the window does not fix the plane")]
+    Imprecise,
 }
 
 const MAX_ITERATIONS: usize = 15;
@@ -153,6 +155,9 @@ pub fn refine(
         // at the level of the noise rather than shrink).
         let sigma_t = sigma0 * q_inv[(0, 0)].sqrt();
         if it > 0 && (dx[0].abs() < CONVERGED || dx[0].abs() < 0.2 * sigma_t) {
+            if sigma_t.is_nan() || sigma_t > 1.0 {
+                return Err(RefineFailure::Imprecise);
+            }
             return Ok(Refined {
                 t,
                 sigma_t,
