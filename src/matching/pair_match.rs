@@ -203,22 +203,42 @@ fn right_best(
     first: i64,
     wr: usize,
 ) -> Vec<Option<usize>> {
-    let mut best: Vec<Option<(usize, f32)>> = vec![None; wr];
-    for i in 0..cols {
-        let s = &row[i * np..(i + 1) * np];
-        for (p, &v) in s.iter().enumerate() {
-            let x = (col0 + i) as i64 - first - p as i64;
-            // Unseen (NaN) and unscored planes are nobody's best.
-            if x < 0 || x >= wr as i64 || v.is_nan() || v == f32::NEG_INFINITY {
-                continue;
-            }
-            let b = &mut best[x as usize];
-            if b.is_none_or(|b| v > b.1) {
-                *b = Some((p, v));
-            }
+    // The row by plane, so that each plane's cells are contiguous, as are their right columns
+    // x = col0 + i − first − p.
+    let mut by_plane = vec![0.0f32; cols * np];
+    for (i, cell) in row.chunks_exact(np).enumerate() {
+        for (p, &v) in cell.iter().enumerate() {
+            by_plane[p * cols + i] = v;
         }
     }
-    best.into_iter().map(|b| b.map(|b| b.0)).collect()
+    let mut best_v = vec![f32::NEG_INFINITY; wr];
+    // u32 beside f32, so that the update runs on vector lanes (at most 4096 planes).
+    let mut best_p = vec![u32::MAX; wr];
+    for p in 0..np {
+        let off = col0 as i64 - first - p as i64; // x = i + off
+        let i_lo = (-off).max(0).min(cols as i64) as usize;
+        let i_hi = (wr as i64 - off).clamp(i_lo as i64, cols as i64) as usize;
+        if i_lo == i_hi {
+            continue;
+        }
+        let x_lo = (i_lo as i64 + off) as usize;
+        let n = i_hi - i_lo;
+        let src = &by_plane[p * cols + i_lo..p * cols + i_hi];
+        // Unseen (NaN) and unscored (−∞) planes are nobody's best.
+        for ((v, bv), bp) in src
+            .iter()
+            .zip(&mut best_v[x_lo..x_lo + n])
+            .zip(&mut best_p[x_lo..x_lo + n])
+        {
+            let better = *v > *bv;
+            *bv = if better { *v } else { *bv };
+            *bp = if better { p as u32 } else { *bp };
+        }
+    }
+    best_p
+        .into_iter()
+        .map(|p| (p != u32::MAX).then_some(p as usize))
+        .collect()
 }
 
 /// One row's matches: its pixel row, (column, disparity, correlation, σ) of each match, and
@@ -237,13 +257,24 @@ struct Ctx<'a> {
 }
 
 /// The matches of pixel row `r` from its cells' chosen ("higher is better") and raw scores.
-fn row_matches(x: &Ctx, r: usize, chosen: &[f32], raw: &[f32]) -> RowMatches {
+fn row_matches(
+    x: &Ctx,
+    r: usize,
+    chosen: &[f32],
+    raw: &[f32],
+    given: Option<&[u32]>,
+) -> RowMatches {
     let (p, np, cols, k) = (x.p, x.np, x.cols, x.k);
     let first = p.d_min;
     let wins = row_winners(chosen, cols, np);
-    let rb = p
-        .lr_tolerance
-        .map(|_| right_best(chosen, cols, np, k, first, x.right.width));
+    // The right photo's winners: from the sweep when the winners are its own scores.
+    let rb: Option<Vec<Option<usize>>> = p.lr_tolerance.map(|_| match given {
+        Some(g) => g
+            .iter()
+            .map(|&q| (q != u32::MAX).then_some(q as usize))
+            .collect(),
+        None => right_best(chosen, cols, np, k, first, x.right.width),
+    });
     let mut st = PairStats::default();
     let mut got = Vec::new();
     for (i, win) in wins.iter().enumerate() {
@@ -375,6 +406,7 @@ pub fn match_pair(
                 cols,
                 rows: rows.len(),
                 v: Vec::with_capacity(cols * rows.len() * np),
+                right_best: Vec::new(),
             };
             for b in band_scores {
                 all.v.extend_from_slice(&b.v);
@@ -402,7 +434,7 @@ pub fn match_pair(
                             }
                         }
                     }
-                    let m = row_matches(&x, r, &chosen, raw);
+                    let m = row_matches(&x, r, &chosen, raw, None);
                     progress.advance(1);
                     m
                 })
@@ -422,7 +454,9 @@ pub fn match_pair(
                         .enumerate()
                         .map(|(jb, &r)| {
                             let row = &sc.v[jb * row_len..(jb + 1) * row_len];
-                            row_matches(&x, r, row, row)
+                            let wr = right.width;
+                            let rb = &sc.right_best[jb * wr..(jb + 1) * wr];
+                            row_matches(&x, r, row, row, Some(rb))
                         })
                         .collect();
                     progress.advance(b.len() as u64);

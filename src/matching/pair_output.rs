@@ -38,7 +38,7 @@ pub fn write_f32_tiff(
     crate::atomic::write_with(path, |w| {
         let mut enc = TiffEncoder::new(w)
             .map_err(err)?
-            .with_compression(Compression::Deflate(DeflateLevel::Balanced));
+            .with_compression(Compression::Deflate(DeflateLevel::Fast));
         let mut img = enc
             .new_image::<colortype::Gray32Float>(width as u32, height as u32)
             .map_err(err)?;

@@ -105,6 +105,10 @@ pub struct Scores {
     pub cols: usize,
     pub rows: usize,
     pub v: Vec<f32>,
+    /// Disparities only: per row and right-photo column x, `[j·right width + x]`, the plane
+    /// of the highest score among the cells that meet x (the right photo's own winner, for
+    /// the left-right check), u32::MAX where none; empty for heights.
+    pub right_best: Vec<u32>,
 }
 
 impl Scores {
@@ -159,6 +163,7 @@ pub fn score(
         cols: cells.cols,
         rows: cells.rows.len(),
         v: vec![f32::NEG_INFINITY; cells.cols * cells.rows.len() * np],
+        right_best: Vec::new(),
     };
     if np == 0 || cells.rows.is_empty() || cells.cols == 0 {
         return out;
@@ -291,6 +296,11 @@ fn score_shifts(
     let mut r_mean = vec![0.0f32; wr];
     let mut r_inv = vec![f32::NAN; wr];
     let mut acc = vec![0.0f32; np];
+    // The right photo's winners, in the same reversed order.
+    out.right_best = vec![u32::MAX; cells.rows.len() * wr];
+    let mut rb_v = vec![f32::NEG_INFINITY; wr];
+    let mut rb_p = vec![u32::MAX; wr];
+    let plane_index: Vec<u32> = (0..np as u32).collect();
     for (j, &r) in cells.rows.iter().enumerate() {
         let (sub, add, reset) = run.moves(r - k, r + k);
         if reset {
@@ -345,6 +355,8 @@ fn score_shifts(
             r_mean[wr - 1 - x] = m * n;
             r_inv[wr - 1 - x] = inv;
         }
+        rb_v.iter_mut().for_each(|v| *v = f32::NEG_INFINITY);
+        rb_p.iter_mut().for_each(|v| *v = u32::MAX);
         for i in 0..cells.cols {
             let c = cells.col0 + i * cells.stride;
             let afresh = cells.stride != 1 || i % RESUM == 0;
@@ -376,6 +388,25 @@ fn score_shifts(
             {
                 *d = ((a - ml * m) * inv_l * v).clamp(-1.0, 1.0);
             }
+            // The right photo's winners (NaN, unseen, is nobody's best).
+            let (bv, bp) = (
+                &mut rb_v[base + p_lo..base + p_hi],
+                &mut rb_p[base + p_lo..base + p_hi],
+            );
+            for (((d, v), b), &pi) in dst[p_lo..p_hi]
+                .iter()
+                .zip(bv)
+                .zip(bp)
+                .zip(&plane_index[p_lo..p_hi])
+            {
+                let better = *d > *v;
+                *v = if better { *d } else { *v };
+                *b = if better { pi } else { *b };
+            }
+        }
+        let dst = &mut out.right_best[j * wr..(j + 1) * wr];
+        for (x, d) in dst.iter_mut().enumerate() {
+            *d = rb_p[wr - 1 - x];
         }
     }
 }
@@ -617,14 +648,24 @@ pub fn winner(s: &[f32], unseen: Unseen) -> Option<Winner> {
     if unseen == Unseen::Refuse && s.iter().any(|v| v.is_nan()) {
         return None;
     }
-    let mut best: Option<(usize, f32)> = None;
-    for (p, &v) in s.iter().enumerate() {
-        // NaN fails the comparison: never the best.
-        if v > f32::NEG_INFINITY && best.is_none_or(|b| v > b.1) {
-            best = Some((p, v));
+    // The highest score in eight lanes (so that it runs on vector lanes), then its first
+    // place. NaN fails the comparison (never the best); −∞ never beats the start.
+    let mut lanes = [f32::NEG_INFINITY; 8];
+    let chunks = s.chunks_exact(8);
+    let tail = chunks.remainder();
+    for ch in chunks {
+        for (m, &x) in lanes.iter_mut().zip(ch) {
+            *m = if x > *m { x } else { *m };
         }
     }
-    let (p, v) = best?;
+    let mut v = f32::NEG_INFINITY;
+    for &x in lanes.iter().chain(tail) {
+        v = if x > v { x } else { v };
+    }
+    if v == f32::NEG_INFINITY {
+        return None;
+    }
+    let p = s.iter().position(|&x| x == v)?;
     let side = |q: Option<usize>| q.and_then(|q| s.get(q).copied());
     let below = side(p.checked_sub(1));
     let above = side(Some(p + 1));

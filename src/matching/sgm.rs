@@ -174,6 +174,7 @@ mod tests {
             cols,
             rows,
             v: v.clone(),
+            right_best: Vec::new(),
         };
         // Penalties below the evidence's cost difference (384 − 3 for the strong cell).
         let pen = SgmParams { p1: 24, p2: 128 };
@@ -194,6 +195,7 @@ mod tests {
             cols,
             rows,
             v: v2,
+            right_best: Vec::new(),
         };
         let sum2 = aggregate(&s2, &pen);
         let b = (0..np).min_by_key(|&p| sum2[o + p]).unwrap();
@@ -223,6 +225,7 @@ mod tests {
             cols,
             rows,
             v,
+            right_best: Vec::new(),
         };
         let p = SgmParams::default();
         let got = aggregate(&s, &p);
