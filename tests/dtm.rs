@@ -16,10 +16,9 @@ fn run_ok(cmd: &mut std::process::Command) -> std::process::Output {
     out
 }
 
-#[test]
-fn elevation_model_from_a_rendered_pair_meets_half_the_height_step() {
-    let d = tempfile::tempdir().unwrap();
-    let scene = d.path().join("scene");
+/// `rig sim scene` of seed 3 over a small area, in `dir`/scene.
+fn rendered_scene(dir: &std::path::Path) -> std::path::PathBuf {
+    let scene = dir.join("scene");
     run_ok(
         rig()
             .args([
@@ -33,6 +32,13 @@ fn elevation_model_from_a_rendered_pair_meets_half_the_height_step() {
             ])
             .arg(&scene),
     );
+    scene
+}
+
+#[test]
+fn elevation_model_from_a_rendered_pair_meets_half_the_height_step() {
+    let d = tempfile::tempdir().unwrap();
+    let scene = rendered_scene(d.path());
     let project = std::fs::read_to_string(scene.join("project.toml")).unwrap();
     for (from, name) in [("points", "dtm-points"), ("rigorous", "dtm-rigorous")] {
         let p = scene.join(format!("{name}.toml"));
@@ -251,20 +257,7 @@ fn the_demo_runs_the_whole_chain_and_meets_half_the_height_step() {
 #[test]
 fn with_exact_orientations_the_model_is_within_a_seventh_of_a_pixel_of_parallax() {
     let d = tempfile::tempdir().unwrap();
-    let scene = d.path().join("scene");
-    run_ok(
-        rig()
-            .args([
-                "sim",
-                "scene",
-                "--seed",
-                "3",
-                "--area",
-                "38,-6,52,6",
-                "--out",
-            ])
-            .arg(&scene),
-    );
+    let scene = rendered_scene(d.path());
     let truth: Value =
         serde_json::from_slice(&std::fs::read(scene.join("truth.json")).unwrap()).unwrap();
     let [ox, oy] = rig::sim_scene::ORIGIN_M;

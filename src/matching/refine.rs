@@ -238,15 +238,9 @@ mod tests {
         }
         // Right x = left x − t (disparity t).
         let locate = |u: f64, v: f64, t: f64| [20.5 + u - t, 15.5 + v];
-        let got = refine(
-            &left,
-            Window { c: 20, r: 15, k: 4 },
-            &right,
-            &locate,
-            3.0,
-            1.0,
-        )
-        .unwrap();
+        let at =
+            |img: &ImageF32| refine(&left, Window { c: 20, r: 15, k: 4 }, img, &locate, 3.0, 1.0);
+        let got = at(&right).unwrap();
         assert!((got.t - shift).abs() < 0.02, "{got:?}");
         assert!(got.sigma_t < 0.01, "{got:?}");
         // Noise: σ grows, and the shift is still found within 3σ + the resampling's share.
@@ -258,15 +252,7 @@ mod tests {
                 .wrapping_add(1442695040888963407);
             *v += ((s >> 33) as f64 / (1u64 << 31) as f64 - 0.5) as f32 * 8.0;
         }
-        let g2 = refine(
-            &left,
-            Window { c: 20, r: 15, k: 4 },
-            &noisy,
-            &locate,
-            3.0,
-            1.0,
-        )
-        .unwrap();
+        let g2 = at(&noisy).unwrap();
         assert!(g2.sigma_t > 2.0 * got.sigma_t, "{g2:?} vs {got:?}");
         assert!((g2.t - shift).abs() < 3.0 * g2.sigma_t + 0.02, "{g2:?}");
     }
