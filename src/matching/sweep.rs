@@ -2,10 +2,10 @@
 //! heights from the lowest to the highest are tried in steps; each is mapped into the search
 //! (right) photo by the image→image polynomials, so the search runs along the epipolar line
 //! they describe, and the window there (resampled bilinearly) is compared with the reference
-//! window by normalised cross-correlation. The best above a threshold gives the height,
-//! refined below the step by a parabola through its neighbours' correlations. Optionally the
-//! range is narrowed to the heights already found next to the pixel (widened again when the
-//! best lands on the narrowed range's edge). Bands of rows run in parallel.
+//! window by normalised cross-correlation — every height at every pixel, by the plane sweep of
+//! [`super::plane_sweep`]. The best above a threshold gives the height, refined below the step
+//! by least squares on a plane tilted across the window ([`super::refine`]) or by a parabola.
+//! Bands of rows run in parallel.
 
 use super::plane_sweep::{score, winner, Cells, Planes, Prepared, Unseen};
 use super::pmf::Mapping;
@@ -105,9 +105,10 @@ pub fn sweep(left: &ImageF32, right: &ImageF32, map: &Mapping, p: &SweepParams) 
     sweep_with(left, right, map, p, &super::progress::Silent)
 }
 
-/// Rows of the height map matched together. The neighbours' heights that narrow the range are
-/// taken only within a band, so every band's result depends on nothing outside it: bands run in
-/// parallel, and split between machines (`rig dtm --tile`) they give the same bytes.
+/// Rows of the height map matched together. The neighbours that bracket a pixel's height
+/// where some heights are unseen are taken only within a band, so every band's result depends
+/// on nothing outside it: bands run in parallel, and split between machines (`rig dtm --tile`)
+/// they give the same bytes.
 pub const BAND_ROWS: usize = 16;
 
 /// Where the sweep's height map lies on the reference photo, from its size alone.

@@ -3,7 +3,7 @@
 //!
 //! The unit of work is a band of [`BAND_ROWS`](super::sweep::BAND_ROWS) rows of one pair's
 //! sweep (the longest step by far). A band's heights depend on nothing outside it (the
-//! neighbours that narrow the range are taken within the band; each window reads the photo
+//! neighbours that bracket a height are taken within the band; each window reads the photo
 //! rows it needs, the overlap), so the shares hold exactly the heights one machine would find.
 //! What needs the whole model — wrong-height regions that cross shares, the grid, the variance
 //! factor, the orthophoto — runs in the merge, on the joined heights, the same code as a
