@@ -62,30 +62,38 @@ impl ImageF32 {
     }
 }
 
+/// An error about the image at `path`: its name, then what is wrong.
+fn invalid(path: &std::path::Path, what: String) -> std::io::Error {
+    std::io::Error::new(
+        std::io::ErrorKind::InvalidData,
+        format!("{}: {what}", path.display()),
+    )
+}
+
+/// A `w × h` image as f32 must exist and fit in `max_bytes`, checked before it is decoded.
+fn fits(path: &std::path::Path, w: u64, h: u64, max_bytes: u64) -> std::io::Result<()> {
+    if w == 0 || h == 0 || 4 * w * h > max_bytes {
+        return Err(invalid(
+            path,
+            format!(
+                "{w} × {h} px needs {} MiB as an image; the limit is {} MiB",
+                (4 * w * h) >> 20,
+                max_bytes >> 20
+            ),
+        ));
+    }
+    Ok(())
+}
+
 /// Reads a grey image for the matching core: a one-band TIFF (8/16/32-bit integers, 32/64-bit
 /// floats, either byte order — the decoder converts) or a PNG (8/16-bit grey), its grey values
 /// unscaled. Colour is refused rather than mixed into grey. Its size is checked against
 /// `max_bytes` (as f32) before the pixels are decoded.
 pub fn load_grey(path: &std::path::Path, max_bytes: u64) -> std::io::Result<ImageF32> {
-    let bad = |what: String| {
-        std::io::Error::new(
-            std::io::ErrorKind::InvalidData,
-            format!("{}: {what}", path.display()),
-        )
-    };
+    let bad = |what: String| invalid(path, what);
     let bytes = std::fs::read(path)
         .map_err(|e| std::io::Error::new(e.kind(), format!("{}: {e}", path.display())))?;
-    let fits = |w: u64, h: u64| {
-        if w == 0 || h == 0 || 4 * w * h > max_bytes {
-            Err(bad(format!(
-                "{w} × {h} px needs {} MiB as an image; the limit is {} MiB",
-                (4 * w * h) >> 20,
-                max_bytes >> 20
-            )))
-        } else {
-            Ok(())
-        }
-    };
+    let fits = |w: u64, h: u64| fits(path, w, h, max_bytes);
     if bytes.starts_with(b"\x89PNG") {
         let r =
             image::ImageReader::with_format(std::io::Cursor::new(&bytes), image::ImageFormat::Png);
@@ -163,12 +171,7 @@ pub fn load_luma(path: &std::path::Path, max_bytes: u64) -> std::io::Result<Imag
         Ok(img) => return Ok(img),
         Err(e) => e,
     };
-    let bad = |what: String| {
-        std::io::Error::new(
-            std::io::ErrorKind::InvalidData,
-            format!("{}: {what}", path.display()),
-        )
-    };
+    let bad = |what: String| invalid(path, what);
     let open = || -> std::io::Result<_> {
         image::ImageReader::open(path)?
             .with_guessed_format()
@@ -178,13 +181,7 @@ pub fn load_luma(path: &std::path::Path, max_bytes: u64) -> std::io::Result<Imag
         let (w, h) = open()?
             .into_dimensions()
             .map_err(|e| bad(format!("not a readable image ({e})")))?;
-        if w == 0 || h == 0 || 4 * w as u64 * h as u64 > max_bytes {
-            return Err(bad(format!(
-                "{w} × {h} px needs {} MiB as an image; the limit is {} MiB",
-                (4 * w as u64 * h as u64) >> 20,
-                max_bytes >> 20
-            )));
-        }
+        fits(path, w as u64, h as u64, max_bytes)?;
         let img = open()?
             .decode()
             .map_err(|e| bad(format!("not a readable image ({e})")))?;

@@ -13,7 +13,7 @@ use tiff::tags::{PhotometricInterpretation, SampleFormat, Tag};
 /// The value written for nodata nodes (and named in the GDAL_NODATA tag).
 pub const NODATA: f32 = -9999.0;
 
-fn other<E: std::fmt::Display>(path: &Path) -> impl Fn(E) -> std::io::Error + '_ {
+pub(crate) fn other<E: std::fmt::Display>(path: &Path) -> impl Fn(E) -> std::io::Error + '_ {
     move |e| std::io::Error::other(format!("{}: {e}", path.display()))
 }
 
@@ -91,15 +91,7 @@ fn write_raster(
                 .map_err(other(path))?;
             e.write_tag(Tag::GdalNodata, &*format!("{NODATA}"))
                 .map_err(other(path))?;
-            let mut meta = String::from("<GDALMetadata>");
-            for (i, b) in bands.iter().enumerate() {
-                meta += &format!(
-                    "<Item name=\"DESCRIPTION\" sample=\"{i}\" role=\"description\">{b}</Item>"
-                );
-            }
-            meta += "</GDALMetadata>";
-            e.write_tag(Tag::Unknown(GDAL_METADATA), &*meta)
-                .map_err(other(path))
+            write_band_descriptions(e, bands).map_err(other(path))
         };
         if bands.len() == 1 {
             let mut img = enc
@@ -122,6 +114,23 @@ fn write_raster(
 
 /// GDAL's TIFF tag for its XML metadata (band descriptions).
 const GDAL_METADATA: u16 = 42112;
+
+/// Each band's description (`gdalinfo` shows it) as GDAL's XML metadata tag.
+pub(crate) fn write_band_descriptions<
+    W: std::io::Write + std::io::Seek,
+    K: tiff::encoder::TiffKind,
+>(
+    e: &mut tiff::encoder::DirectoryEncoder<'_, W, K>,
+    bands: &[&str],
+) -> tiff::TiffResult<()> {
+    let mut meta = String::from("<GDALMetadata>");
+    for (i, b) in bands.iter().enumerate() {
+        meta +=
+            &format!("<Item name=\"DESCRIPTION\" sample=\"{i}\" role=\"description\">{b}</Item>");
+    }
+    meta += "</GDALMetadata>";
+    e.write_tag(Tag::Unknown(GDAL_METADATA), &*meta)
+}
 
 /// Writes the elevation model: one float32 band of heights, m.
 pub fn write_geotiff(path: &Path, grid: &ElevationGrid, crs: Crs) -> std::io::Result<()> {

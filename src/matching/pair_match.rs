@@ -8,7 +8,7 @@ pub use super::refine::Subpixel;
 use super::refine::{refine, RefineFailure, Window};
 use super::regions::{remove_wrong_heights, RegionParams};
 use super::sgm::{aggregate, SgmParams};
-use super::sweep::HeightMap;
+use super::sweep::{height_sigma, HeightMap};
 use crate::image::ImageF32;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -140,10 +140,12 @@ pub fn bytes_needed(w: usize, h: usize, wr: usize, p: &PairParams) -> f64 {
     // The photos as read and as prepared; the three outputs and the rows' matches (24 B).
     let images = 8.0 * (w * h + wr * h) as f64 + 36.0 * (w * h) as f64;
     let threads = rayon::current_num_threads() as f64;
-    // A band's slab (f32), its running sums, and its "higher is better" copy.
+    // A band's slab (f32) and as much again (the right photo's winners, a row's chosen
+    // scores, allocation slack), and its running sums.
     let bands = threads * np * (8.0 * BAND as f64 * cols + 4.0 * w as f64);
     let volume = match p.filter {
-        Filter::Sgm => cols * rows * np * (4.0 + 6.0) + 7.0 * 2.0 * cols * np,
+        // The whole score volume (f32) and the aggregation beside it.
+        Filter::Sgm => cols * rows * np * 4.0 + super::sgm::bytes_needed(cols * rows, np, cols),
         _ => 0.0,
     };
     images + bands + volume
@@ -320,8 +322,8 @@ fn row_matches(
         };
         let (off, den) = raw_win.parabola().unwrap_or((0.0, f64::NAN));
         let mut t = win.plane as f64 + off;
-        let n = (p.window * p.window) as f64;
-        let mut sd = (den < 0.0).then(|| ((1.0 - (rho as f64).min(0.999)) / (n * -den)).sqrt());
+        // σ from the peak's curvature, in planes (a step of 1).
+        let mut sd = height_sigma(rho as f64, den, 1.0, p.window * p.window);
         if p.subpixel == Subpixel::Lsm {
             let (xc, yc) = (c as f64 + 0.5, r as f64 + 0.5);
             let locate = |u: f64, v: f64, t: f64| x.planes.locate(xc + u, yc + v, t);

@@ -27,7 +27,7 @@ pub fn write_f32_tiff(
     data: &[f32],
     description: &str,
 ) -> std::io::Result<()> {
-    let err = |e: tiff::TiffError| std::io::Error::other(format!("{}: {e}", path.display()));
+    let err = super::output::other::<tiff::TiffError>(path);
     if data.len() != width * height {
         return Err(std::io::Error::other(format!(
             "{}: {} values for {width} × {height} px",
@@ -37,21 +37,16 @@ pub fn write_f32_tiff(
     }
     crate::atomic::write_with(path, |w| {
         let mut enc = TiffEncoder::new(w)
-            .map_err(err)?
+            .map_err(&err)?
             .with_compression(Compression::Deflate(DeflateLevel::Fast));
         let mut img = enc
             .new_image::<colortype::Gray32Float>(width as u32, height as u32)
-            .map_err(err)?;
+            .map_err(&err)?;
         img.encoder()
             .write_tag(Tag::GdalNodata, "nan")
-            .map_err(err)?;
-        let meta = format!(
-            "<GDALMetadata><Item name=\"DESCRIPTION\" sample=\"0\" role=\"description\">{description}</Item></GDALMetadata>"
-        );
-        img.encoder()
-            .write_tag(Tag::Unknown(42112), &*meta)
-            .map_err(err)?;
-        img.write_data(data).map_err(err)
+            .map_err(&err)?;
+        super::output::write_band_descriptions(img.encoder(), &[description]).map_err(&err)?;
+        img.write_data(data).map_err(&err)
     })
 }
 

@@ -118,36 +118,6 @@ impl Scores {
     }
 }
 
-/// Bytes [`score`] holds at once for `cells` of a photo `width` wide with `planes` planes and
-/// a window of half-size `k`: the score slab, the running sums and, for heights, the search
-/// photo read into the reference geometry over the rows' span.
-pub fn bytes_needed(width: usize, cells: &Cells, planes: usize, k: usize, heights: bool) -> f64 {
-    let cells_n = (cells.cols * cells.rows.len()) as f64;
-    let span = match (cells.rows.first(), cells.rows.last()) {
-        (Some(a), Some(b)) => (b - a + 2 * k + 1) as f64,
-        _ => 0.0,
-    };
-    let per_plane_px = if heights { 4.0 } else { 1.0 };
-    4.0 * planes as f64
-        * (cells_n + width as f64 * (per_plane_px + 2.0 * span * heights as u8 as f64))
-}
-
-/// Sums of a window of half-size `k` over the reference photo: (Σl, Σl², number of nodata).
-fn window_sums(p: &Prepared, c: usize, r: usize, k: usize) -> (f32, f32, f32) {
-    let w = p.img.width;
-    let (mut s, mut s2, mut bad) = (0.0f32, 0.0f32, 0.0f32);
-    for rr in r - k..=r + k {
-        let row = &p.img.data[rr * w + c - k..][..2 * k + 1];
-        let nd = &p.nodata[rr * w + c - k..][..2 * k + 1];
-        for (v, b) in row.iter().zip(nd) {
-            s += v;
-            s2 += v * v;
-            bad += b;
-        }
-    }
-    (s, s2, bad)
-}
-
 /// Scores every plane for `cells` of `left` (windows of (2k + 1)², wholly inside `left`)
 /// against `right`.
 pub fn score(
@@ -505,6 +475,8 @@ fn score_warped(
         bottom: 0,
         empty: true,
     };
+    let mut cs = Vec::new();
+    let mut lsum = vec![(0.0f32, 0.0f32, 1.0f32); wl];
     let (mut a_w, mut a_w2, mut a_lw, mut a_n) = (
         vec![0.0f32; np],
         vec![0.0f32; np],
@@ -543,23 +515,17 @@ fn score_warped(
                 }
             }
         }
+        row_window_sums(left, r, k, &mut lsum, &mut cs);
         for i in 0..cells.cols {
             let c = cells.col0 + i * cells.stride;
-            let (sl, sl2, lbad) = window_sums(left, c, r, k);
-            let var_l = sl2 - sl * sl / n;
-            if lbad > 0.0 || var_l <= 1e-5 * sl2.max(1e-12) || var_l <= 1e-9 {
-                continue;
-            }
-            for a in [&mut a_w, &mut a_w2, &mut a_lw, &mut a_n] {
-                a.iter_mut().for_each(|x| *x = 0.0);
-            }
-            for cc in c - k..=c + k {
-                let s = cc * np..(cc + 1) * np;
-                add_into(&mut a_w, &vw[s.clone()]);
-                add_into(&mut a_w2, &vw2[s.clone()]);
-                add_into(&mut a_lw, &vlw[s.clone()]);
-                add_into(&mut a_n, &vn[s]);
-            }
+            let afresh = cells.stride != 1 || i % RESUM == 0;
+            window_columns(&vw, np, c, k, &mut a_w, afresh);
+            window_columns(&vw2, np, c, k, &mut a_w2, afresh);
+            window_columns(&vlw, np, c, k, &mut a_lw, afresh);
+            window_columns(&vn, np, c, k, &mut a_n, afresh);
+            let Some((ml, inv_l)) = inverse_deviation(lsum[c], n) else {
+                continue; // no reference: every plane stays −∞
+            };
             let o = (j * cells.cols + i) * np;
             let inv_n = 1.0 / n;
             // Without branches, so that it runs on vector lanes: a flat search window scores
@@ -572,12 +538,13 @@ fn score_warped(
                 .zip(&a_n)
             {
                 let var_w = w2 - w * w * inv_n;
-                let cov = lw - sl * w * inv_n;
+                // Σ(l − l̄)(w − w̄) = Σl·w − l̄·Σw.
+                let cov = lw - ml * w;
                 let flat = var_w <= 1e-5 * w2.max(1e-12) || var_w <= 1e-9;
                 let v = if flat {
                     0.0
                 } else {
-                    cov / (var_l * var_w).sqrt()
+                    cov * inv_l / var_w.sqrt()
                 };
                 *d = if un > 0.5 {
                     f32::NAN

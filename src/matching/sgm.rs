@@ -40,10 +40,10 @@ fn cost(s: f32) -> u16 {
     }
 }
 
-/// Bytes [`aggregate`] needs for a volume of `cells` × `planes`.
-pub fn bytes_needed(cells: usize, planes: usize, cols: usize) -> f64 {
-    // The costs and the sums (u16 each), and 7 rows of path costs (u16).
-    (cells * planes) as f64 * 4.0 + (7 * cols * planes) as f64 * 2.0
+/// Bytes [`aggregate`] needs for a volume of `cells` × `planes` (rows `cols` wide), beside the
+/// scores it reads: the costs and the two sweeps' sums (u16 each), and 7 rows of path costs.
+pub fn bytes_needed(cells: f64, planes: f64, cols: f64) -> f64 {
+    cells * planes * 6.0 + 7.0 * cols * planes * 2.0
 }
 
 /// One step of a path: `out` from the predecessor's path costs `prev` and this cell's costs.
