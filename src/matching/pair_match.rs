@@ -3,11 +3,11 @@
 //! pixel, or per pixel after semi-global aggregation, a left-right consistency check, and the
 //! sub-pixel disparity by a parabola or by least-squares matching with its σ.
 
-use super::plane_sweep::{score, winner, Cells, Planes, Prepared, Scores, Unseen, Winner};
+use super::plane_sweep::{sweep_shifts, winner, Cells, Planes, Prepared, Unseen, Winner};
 pub use super::refine::Subpixel;
 use super::refine::{refine, RefineFailure, Window};
 use super::regions::{remove_wrong_heights, RegionParams};
-use super::sgm::{aggregate, SgmParams};
+use super::sgm::{aggregate, dequantise, quantise, SgmParams};
 use super::sweep::{height_sigma, HeightMap};
 use crate::image::ImageF32;
 use rayon::prelude::*;
@@ -130,8 +130,8 @@ pub const MAX_ABS_DISPARITY: i64 = 1_000_000;
 const BAND: usize = 32;
 
 /// Bytes that matching `left` against `right` holds at once: the photos (as read, and
-/// prepared), the outputs and matches, the bands being scored, and for SGM the whole score volume (f32)
-/// with, while it is aggregated, its costs and the two sweeps' sums (u16 each).
+/// prepared), the outputs and matches, each thread's running sums and picks, and for SGM the
+/// whole score volume (16-bit codes) with, while it is aggregated, the two sweeps' sums.
 pub fn bytes_needed(w: usize, h: usize, wr: usize, p: &PairParams) -> f64 {
     let np = (p.d_max as f64 - p.d_min as f64 + 1.0).max(0.0);
     let k = p.window / 2;
@@ -140,12 +140,12 @@ pub fn bytes_needed(w: usize, h: usize, wr: usize, p: &PairParams) -> f64 {
     // The photos as read and as prepared; the three outputs and the rows' matches (24 B).
     let images = 8.0 * (w * h + wr * h) as f64 + 36.0 * (w * h) as f64;
     let threads = rayon::current_num_threads() as f64;
-    // A band's slab (f32) and as much again (the right photo's winners, a row's chosen
-    // scores, allocation slack), and its running sums.
-    let bands = threads * np * (8.0 * BAND as f64 * cols + 4.0 * w as f64);
+    // A thread's column sums (f32 per column and plane), a band's picks (32 B per cell) and
+    // right-photo winners, a row's chosen scores, and the rows of running sums.
+    let bands = threads
+        * (4.0 * np * (w as f64 + cols) + 40.0 * BAND as f64 * cols + 64.0 * (w + wr) as f64);
     let volume = match p.filter {
-        // The whole score volume (f32) and the aggregation beside it.
-        Filter::Sgm => cols * rows * np * 4.0 + super::sgm::bytes_needed(cols * rows, np, cols),
+        Filter::Sgm => cols * rows * np * 2.0 + super::sgm::bytes_needed(cols * rows, np, cols),
         _ => 0.0,
     };
     images + bands + volume
@@ -187,24 +187,45 @@ fn check(left: &ImageF32, right: &ImageF32, p: &PairParams) -> Result<(), PairEr
     Ok(())
 }
 
-/// Per cell of a row of scores ("higher is better", NaN where unseen): the winner, and the
-/// right photo's own winner for each right column (for the left-right check).
-fn row_winners(row: &[f32], cols: usize, np: usize) -> Vec<Option<Winner>> {
-    (0..cols)
-        .map(|i| winner(&row[i * np..(i + 1) * np], Unseen::Skip))
-        .collect()
+/// A cell's winner (on the chosen scores) and the correlations around it (the raw ones).
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Pick {
+    /// The winning plane, None where there is none.
+    plane: Option<usize>,
+    rho: f32,
+    /// The raw correlations one plane below and above the winner, where finite.
+    below: Option<f32>,
+    above: Option<f32>,
+    /// Some plane the right photo does not see (NaN).
+    unseen: bool,
 }
 
-/// The right photo's best plane for right column x: the best over cells i with
-/// x = col0 + i − first − p (the same scores, read along the other diagonal).
-fn right_best(
-    row: &[f32],
-    cols: usize,
-    np: usize,
-    col0: usize,
-    first: i64,
-    wr: usize,
-) -> Vec<Option<usize>> {
+impl Pick {
+    /// From the chosen scores' winner and the raw scores `raw(p)` of the `np` planes.
+    fn new(win: Option<Winner>, np: usize, raw: impl Fn(usize) -> f32) -> Pick {
+        let finite = |p: Option<usize>| p.filter(|&p| p < np).map(&raw).filter(|v| v.is_finite());
+        match win {
+            Some(w) => Pick {
+                plane: Some(w.plane),
+                rho: raw(w.plane),
+                below: finite(w.plane.checked_sub(1)),
+                above: finite(Some(w.plane + 1)),
+                unseen: false,
+            },
+            None => Pick {
+                plane: None,
+                rho: f32::NAN,
+                below: None,
+                above: None,
+                unseen: (0..np).any(|p| raw(p).is_nan()),
+            },
+        }
+    }
+}
+
+/// The right photo's best plane for right column x (u32::MAX where none): the best over cells
+/// i with x = col0 + i − first − p (the same scores, read along the other diagonal).
+fn right_best(row: &[f32], cols: usize, np: usize, col0: usize, first: i64, wr: usize) -> Vec<u32> {
     // The row by plane, so that each plane's cells are contiguous, as are their right columns
     // x = col0 + i − first − p.
     let mut by_plane = vec![0.0f32; cols * np];
@@ -238,9 +259,6 @@ fn right_best(
         }
     }
     best_p
-        .into_iter()
-        .map(|p| (p != u32::MAX).then_some(p as usize))
-        .collect()
 }
 
 /// One row's matches: its pixel row, (column, disparity, correlation, σ) of each match, and
@@ -255,35 +273,19 @@ struct Ctx<'a> {
     planes: Planes<'a>,
     k: usize,
     np: usize,
-    cols: usize,
 }
 
-/// The matches of pixel row `r` from its cells' chosen ("higher is better") and raw scores.
-fn row_matches(
-    x: &Ctx,
-    r: usize,
-    chosen: &[f32],
-    raw: &[f32],
-    given: Option<&[u32]>,
-) -> RowMatches {
-    let (p, np, cols, k) = (x.p, x.np, x.cols, x.k);
+/// The matches of pixel row `r` from its cells' picks and the right photo's winners
+/// (`rb[x]`, u32::MAX where none).
+fn row_matches(x: &Ctx, r: usize, picks: &[Pick], rb: &[u32]) -> RowMatches {
+    let (p, np, k) = (x.p, x.np, x.k);
     let first = p.d_min;
-    let wins = row_winners(chosen, cols, np);
-    // The right photo's winners: from the sweep when the winners are its own scores.
-    let rb: Option<Vec<Option<usize>>> = p.lr_tolerance.map(|_| match given {
-        Some(g) => g
-            .iter()
-            .map(|&q| (q != u32::MAX).then_some(q as usize))
-            .collect(),
-        None => right_best(chosen, cols, np, k, first, x.right.width),
-    });
     let mut st = PairStats::default();
     let mut got = Vec::new();
-    for (i, win) in wins.iter().enumerate() {
+    for (i, pick) in picks.iter().enumerate() {
         let c = k + i;
-        let cell = &raw[i * np..(i + 1) * np];
-        let Some(win) = win else {
-            if cell.iter().any(|v| v.is_nan()) {
+        let Some(plane) = pick.plane else {
+            if pick.unseen {
                 st.unseen += 1;
             } else {
                 st.unscored += 1;
@@ -291,19 +293,20 @@ fn row_matches(
             continue;
         };
         // The best at an end of the range is, as a rule, the flank of a match beyond it.
-        if np > 1 && (win.plane == 0 || win.plane == np - 1) {
+        if np > 1 && (plane == 0 || plane == np - 1) {
             st.at_range_end += 1;
             continue;
         }
-        let rho = cell[win.plane];
+        let rho = pick.rho;
         if (rho as f64) < p.threshold {
             st.below_threshold += 1;
             continue;
         }
-        if let (Some(tol), Some(rb)) = (p.lr_tolerance, &rb) {
-            let xr = c as i64 - first - win.plane as i64;
+        if let Some(tol) = p.lr_tolerance {
+            let xr = c as i64 - first - plane as i64;
             let ok = (0..x.right.width as i64).contains(&xr)
-                && rb[xr as usize].is_some_and(|q| (q as f64 - win.plane as f64).abs() <= tol);
+                && rb[xr as usize] != u32::MAX
+                && (rb[xr as usize] as f64 - plane as f64).abs() <= tol;
             if !ok {
                 st.left_right += 1;
                 continue;
@@ -311,17 +314,13 @@ fn row_matches(
         }
         // The parabola on the raw correlations (around the chosen plane).
         let raw_win = Winner {
-            plane: win.plane,
+            plane,
             score: rho,
-            below: win
-                .plane
-                .checked_sub(1)
-                .map(|q| cell[q])
-                .filter(|v| v.is_finite()),
-            above: cell.get(win.plane + 1).copied().filter(|v| v.is_finite()),
+            below: pick.below,
+            above: pick.above,
         };
         let (off, den) = raw_win.parabola().unwrap_or((0.0, f64::NAN));
-        let mut t = win.plane as f64 + off;
+        let mut t = plane as f64 + off;
         // σ from the peak's curvature, in planes (a step of 1).
         let mut sd = height_sigma(rho as f64, den, 1.0, p.window * p.window);
         if p.subpixel == Subpixel::Lsm {
@@ -378,65 +377,68 @@ pub fn match_pair(
         planes: Planes::Shifts { first, count: np },
         k,
         np,
-        cols,
     };
-    let score_band = |b: &[usize]| {
-        let cells = Cells {
-            col0: k,
-            stride: 1,
-            cols,
-            rows: b.to_vec(),
-        };
-        score(&lp, &rp, &x.planes, k, &cells)
+    let wr = right.width;
+    let cells_of = |b: &[usize]| Cells {
+        col0: k,
+        stride: 1,
+        cols,
+        rows: b.to_vec(),
     };
     let row_len = cols * np;
     let mut seconds_aggregate = 0.0;
     let per_row: Vec<RowMatches> = match p.filter {
         Filter::Sgm => {
+            // The whole volume, in 16-bit codes, each band written in place.
             progress.begin("score (rows)", rows.len() as u64);
-            let band_scores: Vec<Scores> = bands
-                .par_iter()
-                .map(|b| {
-                    let s = score_band(b);
+            let mut vol = vec![0i16; row_len * rows.len()];
+            vol.par_chunks_mut(BAND * row_len)
+                .zip(bands.par_iter())
+                .for_each(|(chunk, b)| {
+                    let mut rb = vec![u32::MAX; b.len() * wr];
+                    sweep_shifts(&lp, &rp, first, np, k, &cells_of(b), &mut rb, |j, i, s| {
+                        let o = (j * cols + i) * np;
+                        for (d, &v) in chunk[o..o + np].iter_mut().zip(s) {
+                            *d = quantise(v);
+                        }
+                    });
                     progress.advance(b.len() as u64);
-                    s
-                })
-                .collect();
+                });
             progress.end();
-            let mut all = Scores {
-                planes: np,
-                cols,
-                rows: rows.len(),
-                v: Vec::with_capacity(cols * rows.len() * np),
-                right_best: Vec::new(),
-            };
-            for b in band_scores {
-                all.v.extend_from_slice(&b.v);
-            }
             let ta = std::time::Instant::now();
-            let s = aggregate(&all, &p.sgm);
+            let s = aggregate(&vol, cols, rows.len(), np, &p.sgm);
             seconds_aggregate = ta.elapsed().as_secs_f64();
             progress.begin("winners (rows)", rows.len() as u64);
             let out = rows
                 .par_iter()
                 .enumerate()
                 .map(|(j, &r)| {
-                    let raw = &all.v[j * row_len..(j + 1) * row_len];
+                    let raw = &vol[j * row_len..(j + 1) * row_len];
                     let agg = &s[j * row_len..(j + 1) * row_len];
-                    // −S, unseen (NaN) and unscored cells (all −∞) kept as they were.
+                    // −S, with unseen planes (NaN) and unscored cells (all −∞) as they were.
                     let mut chosen: Vec<f32> = agg.iter().map(|&v| -(v as f32)).collect();
-                    for (i, cell) in chosen.chunks_mut(np).enumerate() {
-                        let rc = &raw[i * np..(i + 1) * np];
-                        if rc.iter().all(|v| *v == f32::NEG_INFINITY) {
+                    for (cell, rc) in chosen.chunks_mut(np).zip(raw.chunks(np)) {
+                        if rc.iter().all(|&q| dequantise(q) == f32::NEG_INFINITY) {
                             cell.iter_mut().for_each(|v| *v = f32::NEG_INFINITY);
                         }
-                        for (v, q) in cell.iter_mut().zip(rc) {
-                            if q.is_nan() {
+                        for (v, &q) in cell.iter_mut().zip(rc) {
+                            if dequantise(q).is_nan() {
                                 *v = f32::NAN;
                             }
                         }
                     }
-                    let m = row_matches(&x, r, &chosen, raw, None);
+                    let picks: Vec<Pick> = chosen
+                        .chunks(np)
+                        .zip(raw.chunks(np))
+                        .map(|(cell, rc)| {
+                            Pick::new(winner(cell, Unseen::Skip), np, |p| dequantise(rc[p]))
+                        })
+                        .collect();
+                    let rb = match p.lr_tolerance {
+                        Some(_) => right_best(&chosen, cols, np, k, first, wr),
+                        None => Vec::new(),
+                    };
+                    let m = row_matches(&x, r, &picks, &rb);
                     progress.advance(1);
                     m
                 })
@@ -445,20 +447,22 @@ pub fn match_pair(
             out
         }
         _ => {
-            // Each band scored, matched and let go: no volume is kept.
+            // Each band's winners taken as its scores come: no volume is kept.
             progress.begin("match (rows)", rows.len() as u64);
             let out = bands
                 .par_iter()
                 .flat_map_iter(|b| {
-                    let sc = score_band(b);
+                    let mut rb = vec![u32::MAX; b.len() * wr];
+                    let mut picks = Vec::with_capacity(b.len() * cols);
+                    sweep_shifts(&lp, &rp, first, np, k, &cells_of(b), &mut rb, |_, _, s| {
+                        picks.push(Pick::new(winner(s, Unseen::Skip), np, |p| s[p]));
+                    });
                     let m: Vec<RowMatches> = b
                         .iter()
                         .enumerate()
                         .map(|(jb, &r)| {
-                            let row = &sc.v[jb * row_len..(jb + 1) * row_len];
-                            let wr = right.width;
-                            let rb = &sc.right_best[jb * wr..(jb + 1) * wr];
-                            row_matches(&x, r, row, row, Some(rb))
+                            let pk = &picks[jb * cols..(jb + 1) * cols];
+                            row_matches(&x, r, pk, &rb[jb * wr..(jb + 1) * wr])
                         })
                         .collect();
                     progress.advance(b.len() as u64);

@@ -139,7 +139,16 @@ pub fn score(
         return out;
     }
     match *planes {
-        Planes::Shifts { first, .. } => score_shifts(left, right, first, np, k, cells, &mut out),
+        Planes::Shifts { first, .. } => {
+            let wr = right.img.width;
+            let mut rb = vec![u32::MAX; cells.rows.len() * wr];
+            let (cols, v) = (cells.cols, &mut out.v);
+            sweep_shifts(left, right, first, np, k, cells, &mut rb, |j, i, s| {
+                let o = (j * cols + i) * np;
+                v[o..o + np].copy_from_slice(s);
+            });
+            out.right_best = rb;
+        }
         Planes::Heights { .. } => score_warped(left, right, planes, k, cells, &mut out),
     }
     out
@@ -238,15 +247,57 @@ fn window_columns(v: &[f32], np: usize, c: usize, k: usize, acc: &mut [f32], afr
 
 /// Disparities: the search window of plane p is the right photo's window moved by a whole
 /// pixel, so Σw and 1/√var(w) are the right photo's own, per column; only Σl·w is summed per
-/// plane, and a score is two multiplications.
-fn score_shifts(
+/// plane, and a score is two multiplications. Each cell's scores go to `sink(j, i, scores)`
+/// as soon as they are known (so that a caller who wants only the winner keeps no volume);
+/// `right_best[j·wr + x]` gets the right photo's winner for column x of row j (u32::MAX where
+/// none). Built twice: for AVX2 (chosen at run time where the CPU has it) and for the baseline
+/// target; the same operations in both (no fused multiply-add), so the same scores.
+#[allow(clippy::too_many_arguments)]
+pub fn sweep_shifts<F: FnMut(usize, usize, &[f32])>(
     left: &Prepared,
     right: &Prepared,
     first: i64,
     np: usize,
     k: usize,
     cells: &Cells,
-    out: &mut Scores,
+    right_best: &mut [u32],
+    sink: F,
+) {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU has AVX2, checked just above.
+        return unsafe { shifts_avx2(left, right, first, np, k, cells, right_best, sink) };
+    }
+    shifts_body(left, right, first, np, k, cells, right_best, sink)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[allow(clippy::too_many_arguments)]
+unsafe fn shifts_avx2<F: FnMut(usize, usize, &[f32])>(
+    left: &Prepared,
+    right: &Prepared,
+    first: i64,
+    np: usize,
+    k: usize,
+    cells: &Cells,
+    right_best: &mut [u32],
+    sink: F,
+) {
+    shifts_body(left, right, first, np, k, cells, right_best, sink)
+}
+
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn shifts_body<F: FnMut(usize, usize, &[f32])>(
+    left: &Prepared,
+    right: &Prepared,
+    first: i64,
+    np: usize,
+    k: usize,
+    cells: &Cells,
+    right_best: &mut [u32],
+    mut sink: F,
 ) {
     let (wl, wr) = (left.img.width, right.img.width);
     let n = ((2 * k + 1) * (2 * k + 1)) as f32;
@@ -266,8 +317,8 @@ fn score_shifts(
     let mut r_mean = vec![0.0f32; wr];
     let mut r_inv = vec![f32::NAN; wr];
     let mut acc = vec![0.0f32; np];
+    let mut dst = vec![0.0f32; np];
     // The right photo's winners, in the same reversed order.
-    out.right_best = vec![u32::MAX; cells.rows.len() * wr];
     let mut rb_v = vec![f32::NEG_INFINITY; wr];
     let mut rb_p = vec![u32::MAX; wr];
     let plane_index: Vec<u32> = (0..np as u32).collect();
@@ -296,20 +347,22 @@ fn score_shifts(
                     }
                     let (p_lo, p_hi) = (p_lo as usize, p_hi as usize);
                     let i0 = (wr as i64 - 1 - x0) as usize + p_lo;
-                    let dst = &mut vlw[c * np + p_lo..c * np + p_hi + 1];
-                    let src = &rrow[i0..i0 + dst.len()];
-                    for (d, s) in dst.iter_mut().zip(src) {
+                    let d = &mut vlw[c * np + p_lo..c * np + p_hi + 1];
+                    let s = &rrow[i0..i0 + d.len()];
+                    for (d, s) in d.iter_mut().zip(s) {
                         *d += l * s;
                     }
                 }
             }
         }
-        let o_row = j * cells.cols * np;
+        let rbj = &mut right_best[j * wr..(j + 1) * wr];
+        rbj.iter_mut().for_each(|v| *v = u32::MAX);
         if r + k >= right_h {
             // The right photo has no such rows: nothing is seen.
-            out.v[o_row..o_row + cells.cols * np]
-                .iter_mut()
-                .for_each(|v| *v = f32::NAN);
+            dst.iter_mut().for_each(|v| *v = f32::NAN);
+            for i in 0..cells.cols {
+                sink(j, i, &dst);
+            }
             continue;
         }
         row_window_sums(left, r, k, &mut lsum, &mut cs);
@@ -332,50 +385,51 @@ fn score_shifts(
             let afresh = cells.stride != 1 || i % RESUM == 0;
             window_columns(&vlw, np, c, k, &mut acc, afresh);
             let Some((ml, inv_l)) = inverse_deviation(lsum[c], n) else {
-                continue; // no reference: every plane stays −∞
+                // No reference: every plane −∞.
+                dst.iter_mut().for_each(|v| *v = f32::NEG_INFINITY);
+                sink(j, i, &dst);
+                continue;
             };
-            let dst = &mut out.v[o_row + i * np..o_row + (i + 1) * np];
             // Seen planes: k ≤ x ≤ wr − 1 − k with x = c − first − p.
             let x0 = c as i64 - first;
             let p_lo = (x0 - (wr as i64 - 1 - k as i64)).clamp(0, np as i64) as usize;
             let p_hi = (x0 - k as i64 + 1).clamp(p_lo as i64, np as i64) as usize;
             dst[..p_lo].iter_mut().for_each(|v| *v = f32::NAN);
             dst[p_hi..].iter_mut().for_each(|v| *v = f32::NAN);
-            if p_lo == p_hi {
-                continue;
+            if p_lo < p_hi {
+                let base = (wr as i64 - 1 - x0) as usize;
+                let (rm, ri) = (
+                    &r_mean[base + p_lo..base + p_hi],
+                    &r_inv[base + p_lo..base + p_hi],
+                );
+                // Σ(l − l̄)(w − w̄) = Σl·w − l̄·Σw.
+                for (((d, a), m), v) in dst[p_lo..p_hi]
+                    .iter_mut()
+                    .zip(&acc[p_lo..p_hi])
+                    .zip(rm)
+                    .zip(ri)
+                {
+                    *d = ((a - ml * m) * inv_l * v).clamp(-1.0, 1.0);
+                }
+                // The right photo's winners (NaN, unseen, is nobody's best).
+                let (bv, bp) = (
+                    &mut rb_v[base + p_lo..base + p_hi],
+                    &mut rb_p[base + p_lo..base + p_hi],
+                );
+                for (((d, v), b), &pi) in dst[p_lo..p_hi]
+                    .iter()
+                    .zip(bv)
+                    .zip(bp)
+                    .zip(&plane_index[p_lo..p_hi])
+                {
+                    let better = *d > *v;
+                    *v = if better { *d } else { *v };
+                    *b = if better { pi } else { *b };
+                }
             }
-            let base = (wr as i64 - 1 - x0) as usize;
-            let (rm, ri) = (
-                &r_mean[base + p_lo..base + p_hi],
-                &r_inv[base + p_lo..base + p_hi],
-            );
-            // Σ(l − l̄)(w − w̄) = Σl·w − l̄·Σw.
-            for (((d, a), m), v) in dst[p_lo..p_hi]
-                .iter_mut()
-                .zip(&acc[p_lo..p_hi])
-                .zip(rm)
-                .zip(ri)
-            {
-                *d = ((a - ml * m) * inv_l * v).clamp(-1.0, 1.0);
-            }
-            // The right photo's winners (NaN, unseen, is nobody's best).
-            let (bv, bp) = (
-                &mut rb_v[base + p_lo..base + p_hi],
-                &mut rb_p[base + p_lo..base + p_hi],
-            );
-            for (((d, v), b), &pi) in dst[p_lo..p_hi]
-                .iter()
-                .zip(bv)
-                .zip(bp)
-                .zip(&plane_index[p_lo..p_hi])
-            {
-                let better = *d > *v;
-                *v = if better { *d } else { *v };
-                *b = if better { pi } else { *b };
-            }
+            sink(j, i, &dst);
         }
-        let dst = &mut out.right_best[j * wr..(j + 1) * wr];
-        for (x, d) in dst.iter_mut().enumerate() {
+        for (x, d) in rbj.iter_mut().enumerate() {
             *d = rb_p[wr - 1 - x];
         }
     }

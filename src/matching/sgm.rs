@@ -6,7 +6,6 @@
 //! attracts nor repels the paths. Two sweeps over the cells: the first carries the paths that
 //! come from the left, above-left, above and above-right; the second the four opposite ones.
 
-use super::plane_sweep::Scores;
 use serde::{Deserialize, Serialize};
 
 /// Cost of a score: NCC 1 → 0, NCC 0 → COST_SCALE, NCC −1 → 2·COST_SCALE.
@@ -30,24 +29,56 @@ impl Default for SgmParams {
     }
 }
 
-fn cost(s: f32) -> u16 {
-    if s.is_finite() {
-        ((1.0 - s) * COST_SCALE)
-            .round()
-            .clamp(0.0, 2.0 * COST_SCALE) as u16
+/// A score in 16 bits for the volume that aggregation keeps: NCC·16384 (a step of 6·10⁻⁵,
+/// far below a window's noise), with codes for unseen (NaN) and unscored (−∞) planes. Half
+/// the memory of f32, and read twice (the two sweeps) and once more for the winners.
+pub const Q_ONE: i32 = 16384;
+const Q_UNSEEN: i16 = i16::MIN;
+const Q_UNSCORED: i16 = i16::MIN + 1;
+
+/// The 16-bit code of a score (NCC within −1…1, NaN, or −∞).
+#[inline]
+pub fn quantise(s: f32) -> i16 {
+    if s.is_nan() {
+        Q_UNSEEN
+    } else if s == f32::NEG_INFINITY {
+        Q_UNSCORED
     } else {
+        // Truncation of a positive number, so that it runs on vector lanes (no libm round).
+        ((s.clamp(-1.0, 1.0) * Q_ONE as f32 + (Q_ONE as f32 + 0.5)) as i32 - Q_ONE) as i16
+    }
+}
+
+/// The score a code stands for.
+#[inline]
+pub fn dequantise(q: i16) -> f32 {
+    match q {
+        Q_UNSEEN => f32::NAN,
+        Q_UNSCORED => f32::NEG_INFINITY,
+        _ => q as f32 / Q_ONE as f32,
+    }
+}
+
+/// Cost of a code: round((1 − NCC)·COST_SCALE); unseen and unscored planes cost COST_SCALE.
+#[inline]
+fn cost(q: i16) -> u16 {
+    const SHIFT: u32 = (Q_ONE / COST_SCALE as i32).trailing_zeros();
+    let c = ((Q_ONE - q as i32 + (1 << (SHIFT - 1))) >> SHIFT) as u16;
+    if q <= Q_UNSCORED {
         COST_SCALE as u16
+    } else {
+        c
     }
 }
 
 /// Bytes [`aggregate`] needs for a volume of `cells` × `planes` (rows `cols` wide), beside the
-/// scores it reads: the costs and the two sweeps' sums (u16 each), and 7 rows of path costs.
+/// codes it reads: the two sweeps' sums (u16 each), and 7 rows of path costs.
 pub fn bytes_needed(cells: f64, planes: f64, cols: f64) -> f64 {
-    cells * planes * 6.0 + 7.0 * cols * planes * 2.0
+    cells * planes * 4.0 + 7.0 * cols * planes * 2.0
 }
 
 /// One step of a path: `out` from the predecessor's path costs `prev` and this cell's costs.
-#[inline]
+#[inline(always)]
 fn step(c: &[u16], prev: Option<&[u16]>, p1: u16, p2: u16, out: &mut [u16]) {
     let Some(prev) = prev else {
         out.copy_from_slice(c);
@@ -80,8 +111,10 @@ fn step(c: &[u16], prev: Option<&[u16]>, p1: u16, p2: u16, out: &mut [u16]) {
 }
 
 /// One of the two sweeps: the four paths that come from behind it, summed.
-fn sweep(c: &[u16], cols: usize, rows: usize, np: usize, p: &SgmParams, forward: bool) -> Vec<u16> {
-    let mut sum = vec![0u16; c.len()];
+#[inline(always)]
+fn sweep(q: &[i16], cols: usize, rows: usize, np: usize, p: &SgmParams, forward: bool) -> Vec<u16> {
+    let mut sum = vec![0u16; q.len()];
+    let mut cc = vec![0u16; np];
     let at = |i: usize, j: usize| (j * cols + i) * np;
     // Path costs of the previous row for the three paths that come from it (indexed by the
     // position along the sweep's travel), and of the previous cell for the path along the row.
@@ -94,7 +127,10 @@ fn sweep(c: &[u16], cols: usize, rows: usize, np: usize, p: &SgmParams, forward:
         for ii in 0..cols {
             let i = if forward { ii } else { cols - 1 - ii };
             let o = at(i, j);
-            let cc = &c[o..o + np];
+            for (c, &v) in cc.iter_mut().zip(&q[o..o + np]) {
+                *c = cost(v);
+            }
+            let cc = &cc[..];
             let dst = &mut sum[o..o + np];
             step(
                 cc,
@@ -122,22 +158,50 @@ fn sweep(c: &[u16], cols: usize, rows: usize, np: usize, p: &SgmParams, forward:
     sum
 }
 
-/// The aggregated costs S (lower is better), `[(j·cols + i)·planes + p]`; the two sweeps run
-/// in parallel.
-pub fn aggregate(s: &Scores, p: &SgmParams) -> Vec<u16> {
-    let (cols, rows, np) = (s.cols, s.rows, s.planes);
-    let c: Vec<u16> = s.v.iter().map(|&v| cost(v)).collect();
-    if np == 0 || cols == 0 || rows == 0 {
-        return vec![0; c.len()];
+/// The aggregated costs S (lower is better) of a volume of score codes ([`quantise`])
+/// `[(j·cols + i)·planes + p]`, in the same order; the two sweeps run in parallel. Built twice:
+/// for AVX2 (chosen at run time where the CPU has it) and for the baseline target.
+pub fn aggregate(q: &[i16], cols: usize, rows: usize, np: usize, p: &SgmParams) -> Vec<u16> {
+    if np == 0 || cols == 0 || rows == 0 || q.len() != cols * rows * np {
+        return vec![0; q.len()];
     }
     let (mut a, b) = rayon::join(
-        || sweep(&c, cols, rows, np, p, true),
-        || sweep(&c, cols, rows, np, p, false),
+        || sweep_dispatch(q, cols, rows, np, p, true),
+        || sweep_dispatch(q, cols, rows, np, p, false),
     );
     for (x, y) in a.iter_mut().zip(&b) {
         *x = x.saturating_add(*y);
     }
     a
+}
+
+fn sweep_dispatch(
+    q: &[i16],
+    cols: usize,
+    rows: usize,
+    np: usize,
+    p: &SgmParams,
+    forward: bool,
+) -> Vec<u16> {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU has AVX2, checked just above.
+        return unsafe { sweep_avx2(q, cols, rows, np, p, forward) };
+    }
+    sweep(q, cols, rows, np, p, forward)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn sweep_avx2(
+    q: &[i16],
+    cols: usize,
+    rows: usize,
+    np: usize,
+    p: &SgmParams,
+    forward: bool,
+) -> Vec<u16> {
+    sweep(q, cols, rows, np, p, forward)
 }
 
 #[cfg(test)]
@@ -169,16 +233,10 @@ mod tests {
                 }
             }
         }
-        let s = Scores {
-            planes: np,
-            cols,
-            rows,
-            v: v.clone(),
-            right_best: Vec::new(),
-        };
+        let codes = |v: &[f32]| v.iter().map(|&x| quantise(x)).collect::<Vec<i16>>();
         // Penalties below the evidence's cost difference (384 − 3 for the strong cell).
         let pen = SgmParams { p1: 24, p2: 128 };
-        let sum = aggregate(&s, &pen);
+        let sum = aggregate(&codes(&v), cols, rows, np, &pen);
         let best = |i: usize, j: usize| {
             let o = (j * cols + i) * np;
             (0..np).min_by_key(|&p| sum[o + p]).unwrap()
@@ -190,16 +248,26 @@ mod tests {
         let o = (2 * cols + 4) * np;
         v2[o + 6] = 0.99;
         v2[o + 2] = -0.5;
-        let s2 = Scores {
-            planes: np,
-            cols,
-            rows,
-            v: v2,
-            right_best: Vec::new(),
-        };
-        let sum2 = aggregate(&s2, &pen);
+        let sum2 = aggregate(&codes(&v2), cols, rows, np, &pen);
         let b = (0..np).min_by_key(|&p| sum2[o + p]).unwrap();
         assert_eq!(b, 6, "strong evidence survives");
+    }
+
+    /// The 16-bit codes keep a score to 1/32768 and keep NaN and −∞ apart from every score.
+    #[test]
+    fn codes_keep_scores() {
+        for i in -1000..=1000 {
+            let s = i as f32 / 1000.0;
+            let back = dequantise(quantise(s));
+            assert!(
+                (back - s).abs() <= 0.5 / Q_ONE as f32 + 1e-7,
+                "{s} → {back}"
+            );
+        }
+        assert!(dequantise(quantise(f32::NAN)).is_nan());
+        assert_eq!(dequantise(quantise(f32::NEG_INFINITY)), f32::NEG_INFINITY);
+        assert_eq!(dequantise(quantise(7.0)), 1.0);
+        assert_eq!(dequantise(quantise(-7.0)), -1.0);
     }
 
     /// The two-sweep aggregation equals a plain one that runs each of the 8 paths on its
@@ -220,16 +288,21 @@ mod tests {
                 }
             })
             .collect();
-        let s = Scores {
-            planes: np,
-            cols,
-            rows,
-            v,
-            right_best: Vec::new(),
-        };
+        let q: Vec<i16> = v.iter().map(|&x| quantise(x)).collect();
         let p = SgmParams::default();
-        let got = aggregate(&s, &p);
-        let c: Vec<u32> = s.v.iter().map(|&x| cost(x) as u32).collect();
+        let got = aggregate(&q, cols, rows, np, &p);
+        // The costs the plain way: round((1 − NCC)·256), COST_SCALE where not scored.
+        let c: Vec<u32> = q
+            .iter()
+            .map(|&x| {
+                let s = dequantise(x);
+                if s.is_finite() {
+                    ((1.0 - s as f64) * COST_SCALE as f64).round() as u32
+                } else {
+                    COST_SCALE as u32
+                }
+            })
+            .collect();
         let mut want = vec![0u32; c.len()];
         for (dx, dy) in [
             (1i64, 0i64),
