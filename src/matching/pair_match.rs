@@ -3,7 +3,7 @@
 //! pixel, or per pixel after semi-global aggregation, a left-right consistency check, and the
 //! sub-pixel disparity by a parabola or by least-squares matching with its σ.
 
-use super::plane_sweep::{sweep_shifts, winner, Cells, Planes, Prepared, Unseen, Winner};
+use super::plane_sweep::{sweep_shifts, winner, CellSink, Cells, Planes, Prepared, Unseen, Winner};
 pub use super::refine::Subpixel;
 use super::refine::{refine, RefineFailure, Window};
 use super::regions::{remove_wrong_heights, RegionParams};
@@ -202,6 +202,7 @@ struct Pick {
 
 impl Pick {
     /// From the chosen scores' winner and the raw scores `raw(p)` of the `np` planes.
+    #[inline(always)]
     fn new(win: Option<Winner>, np: usize, raw: impl Fn(usize) -> f32) -> Pick {
         let finite = |p: Option<usize>| p.filter(|&p| p < np).map(&raw).filter(|v| v.is_finite());
         match win {
@@ -219,6 +220,38 @@ impl Pick {
                 above: None,
                 unseen: (0..np).any(|p| raw(p).is_nan()),
             },
+        }
+    }
+}
+
+/// The sweep's sink that keeps each cell's pick (the winner of its own scores).
+struct Picks {
+    np: usize,
+    v: Vec<Pick>,
+}
+
+impl CellSink for Picks {
+    #[inline(always)]
+    fn cell(&mut self, _: usize, _: usize, s: &[f32]) {
+        self.v
+            .push(Pick::new(winner(s, Unseen::Skip), self.np, |p| s[p]));
+    }
+}
+
+/// The sweep's sink that writes each cell's scores, as 16-bit codes, into a band's part of
+/// the volume.
+struct Codes<'a> {
+    chunk: &'a mut [i16],
+    cols: usize,
+    np: usize,
+}
+
+impl CellSink for Codes<'_> {
+    #[inline(always)]
+    fn cell(&mut self, j: usize, i: usize, s: &[f32]) {
+        let o = (j * self.cols + i) * self.np;
+        for (d, &v) in self.chunk[o..o + self.np].iter_mut().zip(s) {
+            *d = quantise(v);
         }
     }
 }
@@ -396,12 +429,8 @@ pub fn match_pair(
                 .zip(bands.par_iter())
                 .for_each(|(chunk, b)| {
                     let mut rb = vec![u32::MAX; b.len() * wr];
-                    sweep_shifts(&lp, &rp, first, np, k, &cells_of(b), &mut rb, |j, i, s| {
-                        let o = (j * cols + i) * np;
-                        for (d, &v) in chunk[o..o + np].iter_mut().zip(s) {
-                            *d = quantise(v);
-                        }
-                    });
+                    let mut codes = Codes { chunk, cols, np };
+                    sweep_shifts(&lp, &rp, first, np, k, &cells_of(b), &mut rb, &mut codes);
                     progress.advance(b.len() as u64);
                 });
             progress.end();
@@ -453,10 +482,12 @@ pub fn match_pair(
                 .par_iter()
                 .flat_map_iter(|b| {
                     let mut rb = vec![u32::MAX; b.len() * wr];
-                    let mut picks = Vec::with_capacity(b.len() * cols);
-                    sweep_shifts(&lp, &rp, first, np, k, &cells_of(b), &mut rb, |_, _, s| {
-                        picks.push(Pick::new(winner(s, Unseen::Skip), np, |p| s[p]));
-                    });
+                    let mut picks = Picks {
+                        np,
+                        v: Vec::with_capacity(b.len() * cols),
+                    };
+                    sweep_shifts(&lp, &rp, first, np, k, &cells_of(b), &mut rb, &mut picks);
+                    let picks = picks.v;
                     let m: Vec<RowMatches> = b
                         .iter()
                         .enumerate()

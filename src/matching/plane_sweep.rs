@@ -143,10 +143,19 @@ pub fn score(
             let wr = right.img.width;
             let mut rb = vec![u32::MAX; cells.rows.len() * wr];
             let (cols, v) = (cells.cols, &mut out.v);
-            sweep_shifts(left, right, first, np, k, cells, &mut rb, |j, i, s| {
-                let o = (j * cols + i) * np;
-                v[o..o + np].copy_from_slice(s);
-            });
+            sweep_shifts(
+                left,
+                right,
+                first,
+                np,
+                k,
+                cells,
+                &mut rb,
+                &mut |j: usize, i: usize, s: &[f32]| {
+                    let o = (j * cols + i) * np;
+                    v[o..o + np].copy_from_slice(s);
+                },
+            );
             out.right_best = rb;
         }
         Planes::Heights { .. } => score_warped(left, right, planes, k, cells, &mut out),
@@ -182,43 +191,90 @@ impl Running {
     }
 }
 
-/// The window sums (Σv, Σv², nodata count) of row `r` for every window centre x in
-/// `k..w − k` (index x; the others are left as they were), from column sums.
-fn row_window_sums(
-    p: &Prepared,
-    r: usize,
-    k: usize,
-    out: &mut [(f32, f32, f32)],
-    cs: &mut Vec<(f32, f32, f32)>,
-) {
-    let w = p.img.width;
-    cs.clear();
-    cs.resize(w, (0.0, 0.0, 0.0));
-    for rr in r - k..=r + k {
-        let row = &p.img.data[rr * w..(rr + 1) * w];
-        let nd = &p.nodata[rr * w..(rr + 1) * w];
-        for ((c, v), b) in cs.iter_mut().zip(row).zip(nd) {
-            c.0 += v;
-            c.1 += v * v;
-            c.2 += b;
-        }
-    }
-    for x in k..w.saturating_sub(k) {
-        let mut t = (0.0f32, 0.0f32, 0.0f32);
-        for c in &cs[x - k..=x + k] {
-            t.0 += c.0;
-            t.1 += c.1;
-            t.2 += c.2;
-        }
-        out[x] = t;
-    }
+/// Each window's mean and inverse deviation 1/√(Σ(v − v̄)²) along one row of a photo, for
+/// the window centres x in `k..w − k`: `inv[x]` is NaN where the window has nodata or is
+/// not wholly in the photo, 0 where it is flat, else positive; `mean[x]` is 0 where `inv[x]`
+/// is NaN. From column sums; in separate arrays so that every step runs on vector lanes.
+struct RowStats {
+    mean: Vec<f32>,
+    inv: Vec<f32>,
+    /// Column sums Σv, Σv², Σnodata over the window's rows, and the horizontal Σnodata.
+    c0: Vec<f32>,
+    c1: Vec<f32>,
+    c2: Vec<f32>,
+    s2: Vec<f32>,
 }
 
-/// 1/√(Σ(l − l̄)²) of a window from its sums, or None when it has nodata or is flat.
-#[inline]
-fn inverse_deviation((s, s2, bad): (f32, f32, f32), n: f32) -> Option<(f32, f32)> {
-    let var = s2 - s * s / n;
-    (bad == 0.0 && var > 1e-5 * s2.max(1e-12) && var > 1e-9).then(|| (s / n, 1.0 / var.sqrt()))
+impl RowStats {
+    fn new(w: usize) -> RowStats {
+        let z = vec![0.0f32; w];
+        RowStats {
+            mean: z.clone(),
+            inv: z.clone(),
+            c0: z.clone(),
+            c1: z.clone(),
+            c2: z.clone(),
+            s2: z,
+        }
+    }
+
+    /// Whether the window at x has a reference to match: seen, and not flat.
+    #[inline(always)]
+    fn usable(&self, x: usize) -> Option<(f32, f32)> {
+        let inv = self.inv[x];
+        (inv > 0.0).then(|| (self.mean[x], inv))
+    }
+
+    #[inline(always)]
+    fn fill(&mut self, p: &Prepared, r: usize, k: usize) {
+        let w = p.img.width;
+        let n = ((2 * k + 1) * (2 * k + 1)) as f32;
+        let (c0, c1, c2) = (&mut self.c0[..w], &mut self.c1[..w], &mut self.c2[..w]);
+        c0.fill(0.0);
+        c1.fill(0.0);
+        c2.fill(0.0);
+        for rr in r - k..=r + k {
+            let (row, nd) = (
+                &p.img.data[rr * w..(rr + 1) * w],
+                &p.nodata[rr * w..(rr + 1) * w],
+            );
+            for x in 0..w {
+                c0[x] += row[x];
+                c1[x] += row[x] * row[x];
+                c2[x] += nd[x];
+            }
+        }
+        self.mean[..w].fill(0.0);
+        self.inv[..w].fill(f32::NAN);
+        if w < 2 * k + 1 {
+            return;
+        }
+        let m = w - 2 * k;
+        // Horizontal sums: Σv into mean, Σv² into inv, Σnodata into s2 (window centre k + x).
+        let (s0, s1, s2) = (
+            &mut self.mean[k..k + m],
+            &mut self.inv[k..k + m],
+            &mut self.s2[..m],
+        );
+        s1.fill(0.0);
+        s2.fill(0.0);
+        for d in 0..2 * k + 1 {
+            let (a, b, c) = (&c0[d..d + m], &c1[d..d + m], &c2[d..d + m]);
+            for x in 0..m {
+                s0[x] += a[x];
+                s1[x] += b[x];
+                s2[x] += c[x];
+            }
+        }
+        for x in 0..m {
+            let (s, q, bad) = (s0[x], s1[x], s2[x]);
+            let var = q - s * s / n;
+            let flat = !(var > 1e-5 * q.max(1e-12) && var > 1e-9);
+            let inv = if flat { 0.0 } else { 1.0 / var.sqrt() };
+            s1[x] = if bad != 0.0 { f32::NAN } else { inv };
+            s0[x] = if bad != 0.0 { 0.0 } else { s / n };
+        }
+    }
 }
 
 /// Cells between two re-summings of the running horizontal sums (f32 drift stays far below
@@ -227,7 +283,7 @@ const RESUM: usize = 32;
 
 /// Σ over the window's columns `c − k ..= c + k` of the per-column vectors `v` (`np` each),
 /// into `acc`: summed afresh, or moved on from the previous cell one column to the left.
-#[inline]
+#[inline(always)]
 fn window_columns(v: &[f32], np: usize, c: usize, k: usize, acc: &mut [f32], afresh: bool) {
     if afresh {
         acc.iter_mut().for_each(|a| *a = 0.0);
@@ -245,6 +301,20 @@ fn window_columns(v: &[f32], np: usize, c: usize, k: usize, acc: &mut [f32], afr
     }
 }
 
+/// Takes each cell's scores from the disparity sweep: `cell(j, i, scores)` for row j and
+/// cell i of the [`Cells`], in row-major order. A sink whose `cell` is `#[inline(always)]` is
+/// built into the sweep (on its vector lanes); a closure is called.
+pub trait CellSink {
+    fn cell(&mut self, j: usize, i: usize, scores: &[f32]);
+}
+
+impl<F: FnMut(usize, usize, &[f32])> CellSink for F {
+    #[inline(always)]
+    fn cell(&mut self, j: usize, i: usize, scores: &[f32]) {
+        self(j, i, scores)
+    }
+}
+
 /// Disparities: the search window of plane p is the right photo's window moved by a whole
 /// pixel, so Σw and 1/√var(w) are the right photo's own, per column; only Σl·w is summed per
 /// plane, and a score is two multiplications. Each cell's scores go to `sink(j, i, scores)`
@@ -253,7 +323,7 @@ fn window_columns(v: &[f32], np: usize, c: usize, k: usize, acc: &mut [f32], afr
 /// none). Built twice: for AVX2 (chosen at run time where the CPU has it) and for the baseline
 /// target; the same operations in both (no fused multiply-add), so the same scores.
 #[allow(clippy::too_many_arguments)]
-pub fn sweep_shifts<F: FnMut(usize, usize, &[f32])>(
+pub fn sweep_shifts<F: CellSink>(
     left: &Prepared,
     right: &Prepared,
     first: i64,
@@ -261,7 +331,7 @@ pub fn sweep_shifts<F: FnMut(usize, usize, &[f32])>(
     k: usize,
     cells: &Cells,
     right_best: &mut [u32],
-    sink: F,
+    sink: &mut F,
 ) {
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") {
@@ -274,7 +344,7 @@ pub fn sweep_shifts<F: FnMut(usize, usize, &[f32])>(
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 #[allow(clippy::too_many_arguments)]
-unsafe fn shifts_avx2<F: FnMut(usize, usize, &[f32])>(
+unsafe fn shifts_avx2<F: CellSink>(
     left: &Prepared,
     right: &Prepared,
     first: i64,
@@ -282,14 +352,14 @@ unsafe fn shifts_avx2<F: FnMut(usize, usize, &[f32])>(
     k: usize,
     cells: &Cells,
     right_best: &mut [u32],
-    sink: F,
+    sink: &mut F,
 ) {
     shifts_body(left, right, first, np, k, cells, right_best, sink)
 }
 
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
-fn shifts_body<F: FnMut(usize, usize, &[f32])>(
+fn shifts_body<F: CellSink>(
     left: &Prepared,
     right: &Prepared,
     first: i64,
@@ -297,7 +367,7 @@ fn shifts_body<F: FnMut(usize, usize, &[f32])>(
     k: usize,
     cells: &Cells,
     right_best: &mut [u32],
-    mut sink: F,
+    sink: &mut F,
 ) {
     let (wl, wr) = (left.img.width, right.img.width);
     let n = ((2 * k + 1) * (2 * k + 1)) as f32;
@@ -309,9 +379,7 @@ fn shifts_body<F: FnMut(usize, usize, &[f32])>(
         empty: true,
     };
     let mut rrow = vec![0.0f32; wr];
-    let mut cs = Vec::new();
-    let mut lsum = vec![(0.0f32, 0.0f32, 1.0f32); wl];
-    let mut rsum = vec![(0.0f32, 0.0f32, 1.0f32); wr];
+    let (mut lst, mut rst) = (RowStats::new(wl), RowStats::new(wr));
     // Right window mean·n and inverse deviation per column, reversed (index wr − 1 − x) so
     // that the planes of one reference column read them ascending; NaN where unseen.
     let mut r_mean = vec![0.0f32; wr];
@@ -361,22 +429,17 @@ fn shifts_body<F: FnMut(usize, usize, &[f32])>(
             // The right photo has no such rows: nothing is seen.
             dst.iter_mut().for_each(|v| *v = f32::NAN);
             for i in 0..cells.cols {
-                sink(j, i, &dst);
+                sink.cell(j, i, &dst);
             }
             continue;
         }
-        row_window_sums(left, r, k, &mut lsum, &mut cs);
-        row_window_sums(right, r, k, &mut rsum, &mut cs);
-        for x in 0..wr {
-            let inside = x >= k && x + k < wr;
-            let (m, inv) = match inside.then(|| inverse_deviation(rsum[x], n)) {
-                // A flat right window: scored, uncorrelated.
-                Some(None) if rsum[x].2 == 0.0 => (0.0, 0.0),
-                Some(Some(v)) => v,
-                _ => (0.0, f32::NAN),
-            };
+        lst.fill(left, r, k);
+        rst.fill(right, r, k);
+        // A flat right window (inverse deviation 0) scores 0: scored, uncorrelated; an
+        // unseen one NaN.
+        for (x, (m, v)) in rst.mean.iter().zip(&rst.inv).enumerate() {
             r_mean[wr - 1 - x] = m * n;
-            r_inv[wr - 1 - x] = inv;
+            r_inv[wr - 1 - x] = *v;
         }
         rb_v.iter_mut().for_each(|v| *v = f32::NEG_INFINITY);
         rb_p.iter_mut().for_each(|v| *v = u32::MAX);
@@ -384,10 +447,10 @@ fn shifts_body<F: FnMut(usize, usize, &[f32])>(
             let c = cells.col0 + i * cells.stride;
             let afresh = cells.stride != 1 || i % RESUM == 0;
             window_columns(&vlw, np, c, k, &mut acc, afresh);
-            let Some((ml, inv_l)) = inverse_deviation(lsum[c], n) else {
+            let Some((ml, inv_l)) = lst.usable(c) else {
                 // No reference: every plane −∞.
                 dst.iter_mut().for_each(|v| *v = f32::NEG_INFINITY);
-                sink(j, i, &dst);
+                sink.cell(j, i, &dst);
                 continue;
             };
             // Seen planes: k ≤ x ≤ wr − 1 − k with x = c − first − p.
@@ -427,7 +490,7 @@ fn shifts_body<F: FnMut(usize, usize, &[f32])>(
                     *b = if better { pi } else { *b };
                 }
             }
-            sink(j, i, &dst);
+            sink.cell(j, i, &dst);
         }
         for (x, d) in rbj.iter_mut().enumerate() {
             *d = rb_p[wr - 1 - x];
@@ -529,8 +592,7 @@ fn score_warped(
         bottom: 0,
         empty: true,
     };
-    let mut cs = Vec::new();
-    let mut lsum = vec![(0.0f32, 0.0f32, 1.0f32); wl];
+    let mut lst = RowStats::new(wl);
     let (mut a_w, mut a_w2, mut a_lw, mut a_n) = (
         vec![0.0f32; np],
         vec![0.0f32; np],
@@ -569,7 +631,7 @@ fn score_warped(
                 }
             }
         }
-        row_window_sums(left, r, k, &mut lsum, &mut cs);
+        lst.fill(left, r, k);
         for i in 0..cells.cols {
             let c = cells.col0 + i * cells.stride;
             let afresh = cells.stride != 1 || i % RESUM == 0;
@@ -577,7 +639,7 @@ fn score_warped(
             window_columns(&vw2, np, c, k, &mut a_w2, afresh);
             window_columns(&vlw, np, c, k, &mut a_lw, afresh);
             window_columns(&vn, np, c, k, &mut a_n, afresh);
-            let Some((ml, inv_l)) = inverse_deviation(lsum[c], n) else {
+            let Some((ml, inv_l)) = lst.usable(c) else {
                 continue; // no reference: every plane stays −∞
             };
             let o = (j * cells.cols + i) * np;
@@ -610,7 +672,7 @@ fn score_warped(
     }
 }
 
-#[inline]
+#[inline(always)]
 fn add_into(a: &mut [f32], b: &[f32]) {
     for (x, y) in a.iter_mut().zip(b) {
         *x += y;
@@ -665,28 +727,40 @@ pub enum Unseen {
 
 /// The plane with the highest score, scored on both sides (a neighbour not scored — flat,
 /// unseen — is no peak that a parabola can refine or trust; the ends of the range excepted).
+#[inline(always)]
 pub fn winner(s: &[f32], unseen: Unseen) -> Option<Winner> {
     if unseen == Unseen::Refuse && s.iter().any(|v| v.is_nan()) {
         return None;
     }
-    // The highest score in eight lanes (so that it runs on vector lanes), then its first
-    // place. NaN fails the comparison (never the best); −∞ never beats the start.
-    let mut lanes = [f32::NEG_INFINITY; 8];
-    let chunks = s.chunks_exact(8);
+    // The highest score in sixteen lanes (two independent vectors, so that it runs on
+    // vector lanes without waiting on itself), then its first place, found a chunk of eight
+    // at a time. NaN fails the comparison (never the best); −∞ never beats the start.
+    let mut lanes = [f32::NEG_INFINITY; 16];
+    let chunks = s.chunks_exact(16);
     let tail = chunks.remainder();
     for ch in chunks {
-        for (m, &x) in lanes.iter_mut().zip(ch) {
-            *m = if x > *m { x } else { *m };
+        for l in 0..16 {
+            lanes[l] = if ch[l] > lanes[l] { ch[l] } else { lanes[l] };
         }
     }
-    let mut v = f32::NEG_INFINITY;
-    for &x in lanes.iter().chain(tail) {
-        v = if x > v { x } else { v };
+    // Across the lanes by halves (a tree, not a chain of sixteen), then the tail.
+    let max = |a: f32, b: f32| if b > a { b } else { a };
+    let mut half = 8;
+    while half > 0 {
+        for l in 0..half {
+            lanes[l] = max(lanes[l], lanes[l + half]);
+        }
+        half /= 2;
     }
+    let v = tail.iter().fold(lanes[0], |v, &x| max(v, x));
     if v == f32::NEG_INFINITY {
         return None;
     }
-    let p = s.iter().position(|&x| x == v)?;
+    let (b, ch) = s
+        .chunks(8)
+        .enumerate()
+        .find(|(_, ch)| ch.iter().fold(false, |a, &x| a | (x == v)))?;
+    let p = b * 8 + ch.iter().position(|&x| x == v)?;
     let side = |q: Option<usize>| q.and_then(|q| s.get(q).copied());
     let below = side(p.checked_sub(1));
     let above = side(Some(p + 1));
@@ -767,6 +841,44 @@ mod tests {
                         );
                     }
                 }
+            }
+        }
+    }
+
+    /// The lane-wise winner is the plain scan's: the first place of the highest score, NaN
+    /// never the best, no winner when all are −∞ or a neighbour is not scored, over lengths
+    /// that fill the lanes, miss them and leave tails, with ties across the lanes.
+    #[test]
+    fn winner_is_the_first_best() {
+        let mut seed = 11u64;
+        let mut next = || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            seed >> 33
+        };
+        for n in 1..70usize {
+            for _ in 0..200 {
+                let s: Vec<f32> = (0..n)
+                    .map(|_| match next() % 16 {
+                        0 => f32::NAN,
+                        1 => f32::NEG_INFINITY,
+                        // Few distinct values, so that ties are common.
+                        v => (v % 5) as f32 * 0.1,
+                    })
+                    .collect();
+                let mut want: Option<usize> = None;
+                for (i, &x) in s.iter().enumerate() {
+                    if x > f32::NEG_INFINITY && want.is_none_or(|w| x > s[w]) {
+                        want = Some(i);
+                    }
+                }
+                let want = want.filter(|&p| {
+                    let ok = |q: Option<usize>| q.is_none_or(|q| s[q] > f32::NEG_INFINITY);
+                    ok(p.checked_sub(1)) && ok((p + 1 < n).then_some(p + 1))
+                });
+                let got = winner(&s, Unseen::Skip).map(|w| w.plane);
+                assert_eq!(got, want, "{s:?}");
             }
         }
     }
