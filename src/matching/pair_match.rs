@@ -399,7 +399,7 @@ pub fn match_pair(
     let k = p.window / 2;
     let np = (p.d_max - p.d_min + 1) as usize;
     let first = p.d_min;
-    let (lp, rp) = (Prepared::new(left), Prepared::new(right));
+    let (lp, rp) = rayon::join(|| Prepared::new(left), || Prepared::new(right));
     let cols = w - 2 * k;
     let rows: Vec<usize> = (k..h - k).collect();
     let bands: Vec<&[usize]> = rows.chunks(BAND).collect();
@@ -512,15 +512,23 @@ pub fn match_pair(
         pixels: cols * rows.len(),
         ..Default::default()
     };
+    // The rows written in parallel (rows k..h − k come in order, one per entry).
     let mut d = vec![f32::NAN; w * h];
     let mut corr = vec![f32::NAN; w * h];
     let mut sigma = vec![f32::NAN; w * h];
-    for (r, got, st) in per_row {
-        for (c, dv, rho, sd) in got {
-            d[r * w + c] = dv;
-            corr[r * w + c] = rho;
-            sigma[r * w + c] = sd;
-        }
+    d.par_chunks_mut(w)
+        .zip(corr.par_chunks_mut(w))
+        .zip(sigma.par_chunks_mut(w))
+        .skip(k)
+        .zip(per_row.par_iter())
+        .for_each(|(((d, corr), sigma), (_, got, _))| {
+            for &(c, dv, rho, sd) in got {
+                d[c] = dv;
+                corr[c] = rho;
+                sigma[c] = sd;
+            }
+        });
+    for (_, _, st) in per_row {
         stats.unseen += st.unseen;
         stats.unscored += st.unscored;
         stats.at_range_end += st.at_range_end;

@@ -58,32 +58,42 @@ pub struct Prepared {
 
 impl Prepared {
     pub fn new(src: &ImageF32) -> Prepared {
-        let (mut s, mut n) = (0.0f64, 0usize);
-        for v in src.data.iter().filter(|v| v.is_finite()) {
-            s += *v as f64;
-            n += 1;
+        use rayon::prelude::*;
+        const CHUNK: usize = 1 << 16;
+        // Mean and deviation in f64 over chunks in parallel (each chunk's sum in f64).
+        fn sum(data: &[f32], f: impl Fn(f64) -> f64 + Sync) -> (f64, usize) {
+            data.par_chunks(CHUNK)
+                .map(|c| {
+                    c.iter()
+                        .filter(|v| v.is_finite())
+                        .fold((0.0f64, 0usize), |(s, n), &v| (s + f(v as f64), n + 1))
+                })
+                .reduce(|| (0.0, 0), |a, b| (a.0 + b.0, a.1 + b.1))
         }
+        let (s, n) = sum(&src.data, |v| v);
         let mean = if n > 0 { s / n as f64 } else { 0.0 };
-        let mut ss = 0.0f64;
-        for v in src.data.iter().filter(|v| v.is_finite()) {
-            ss += (*v as f64 - mean).powi(2);
-        }
+        let (ss, _) = sum(&src.data, |v| (v - mean) * (v - mean));
         let sd = if n > 0 { (ss / n as f64).sqrt() } else { 0.0 };
         let scale = if sd > 0.0 && sd.is_finite() {
             1.0 / sd
         } else {
             1.0
         };
-        let mut img = src.clone();
+        let mut img = ImageF32::new(src.width, src.height);
         let mut nodata = vec![0.0; img.data.len()];
-        for (v, bad) in img.data.iter_mut().zip(nodata.iter_mut()) {
-            if v.is_finite() {
-                *v = ((*v as f64 - mean) * scale) as f32;
-            } else {
-                *v = 0.0;
-                *bad = 1.0;
-            }
-        }
+        img.data
+            .par_chunks_mut(CHUNK)
+            .zip(nodata.par_chunks_mut(CHUNK))
+            .zip(src.data.par_chunks(CHUNK))
+            .for_each(|((d, bad), s)| {
+                for ((d, bad), &v) in d.iter_mut().zip(bad).zip(s) {
+                    if v.is_finite() {
+                        *d = ((v as f64 - mean) * scale) as f32;
+                    } else {
+                        *bad = 1.0;
+                    }
+                }
+            });
         Prepared { img, nodata }
     }
 }
