@@ -27,3 +27,4 @@ pub mod regions;
 pub mod sgm;
 pub mod sweep;
 pub mod tiles;
+pub mod volume;

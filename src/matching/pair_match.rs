@@ -7,7 +7,7 @@ use super::plane_sweep::{sweep_shifts, winner, CellSink, Cells, Planes, Prepared
 pub use super::refine::Subpixel;
 use super::refine::{refine, RefineFailure, Window};
 use super::regions::{remove_wrong_heights, RegionParams};
-use super::sgm::{aggregate, dequantise, quantise, SgmParams};
+use super::sgm::{aggregate_halves, dequantise, quantise, SgmParams, Q_UNSCORED, Q_UNSEEN};
 use super::sweep::{height_sigma, HeightMap};
 use crate::image::ImageF32;
 use rayon::prelude::*;
@@ -256,42 +256,110 @@ impl CellSink for Codes<'_> {
     }
 }
 
-/// The right photo's best plane for right column x (u32::MAX where none): the best over cells
-/// i with x = col0 + i − first − p (the same scores, read along the other diagonal).
-fn right_best(row: &[f32], cols: usize, np: usize, col0: usize, first: i64, wr: usize) -> Vec<u32> {
-    // The row by plane, so that each plane's cells are contiguous, as are their right columns
-    // x = col0 + i − first − p.
-    let mut by_plane = vec![0.0f32; cols * np];
-    for (i, cell) in row.chunks_exact(np).enumerate() {
-        for (p, &v) in cell.iter().enumerate() {
-            by_plane[p * cols + i] = v;
-        }
+/// One row of the SGM path: each cell's pick on the aggregated costs (chosen score −S,
+/// S = forward + backward sums; unseen planes NaN, unscored cells −∞ throughout), its raw
+/// correlations from the codes, and, with `lr`, the right photo's best plane for each right
+/// column x (u32::MAX where none), the best over the cells that meet x on the chosen scores.
+/// Built twice: for AVX2 (chosen at run time where the CPU has it) and for the baseline.
+#[allow(clippy::too_many_arguments)]
+fn sgm_row(
+    raw: &[i16],
+    fwd: &[u16],
+    bwd: &[u16],
+    np: usize,
+    col0: usize,
+    first: i64,
+    wr: usize,
+    lr: bool,
+) -> (Vec<Pick>, Vec<u32>) {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU has AVX2, checked just above.
+        return unsafe { sgm_row_avx2(raw, fwd, bwd, np, col0, first, wr, lr) };
     }
-    let mut best_v = vec![f32::NEG_INFINITY; wr];
-    // u32 beside f32, so that the update runs on vector lanes (at most 4096 planes).
-    let mut best_p = vec![u32::MAX; wr];
-    for p in 0..np {
-        let off = col0 as i64 - first - p as i64; // x = i + off
-        let i_lo = (-off).max(0).min(cols as i64) as usize;
-        let i_hi = (wr as i64 - off).clamp(i_lo as i64, cols as i64) as usize;
-        if i_lo == i_hi {
+    sgm_row_body(raw, fwd, bwd, np, col0, first, wr, lr)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[allow(clippy::too_many_arguments)]
+unsafe fn sgm_row_avx2(
+    raw: &[i16],
+    fwd: &[u16],
+    bwd: &[u16],
+    np: usize,
+    col0: usize,
+    first: i64,
+    wr: usize,
+    lr: bool,
+) -> (Vec<Pick>, Vec<u32>) {
+    sgm_row_body(raw, fwd, bwd, np, col0, first, wr, lr)
+}
+
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn sgm_row_body(
+    raw: &[i16],
+    fwd: &[u16],
+    bwd: &[u16],
+    np: usize,
+    col0: usize,
+    first: i64,
+    wr: usize,
+    lr: bool,
+) -> (Vec<Pick>, Vec<u32>) {
+    let cols = raw.len() / np.max(1);
+    let mut cell = vec![0.0f32; np];
+    let mut picks = Vec::with_capacity(cols);
+    // The right photo's winners by reversed column (wr − 1 − x), so that a cell's planes
+    // meet them ascending; u32 beside f32, so that the update runs on vector lanes.
+    let mut rb_v = vec![f32::NEG_INFINITY; wr];
+    let mut rb_p = vec![u32::MAX; wr];
+    let plane_index: Vec<u32> = (0..np as u32).collect();
+    for i in 0..cols {
+        let o = i * np;
+        let (rc, a, b) = (&raw[o..o + np], &fwd[o..o + np], &bwd[o..o + np]);
+        if rc.iter().fold(true, |t, &q| t & (q == Q_UNSCORED)) {
+            cell.fill(f32::NEG_INFINITY);
+        } else {
+            for p in 0..np {
+                let s = -(a[p] as f32 + b[p] as f32);
+                cell[p] = if rc[p] == Q_UNSEEN { f32::NAN } else { s };
+            }
+        }
+        picks.push(Pick::new(winner(&cell, Unseen::Skip), np, |p| {
+            dequantise(rc[p])
+        }));
+        if !lr {
             continue;
         }
-        let x_lo = (i_lo as i64 + off) as usize;
-        let n = i_hi - i_lo;
-        let src = &by_plane[p * cols + i_lo..p * cols + i_hi];
+        // Right column x = col0 + i − first − p, inside the right photo for p_lo..=p_hi.
+        let x0 = (col0 + i) as i64 - first;
+        let p_lo = (x0 - (wr as i64 - 1)).max(0);
+        let p_hi = x0.min(np as i64 - 1);
+        if p_lo > p_hi {
+            continue;
+        }
+        let (p_lo, p_hi) = (p_lo as usize, p_hi as usize + 1);
+        let base = (wr as i64 - 1 - x0) as usize;
         // Unseen (NaN) and unscored (−∞) planes are nobody's best.
-        for ((v, bv), bp) in src
+        for (((v, bv), bp), &pi) in cell[p_lo..p_hi]
             .iter()
-            .zip(&mut best_v[x_lo..x_lo + n])
-            .zip(&mut best_p[x_lo..x_lo + n])
+            .zip(&mut rb_v[base + p_lo..base + p_hi])
+            .zip(&mut rb_p[base + p_lo..base + p_hi])
+            .zip(&plane_index[p_lo..p_hi])
         {
             let better = *v > *bv;
             *bv = if better { *v } else { *bv };
-            *bp = if better { p as u32 } else { *bp };
+            *bp = if better { pi } else { *bp };
         }
     }
-    best_p
+    let rb = if lr {
+        (0..wr).map(|x| rb_p[wr - 1 - x]).collect()
+    } else {
+        Vec::new()
+    };
+    (picks, rb)
 }
 
 /// One row's matches: its pixel row, (column, disparity, correlation, σ) of each match, and
@@ -424,7 +492,7 @@ pub fn match_pair(
         Filter::Sgm => {
             // The whole volume, in 16-bit codes, each band written in place.
             progress.begin("score (rows)", rows.len() as u64);
-            let mut vol = vec![0i16; row_len * rows.len()];
+            let mut vol: Vec<i16> = super::volume::zeroed(row_len * rows.len());
             vol.par_chunks_mut(BAND * row_len)
                 .zip(bands.par_iter())
                 .for_each(|(chunk, b)| {
@@ -435,38 +503,24 @@ pub fn match_pair(
                 });
             progress.end();
             let ta = std::time::Instant::now();
-            let s = aggregate(&vol, cols, rows.len(), np, &p.sgm);
+            let (fwd, bwd) = aggregate_halves(&vol, cols, rows.len(), np, &p.sgm);
             seconds_aggregate = ta.elapsed().as_secs_f64();
             progress.begin("winners (rows)", rows.len() as u64);
             let out = rows
                 .par_iter()
                 .enumerate()
                 .map(|(j, &r)| {
-                    let raw = &vol[j * row_len..(j + 1) * row_len];
-                    let agg = &s[j * row_len..(j + 1) * row_len];
-                    // −S, with unseen planes (NaN) and unscored cells (all −∞) as they were.
-                    let mut chosen: Vec<f32> = agg.iter().map(|&v| -(v as f32)).collect();
-                    for (cell, rc) in chosen.chunks_mut(np).zip(raw.chunks(np)) {
-                        if rc.iter().all(|&q| dequantise(q) == f32::NEG_INFINITY) {
-                            cell.iter_mut().for_each(|v| *v = f32::NEG_INFINITY);
-                        }
-                        for (v, &q) in cell.iter_mut().zip(rc) {
-                            if dequantise(q).is_nan() {
-                                *v = f32::NAN;
-                            }
-                        }
-                    }
-                    let picks: Vec<Pick> = chosen
-                        .chunks(np)
-                        .zip(raw.chunks(np))
-                        .map(|(cell, rc)| {
-                            Pick::new(winner(cell, Unseen::Skip), np, |p| dequantise(rc[p]))
-                        })
-                        .collect();
-                    let rb = match p.lr_tolerance {
-                        Some(_) => right_best(&chosen, cols, np, k, first, wr),
-                        None => Vec::new(),
-                    };
+                    let row = j * row_len..(j + 1) * row_len;
+                    let (picks, rb) = sgm_row(
+                        &vol[row.clone()],
+                        &fwd[row.clone()],
+                        &bwd[row],
+                        np,
+                        k,
+                        first,
+                        wr,
+                        p.lr_tolerance.is_some(),
+                    );
                     let m = row_matches(&x, r, &picks, &rb);
                     progress.advance(1);
                     m

@@ -142,7 +142,11 @@ pub fn score(
         planes: np,
         cols: cells.cols,
         rows: cells.rows.len(),
-        v: vec![f32::NEG_INFINITY; cells.cols * cells.rows.len() * np],
+        v: {
+            let mut v = super::volume::zeroed(cells.cols * cells.rows.len() * np);
+            v.fill(f32::NEG_INFINITY);
+            v
+        },
         right_best: Vec::new(),
     };
     if np == 0 || cells.rows.is_empty() || cells.cols == 0 {
@@ -547,8 +551,8 @@ fn score_warped(
     };
     let (us, uy) = (normalised(&map.x.norm), normalised(&map.y.norm));
     // Warped values and their "unseen" flags, row-major over the span, planes innermost.
-    let mut wv = vec![0.0f32; span * wl * np];
-    let mut wn = vec![0.0f32; span * wl * np];
+    let mut wv: Vec<f32> = super::volume::zeroed(span * wl * np);
+    let mut wn: Vec<f32> = super::volume::zeroed(span * wl * np);
     let (rw, rh) = (right.img.width as f64, right.img.height as f64);
     let any_nodata = right.nodata.iter().any(|&v| v > 0.0);
     let mut ax = vec![0.0f64; order + 1];

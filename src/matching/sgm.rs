@@ -33,8 +33,8 @@ impl Default for SgmParams {
 /// far below a window's noise), with codes for unseen (NaN) and unscored (−∞) planes. Half
 /// the memory of f32, and read twice (the two sweeps) and once more for the winners.
 pub const Q_ONE: i32 = 16384;
-const Q_UNSEEN: i16 = i16::MIN;
-const Q_UNSCORED: i16 = i16::MIN + 1;
+pub const Q_UNSEEN: i16 = i16::MIN;
+pub const Q_UNSCORED: i16 = i16::MIN + 1;
 
 /// The 16-bit code of a score (NCC within −1…1, NaN, or −∞).
 #[inline]
@@ -85,7 +85,8 @@ fn step(c: &[u16], prev: Option<&[u16]>, p1: u16, p2: u16, out: &mut [u16]) {
         return;
     };
     let n = c.len();
-    let m = prev.iter().copied().min().unwrap_or(0);
+    // A fold, not Iterator::min, so that it runs on vector lanes.
+    let m = prev.iter().fold(u16::MAX, |a, &b| a.min(b));
     let jump = m.saturating_add(p2);
     if n == 1 {
         out[0] = c[0].saturating_add(prev[0].min(jump) - m);
@@ -113,7 +114,7 @@ fn step(c: &[u16], prev: Option<&[u16]>, p1: u16, p2: u16, out: &mut [u16]) {
 /// One of the two sweeps: the four paths that come from behind it, summed.
 #[inline(always)]
 fn sweep(q: &[i16], cols: usize, rows: usize, np: usize, p: &SgmParams, forward: bool) -> Vec<u16> {
-    let mut sum = vec![0u16; q.len()];
+    let mut sum: Vec<u16> = super::volume::zeroed(q.len());
     let mut cc = vec![0u16; np];
     let at = |i: usize, j: usize| (j * cols + i) * np;
     // Path costs of the previous row for the three paths that come from it (indexed by the
@@ -159,20 +160,33 @@ fn sweep(q: &[i16], cols: usize, rows: usize, np: usize, p: &SgmParams, forward:
 }
 
 /// The aggregated costs S (lower is better) of a volume of score codes ([`quantise`])
-/// `[(j·cols + i)·planes + p]`, in the same order; the two sweeps run in parallel. Built twice:
-/// for AVX2 (chosen at run time where the CPU has it) and for the baseline target.
+/// `[(j·cols + i)·planes + p]`, in the same order.
 pub fn aggregate(q: &[i16], cols: usize, rows: usize, np: usize, p: &SgmParams) -> Vec<u16> {
-    if np == 0 || cols == 0 || rows == 0 || q.len() != cols * rows * np {
-        return vec![0; q.len()];
-    }
-    let (mut a, b) = rayon::join(
-        || sweep_dispatch(q, cols, rows, np, p, true),
-        || sweep_dispatch(q, cols, rows, np, p, false),
-    );
+    let (mut a, b) = aggregate_halves(q, cols, rows, np, p);
     for (x, y) in a.iter_mut().zip(&b) {
         *x = x.saturating_add(*y);
     }
     a
+}
+
+/// The two sweeps' sums, S = forward + backward, apart (so that a caller who reads S once
+/// adds them as it reads, without another pass over the volume). The sweeps run in parallel;
+/// each is built twice: for AVX2 (chosen at run time where the CPU has it) and for the
+/// baseline target.
+pub fn aggregate_halves(
+    q: &[i16],
+    cols: usize,
+    rows: usize,
+    np: usize,
+    p: &SgmParams,
+) -> (Vec<u16>, Vec<u16>) {
+    if np == 0 || cols == 0 || rows == 0 || q.len() != cols * rows * np {
+        return (vec![0; q.len()], vec![0; q.len()]);
+    }
+    rayon::join(
+        || sweep_dispatch(q, cols, rows, np, p, true),
+        || sweep_dispatch(q, cols, rows, np, p, false),
+    )
 }
 
 fn sweep_dispatch(
