@@ -39,13 +39,18 @@ pub const Q_UNSCORED: i16 = i16::MIN + 1;
 /// The 16-bit code of a score (NCC within −1…1, NaN, or −∞).
 #[inline]
 pub fn quantise(s: f32) -> i16 {
-    if s.is_nan() {
-        Q_UNSEEN
-    } else if s == f32::NEG_INFINITY {
+    // Truncation of a positive number (no libm round), and selects, not branches, so that
+    // it runs on vector lanes.
+    let q = ((s.clamp(-1.0, 1.0) * Q_ONE as f32 + (Q_ONE as f32 + 0.5)) as i32 - Q_ONE) as i16;
+    let q = if s == f32::NEG_INFINITY {
         Q_UNSCORED
     } else {
-        // Truncation of a positive number, so that it runs on vector lanes (no libm round).
-        ((s.clamp(-1.0, 1.0) * Q_ONE as f32 + (Q_ONE as f32 + 0.5)) as i32 - Q_ONE) as i16
+        q
+    };
+    if s.is_nan() {
+        Q_UNSEEN
+    } else {
+        q
     }
 }
 
