@@ -26,7 +26,8 @@ pub enum FilterArg {
 
 #[derive(Debug, Clone, Copy, ValueEnum)]
 pub enum SubpixelArg {
-    /// A parabola through the best three correlations (fast).
+    /// A parabola through the best plane and its two neighbours: of the aggregated costs with
+    /// SGM (as Hirschmüller 2008 takes it), else of the correlations (fast).
     Parabola,
     /// Least-squares matching of the winning window, with its σ (slower, more exact).
     Lsm,
