@@ -506,9 +506,9 @@ pub fn match_pair(
             vol.par_chunks_mut(BAND * row_len)
                 .zip(bands.par_iter())
                 .for_each(|(chunk, b)| {
-                    let mut rb = vec![u32::MAX; b.len() * wr];
+                    // The right photo's winners come from the aggregated costs, not here.
                     let mut codes = Codes { chunk, cols, np };
-                    sweep_shifts(&lp, &rp, first, np, k, &cells_of(b), &mut rb, &mut codes);
+                    sweep_shifts(&lp, &rp, first, np, k, &cells_of(b), &mut [], &mut codes);
                     progress.advance(b.len() as u64);
                 });
             progress.end();
@@ -545,7 +545,11 @@ pub fn match_pair(
             let out = bands
                 .par_iter()
                 .flat_map_iter(|b| {
-                    let mut rb = vec![u32::MAX; b.len() * wr];
+                    // The right photo's winners, only for the left-right check.
+                    let mut rb = match p.lr_tolerance {
+                        Some(_) => vec![u32::MAX; b.len() * wr],
+                        None => Vec::new(),
+                    };
                     let mut picks = Picks {
                         np,
                         v: Vec::with_capacity(b.len() * cols),
@@ -557,7 +561,7 @@ pub fn match_pair(
                         .enumerate()
                         .map(|(jb, &r)| {
                             let pk = &picks[jb * cols..(jb + 1) * cols];
-                            row_matches(&x, r, pk, &rb[jb * wr..(jb + 1) * wr])
+                            row_matches(&x, r, pk, rb.get(jb * wr..(jb + 1) * wr).unwrap_or(&[]))
                         })
                         .collect();
                     progress.advance(b.len() as u64);

@@ -334,7 +334,7 @@ impl<F: FnMut(usize, usize, &[f32])> CellSink for F {
 /// plane, and a score is two multiplications. Each cell's scores go to `sink(j, i, scores)`
 /// as soon as they are known (so that a caller who wants only the winner keeps no volume);
 /// `right_best[j·wr + x]` gets the right photo's winner for column x of row j (u32::MAX where
-/// none). Built twice: for AVX2 (chosen at run time where the CPU has it) and for the baseline
+/// none); an empty `right_best` asks for none (a quarter of the work per cell). Built twice: for AVX2 (chosen at run time where the CPU has it) and for the baseline
 /// target; the same operations in both (no fused multiply-add), so the same scores.
 #[allow(clippy::too_many_arguments)]
 pub fn sweep_shifts<F: CellSink>(
@@ -437,8 +437,10 @@ fn shifts_body<F: CellSink>(
                 }
             }
         }
-        let rbj = &mut right_best[j * wr..(j + 1) * wr];
-        rbj.iter_mut().for_each(|v| *v = u32::MAX);
+        let want_rb = !right_best.is_empty();
+        if want_rb {
+            right_best[j * wr..(j + 1) * wr].fill(u32::MAX);
+        }
         if r + k >= right_h {
             // The right photo has no such rows: nothing is seen.
             dst.iter_mut().for_each(|v| *v = f32::NAN);
@@ -488,6 +490,10 @@ fn shifts_body<F: CellSink>(
                 {
                     *d = ((a - ml * m) * inv_l * v).clamp(-1.0, 1.0);
                 }
+                if !want_rb {
+                    sink.cell(j, i, &dst);
+                    continue;
+                }
                 // The right photo's winners (NaN, unseen, is nobody's best).
                 let (bv, bp) = (
                     &mut rb_v[base + p_lo..base + p_hi],
@@ -506,8 +512,10 @@ fn shifts_body<F: CellSink>(
             }
             sink.cell(j, i, &dst);
         }
-        for (x, d) in rbj.iter_mut().enumerate() {
-            *d = rb_p[wr - 1 - x];
+        if want_rb {
+            for (x, d) in right_best[j * wr..(j + 1) * wr].iter_mut().enumerate() {
+                *d = rb_p[wr - 1 - x];
+            }
         }
     }
 }
