@@ -324,6 +324,35 @@ fn rig_match_pair_writes_what_it_says() {
     // On the box, d = +30 (it lies 30 px further left in the right photo).
     let v = d[100 * W + 190];
     assert!((v - 30.0).abs() < 0.5, "box centre {v}");
+    // The good range draws no warning. A right photo of something else (noise) is matched,
+    // with a warning that few pixels matched.
+    assert!(
+        !String::from_utf8_lossy(&o.stderr).contains("warning"),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let moved = dir.path().join("noise.png");
+    let mut m = ImageF32::new(W, H);
+    let mut seed = 5u64;
+    for v in m.data.iter_mut() {
+        seed = seed
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        *v = (seed >> 56) as f32;
+    }
+    write_png(&m, &moved, false);
+    let o = run(&[
+        lp.to_str().unwrap(),
+        moved.to_str().unwrap(),
+        "--disparity",
+        "-4",
+        "47",
+        "--out",
+        dir.path().join("noise").to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert!(err.contains("warning: only"), "{err}");
     // Bad input: a right photo with other rows, an empty range, an even window.
     let short = dir.path().join("short.png");
     let mut s = ImageF32::new(W, H - 3);

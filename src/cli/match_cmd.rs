@@ -189,14 +189,35 @@ pub fn run(a: MatchArgs) -> anyhow::Result<i32> {
             p.d_max
         );
     }
+    // Few matches where the photo has texture: as a rule a disparity range that misses the
+    // scene (the winners are wrong, and the left-right check or the threshold refuse them).
+    let seen = s.pixels.saturating_sub(s.unseen + s.unscored);
+    if s.pixels > 0 && (s.matched as f64) < 0.5 * seen as f64 {
+        eprintln!(
+            "rig match pair: warning: only {:.1} % of the pixels the right photo sees were matched ({} left-right check, {} below threshold): the disparities may lie outside {} … {}, or the photos may not be rectified (rows must correspond)",
+            100.0 * s.matched as f64 / seen.max(1) as f64,
+            s.left_right,
+            s.below_threshold,
+            p.d_min,
+            p.d_max
+        );
+    }
     if json {
         println!("{}", serde_json::to_string_pretty(&report)?);
         return Ok(0);
     }
     let pct = |n: usize| 100.0 * n as f64 / s.pixels.max(1) as f64;
     println!(
-        "{} × {} px, disparities {} … {} ({}), window {} px, filter {:?}, sub-pixel {:?}",
-        s.width, s.height, p.d_min, p.d_max, s.disparities, p.window, p.filter, p.subpixel
+        "{} × {} px, disparities {} … {} ({}), window {} px, --filter {}, --subpixel {}, --lr-tolerance {}",
+        s.width,
+        s.height,
+        p.d_min,
+        p.d_max,
+        s.disparities,
+        p.window,
+        format!("{:?}", p.filter).to_lowercase(),
+        format!("{:?}", p.subpixel).to_lowercase(),
+        p.lr_tolerance.map_or("0 (no check)".to_string(), |t| t.to_string())
     );
     println!(
         "matched {:.1} % of {} pixels; no match: right photo does not see {:.1} %, flat {:.1} %, best at MIN or MAX {:.1} %, below threshold {:.1} %, left-right check {:.1} %, regions {:.1} %",
