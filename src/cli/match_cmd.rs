@@ -81,6 +81,12 @@ pub enum MatchAction {
         /// check off.
         #[arg(long, default_value_t = 1.0, allow_negative_numbers = true)]
         lr_tolerance: f64,
+        /// Uniqueness ratio, percent: every disparity beyond the winner's two neighbours must
+        /// cost at least 100/(100 − PERCENT) times the winner's cost (the aggregated cost with
+        /// SGM, 1 − correlation without), else the pixel is ambiguous and gets no match
+        /// (Hirschmüller 2008; OpenCV's uniquenessRatio). 0 turns the test off.
+        #[arg(long, default_value_t = 10.0, value_name = "PERCENT")]
+        uniqueness: f64,
         /// SGM penalty for a change of one disparity between neighbours, in cost units (256
         /// is the cost of an uncorrelated window; 0 … 65534, below --p2).
         #[arg(long, default_value_t = SgmParams::default().p1)]
@@ -108,6 +114,7 @@ pub fn run(a: MatchArgs) -> anyhow::Result<i32> {
         filter,
         subpixel,
         lr_tolerance,
+        uniqueness,
         p1,
         p2,
         max_memory,
@@ -165,6 +172,7 @@ pub fn run(a: MatchArgs) -> anyhow::Result<i32> {
             population_threshold: 50,
         },
         lr_tolerance: (lr_tolerance > 0.0).then_some(lr_tolerance),
+        uniqueness: uniqueness / 100.0,
         subpixel: match subpixel {
             SubpixelArg::Parabola => Subpixel::Parabola,
             SubpixelArg::Lsm => Subpixel::Lsm,
@@ -194,8 +202,9 @@ pub fn run(a: MatchArgs) -> anyhow::Result<i32> {
     let seen = s.pixels.saturating_sub(s.unseen + s.unscored);
     if s.pixels > 0 && (s.matched as f64) < 0.5 * seen as f64 {
         eprintln!(
-            "rig match pair: warning: only {:.1} % of the pixels the right photo sees were matched ({} left-right check, {} below threshold): the disparities may lie outside {} … {}, or the photos may not be rectified (rows must correspond)",
+            "rig match pair: warning: only {:.1} % of the pixels the right photo sees were matched ({} ambiguous, {} left-right check, {} below threshold): the disparities may lie outside {} … {}, or the photos may not be rectified (rows must correspond)",
             100.0 * s.matched as f64 / seen.max(1) as f64,
+            s.ambiguous,
             s.left_right,
             s.below_threshold,
             p.d_min,
@@ -220,12 +229,13 @@ pub fn run(a: MatchArgs) -> anyhow::Result<i32> {
         p.lr_tolerance.map_or("0 (no check)".to_string(), |t| t.to_string())
     );
     println!(
-        "matched {:.1} % of {} pixels; no match: right photo does not see {:.1} %, flat {:.1} %, best at MIN or MAX {:.1} %, below threshold {:.1} %, left-right check {:.1} %, regions {:.1} %",
+        "matched {:.1} % of {} pixels; no match: right photo does not see {:.1} %, flat {:.1} %, best at MIN or MAX {:.1} %, ambiguous {:.1} %, below threshold {:.1} %, left-right check {:.1} %, regions {:.1} %",
         pct(s.matched),
         s.pixels,
         pct(s.unseen),
         pct(s.unscored),
         pct(s.at_range_end),
+        pct(s.ambiguous),
         pct(s.below_threshold),
         pct(s.left_right),
         pct(s.regions)

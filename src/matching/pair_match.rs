@@ -4,7 +4,9 @@
 //! sub-pixel disparity by a parabola (through the aggregated costs with SGM, the correlations
 //! without) or by least-squares matching with its σ.
 
-use super::plane_sweep::{sweep_shifts, winner, CellSink, Cells, Planes, Prepared, Unseen, Winner};
+use super::plane_sweep::{
+    highest, sweep_shifts, winner, CellSink, Cells, Planes, Prepared, Unseen, Winner,
+};
 pub use super::refine::Subpixel;
 use super::refine::{refine, RefineFailure, Window};
 use super::regions::{remove_wrong_heights, RegionParams};
@@ -41,6 +43,9 @@ pub struct PairParams {
     pub regions: RegionParams,
     /// Largest difference between the left's and the right's disparity, px; None: no check.
     pub lr_tolerance: Option<f64>,
+    /// The uniqueness ratio u (0 … 1; 0: no test): every disparity beyond the winner's
+    /// neighbours must cost at least 1/(1 − u) times the winner's cost.
+    pub uniqueness: f64,
     pub subpixel: Subpixel,
 }
 
@@ -59,6 +64,7 @@ impl Default for PairParams {
                 population_threshold: 50,
             },
             lr_tolerance: Some(1.0),
+            uniqueness: 0.1,
             subpixel: Subpixel::Parabola,
         }
     }
@@ -80,6 +86,8 @@ pub struct PairStats {
     pub unscored: usize,
     /// Pixels whose best disparity was MIN or MAX (the match may lie beyond the range).
     pub at_range_end: usize,
+    /// Pixels whose winner was not unique (another disparity nearly as good).
+    pub ambiguous: usize,
     pub below_threshold: usize,
     pub left_right: usize,
     pub regions: usize,
@@ -120,6 +128,8 @@ pub enum PairError {
     },
     #[error("--threshold {0}: a correlation from −1 to 1")]
     Threshold(f64),
+    #[error("--uniqueness {0} %: from 0 (no test) to 99 %")]
+    Uniqueness(f64),
     #[error("matching needs about {need_mib:.0} MiB; the limit is {limit_mib} MiB: crop the photos, narrow the disparities, use --filter none or regions (no cost volume kept), or raise --max-memory")]
     Memory { need_mib: f64, limit_mib: u64 },
 }
@@ -185,6 +195,9 @@ fn check(left: &ImageF32, right: &ImageF32, p: &PairParams) -> Result<(), PairEr
     if !(-1.0..=1.0).contains(&p.threshold) {
         return Err(PairError::Threshold(p.threshold));
     }
+    if !(0.0..=0.99).contains(&p.uniqueness) {
+        return Err(PairError::Uniqueness(p.uniqueness * 100.0));
+    }
     Ok(())
 }
 
@@ -202,6 +215,8 @@ struct Pick {
     /// The peak below the plane step from the chosen scores, where they are not the raw
     /// correlations (aggregated costs); None: from the raw correlations.
     offset: Option<f64>,
+    /// The winner is unique (see [`unique`]); true where there is no winner.
+    unique: bool,
 }
 
 impl Pick {
@@ -217,6 +232,7 @@ impl Pick {
                 above: finite(Some(w.plane + 1)),
                 unseen: false,
                 offset: None,
+                unique: true,
             },
             None => Pick {
                 plane: None,
@@ -225,22 +241,42 @@ impl Pick {
                 above: None,
                 unseen: (0..np).any(|p| raw(p).is_nan()),
                 offset: None,
+                unique: true,
             },
         }
     }
 }
 
+/// Whether the winner `plane` of the chosen scores is unique, as the uniqueness ratio of
+/// Hirschmüller (2008) and OpenCV takes it: every plane beyond the winner's two neighbours
+/// costs at least 1/(1 − u) times the winner's cost, the costs being `cost(score)` (unseen
+/// planes, NaN, are left out). A photo pair that shows nothing in common has many planes
+/// nearly as good as the best; a real match stands out.
+#[inline(always)]
+fn unique(chosen: &[f32], plane: usize, u: f32, cost: impl Fn(f32) -> f32) -> bool {
+    if u <= 0.0 {
+        return true;
+    }
+    let (lo, hi) = (plane.saturating_sub(1), (plane + 2).min(chosen.len()));
+    let other = highest(&chosen[..lo]).max(highest(&chosen[hi..]));
+    other == f32::NEG_INFINITY || cost(other) * (1.0 - u) >= cost(chosen[plane])
+}
+
 /// The sweep's sink that keeps each cell's pick (the winner of its own scores).
 struct Picks {
     np: usize,
+    uniqueness: f32,
     v: Vec<Pick>,
 }
 
 impl CellSink for Picks {
     #[inline(always)]
     fn cell(&mut self, _: usize, _: usize, s: &[f32]) {
-        self.v
-            .push(Pick::new(winner(s, Unseen::Skip), self.np, |p| s[p]));
+        let win = winner(s, Unseen::Skip);
+        let mut pick = Pick::new(win, self.np, |p| s[p]);
+        // The correlations' cost: 1 − NCC.
+        pick.unique = win.is_none_or(|w| unique(s, w.plane, self.uniqueness, |v| 1.0 - v));
+        self.v.push(pick);
     }
 }
 
@@ -277,13 +313,14 @@ fn sgm_row(
     first: i64,
     wr: usize,
     lr: bool,
+    uniqueness: f32,
 ) -> (Vec<Pick>, Vec<u32>) {
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") {
         // SAFETY: the CPU has AVX2, checked just above.
-        return unsafe { sgm_row_avx2(raw, fwd, bwd, np, col0, first, wr, lr) };
+        return unsafe { sgm_row_avx2(raw, fwd, bwd, np, col0, first, wr, lr, uniqueness) };
     }
-    sgm_row_body(raw, fwd, bwd, np, col0, first, wr, lr)
+    sgm_row_body(raw, fwd, bwd, np, col0, first, wr, lr, uniqueness)
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -298,8 +335,9 @@ unsafe fn sgm_row_avx2(
     first: i64,
     wr: usize,
     lr: bool,
+    uniqueness: f32,
 ) -> (Vec<Pick>, Vec<u32>) {
-    sgm_row_body(raw, fwd, bwd, np, col0, first, wr, lr)
+    sgm_row_body(raw, fwd, bwd, np, col0, first, wr, lr, uniqueness)
 }
 
 #[inline(always)]
@@ -313,6 +351,7 @@ fn sgm_row_body(
     first: i64,
     wr: usize,
     lr: bool,
+    uniqueness: f32,
 ) -> (Vec<Pick>, Vec<u32>) {
     let cols = raw.len() / np.max(1);
     let mut cell = vec![0.0f32; np];
@@ -339,6 +378,8 @@ fn sgm_row_body(
         // smoother than the raw correlations' (on the benchmark pair, RMSE 0.17 against
         // 0.24 px for the pixels within 2 px), which give the σ only.
         pick.offset = win.and_then(|w| w.parabola()).map(|(off, _)| off);
+        // The chosen scores are −S: the cost is S.
+        pick.unique = win.is_none_or(|w| unique(&cell, w.plane, uniqueness, |v| -v));
         picks.push(pick);
         if !lr {
             continue;
@@ -406,6 +447,10 @@ fn row_matches(x: &Ctx, r: usize, picks: &[Pick], rb: &[u32]) -> RowMatches {
         // The best at an end of the range is, as a rule, the flank of a match beyond it.
         if np > 1 && (plane == 0 || plane == np - 1) {
             st.at_range_end += 1;
+            continue;
+        }
+        if !pick.unique {
+            st.ambiguous += 1;
             continue;
         }
         let rho = pick.rho;
@@ -530,6 +575,7 @@ pub fn match_pair(
                         first,
                         wr,
                         p.lr_tolerance.is_some(),
+                        p.uniqueness as f32,
                     );
                     let m = row_matches(&x, r, &picks, &rb);
                     progress.advance(1);
@@ -552,6 +598,7 @@ pub fn match_pair(
                     };
                     let mut picks = Picks {
                         np,
+                        uniqueness: p.uniqueness as f32,
                         v: Vec::with_capacity(b.len() * cols),
                     };
                     sweep_shifts(&lp, &rp, first, np, k, &cells_of(b), &mut rb, &mut picks);
@@ -600,6 +647,7 @@ pub fn match_pair(
         stats.unseen += st.unseen;
         stats.unscored += st.unscored;
         stats.at_range_end += st.at_range_end;
+        stats.ambiguous += st.ambiguous;
         stats.below_threshold += st.below_threshold;
         stats.left_right += st.left_right;
         stats.lsm_refined += st.lsm_refined;
@@ -645,4 +693,33 @@ pub fn match_pair(
 
 fn failure_name(e: RefineFailure) -> String {
     format!("{e:?}").to_lowercase()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::unique;
+
+    /// The uniqueness ratio by its definition: the winner's neighbours do not count, any
+    /// other plane must cost at least 1/(1 − u) times the winner, NaN planes are left out.
+    #[test]
+    fn uniqueness_by_its_definition() {
+        let cost = |v: f32| 1.0 - v;
+        // Winner at 4 (cost 0.10); its neighbours nearly as good; plane 8 costs 0.11.
+        let mut s = vec![0.2f32, 0.3, 0.5, 0.89, 0.9, 0.895, 0.4, 0.3, 0.89, f32::NAN];
+        // 0.11·(1 − u) ≥ 0.10 ⇔ u ≤ 1/11 ≈ 0.0909.
+        assert!(unique(&s, 4, 0.09, cost));
+        assert!(!unique(&s, 4, 0.095, cost));
+        assert!(unique(&s, 4, 0.0, cost), "0 turns the test off");
+        // Without plane 8 the next is plane 2 (cost 0.5): unique up to u = 0.8.
+        s[8] = 0.3;
+        assert!(unique(&s, 4, 0.79, cost));
+        assert!(!unique(&s, 4, 0.81, cost));
+        // A winner at the end, and nothing else seen: unique.
+        let t = [f32::NAN, f32::NAN, 0.7, 0.9];
+        assert!(unique(&t, 3, 0.5, cost));
+        // Aggregated costs (chosen = −S): S 100 at the winner, 104 beyond: u ≤ 1 − 100/104.
+        let a = [-104.0f32, -120.0, -101.0, -100.0, -101.0];
+        assert!(unique(&a, 3, 0.038, |v| -v));
+        assert!(!unique(&a, 3, 0.039, |v| -v));
+    }
 }

@@ -747,26 +747,20 @@ pub enum Unseen {
     Skip,
 }
 
-/// The plane with the highest score, scored on both sides (a neighbour not scored — flat,
-/// unseen — is no peak that a parabola can refine or trust; the ends of the range excepted).
+/// The highest of the scores, NaN left out (−∞ when none): in sixteen lanes (two independent
+/// vectors, so that it runs on vector lanes without waiting on itself), reduced as a tree,
+/// then the tail.
 #[inline(always)]
-pub fn winner(s: &[f32], unseen: Unseen) -> Option<Winner> {
-    if unseen == Unseen::Refuse && s.iter().any(|v| v.is_nan()) {
-        return None;
-    }
-    // The highest score in sixteen lanes (two independent vectors, so that it runs on
-    // vector lanes without waiting on itself), then its first place, found a chunk of eight
-    // at a time. NaN fails the comparison (never the best); −∞ never beats the start.
+pub fn highest(s: &[f32]) -> f32 {
+    let max = |a: f32, b: f32| if b > a { b } else { a };
     let mut lanes = [f32::NEG_INFINITY; 16];
     let chunks = s.chunks_exact(16);
     let tail = chunks.remainder();
     for ch in chunks {
         for l in 0..16 {
-            lanes[l] = if ch[l] > lanes[l] { ch[l] } else { lanes[l] };
+            lanes[l] = max(lanes[l], ch[l]);
         }
     }
-    // Across the lanes by halves (a tree, not a chain of sixteen), then the tail.
-    let max = |a: f32, b: f32| if b > a { b } else { a };
     let mut half = 8;
     while half > 0 {
         for l in 0..half {
@@ -774,7 +768,17 @@ pub fn winner(s: &[f32], unseen: Unseen) -> Option<Winner> {
         }
         half /= 2;
     }
-    let v = tail.iter().fold(lanes[0], |v, &x| max(v, x));
+    tail.iter().fold(lanes[0], |v, &x| max(v, x))
+}
+
+/// The plane with the highest score, scored on both sides (a neighbour not scored — flat,
+/// unseen — is no peak that a parabola can refine or trust; the ends of the range excepted).
+#[inline(always)]
+pub fn winner(s: &[f32], unseen: Unseen) -> Option<Winner> {
+    if unseen == Unseen::Refuse && s.iter().any(|v| v.is_nan()) {
+        return None;
+    }
+    let v = highest(s);
     if v == f32::NEG_INFINITY {
         return None;
     }
