@@ -413,9 +413,12 @@ fn sgm_row_body(
     (picks, rb)
 }
 
-/// One row's matches: its pixel row, (column, disparity, correlation, σ) of each match, and
-/// what happened to the rest.
-type RowMatches = (usize, Vec<(usize, f32, f32, f32)>, PairStats);
+/// One pixel row of the three outputs (disparity, correlation, σ), NaN where no match.
+struct OutRow<'a> {
+    d: &'a mut [f32],
+    corr: &'a mut [f32],
+    sigma: &'a mut [f32],
+}
 
 /// What every row's matching needs.
 struct Ctx<'a> {
@@ -427,13 +430,31 @@ struct Ctx<'a> {
     np: usize,
 }
 
+/// The rows of the three outputs, each made NaN by the thread that takes it.
+fn out_rows<'a>(
+    d: &'a mut [f32],
+    corr: &'a mut [f32],
+    sigma: &'a mut [f32],
+    w: usize,
+) -> impl IndexedParallelIterator<Item = OutRow<'a>> {
+    d.par_chunks_mut(w)
+        .zip(corr.par_chunks_mut(w))
+        .zip(sigma.par_chunks_mut(w))
+        .map(|((d, corr), sigma)| {
+            for v in [&mut *d, &mut *corr, &mut *sigma] {
+                v.fill(f32::NAN);
+            }
+            OutRow { d, corr, sigma }
+        })
+}
+
 /// The matches of pixel row `r` from its cells' picks and the right photo's winners
-/// (`rb[x]`, u32::MAX where none).
-fn row_matches(x: &Ctx, r: usize, picks: &[Pick], rb: &[u32]) -> RowMatches {
+/// (`rb[x]`, u32::MAX where none), written into `out` (which is all NaN before); what
+/// happened to the rest.
+fn row_matches(x: &Ctx, r: usize, picks: &[Pick], rb: &[u32], out: OutRow) -> PairStats {
     let (p, np, k) = (x.p, x.np, x.k);
     let first = p.d_min;
     let mut st = PairStats::default();
-    let mut got = Vec::new();
     for (i, pick) in picks.iter().enumerate() {
         let c = k + i;
         let Some(plane) = pick.plane else {
@@ -491,14 +512,28 @@ fn row_matches(x: &Ctx, r: usize, picks: &[Pick], rb: &[u32]) -> RowMatches {
                 Err(e) => *st.lsm_failures.entry(failure_name(e)).or_default() += 1,
             }
         }
-        got.push((
-            c,
-            (first as f64 + t) as f32,
-            rho,
-            sd.map_or(f32::NAN, |v| v as f32),
-        ));
+        out.d[c] = (first as f64 + t) as f32;
+        out.corr[c] = rho;
+        out.sigma[c] = sd.map_or(f32::NAN, |v| v as f32);
     }
-    (r, got, st)
+    st
+}
+
+impl PairStats {
+    /// Adds another part's counts.
+    fn add(mut self, o: PairStats) -> PairStats {
+        self.unseen += o.unseen;
+        self.unscored += o.unscored;
+        self.at_range_end += o.at_range_end;
+        self.ambiguous += o.ambiguous;
+        self.below_threshold += o.below_threshold;
+        self.left_right += o.left_right;
+        self.lsm_refined += o.lsm_refined;
+        for (k, v) in o.lsm_failures {
+            *self.lsm_failures.entry(k).or_default() += v;
+        }
+        self
+    }
 }
 
 /// Matches a rectified pair.
@@ -543,7 +578,19 @@ pub fn match_pair(
     };
     let row_len = cols * np;
     let mut seconds_aggregate = 0.0;
-    let per_row: Vec<RowMatches> = match p.filter {
+    // The outputs, zeroed lazily by the system and made NaN by the rows' own threads; rows
+    // k…h − k are the matched ones (the first k and last k have no full window).
+    let (mut d, mut corr, mut sigma) = (
+        vec![0.0f32; w * h],
+        vec![0.0f32; w * h],
+        vec![0.0f32; w * h],
+    );
+    let (dm, cm, sm) = (
+        &mut d[k * w..(h - k) * w],
+        &mut corr[k * w..(h - k) * w],
+        &mut sigma[k * w..(h - k) * w],
+    );
+    let counts: PairStats = match p.filter {
         Filter::Sgm => {
             // The whole volume, in 16-bit codes, each band written in place.
             progress.begin("score (rows)", rows.len() as u64);
@@ -561,10 +608,10 @@ pub fn match_pair(
             let (fwd, bwd) = aggregate_halves(&vol, cols, rows.len(), np, &p.sgm);
             seconds_aggregate = ta.elapsed().as_secs_f64();
             progress.begin("winners (rows)", rows.len() as u64);
-            let out = rows
-                .par_iter()
+            let st = out_rows(dm, cm, sm, w)
+                .zip(rows.par_iter())
                 .enumerate()
-                .map(|(j, &r)| {
+                .map(|(j, (out, &r))| {
                     let row = j * row_len..(j + 1) * row_len;
                     let (picks, rb) = sgm_row(
                         &vol[row.clone()],
@@ -577,20 +624,27 @@ pub fn match_pair(
                         p.lr_tolerance.is_some(),
                         p.uniqueness as f32,
                     );
-                    let m = row_matches(&x, r, &picks, &rb);
+                    let m = row_matches(&x, r, &picks, &rb, out);
                     progress.advance(1);
                     m
                 })
-                .collect();
+                .reduce(PairStats::default, PairStats::add);
             progress.end();
-            out
+            st
         }
         _ => {
             // Each band's winners taken as its scores come: no volume is kept.
             progress.begin("match (rows)", rows.len() as u64);
-            let out = bands
+            let outs: Vec<OutRow> = out_rows(dm, cm, sm, w).collect();
+            let mut by_band: Vec<Vec<OutRow>> = Vec::with_capacity(bands.len());
+            let mut it = outs.into_iter();
+            for b in &bands {
+                by_band.push(it.by_ref().take(b.len()).collect());
+            }
+            let st = bands
                 .par_iter()
-                .flat_map_iter(|b| {
+                .zip(by_band.into_par_iter())
+                .map(|(b, outs)| {
                     // The right photo's winners, only for the left-right check.
                     let mut rb = match p.lr_tolerance {
                         Some(_) => vec![u32::MAX; b.len() * wr],
@@ -603,23 +657,28 @@ pub fn match_pair(
                     };
                     sweep_shifts(&lp, &rp, first, np, k, &cells_of(b), &mut rb, &mut picks);
                     let picks = picks.v;
-                    let m: Vec<RowMatches> = b
-                        .iter()
-                        .enumerate()
-                        .map(|(jb, &r)| {
+                    let st = b.iter().zip(outs).enumerate().fold(
+                        PairStats::default(),
+                        |st, (jb, (&r, out))| {
                             let pk = &picks[jb * cols..(jb + 1) * cols];
-                            row_matches(&x, r, pk, rb.get(jb * wr..(jb + 1) * wr).unwrap_or(&[]))
-                        })
-                        .collect();
+                            let rbj = rb.get(jb * wr..(jb + 1) * wr).unwrap_or(&[]);
+                            st.add(row_matches(&x, r, pk, rbj, out))
+                        },
+                    );
                     progress.advance(b.len() as u64);
-                    m
+                    st
                 })
-                .collect();
+                .reduce(PairStats::default, PairStats::add);
             progress.end();
-            out
+            st
         }
     };
-    let mut stats = PairStats {
+    // The rows without a full window.
+    for v in [&mut d, &mut corr, &mut sigma] {
+        v[..k * w].fill(f32::NAN);
+        v[(h - k) * w..].fill(f32::NAN);
+    }
+    let stats = PairStats {
         width: w,
         height: h,
         disparities: np,
@@ -627,34 +686,7 @@ pub fn match_pair(
         pixels: cols * rows.len(),
         ..Default::default()
     };
-    // The rows written in parallel (rows k..h − k come in order, one per entry).
-    let mut d = vec![f32::NAN; w * h];
-    let mut corr = vec![f32::NAN; w * h];
-    let mut sigma = vec![f32::NAN; w * h];
-    d.par_chunks_mut(w)
-        .zip(corr.par_chunks_mut(w))
-        .zip(sigma.par_chunks_mut(w))
-        .skip(k)
-        .zip(per_row.par_iter())
-        .for_each(|(((d, corr), sigma), (_, got, _))| {
-            for &(c, dv, rho, sd) in got {
-                d[c] = dv;
-                corr[c] = rho;
-                sigma[c] = sd;
-            }
-        });
-    for (_, _, st) in per_row {
-        stats.unseen += st.unseen;
-        stats.unscored += st.unscored;
-        stats.at_range_end += st.at_range_end;
-        stats.ambiguous += st.ambiguous;
-        stats.below_threshold += st.below_threshold;
-        stats.left_right += st.left_right;
-        stats.lsm_refined += st.lsm_refined;
-        for (k, v) in st.lsm_failures {
-            *stats.lsm_failures.entry(k).or_default() += v;
-        }
-    }
+    let mut stats = stats.add(counts);
     if p.filter == Filter::Regions {
         let mut hm = HeightMap {
             cols: w,
