@@ -1,6 +1,9 @@
 //! The rig: digitise and calibrate aerial film with a camera over motorised X/Y stages, and
 //! turn the photos into elevation models. See README.md and DESIGN.md.
 
+#[macro_use]
+mod simd;
+
 pub mod atomic;
 pub mod calibrate;
 pub mod camera;

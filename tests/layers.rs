@@ -6,8 +6,9 @@
 use std::path::{Path, PathBuf};
 
 /// The core: these files and folders under `src/`.
-const CORE: [&str; 8] = [
+const CORE: [&str; 9] = [
     "geometry",
+    "simd.rs",
     "seconds.rs",
     "picture.rs",
     "matching",

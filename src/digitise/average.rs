@@ -95,23 +95,11 @@ impl Averager {
     }
 }
 
-/// One tile: sum every frame's pixels with 32-bit squares where the tile's largest value
-/// proves they fit (a widening 16×16 multiply that vectorises), else with 64-bit squares; then
-/// the mean and σ. Built twice: for AVX2 (chosen at run time where the CPU has it) and for the
-/// baseline target.
-fn tile(frames: &[&[u16]], off: usize, m: &mut [f32], s: &mut [f32]) {
-    #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx2") {
-        // SAFETY: the CPU has AVX2, checked just above.
-        return unsafe { tile_avx2(frames, off, m, s) };
-    }
-    tile_body(frames, off, m, s)
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-unsafe fn tile_avx2(frames: &[&[u16]], off: usize, m: &mut [f32], s: &mut [f32]) {
-    tile_body(frames, off, m, s)
+built_twice! {
+    /// One tile: sum every frame's pixels with 32-bit squares where the tile's largest value
+    /// proves they fit (a widening 16×16 multiply that vectorises), else with 64-bit squares; then
+    /// the mean and σ. Built twice (see `simd`).
+    fn tile[](frames: &[&[u16]], off: usize, m: &mut [f32], s: &mut [f32]) = tile_body;
 }
 
 #[inline(always)]

@@ -298,46 +298,24 @@ impl CellSink for Codes<'_> {
     }
 }
 
-/// One row of the SGM path: each cell's pick on the aggregated costs (chosen score −S,
-/// S = forward + backward sums; unseen planes NaN, unscored cells −∞ throughout), its raw
-/// correlations from the codes, and, with `lr`, the right photo's best plane for each right
-/// column x (u32::MAX where none), the best over the cells that meet x on the chosen scores.
-/// Built twice: for AVX2 (chosen at run time where the CPU has it) and for the baseline.
-#[allow(clippy::too_many_arguments)]
-fn sgm_row(
-    raw: &[i16],
-    fwd: &[u16],
-    bwd: &[u16],
-    np: usize,
-    col0: usize,
-    first: i64,
-    wr: usize,
-    lr: bool,
-    uniqueness: f32,
-) -> (Vec<Pick>, Vec<u32>) {
-    #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx2") {
-        // SAFETY: the CPU has AVX2, checked just above.
-        return unsafe { sgm_row_avx2(raw, fwd, bwd, np, col0, first, wr, lr, uniqueness) };
-    }
-    sgm_row_body(raw, fwd, bwd, np, col0, first, wr, lr, uniqueness)
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-#[allow(clippy::too_many_arguments)]
-unsafe fn sgm_row_avx2(
-    raw: &[i16],
-    fwd: &[u16],
-    bwd: &[u16],
-    np: usize,
-    col0: usize,
-    first: i64,
-    wr: usize,
-    lr: bool,
-    uniqueness: f32,
-) -> (Vec<Pick>, Vec<u32>) {
-    sgm_row_body(raw, fwd, bwd, np, col0, first, wr, lr, uniqueness)
+built_twice! {
+    /// One row of the SGM path: each cell's pick on the aggregated costs (chosen score −S,
+    /// S = forward + backward sums; unseen planes NaN, unscored cells −∞ throughout), its raw
+    /// correlations from the codes, and, with `lr`, the right photo's best plane for each right
+    /// column x (u32::MAX where none), the best over the cells that meet x on the chosen scores.
+    /// Built twice (see `simd`).
+    #[allow(clippy::too_many_arguments)]
+    fn sgm_row[](
+        raw: &[i16],
+        fwd: &[u16],
+        bwd: &[u16],
+        np: usize,
+        col0: usize,
+        first: i64,
+        wr: usize,
+        lr: bool,
+        uniqueness: f32,
+    ) -> (Vec<Pick>, Vec<u32>) = sgm_row_body;
 }
 
 #[inline(always)]

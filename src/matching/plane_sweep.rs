@@ -329,46 +329,25 @@ impl<F: FnMut(usize, usize, &[f32])> CellSink for F {
     }
 }
 
-/// Disparities: the search window of plane p is the right photo's window moved by a whole
-/// pixel, so Σw and 1/√var(w) are the right photo's own, per column; only Σl·w is summed per
-/// plane, and a score is two multiplications. Each cell's scores go to `sink(j, i, scores)`
-/// as soon as they are known (so that a caller who wants only the winner keeps no volume);
-/// `right_best[j·wr + x]` gets the right photo's winner for column x of row j (u32::MAX where
-/// none); an empty `right_best` asks for none (a quarter of the work per cell). Built twice: for AVX2 (chosen at run time where the CPU has it) and for the baseline
-/// target; the same operations in both (no fused multiply-add), so the same scores.
-#[allow(clippy::too_many_arguments)]
-pub fn sweep_shifts<F: CellSink>(
-    left: &Prepared,
-    right: &Prepared,
-    first: i64,
-    np: usize,
-    k: usize,
-    cells: &Cells,
-    right_best: &mut [u32],
-    sink: &mut F,
-) {
-    #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx2") {
-        // SAFETY: the CPU has AVX2, checked just above.
-        return unsafe { shifts_avx2(left, right, first, np, k, cells, right_best, sink) };
-    }
-    shifts_body(left, right, first, np, k, cells, right_best, sink)
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-#[allow(clippy::too_many_arguments)]
-unsafe fn shifts_avx2<F: CellSink>(
-    left: &Prepared,
-    right: &Prepared,
-    first: i64,
-    np: usize,
-    k: usize,
-    cells: &Cells,
-    right_best: &mut [u32],
-    sink: &mut F,
-) {
-    shifts_body(left, right, first, np, k, cells, right_best, sink)
+built_twice! {
+    /// Disparities: the search window of plane p is the right photo's window moved by a whole
+    /// pixel, so Σw and 1/√var(w) are the right photo's own, per column; only Σl·w is summed per
+    /// plane, and a score is two multiplications. Each cell's scores go to `sink.cell(j, i, scores)`
+    /// as soon as they are known (so that a caller who wants only the winner keeps no volume);
+    /// `right_best[j·wr + x]` gets the right photo's winner for column x of row j (u32::MAX where
+    /// none); an empty `right_best` asks for none (a quarter of the work per cell). Built twice
+    /// (see `simd`).
+    #[allow(clippy::too_many_arguments)]
+    pub fn sweep_shifts[F: CellSink](
+        left: &Prepared,
+        right: &Prepared,
+        first: i64,
+        np: usize,
+        k: usize,
+        cells: &Cells,
+        right_best: &mut [u32],
+        sink: &mut F,
+    ) = shifts_body;
 }
 
 #[inline(always)]

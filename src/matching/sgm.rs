@@ -176,8 +176,7 @@ pub fn aggregate(q: &[i16], cols: usize, rows: usize, np: usize, p: &SgmParams) 
 
 /// The two sweeps' sums, S = forward + backward, apart (so that a caller who reads S once
 /// adds them as it reads, without another pass over the volume). The sweeps run in parallel;
-/// each is built twice: for AVX2 (chosen at run time where the CPU has it) and for the
-/// baseline target.
+/// each is built twice (see `simd`).
 pub fn aggregate_halves(
     q: &[i16],
     cols: usize,
@@ -194,33 +193,15 @@ pub fn aggregate_halves(
     )
 }
 
-fn sweep_dispatch(
-    q: &[i16],
-    cols: usize,
-    rows: usize,
-    np: usize,
-    p: &SgmParams,
-    forward: bool,
-) -> Vec<u16> {
-    #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx2") {
-        // SAFETY: the CPU has AVX2, checked just above.
-        return unsafe { sweep_avx2(q, cols, rows, np, p, forward) };
-    }
-    sweep(q, cols, rows, np, p, forward)
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-unsafe fn sweep_avx2(
-    q: &[i16],
-    cols: usize,
-    rows: usize,
-    np: usize,
-    p: &SgmParams,
-    forward: bool,
-) -> Vec<u16> {
-    sweep(q, cols, rows, np, p, forward)
+built_twice! {
+    fn sweep_dispatch[](
+        q: &[i16],
+        cols: usize,
+        rows: usize,
+        np: usize,
+        p: &SgmParams,
+        forward: bool,
+    ) -> Vec<u16> = sweep;
 }
 
 #[cfg(test)]
