@@ -90,6 +90,10 @@ pub fn refine(
         );
     }
     let n = (side * side) as f64;
+    // Whole grey values (an 8- or 16-bit file) are known to their quantisation at best:
+    // σ0 is at least that of the two windows' rounding, 1/√12 each, the right's times the
+    // gain (else a window that happens to fit exactly reports σ of 10⁻¹⁵ px).
+    let quantised = lw.iter().all(|v| v.fract() == 0.0);
     let mut sw = vec![0.0f64; side * side];
     let mut gw = vec![0.0f64; side * side];
     let (mut t, mut tu, mut tv) = (t0, 0.0f64, 0.0f64);
@@ -149,7 +153,10 @@ pub fn refine(
         if b <= 1e-6 {
             return Err(RefineFailure::Inverted);
         }
-        let sigma0 = (vv / (n - 5.0)).sqrt();
+        let mut sigma0 = (vv / (n - 5.0)).sqrt();
+        if quantised {
+            sigma0 = sigma0.max(((1.0 + b * b) / 12.0).sqrt());
+        }
         // Converged: a step below a thousandth of a plane, or below a fifth of the plane's own
         // σ (the bilinear surface's gradient jumps at pixel borders, so the last steps jitter
         // at the level of the noise rather than shrink).
@@ -255,6 +262,38 @@ mod tests {
         let g2 = at(&noisy).unwrap();
         assert!(g2.sigma_t > 2.0 * got.sigma_t, "{g2:?} vs {got:?}");
         assert!((g2.t - shift).abs() < 3.0 * g2.sigma_t + 0.02, "{g2:?}");
+    }
+
+    /// Whole grey values shifted by exactly three pixels fit without residual; σ is then that
+    /// of their rounding, not zero: σ0 = √((1 + b²)/12) with b = 1, σ_t = σ0·√Q_tt.
+    #[test]
+    fn an_exact_fit_of_whole_grey_values_keeps_the_rounding() {
+        let (w, h) = (40usize, 30usize);
+        let mut left = ImageF32::new(w, h);
+        let mut right = ImageF32::new(w, h);
+        for r in 0..h {
+            for c in 0..w {
+                let (x, y) = (c as f64 + 0.5, r as f64 + 0.5);
+                left.data[r * w + c] = (100.0 + 40.0 * tex(x, y)).round() as f32;
+                right.data[r * w + c] = (100.0 + 40.0 * tex(x + 3.0, y)).round() as f32;
+            }
+        }
+        let locate = |u: f64, v: f64, t: f64| [20.5 + u - t, 15.5 + v];
+        let got = refine(
+            &left,
+            Window { c: 20, r: 15, k: 4 },
+            &right,
+            &locate,
+            3.2,
+            1.0,
+        )
+        .unwrap();
+        assert!((got.t - 3.0).abs() < 1e-3, "{got:?}");
+        assert!(
+            (got.sigma0 - (2.0f64 / 12.0).sqrt()).abs() < 0.02,
+            "{got:?}"
+        );
+        assert!(got.sigma_t > 1e-3 && got.sigma_t < 0.05, "{got:?}");
     }
 
     /// A window whose search line runs along the texture's stripes has no gradient there.
