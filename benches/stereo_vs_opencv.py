@@ -266,9 +266,31 @@ def run_rig(rig, paths, work, rig_args, repeat, shape):
         return None, dict(error=f"no readable disparity.tif: {e}")
     if disp.shape != shape:
         return None, dict(error=f"disparity.tif is {disp.shape}, expected {shape}")
-    return disp, dict(rig_seconds=statistics.median(secs) if secs else None,
+    try:
+        sigma = tifffile.imread(os.path.join(out, "sigma.tif")).astype(np.float32)
+    except (OSError, ValueError):
+        sigma = None
+    return disp, dict(sigma=sigma if sigma is not None and sigma.shape == shape else None,
+                      rig_seconds=statistics.median(secs) if secs else None,
                       wall_seconds=statistics.median(walls), candidates=info.get("candidates"),
                       rig_json=info)
+
+
+def sigma_check(disp, sigma, gt, nonocc, border=4):
+    """Whether the rig's sigma.tif is an honest error bar: on the non-occluded pixels within
+    2 px of the truth (the sub-pixel regime), RMS(true error / sigma) (1 when honest) and the
+    share of errors within 2 sigma (95 % for a Gaussian)."""
+    b = border
+    d, s, g, n = disp[b:-b, b:-b], sigma[b:-b, b:-b], gt[b:-b, b:-b], nonocc[b:-b, b:-b]
+    m = n & np.isfinite(d) & np.isfinite(s) & (s > 0)
+    e = (d - g)[m]
+    k = np.abs(e) <= 2
+    if not k.any():
+        return None
+    r = e[k] / s[m][k]
+    return dict(rms_error_over_sigma=float(np.sqrt(np.mean(r ** 2))),
+                within_2_sigma_percent=float(100.0 * np.mean(np.abs(r) < 2)),
+                median_sigma=float(np.median(s[m][k])), pixels=int(k.sum()))
 
 
 def quality(disp, gt, nonocc, border=4):
@@ -343,6 +365,10 @@ def main():
             log("rig: no `seconds` in its JSON; its wall-clock time stands in")
             s = info["wall_seconds"]
         rig_row.update(seconds=s, throughput=pixel_cands / s, quality=quality(disp, gt, nonocc))
+        sig = rig_row.pop("sigma", None)
+        if sig is not None:
+            rig_row["sigma_check"] = sigma_check(disp, sig, gt, nonocc)
+    rig_row.pop("sigma", None)
     rows.append(rig_row)
 
     for name, m in opencv_peers(a.bm_block, not a.no_hh):
@@ -378,6 +404,11 @@ def main():
     f = lambda v: "-" if v is None else f"{v:.3f}"
     print(f"rig throughput / StereoBM: {f(ratios['rig_throughput_over_bm'])}; rig bad-2 / SGBM bad-2: "
           f"{f(ratios['rig_bad2_over_sgbm_nonocc'])} non-occluded, {f(ratios['rig_bad2_over_sgbm_all'])} all")
+    sc = rig_row.get("sigma_check")
+    if sc:
+        print(f"rig sigma.tif on {sc['pixels']} pixels within 2 px: RMS(true error / sigma) "
+              f"{sc['rms_error_over_sigma']:.2f} (1 when honest), {sc['within_2_sigma_percent']:.1f} % "
+              f"within 2 sigma (95 % for a Gaussian), median sigma {sc['median_sigma']:.3f} px")
 
 
 if __name__ == "__main__":
