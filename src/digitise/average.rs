@@ -240,7 +240,7 @@ mod tests {
         let frames: Vec<Vec<u16>> = (0..7u32)
             .map(|k| {
                 (0..w * h)
-                    .map(|i| ((i as u32 * 2654435761u32).rotate_left(k) >> 16) as u16)
+                    .map(|i| ((i as u32).wrapping_mul(2654435761u32).rotate_left(k) >> 16) as u16)
                     .collect()
             })
             .collect();

@@ -251,15 +251,17 @@ impl Pick {
 /// Hirschmüller (2008) and OpenCV takes it: every plane beyond the winner's two neighbours
 /// costs at least 1/(1 − u) times the winner's cost, the costs being `cost(score)` (unseen
 /// planes, NaN, are left out). A photo pair that shows nothing in common has many planes
-/// nearly as good as the best; a real match stands out.
+/// nearly as good as the best; a real match stands out. Both costs are counted from `floor`
+/// (the smallest cost that means anything: a correlation of 1 is noise-free only in theory),
+/// so that two planes at cost 0 (a repeating texture) are a tie, not unique.
 #[inline(always)]
-fn unique(chosen: &[f32], plane: usize, u: f32, cost: impl Fn(f32) -> f32) -> bool {
+fn unique(chosen: &[f32], plane: usize, u: f32, floor: f32, cost: impl Fn(f32) -> f32) -> bool {
     if u <= 0.0 {
         return true;
     }
     let (lo, hi) = (plane.saturating_sub(1), (plane + 2).min(chosen.len()));
     let other = highest(&chosen[..lo]).max(highest(&chosen[hi..]));
-    other == f32::NEG_INFINITY || cost(other) * (1.0 - u) >= cost(chosen[plane])
+    other == f32::NEG_INFINITY || (cost(other) + floor) * (1.0 - u) >= cost(chosen[plane]) + floor
 }
 
 /// The sweep's sink that keeps each cell's pick (the winner of its own scores).
@@ -274,8 +276,8 @@ impl CellSink for Picks {
     fn cell(&mut self, _: usize, _: usize, s: &[f32]) {
         let win = winner(s, Unseen::Skip);
         let mut pick = Pick::new(win, self.np, |p| s[p]);
-        // The correlations' cost: 1 − NCC.
-        pick.unique = win.is_none_or(|w| unique(s, w.plane, self.uniqueness, |v| 1.0 - v));
+        // The correlations' cost: 1 − NCC, from 10⁻³ (resampling alone leaves that much).
+        pick.unique = win.is_none_or(|w| unique(s, w.plane, self.uniqueness, 1e-3, |v| 1.0 - v));
         self.v.push(pick);
     }
 }
@@ -356,8 +358,8 @@ fn sgm_row_body(
         // smoother than the raw correlations' (on the benchmark pair, RMSE 0.17 against
         // 0.24 px for the pixels within 2 px), which give the σ only.
         pick.offset = win.and_then(|w| w.parabola()).map(|(off, _)| off);
-        // The chosen scores are −S: the cost is S.
-        pick.unique = win.is_none_or(|w| unique(&cell, w.plane, uniqueness, |v| -v));
+        // The chosen scores are −S: the cost is S, from one cost unit.
+        pick.unique = win.is_none_or(|w| unique(&cell, w.plane, uniqueness, 1.0, |v| -v));
         picks.push(pick);
         if !lr {
             continue;
@@ -370,12 +372,14 @@ fn sgm_row_body(
             continue;
         }
         let (p_lo, p_hi) = (p_lo as usize, p_hi as usize + 1);
-        let base = (wr as i64 - 1 - x0) as usize;
+        // The reversed index of plane p_lo (in i64 first: wr − 1 − x0 may be negative).
+        let s0 = (wr as i64 - 1 - x0 + p_lo as i64) as usize;
+        let s1 = s0 + (p_hi - p_lo);
         // Unseen (NaN) and unscored (−∞) planes are nobody's best.
         for (((v, bv), bp), &pi) in cell[p_lo..p_hi]
             .iter()
-            .zip(&mut rb_v[base + p_lo..base + p_hi])
-            .zip(&mut rb_p[base + p_lo..base + p_hi])
+            .zip(&mut rb_v[s0..s1])
+            .zip(&mut rb_p[s0..s1])
             .zip(&plane_index[p_lo..p_hi])
         {
             let better = *v > *bv;
@@ -717,19 +721,29 @@ mod tests {
         // Winner at 4 (cost 0.10); its neighbours nearly as good; plane 8 costs 0.11.
         let mut s = vec![0.2f32, 0.3, 0.5, 0.89, 0.9, 0.895, 0.4, 0.3, 0.89, f32::NAN];
         // 0.11·(1 − u) ≥ 0.10 ⇔ u ≤ 1/11 ≈ 0.0909.
-        assert!(unique(&s, 4, 0.09, cost));
-        assert!(!unique(&s, 4, 0.095, cost));
-        assert!(unique(&s, 4, 0.0, cost), "0 turns the test off");
+        assert!(unique(&s, 4, 0.09, 0.0, cost));
+        assert!(!unique(&s, 4, 0.095, 0.0, cost));
+        assert!(unique(&s, 4, 0.0, 0.0, cost), "0 turns the test off");
         // Without plane 8 the next is plane 2 (cost 0.5): unique up to u = 0.8.
         s[8] = 0.3;
-        assert!(unique(&s, 4, 0.79, cost));
-        assert!(!unique(&s, 4, 0.81, cost));
+        assert!(unique(&s, 4, 0.79, 0.0, cost));
+        assert!(!unique(&s, 4, 0.81, 0.0, cost));
         // A winner at the end, and nothing else seen: unique.
         let t = [f32::NAN, f32::NAN, 0.7, 0.9];
-        assert!(unique(&t, 3, 0.5, cost));
+        assert!(unique(&t, 3, 0.5, 0.0, cost));
         // Aggregated costs (chosen = −S): S 100 at the winner, 104 beyond: u ≤ 1 − 100/104.
         let a = [-104.0f32, -120.0, -101.0, -100.0, -101.0];
-        assert!(unique(&a, 3, 0.038, |v| -v));
-        assert!(!unique(&a, 3, 0.039, |v| -v));
+        assert!(unique(&a, 3, 0.038, 0.0, |v| -v));
+        assert!(!unique(&a, 3, 0.039, 0.0, |v| -v));
+        // Two planes at cost 0 (a repeating texture): a tie, counted from the floor.
+        let r = [1.0f32, 0.2, 0.1, 0.3, 1.0, 0.4];
+        assert!(
+            unique(&r, 4, 0.1, 0.0, cost),
+            "without a floor 0 ≥ 0 passes"
+        );
+        assert!(!unique(&r, 4, 0.1, 1e-3, cost));
+        // The floor barely moves a clear winner: cost 0.001 against 0.5.
+        let c = [0.5f32, 0.999, 0.5];
+        assert!(unique(&c, 1, 0.9, 1e-3, cost));
     }
 }

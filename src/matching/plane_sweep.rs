@@ -407,7 +407,8 @@ fn shifts_body<F: CellSink>(
                         continue;
                     }
                     let (p_lo, p_hi) = (p_lo as usize, p_hi as usize);
-                    let i0 = (wr as i64 - 1 - x0) as usize + p_lo;
+                    // In i64 first: wr − 1 − x0 is negative where x0 lies beyond the right photo.
+                    let i0 = (wr as i64 - 1 - x0 + p_lo as i64) as usize;
                     let d = &mut vlw[c * np + p_lo..c * np + p_hi + 1];
                     let s = &rrow[i0..i0 + d.len()];
                     for (d, s) in d.iter_mut().zip(s) {
@@ -455,11 +456,10 @@ fn shifts_body<F: CellSink>(
             dst[..p_lo].iter_mut().for_each(|v| *v = f32::NAN);
             dst[p_hi..].iter_mut().for_each(|v| *v = f32::NAN);
             if p_lo < p_hi {
-                let base = (wr as i64 - 1 - x0) as usize;
-                let (rm, ri) = (
-                    &r_mean[base + p_lo..base + p_hi],
-                    &r_inv[base + p_lo..base + p_hi],
-                );
+                // The reversed index of plane p_lo (in i64 first: wr − 1 − x0 may be negative).
+                let s0 = (wr as i64 - 1 - x0 + p_lo as i64) as usize;
+                let s1 = s0 + (p_hi - p_lo);
+                let (rm, ri) = (&r_mean[s0..s1], &r_inv[s0..s1]);
                 // Σ(l − l̄)(w − w̄) = Σl·w − l̄·Σw.
                 for (((d, a), m), v) in dst[p_lo..p_hi]
                     .iter_mut()
@@ -474,10 +474,7 @@ fn shifts_body<F: CellSink>(
                     continue;
                 }
                 // The right photo's winners (NaN, unseen, is nobody's best).
-                let (bv, bp) = (
-                    &mut rb_v[base + p_lo..base + p_hi],
-                    &mut rb_p[base + p_lo..base + p_hi],
-                );
+                let (bv, bp) = (&mut rb_v[s0..s1], &mut rb_p[s0..s1]);
                 for (((d, v), b), &pi) in dst[p_lo..p_hi]
                     .iter()
                     .zip(bv)

@@ -90,10 +90,15 @@ pub fn refine(
         );
     }
     let n = (side * side) as f64;
-    // Whole grey values (an 8- or 16-bit file) are known to their quantisation at best:
-    // σ0 is at least that of the two windows' rounding, 1/√12 each, the right's times the
-    // gain (else a window that happens to fit exactly reports σ of 10⁻¹⁵ px).
+    // σ0 has floors, else a window that happens to fit exactly reports σ of 10⁻¹⁵ px:
+    // - whole grey values (an 8- or 16-bit file) are known to their rounding at best, 1/√12
+    //   in each window, the right's times the gain;
+    // - a correlation of 1 is noise-free only in theory (resampling alone leaves ~10⁻³, as
+    //   for the sweep's σ): the residual is at least that of ρ = 0.999, √(1 − ρ²)·σ_l.
     let quantised = lw.iter().all(|v| v.fract() == 0.0);
+    let mean_l = lw.iter().sum::<f64>() / n;
+    let var_l = lw.iter().map(|v| (v - mean_l).powi(2)).sum::<f64>() / n;
+    let resampling = ((1.0 - 0.999f64 * 0.999) * var_l).sqrt();
     let mut sw = vec![0.0f64; side * side];
     let mut gw = vec![0.0f64; side * side];
     let (mut t, mut tu, mut tv) = (t0, 0.0f64, 0.0f64);
@@ -153,7 +158,7 @@ pub fn refine(
         if b <= 1e-6 {
             return Err(RefineFailure::Inverted);
         }
-        let mut sigma0 = (vv / (n - 5.0)).sqrt();
+        let mut sigma0 = (vv / (n - 5.0)).sqrt().max(resampling);
         if quantised {
             sigma0 = sigma0.max(((1.0 + b * b) / 12.0).sqrt());
         }
@@ -264,10 +269,12 @@ mod tests {
         assert!((g2.t - shift).abs() < 3.0 * g2.sigma_t + 0.02, "{g2:?}");
     }
 
-    /// Whole grey values shifted by exactly three pixels fit without residual; σ is then that
-    /// of their rounding, not zero: σ0 = √((1 + b²)/12) with b = 1, σ_t = σ0·√Q_tt.
+    /// Grey values shifted by exactly three pixels fit without residual; σ is then that of
+    /// the floors, not zero: whole grey values keep their rounding, √((1 + b²)/12) with b = 1,
+    /// and any keep the residual of a correlation of 0.999, √(1 − 0.999²)·σ_l (grey values
+    /// made from colour are not whole); σ_t = σ0·√Q_tt.
     #[test]
-    fn an_exact_fit_of_whole_grey_values_keeps_the_rounding() {
+    fn an_exact_fit_keeps_the_floors() {
         let (w, h) = (40usize, 30usize);
         let mut left = ImageF32::new(w, h);
         let mut right = ImageF32::new(w, h);
@@ -278,22 +285,37 @@ mod tests {
                 right.data[r * w + c] = (100.0 + 40.0 * tex(x + 3.0, y)).round() as f32;
             }
         }
+        let win = Window { c: 20, r: 15, k: 4 };
+        let sd = |img: &ImageF32| {
+            let v: Vec<f64> = (11..=19)
+                .flat_map(|rr| (16..=24).map(move |cc| (rr, cc)))
+                .map(|(rr, cc)| img.data[rr * w + cc] as f64)
+                .collect();
+            let m = v.iter().sum::<f64>() / v.len() as f64;
+            (v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / v.len() as f64).sqrt()
+        };
         let locate = |u: f64, v: f64, t: f64| [20.5 + u - t, 15.5 + v];
-        let got = refine(
-            &left,
-            Window { c: 20, r: 15, k: 4 },
-            &right,
-            &locate,
-            3.2,
-            1.0,
-        )
-        .unwrap();
+        let got = refine(&left, win, &right, &locate, 3.2, 1.0).unwrap();
         assert!((got.t - 3.0).abs() < 1e-3, "{got:?}");
-        assert!(
-            (got.sigma0 - (2.0f64 / 12.0).sqrt()).abs() < 0.02,
-            "{got:?}"
-        );
+        let want = (2.0f64 / 12.0)
+            .sqrt()
+            .max((1.0 - 0.999f64.powi(2)).sqrt() * sd(&left));
+        assert!((got.sigma0 - want).abs() < 0.02 * want, "{got:?} vs {want}");
         assert!(got.sigma_t > 1e-3 && got.sigma_t < 0.05, "{got:?}");
+        // Not whole (as from colour): the rounding floor goes, the correlation's stays.
+        let scale = |img: &ImageF32| {
+            let mut o = img.clone();
+            o.data.iter_mut().for_each(|v| *v *= 0.299);
+            o
+        };
+        let (l2, r2) = (scale(&left), scale(&right));
+        let g2 = refine(&l2, win, &r2, &locate, 3.2, 1.0).unwrap();
+        let want2 = (1.0 - 0.999f64.powi(2)).sqrt() * sd(&l2);
+        assert!(
+            (g2.sigma0 - want2).abs() < 0.02 * want2,
+            "{g2:?} vs {want2}"
+        );
+        assert!(g2.sigma_t > 1e-3, "{g2:?}");
     }
 
     /// A window whose search line runs along the texture's stripes has no gradient there.
