@@ -44,8 +44,11 @@ pub enum MatchAction {
     /// normalised cross-correlation over a window. Disparities whose window lies beyond the
     /// right photo are never a match; a pixel gets no disparity where its best one has such a
     /// neighbour, lies at MIN or MAX (the match may be beyond: a warning says to widen the
-    /// range), correlates below --threshold, or where the right photo's own best match points
-    /// elsewhere (left-right check). At most 4096 disparities, within ±1 000 000 px.
+    /// range), is not clearly better than every other disparity (--uniqueness), correlates
+    /// below --threshold, or where the right photo's own best match points elsewhere
+    /// (left-right check). A warning says when fewer than half the pixels match (a range that
+    /// misses the scene, photos not rectified or not of one scene). At most 4096 disparities,
+    /// within ±1 000 000 px.
     ///
     /// Writes into --out: disparity.tif (float32, NaN where there is no match),
     /// correlation.tif, sigma.tif (σ of each disparity, px), disparity.png (a preview with its
