@@ -28,3 +28,4 @@ pub mod sgm;
 pub mod sweep;
 pub mod tiles;
 pub mod volume;
+pub mod winner;

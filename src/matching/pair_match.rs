@@ -4,14 +4,13 @@
 //! sub-pixel disparity by a parabola (through the aggregated costs with SGM, the correlations
 //! without) or by least-squares matching with its σ.
 
-use super::plane_sweep::{
-    highest, sweep_shifts, winner, CellSink, Cells, Planes, Prepared, Unseen, Winner,
-};
+use super::plane_sweep::{sweep_shifts, CellSink, Cells, Planes, Prepared};
 pub use super::refine::Subpixel;
 use super::refine::{refine, RefineFailure, Window};
 use super::regions::{remove_wrong_heights, RegionParams};
 use super::sgm::{aggregate_halves, dequantise, quantise, SgmParams, Q_UNSCORED, Q_UNSEEN};
 use super::sweep::{height_sigma, HeightMap};
+use super::winner::{highest, winner, Unseen, Winner};
 use crate::image::ImageF32;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};

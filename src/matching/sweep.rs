@@ -7,9 +7,10 @@
 //! by least squares on a plane tilted across the window ([`super::refine`]) or by a parabola.
 //! Bands of rows run in parallel.
 
-use super::plane_sweep::{score, winner, Cells, Planes, Prepared, Unseen};
+use super::plane_sweep::{score, Cells, Planes, Prepared};
 use super::pmf::Mapping;
 use super::refine::{refine, Subpixel, Window};
+use super::winner::{winner, Unseen, Winner};
 use crate::image::ImageF32;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -274,7 +275,7 @@ pub fn sweep_bands(
             // bracket it and every height of that bracket is seen (the terrain does not jump
             // from all its neighbours to a height the photo cannot show).
             let rows_n = cells.rows.len();
-            let mut first: Vec<Option<super::plane_sweep::Winner>> = Vec::with_capacity(n);
+            let mut first: Vec<Option<Winner>> = Vec::with_capacity(n);
             for jj in 0..rows_n {
                 for i in 0..cols {
                     first.push(winner(scores.cell(i, jj), Unseen::Refuse));
@@ -394,7 +395,7 @@ const BRACKET_MARGIN: usize = 2;
 /// pass-1 winners (at least 3 of them, within [`BRACKET_REACH`] cells), widened by
 /// [`BRACKET_MARGIN`] steps, with every plane of that bracket seen for this cell.
 fn bracketed(
-    first: &[Option<super::plane_sweep::Winner>],
+    first: &[Option<Winner>],
     cols: usize,
     rows: usize,
     i: usize,

@@ -1,0 +1,133 @@
+//! A cell's winner among the planes of a sweep: the highest score (NaN, a plane the search
+//! photo does not see, is never the best), its first place, and the neighbours a parabola or
+//! a check needs. Shared by the height sweep and the rectified-pair matcher.
+
+/// The best plane of one cell's scores.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Winner {
+    pub plane: usize,
+    pub score: f32,
+    /// The scores one plane below and above (None at the ends of the range).
+    pub below: Option<f32>,
+    pub above: Option<f32>,
+}
+
+impl Winner {
+    /// The peak below the plane step by a parabola through the three scores (−0.5 … 0.5),
+    /// and the second difference (negative at a peak).
+    pub fn parabola(&self) -> Option<(f64, f64)> {
+        let (a, b) = (self.below? as f64, self.above? as f64);
+        let den = a - 2.0 * self.score as f64 + b;
+        (den < 0.0).then(|| ((0.5 * (a - b) / den).clamp(-0.5, 0.5), den))
+    }
+}
+
+/// What a plane the search photo does not see (a NaN score) does to a pixel's winner.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Unseen {
+    /// The pixel gets no winner: its match may lie on that plane (the height sweep, where
+    /// nothing else checks the winner).
+    Refuse,
+    /// The plane is left out, and the winner must have seen neighbours on both sides (a peak
+    /// against the unseen part may be the flank of a match beyond it). For a check that
+    /// catches a winner whose true match is unseen: left-right consistency.
+    Skip,
+}
+
+/// The highest of the scores, NaN left out (−∞ when none): in sixteen lanes (two independent
+/// vectors, so that it runs on vector lanes without waiting on itself), reduced as a tree,
+/// then the tail.
+#[inline(always)]
+pub fn highest(s: &[f32]) -> f32 {
+    let max = |a: f32, b: f32| if b > a { b } else { a };
+    let mut lanes = [f32::NEG_INFINITY; 16];
+    let chunks = s.chunks_exact(16);
+    let tail = chunks.remainder();
+    for ch in chunks {
+        for l in 0..16 {
+            lanes[l] = max(lanes[l], ch[l]);
+        }
+    }
+    let mut half = 8;
+    while half > 0 {
+        for l in 0..half {
+            lanes[l] = max(lanes[l], lanes[l + half]);
+        }
+        half /= 2;
+    }
+    tail.iter().fold(lanes[0], |v, &x| max(v, x))
+}
+
+/// The plane with the highest score, scored on both sides (a neighbour not scored — flat,
+/// unseen — is no peak that a parabola can refine or trust; the ends of the range excepted).
+#[inline(always)]
+pub fn winner(s: &[f32], unseen: Unseen) -> Option<Winner> {
+    if unseen == Unseen::Refuse && s.iter().any(|v| v.is_nan()) {
+        return None;
+    }
+    let v = highest(s);
+    if v == f32::NEG_INFINITY {
+        return None;
+    }
+    let (b, ch) = s
+        .chunks(8)
+        .enumerate()
+        .find(|(_, ch)| ch.iter().fold(false, |a, &x| a | (x == v)))?;
+    let p = b * 8 + ch.iter().position(|&x| x == v)?;
+    let side = |q: Option<usize>| q.and_then(|q| s.get(q).copied());
+    let below = side(p.checked_sub(1));
+    let above = side(Some(p + 1));
+    let scored = |x: Option<f32>| x.is_none_or(|b| b > f32::NEG_INFINITY);
+    if !scored(below) || !scored(above) {
+        return None;
+    }
+    Some(Winner {
+        plane: p,
+        score: v,
+        below,
+        above,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The lane-wise winner is the plain scan's: the first place of the highest score, NaN
+    /// never the best, no winner when all are −∞ or a neighbour is not scored, over lengths
+    /// that fill the lanes, miss them and leave tails, with ties across the lanes.
+    #[test]
+    fn winner_is_the_first_best() {
+        let mut seed = 11u64;
+        let mut next = || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            seed >> 33
+        };
+        for n in 1..70usize {
+            for _ in 0..200 {
+                let s: Vec<f32> = (0..n)
+                    .map(|_| match next() % 16 {
+                        0 => f32::NAN,
+                        1 => f32::NEG_INFINITY,
+                        // Few distinct values, so that ties are common.
+                        v => (v % 5) as f32 * 0.1,
+                    })
+                    .collect();
+                let mut want: Option<usize> = None;
+                for (i, &x) in s.iter().enumerate() {
+                    if x > f32::NEG_INFINITY && want.is_none_or(|w| x > s[w]) {
+                        want = Some(i);
+                    }
+                }
+                let want = want.filter(|&p| {
+                    let ok = |q: Option<usize>| q.is_none_or(|q| s[q] > f32::NEG_INFINITY);
+                    ok(p.checked_sub(1)) && ok((p + 1 < n).then_some(p + 1))
+                });
+                let got = winner(&s, Unseen::Skip).map(|w| w.plane);
+                assert_eq!(got, want, "{s:?}");
+            }
+        }
+    }
+}
