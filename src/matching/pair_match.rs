@@ -10,7 +10,7 @@ use super::refine::{refine, RefineFailure, Window};
 use super::regions::{remove_wrong_heights, RegionParams};
 use super::sgm::{aggregate_halves, dequantise, quantise, SgmParams, Q_UNSCORED, Q_UNSEEN};
 use super::sweep::{height_sigma, HeightMap};
-use super::winner::{highest, winner, Unseen, Winner};
+use super::winner::{highest, winner, RightBest, Unseen, Winner};
 use crate::image::ImageF32;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -335,11 +335,7 @@ fn sgm_row_body(
     let cols = raw.len() / np.max(1);
     let mut cell = vec![0.0f32; np];
     let mut picks = Vec::with_capacity(cols);
-    // The right photo's winners by reversed column (wr − 1 − x), so that a cell's planes
-    // meet them ascending; u32 beside f32, so that the update runs on vector lanes.
-    let mut rb_v = vec![f32::NEG_INFINITY; wr];
-    let mut rb_p = vec![u32::MAX; wr];
-    let plane_index: Vec<u32> = (0..np as u32).collect();
+    let mut rb = RightBest::new(wr, np);
     for i in 0..cols {
         let o = i * np;
         let (rc, a, b) = (&raw[o..o + np], &fwd[o..o + np], &bwd[o..o + np]);
@@ -370,28 +366,11 @@ fn sgm_row_body(
         if p_lo > p_hi {
             continue;
         }
-        let (p_lo, p_hi) = (p_lo as usize, p_hi as usize + 1);
-        // The reversed index of plane p_lo (in i64 first: wr − 1 − x0 may be negative).
-        let s0 = (wr as i64 - 1 - x0 + p_lo as i64) as usize;
-        let s1 = s0 + (p_hi - p_lo);
-        // Unseen (NaN) and unscored (−∞) planes are nobody's best.
-        for (((v, bv), bp), &pi) in cell[p_lo..p_hi]
-            .iter()
-            .zip(&mut rb_v[s0..s1])
-            .zip(&mut rb_p[s0..s1])
-            .zip(&plane_index[p_lo..p_hi])
-        {
-            let better = *v > *bv;
-            *bv = if better { *v } else { *bv };
-            *bp = if better { pi } else { *bp };
-        }
+        rb.offer(x0, &cell, p_lo as usize, p_hi as usize + 1);
     }
-    let rb = if lr {
-        (0..wr).map(|x| rb_p[wr - 1 - x]).collect()
-    } else {
-        Vec::new()
-    };
-    (picks, rb)
+    let mut out = vec![u32::MAX; if lr { wr } else { 0 }];
+    rb.write(&mut out);
+    (picks, out)
 }
 
 /// One pixel row of the three outputs (disparity, correlation, σ), NaN where no match.
@@ -616,15 +595,10 @@ pub fn match_pair(
         _ => {
             // Each band's winners taken as its scores come: no volume is kept.
             progress.begin("match (rows)", rows.len() as u64);
-            let outs: Vec<OutRow> = out_rows(dm, cm, sm, w).collect();
-            let mut by_band: Vec<Vec<OutRow>> = Vec::with_capacity(bands.len());
-            let mut it = outs.into_iter();
-            for b in &bands {
-                by_band.push(it.by_ref().take(b.len()).collect());
-            }
+            // The output rows in bands of BAND, as the rows are.
             let st = bands
                 .par_iter()
-                .zip(by_band.into_par_iter())
+                .zip(out_rows(dm, cm, sm, w).chunks(BAND))
                 .map(|(b, outs)| {
                     // The right photo's winners, only for the left-right check.
                     let mut rb = match p.lr_tolerance {

@@ -380,9 +380,7 @@ fn shifts_body<F: CellSink>(
     let mut acc = vec![0.0f32; np];
     let mut dst = vec![0.0f32; np];
     // The right photo's winners, in the same reversed order.
-    let mut rb_v = vec![f32::NEG_INFINITY; wr];
-    let mut rb_p = vec![u32::MAX; wr];
-    let plane_index: Vec<u32> = (0..np as u32).collect();
+    let mut rb = super::winner::RightBest::new(wr, np);
     for (j, &r) in cells.rows.iter().enumerate() {
         let (sub, add, reset) = run.moves(r - k, r + k);
         if reset {
@@ -437,8 +435,7 @@ fn shifts_body<F: CellSink>(
             r_mean[wr - 1 - x] = m * n;
             r_inv[wr - 1 - x] = *v;
         }
-        rb_v.iter_mut().for_each(|v| *v = f32::NEG_INFINITY);
-        rb_p.iter_mut().for_each(|v| *v = u32::MAX);
+        rb.clear();
         for i in 0..cells.cols {
             let c = cells.col0 + i * cells.stride;
             let afresh = cells.stride != 1 || i % RESUM == 0;
@@ -473,25 +470,12 @@ fn shifts_body<F: CellSink>(
                     sink.cell(j, i, &dst);
                     continue;
                 }
-                // The right photo's winners (NaN, unseen, is nobody's best).
-                let (bv, bp) = (&mut rb_v[s0..s1], &mut rb_p[s0..s1]);
-                for (((d, v), b), &pi) in dst[p_lo..p_hi]
-                    .iter()
-                    .zip(bv)
-                    .zip(bp)
-                    .zip(&plane_index[p_lo..p_hi])
-                {
-                    let better = *d > *v;
-                    *v = if better { *d } else { *v };
-                    *b = if better { pi } else { *b };
-                }
+                rb.offer(x0, &dst, p_lo, p_hi);
             }
             sink.cell(j, i, &dst);
         }
         if want_rb {
-            for (x, d) in right_best[j * wr..(j + 1) * wr].iter_mut().enumerate() {
-                *d = rb_p[wr - 1 - x];
-            }
+            rb.write(&mut right_best[j * wr..(j + 1) * wr]);
         }
     }
 }

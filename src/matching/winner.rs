@@ -89,6 +89,68 @@ pub fn winner(s: &[f32], unseen: Unseen) -> Option<Winner> {
     })
 }
 
+/// The right photo's own winners, for the left-right check: for each right column x, the
+/// plane of the highest score among the reference cells that meet it on a rectified pair
+/// (x = c − first − p). Kept by reversed column (wr − 1 − x), so that one reference cell's
+/// planes meet them ascending and its update is one pass over contiguous slices (u32 planes
+/// beside f32 scores, so that it runs on vector lanes).
+pub struct RightBest {
+    best: Vec<f32>,
+    at: Vec<u32>,
+    planes: Vec<u32>,
+}
+
+impl RightBest {
+    /// For a right photo `wr` columns wide and `np` planes.
+    pub fn new(wr: usize, np: usize) -> RightBest {
+        RightBest {
+            best: vec![f32::NEG_INFINITY; wr],
+            at: vec![u32::MAX; wr],
+            planes: (0..np as u32).collect(),
+        }
+    }
+
+    /// Forgets every winner (a new row).
+    pub fn clear(&mut self) {
+        self.best.fill(f32::NEG_INFINITY);
+        self.at.fill(u32::MAX);
+    }
+
+    /// Offers planes `lo..hi` of the scores `s` of the reference cell at x0 = c − first (those
+    /// planes must meet the right photo: 0 ≤ x0 − p < wr). NaN (unseen) and −∞ (unscored) are
+    /// nobody's best; of equal scores the first offered stays.
+    #[inline(always)]
+    pub fn offer(&mut self, x0: i64, s: &[f32], lo: usize, hi: usize) {
+        // The reversed index of plane lo (in i64 first: wr − 1 − x0 may be negative).
+        let s0 = (self.best.len() as i64 - 1 - x0 + lo as i64) as usize;
+        let s1 = s0 + (hi - lo);
+        keep_best(
+            &mut self.best[s0..s1],
+            &mut self.at[s0..s1],
+            &s[lo..hi],
+            &self.planes[lo..hi],
+        );
+    }
+
+    /// The winner of each right column x into `out[x]` (u32::MAX where none).
+    pub fn write(&self, out: &mut [u32]) {
+        for (o, &a) in out.iter_mut().zip(self.at.iter().rev()) {
+            *o = a;
+        }
+    }
+}
+
+/// Where `d` beats `best`, the score and its plane are kept. The slices are a function's
+/// arguments, so that the compiler knows them apart.
+#[inline(always)]
+fn keep_best(best: &mut [f32], at: &mut [u32], d: &[f32], planes: &[u32]) {
+    for (((d, v), b), &pi) in d.iter().zip(best).zip(at).zip(planes) {
+        let better = *d > *v;
+        *v = if better { *d } else { *v };
+        *b = if better { pi } else { *b };
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
