@@ -6,7 +6,7 @@
 
 use super::plane_sweep::{sweep_shifts, CellSink, Cells, Planes, Prepared};
 pub use super::refine::Subpixel;
-use super::refine::{refine, RefineFailure, Window};
+use super::refine::{refine, RefineFailure, Window, RHO_MAX};
 use super::regions::{remove_wrong_heights, RegionParams};
 use super::sgm::{aggregate_halves, dequantise, quantise, SgmParams, Q_UNSCORED, Q_UNSEEN};
 use super::sweep::{height_sigma, HeightMap};
@@ -275,8 +275,9 @@ impl CellSink for Picks {
     fn cell(&mut self, _: usize, _: usize, s: &[f32]) {
         let win = winner(s, Unseen::Skip);
         let mut pick = Pick::new(win, self.np, |p| s[p]);
-        // The correlations' cost: 1 − NCC, from 10⁻³ (resampling alone leaves that much).
-        pick.unique = win.is_none_or(|w| unique(s, w.plane, self.uniqueness, 1e-3, |v| 1.0 - v));
+        // The correlations' cost: 1 − NCC, from 1 − RHO_MAX.
+        let floor = (1.0 - RHO_MAX) as f32;
+        pick.unique = win.is_none_or(|w| unique(s, w.plane, self.uniqueness, floor, |v| 1.0 - v));
         self.v.push(pick);
     }
 }

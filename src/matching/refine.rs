@@ -13,6 +13,11 @@ use nalgebra::{SMatrix, SVector};
 type M5 = SMatrix<f64, 5, 5>;
 type V5 = SVector<f64, 5>;
 
+/// The highest correlation that means anything: 1 is noise-free only in theory (resampling
+/// alone leaves ~10⁻³). It bounds the sweep's σ, least squares' σ0 and the smallest cost the
+/// uniqueness test tells apart.
+pub const RHO_MAX: f64 = 0.999;
+
 /// How a sweep's winner is refined below the plane step.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -93,12 +98,13 @@ pub fn refine(
     // σ0 has floors, else a window that happens to fit exactly reports σ of 10⁻¹⁵ px:
     // - whole grey values (an 8- or 16-bit file) are known to their rounding at best, 1/√12
     //   in each window, the right's times the gain;
-    // - a correlation of 1 is noise-free only in theory (resampling alone leaves ~10⁻³, as
-    //   for the sweep's σ): the residual is at least that of ρ = 0.999, √(1 − ρ²)·σ_l.
+    // - a correlation of 1 is noise-free only in theory: the residual is at least that of
+    //   ρ = RHO_MAX, √(1 − ρ²)·σ_l (as the sweep's σ takes it).
     let quantised = lw.iter().all(|v| v.fract() == 0.0);
     let mean_l = lw.iter().sum::<f64>() / n;
-    let var_l = lw.iter().map(|v| (v - mean_l).powi(2)).sum::<f64>() / n;
-    let resampling = ((1.0 - 0.999f64 * 0.999) * var_l).sqrt();
+    // Σ(l − l̄)², for the floor and for the first a and b.
+    let ss_l = lw.iter().map(|v| (v - mean_l).powi(2)).sum::<f64>();
+    let resampling = ((1.0 - RHO_MAX * RHO_MAX) * (ss_l / n)).sqrt();
     let mut sw = vec![0.0f64; side * side];
     let mut gw = vec![0.0f64; side * side];
     let (mut t, mut tu, mut tv) = (t0, 0.0f64, 0.0f64);
@@ -116,12 +122,11 @@ pub fn refine(
         sample(right, q0, [ju, jv], k, dir, &mut sw, &mut gw)?;
         if it == 0 {
             // a and b from the windows' means and deviations, so that the first step is small.
-            let (ml, ms) = (lw.iter().sum::<f64>() / n, sw.iter().sum::<f64>() / n);
-            let var_l = lw.iter().map(|v| (v - ml).powi(2)).sum::<f64>();
-            let var_s = sw.iter().map(|v| (v - ms).powi(2)).sum::<f64>();
-            if var_s > 0.0 && var_l > 0.0 {
-                b = (var_l / var_s).sqrt();
-                a = ml - b * ms;
+            let ms = sw.iter().sum::<f64>() / n;
+            let ss_s = sw.iter().map(|v| (v - ms).powi(2)).sum::<f64>();
+            if ss_s > 0.0 && ss_l > 0.0 {
+                b = (ss_l / ss_s).sqrt();
+                a = mean_l - b * ms;
             }
         }
         let mut nm = M5::zeros();

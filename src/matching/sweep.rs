@@ -9,7 +9,7 @@
 
 use super::plane_sweep::{score, Cells, Planes, Prepared};
 use super::pmf::Mapping;
-use super::refine::{refine, Subpixel, Window};
+use super::refine::{refine, Subpixel, Window, RHO_MAX};
 use super::winner::{winner, Unseen, Winner};
 use crate::image::ImageF32;
 use rayon::prelude::*;
@@ -96,8 +96,7 @@ pub fn height_sigma(rho: f64, second_difference: f64, step_m: f64, n: usize) -> 
     if !(rho.is_finite() && curvature.is_finite()) || curvature <= 0.0 || n == 0 {
         return None;
     }
-    // A correlation of 1 is noise-free only in theory: resampling alone leaves ~1e-3.
-    let rho = rho.min(0.999);
+    let rho = rho.min(RHO_MAX);
     Some(((1.0 - rho) / (n as f64 * curvature)).sqrt())
 }
 
