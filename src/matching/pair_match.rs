@@ -4,13 +4,14 @@
 //! sub-pixel disparity by a parabola (through the aggregated costs with SGM, the correlations
 //! without) or by least-squares matching with its σ.
 
+use super::block_match::{block_match, BlockParams};
 use super::plane_sweep::{sweep_shifts, CellSink, Cells, Planes, Prepared};
 pub use super::refine::Subpixel;
 use super::refine::{refine, RefineFailure, Window, RHO_MAX};
 use super::regions::{remove_wrong_heights, RegionParams};
 use super::sgm::{aggregate_halves, dequantise, quantise, SgmParams, Q_UNSCORED, Q_UNSEEN};
 use super::sweep::{height_sigma, HeightMap};
-use super::winner::{highest, winner, RightBest, Unseen, Winner};
+use super::winner::{unique, winner, Pick, RightBest, Unseen, Winner};
 use crate::image::ImageF32;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -198,88 +199,6 @@ fn check(left: &ImageF32, right: &ImageF32, p: &PairParams) -> Result<(), PairEr
         return Err(PairError::Uniqueness(p.uniqueness * 100.0));
     }
     Ok(())
-}
-
-/// A cell's winner (on the chosen scores) and the correlations around it (the raw ones).
-#[derive(Debug, Clone, Copy, PartialEq)]
-struct Pick {
-    /// The winning plane, None where there is none.
-    plane: Option<usize>,
-    rho: f32,
-    /// The raw correlations one plane below and above the winner, where finite.
-    below: Option<f32>,
-    above: Option<f32>,
-    /// Some plane the right photo does not see (NaN).
-    unseen: bool,
-    /// The peak below the plane step from the chosen scores, where they are not the raw
-    /// correlations (aggregated costs); None: from the raw correlations.
-    offset: Option<f64>,
-    /// The winner is unique (see [`unique`]); true where there is no winner.
-    unique: bool,
-}
-
-impl Pick {
-    /// From the chosen scores' winner and the raw scores `raw(p)` of the `np` planes.
-    #[inline(always)]
-    fn new(win: Option<Winner>, np: usize, raw: impl Fn(usize) -> f32) -> Pick {
-        let finite = |p: Option<usize>| p.filter(|&p| p < np).map(&raw).filter(|v| v.is_finite());
-        match win {
-            Some(w) => Pick {
-                plane: Some(w.plane),
-                rho: raw(w.plane),
-                below: finite(w.plane.checked_sub(1)),
-                above: finite(Some(w.plane + 1)),
-                unseen: false,
-                offset: None,
-                unique: true,
-            },
-            None => Pick {
-                plane: None,
-                rho: f32::NAN,
-                below: None,
-                above: None,
-                unseen: (0..np).any(|p| raw(p).is_nan()),
-                offset: None,
-                unique: true,
-            },
-        }
-    }
-}
-
-/// Whether the winner `plane` of the chosen scores is unique, as the uniqueness ratio of
-/// Hirschmüller (2008) and OpenCV takes it: every plane beyond the winner's two neighbours
-/// costs at least 1/(1 − u) times the winner's cost, the costs being `cost(score)` (unseen
-/// planes, NaN, are left out). A photo pair that shows nothing in common has many planes
-/// nearly as good as the best; a real match stands out. Both costs are counted from `floor`
-/// (the smallest cost that means anything: a correlation of 1 is noise-free only in theory),
-/// so that two planes at cost 0 (a repeating texture) are a tie, not unique.
-#[inline(always)]
-fn unique(chosen: &[f32], plane: usize, u: f32, floor: f32, cost: impl Fn(f32) -> f32) -> bool {
-    if u <= 0.0 {
-        return true;
-    }
-    let (lo, hi) = (plane.saturating_sub(1), (plane + 2).min(chosen.len()));
-    let other = highest(&chosen[..lo]).max(highest(&chosen[hi..]));
-    other == f32::NEG_INFINITY || (cost(other) + floor) * (1.0 - u) >= cost(chosen[plane]) + floor
-}
-
-/// The sweep's sink that keeps each cell's pick (the winner of its own scores).
-struct Picks {
-    np: usize,
-    uniqueness: f32,
-    v: Vec<Pick>,
-}
-
-impl CellSink for Picks {
-    #[inline(always)]
-    fn cell(&mut self, _: usize, _: usize, s: &[f32]) {
-        let win = winner(s, Unseen::Skip);
-        let mut pick = Pick::new(win, self.np, |p| s[p]);
-        // The correlations' cost: 1 − NCC, from 1 − RHO_MAX.
-        let floor = (1.0 - RHO_MAX) as f32;
-        pick.unique = win.is_none_or(|w| unique(s, w.plane, self.uniqueness, floor, |v| 1.0 - v));
-        self.v.push(pick);
-    }
 }
 
 /// The sweep's sink that writes each cell's scores, as 16-bit codes, into a band's part of
@@ -594,25 +513,24 @@ pub fn match_pair(
             st
         }
         _ => {
-            // Each band's winners taken as its scores come: no volume is kept.
+            // Each band's winners taken as its scores come: no volume is kept. The right
+            // photo's winners only for the left-right check; the correlations' cost 1 − NCC
+            // counted from 1 − RHO_MAX.
+            let bm = BlockParams {
+                first,
+                planes: np,
+                k,
+                uniqueness: p.uniqueness as f32,
+                floor: (1.0 - RHO_MAX) as f32,
+                right_winners: p.lr_tolerance.is_some(),
+            };
             progress.begin("match (rows)", rows.len() as u64);
             // The output rows in bands of BAND, as the rows are.
             let st = bands
                 .par_iter()
                 .zip(out_rows(dm, cm, sm, w).chunks(BAND))
                 .map(|(b, outs)| {
-                    // The right photo's winners, only for the left-right check.
-                    let mut rb = match p.lr_tolerance {
-                        Some(_) => vec![u32::MAX; b.len() * wr],
-                        None => Vec::new(),
-                    };
-                    let mut picks = Picks {
-                        np,
-                        uniqueness: p.uniqueness as f32,
-                        v: Vec::with_capacity(b.len() * cols),
-                    };
-                    sweep_shifts(&lp, &rp, first, np, k, &cells_of(b), &mut rb, &mut picks);
-                    let picks = picks.v;
+                    let (picks, rb) = block_match(&lp, &rp, &bm, b);
                     let st = b.iter().zip(outs).enumerate().fold(
                         PairStats::default(),
                         |st, (jb, (&r, out))| {
@@ -681,43 +599,4 @@ pub fn match_pair(
 
 fn failure_name(e: RefineFailure) -> String {
     format!("{e:?}").to_lowercase()
-}
-
-#[cfg(test)]
-mod tests {
-    use super::unique;
-
-    /// The uniqueness ratio by its definition: the winner's neighbours do not count, any
-    /// other plane must cost at least 1/(1 − u) times the winner, NaN planes are left out.
-    #[test]
-    fn uniqueness_by_its_definition() {
-        let cost = |v: f32| 1.0 - v;
-        // Winner at 4 (cost 0.10); its neighbours nearly as good; plane 8 costs 0.11.
-        let mut s = vec![0.2f32, 0.3, 0.5, 0.89, 0.9, 0.895, 0.4, 0.3, 0.89, f32::NAN];
-        // 0.11·(1 − u) ≥ 0.10 ⇔ u ≤ 1/11 ≈ 0.0909.
-        assert!(unique(&s, 4, 0.09, 0.0, cost));
-        assert!(!unique(&s, 4, 0.095, 0.0, cost));
-        assert!(unique(&s, 4, 0.0, 0.0, cost), "0 turns the test off");
-        // Without plane 8 the next is plane 2 (cost 0.5): unique up to u = 0.8.
-        s[8] = 0.3;
-        assert!(unique(&s, 4, 0.79, 0.0, cost));
-        assert!(!unique(&s, 4, 0.81, 0.0, cost));
-        // A winner at the end, and nothing else seen: unique.
-        let t = [f32::NAN, f32::NAN, 0.7, 0.9];
-        assert!(unique(&t, 3, 0.5, 0.0, cost));
-        // Aggregated costs (chosen = −S): S 100 at the winner, 104 beyond: u ≤ 1 − 100/104.
-        let a = [-104.0f32, -120.0, -101.0, -100.0, -101.0];
-        assert!(unique(&a, 3, 0.038, 0.0, |v| -v));
-        assert!(!unique(&a, 3, 0.039, 0.0, |v| -v));
-        // Two planes at cost 0 (a repeating texture): a tie, counted from the floor.
-        let r = [1.0f32, 0.2, 0.1, 0.3, 1.0, 0.4];
-        assert!(
-            unique(&r, 4, 0.1, 0.0, cost),
-            "without a floor 0 ≥ 0 passes"
-        );
-        assert!(!unique(&r, 4, 0.1, 1e-3, cost));
-        // The floor barely moves a clear winner: cost 0.001 against 0.5.
-        let c = [0.5f32, 0.999, 0.5];
-        assert!(unique(&c, 1, 0.9, 1e-3, cost));
-    }
 }

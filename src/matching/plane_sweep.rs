@@ -209,9 +209,9 @@ impl Running {
 /// the window centres x in `k..w − k`: `inv[x]` is NaN where the window has nodata or is
 /// not wholly in the photo, 0 where it is flat, else positive; `mean[x]` is 0 where `inv[x]`
 /// is NaN. From column sums; in separate arrays so that every step runs on vector lanes.
-struct RowStats {
-    mean: Vec<f32>,
-    inv: Vec<f32>,
+pub(super) struct RowStats {
+    pub(super) mean: Vec<f32>,
+    pub(super) inv: Vec<f32>,
     /// Column sums Σv, Σv², Σnodata over the window's rows, and the horizontal Σnodata.
     c0: Vec<f32>,
     c1: Vec<f32>,
@@ -220,7 +220,7 @@ struct RowStats {
 }
 
 impl RowStats {
-    fn new(w: usize) -> RowStats {
+    pub(super) fn new(w: usize) -> RowStats {
         let z = vec![0.0f32; w];
         RowStats {
             mean: z.clone(),
@@ -240,7 +240,7 @@ impl RowStats {
     }
 
     #[inline(always)]
-    fn fill(&mut self, p: &Prepared, r: usize, k: usize) {
+    pub(super) fn fill(&mut self, p: &Prepared, r: usize, k: usize) {
         let w = p.img.width;
         let n = ((2 * k + 1) * (2 * k + 1)) as f32;
         let (c0, c1, c2) = (&mut self.c0[..w], &mut self.c1[..w], &mut self.c2[..w]);
