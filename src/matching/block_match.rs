@@ -26,33 +26,37 @@ pub struct BlockParams {
     pub right_winners: bool,
 }
 
-/// The winners of `rows` (ascending; consecutive rows reuse the column sums): for each row
-/// the picks of cells c = k … wl − k − 1 of the left photo, and, with `right_winners`, the
-/// right photo's winner for each of its columns (u32::MAX where none), row after row.
-pub fn block_match(
-    left: &Prepared,
-    right: &Prepared,
-    bp: &BlockParams,
-    rows: &[usize],
-) -> (Vec<Pick>, Vec<u32>) {
-    band(left, right, bp, rows)
+/// Takes each row's winners as they come: `row(j, picks, right)` for the j-th of the rows,
+/// the picks of its cells and the right photo's winners (empty when not wanted).
+pub trait RowSink {
+    fn row(&mut self, j: usize, picks: &[Pick], right: &[u32]);
+}
+
+impl<F: FnMut(usize, &[Pick], &[u32])> RowSink for F {
+    fn row(&mut self, j: usize, picks: &[Pick], right: &[u32]) {
+        self(j, picks, right)
+    }
 }
 
 built_twice! {
-    /// [`block_match`]'s work, built twice (see `simd`).
-    fn band[](
+    /// The winners of `rows` (ascending; consecutive rows reuse the column sums), one row at
+    /// a time to `sink` (so that no band of picks is kept): the picks of cells
+    /// c = k … wl − k − 1 of the left photo, and, with `right_winners`, the right photo's
+    /// winner for each of its columns (u32::MAX where none). Built twice (see `simd`).
+    pub fn block_match[S: RowSink](
         left: &Prepared,
         right: &Prepared,
         bp: &BlockParams,
         rows: &[usize],
-    ) -> (Vec<Pick>, Vec<u32>) = band_body;
+        sink: &mut S,
+    ) = band_body;
 }
 
 /// One plane's pass over a run of cells: each window's Σl·w from `W` consecutive column sums
 /// `v` (W = 0: `w` of them, summed in a loop), the correlation against the right window's
 /// mean·n `rm` and inverse deviation `ri` (NaN: unseen, 0: flat) with the left's mean `ml`
-/// and inverse deviation `il` (NaN where the left has nothing to match), clamped to [−1, 1],
-/// into `out`; the cells' winners `best`/`at` and, with `RB`, the right photo's winners
+/// and inverse deviation `il` (NaN where the left has nothing to match), into `out` (not
+/// clamped to [−1, 1]: the picks are); the cells' winners `best`/`at` and, with `RB`, the right photo's winners
 /// `rbest`/`rat` (the same run of columns, moved) keep it where it beats them (NaN never
 /// does; of equal scores the first plane stays; a plane is kept as `at` = max(at, p) where it
 /// wins, the planes coming in ascending order, 0 before any). One loop, so that nothing but
@@ -101,8 +105,9 @@ fn plane_pass<const W: usize, const RB: bool>(
                 h += v[i + d];
             }
         }
-        // Σ(l − l̄)(w − w̄) = Σl·w − l̄·Σw.
-        let s = ((h - ml[i] * rm[i]) * il[i] * ri[i]).clamp(-1.0, 1.0);
+        // Σ(l − l̄)(w − w̄) = Σl·w − l̄·Σw; rounding may take it a few units in the last
+        // place beyond ±1: the winner's scores are clamped when they are picked.
+        let s = (h - ml[i] * rm[i]) * il[i] * ri[i];
         out[i] = s;
         let (b, a) = better(best[i], at[i], s, p);
         (best[i], at[i]) = (b, a);
@@ -149,21 +154,22 @@ fn row(img: &Prepared, r: usize) -> &[f32] {
 }
 
 #[inline(always)]
-fn band_body(
+fn band_body<S: RowSink>(
     left: &Prepared,
     right: &Prepared,
     bp: &BlockParams,
     rows: &[usize],
-) -> (Vec<Pick>, Vec<u32>) {
+    sink: &mut S,
+) {
     let (first, np, k) = (bp.first, bp.planes, bp.k);
     let (wl, wr, hr) = (left.img.width, right.img.width, right.img.height);
     let w = 2 * k + 1;
     let cols = wl.saturating_sub(2 * k);
     let n = (w * w) as f32;
-    let mut picks = Vec::with_capacity(rows.len() * cols);
-    let mut rbs = vec![u32::MAX; if bp.right_winners { rows.len() * wr } else { 0 }];
+    let mut picks = Vec::with_capacity(cols);
+    let mut rbs = vec![u32::MAX; if bp.right_winners { wr } else { 0 }];
     if cols == 0 || np == 0 {
-        return (picks, rbs);
+        return;
     }
     let want_unique = bp.uniqueness > 0.0;
     // Column sums of Σl·w: plane p, left column c at [p·wl + c].
@@ -181,7 +187,10 @@ fn band_body(
     for (j, &r) in rows.iter().enumerate() {
         if r + k >= hr || r < k {
             // The right photo has no such rows: nothing is seen.
+            picks.clear();
             picks.extend((0..cols).map(|_| Pick::new(None, 1, |_| f32::NAN)));
+            rbs.fill(u32::MAX);
+            sink.row(j, &picks, &rbs);
             last = None;
             continue;
         }
@@ -271,6 +280,7 @@ fn band_body(
                 others(&mut other, &all[p * cols..(p + 1) * cols], &at, p as u32);
             }
         }
+        picks.clear();
         for i in 0..cols {
             let (b, pl) = (best[i], at[i] as usize);
             if il[i].is_nan() {
@@ -294,10 +304,10 @@ fn band_body(
                 picks.push(Pick::new(None, 1, |_| f32::NAN));
                 continue;
             }
-            let finite = |v: f32| v.is_finite().then_some(v);
+            let finite = |v: f32| v.is_finite().then_some(v.clamp(-1.0, 1.0));
             picks.push(Pick {
                 plane: Some(pl),
-                rho: b,
+                rho: b.clamp(-1.0, 1.0),
                 below: finite(lo),
                 above: finite(hi),
                 unseen: false,
@@ -307,12 +317,12 @@ fn band_body(
             });
         }
         if bp.right_winners {
-            for ((o, &a), &b) in rbs[j * wr..(j + 1) * wr].iter_mut().zip(&rat).zip(&rbest) {
+            for ((o, &a), &b) in rbs.iter_mut().zip(&rat).zip(&rbest) {
                 *o = if b > f32::NEG_INFINITY { a } else { u32::MAX };
             }
         }
+        sink.row(j, &picks, &rbs);
     }
-    (picks, rbs)
 }
 
 /// The highest of plane `p`'s scores `s` (NaN left out) into `other` where p is not the
@@ -415,7 +425,17 @@ mod tests {
                     floor: 1e-3,
                     right_winners: true,
                 };
-                let (got, got_rb) = block_match(&lp, &rp, &bpar, &rows);
+                let (mut got, mut got_rb) = (Vec::new(), Vec::new());
+                block_match(
+                    &lp,
+                    &rp,
+                    &bpar,
+                    &rows,
+                    &mut |_: usize, p: &[Pick], r: &[u32]| {
+                        got.extend_from_slice(p);
+                        got_rb.extend_from_slice(r);
+                    },
+                );
                 let cols = wl - 2 * k;
                 let cells = Cells {
                     col0: k,

@@ -530,13 +530,19 @@ pub fn match_pair(
                 .par_iter()
                 .zip(out_rows(dm, cm, sm, w).chunks(BAND))
                 .map(|(b, outs)| {
-                    let (picks, rb) = block_match(&lp, &rp, &bm, b);
-                    let st = b.iter().zip(outs).enumerate().fold(
-                        PairStats::default(),
-                        |st, (jb, (&r, out))| {
-                            let pk = &picks[jb * cols..(jb + 1) * cols];
-                            let rbj = rb.get(jb * wr..(jb + 1) * wr).unwrap_or(&[]);
-                            st.add(row_matches(&x, r, pk, rbj, out))
+                    // Each row's matches as its winners come.
+                    let mut outs = outs.into_iter();
+                    let mut st = PairStats::default();
+                    block_match(
+                        &lp,
+                        &rp,
+                        &bm,
+                        b,
+                        &mut |jb: usize, pk: &[Pick], rb: &[u32]| {
+                            if let Some(out) = outs.next() {
+                                st = std::mem::take(&mut st)
+                                    .add(row_matches(&x, b[jb], pk, rb, out));
+                            }
                         },
                     );
                     progress.advance(b.len() as u64);
