@@ -52,7 +52,7 @@ impl Planes<'_> {
 #[derive(Debug, Clone)]
 pub struct Prepared {
     pub img: ImageF32,
-    /// 1 where the photo had no value (NaN), else 0.
+    /// 1 where the photo had no value (NaN), else 0; empty where it has none.
     pub nodata: Vec<f32>,
 }
 
@@ -60,40 +60,60 @@ impl Prepared {
     pub fn new(src: &ImageF32) -> Prepared {
         use rayon::prelude::*;
         const CHUNK: usize = 1 << 16;
-        // Mean and deviation in f64 over chunks in parallel (each chunk's sum in f64).
-        fn sum(data: &[f32], f: impl Fn(f64) -> f64 + Sync) -> (f64, usize) {
-            data.par_chunks(CHUNK)
-                .map(|c| {
-                    c.iter()
-                        .filter(|v| v.is_finite())
-                        .fold((0.0f64, 0usize), |(s, n), &v| (s + f(v as f64), n + 1))
-                })
-                .reduce(|| (0.0, 0), |a, b| (a.0 + b.0, a.1 + b.1))
-        }
-        let (s, n) = sum(&src.data, |v| v);
-        let mean = if n > 0 { s / n as f64 } else { 0.0 };
-        let (ss, _) = sum(&src.data, |v| (v - mean) * (v - mean));
-        let sd = if n > 0 { (ss / n as f64).sqrt() } else { 0.0 };
+        // Count, Σ(v − v0) and Σ(v − v0)² of the finite values in one pass, in f64 per chunk,
+        // v0 the first finite value (so that a large mean against a small deviation does not
+        // cancel).
+        let v0 = src
+            .data
+            .iter()
+            .copied()
+            .find(|v| v.is_finite())
+            .unwrap_or(0.0) as f64;
+        let (n, s, ss) = src
+            .data
+            .par_chunks(CHUNK)
+            .map(|c| {
+                c.iter().filter(|v| v.is_finite()).fold(
+                    (0usize, 0.0f64, 0.0f64),
+                    |(n, s, ss), &v| {
+                        let d = v as f64 - v0;
+                        (n + 1, s + d, ss + d * d)
+                    },
+                )
+            })
+            .reduce(|| (0, 0.0, 0.0), |a, b| (a.0 + b.0, a.1 + b.1, a.2 + b.2));
+        let (mean, sd) = if n > 0 {
+            let m = s / n as f64;
+            (v0 + m, (ss / n as f64 - m * m).max(0.0).sqrt())
+        } else {
+            (0.0, 0.0)
+        };
         let scale = if sd > 0.0 && sd.is_finite() {
             1.0 / sd
         } else {
             1.0
         };
-        let mut img = ImageF32::new(src.width, src.height);
-        let mut nodata = vec![0.0; img.data.len()];
-        img.data
-            .par_chunks_mut(CHUNK)
-            .zip(nodata.par_chunks_mut(CHUNK))
-            .zip(src.data.par_chunks(CHUNK))
-            .for_each(|((d, bad), s)| {
-                for ((d, bad), &v) in d.iter_mut().zip(bad).zip(s) {
-                    if v.is_finite() {
-                        *d = ((v as f64 - mean) * scale) as f32;
-                    } else {
-                        *bad = 1.0;
-                    }
-                }
-            });
+        let mut img = ImageF32 {
+            width: src.width,
+            height: src.height,
+            data: Vec::with_capacity(src.data.len()),
+        };
+        img.data.par_extend(src.data.par_iter().map(|&v| {
+            if v.is_finite() {
+                ((v as f64 - mean) * scale) as f32
+            } else {
+                0.0
+            }
+        }));
+        // Flags only where some pixel has no value: most photos have none.
+        let nodata = if n < src.data.len() {
+            src.data
+                .par_iter()
+                .map(|v| if v.is_finite() { 0.0 } else { 1.0 })
+                .collect()
+        } else {
+            Vec::new()
+        };
         Prepared { img, nodata }
     }
 }
@@ -248,14 +268,15 @@ impl RowStats {
         c1.fill(0.0);
         c2.fill(0.0);
         for rr in r - k..=r + k {
-            let (row, nd) = (
-                &p.img.data[rr * w..(rr + 1) * w],
-                &p.nodata[rr * w..(rr + 1) * w],
-            );
+            let row = &p.img.data[rr * w..(rr + 1) * w];
             for x in 0..w {
                 c0[x] += row[x];
                 c1[x] += row[x] * row[x];
-                c2[x] += nd[x];
+            }
+            if let Some(nd) = p.nodata.get(rr * w..(rr + 1) * w) {
+                for x in 0..w {
+                    c2[x] += nd[x];
+                }
             }
         }
         self.mean[..w].fill(0.0);
@@ -522,7 +543,7 @@ fn score_warped(
     let mut wv: Vec<f32> = super::volume::zeroed(span * wl * np);
     let mut wn: Vec<f32> = super::volume::zeroed(span * wl * np);
     let (rw, rh) = (right.img.width as f64, right.img.height as f64);
-    let any_nodata = right.nodata.iter().any(|&v| v > 0.0);
+    let any_nodata = !right.nodata.is_empty();
     let mut ax = vec![0.0f64; order + 1];
     let mut ay = vec![0.0f64; order + 1];
     for rr in 0..span {
@@ -685,6 +706,44 @@ mod tests {
             + (x * 1.7 - y * 1.3).sin() * 0.5) as f32
             * 40.0
             + 100.0
+    }
+
+    /// A photo is brought to mean 0 and deviation 1 (computed here in two plain passes), also
+    /// when its mean is far larger than its deviation; nodata is flagged only where there is
+    /// some.
+    #[test]
+    fn prepared_has_unit_deviation_and_flags_only_nodata() {
+        for (offset, nan) in [(0.0f32, false), (30000.0, false), (30000.0, true)] {
+            let mut img = ImageF32::new(300, 7);
+            for (i, v) in img.data.iter_mut().enumerate() {
+                *v = offset + ((i * 7919) % 13) as f32 * 0.25;
+            }
+            if nan {
+                img.data[5] = f32::NAN;
+            }
+            let p = Prepared::new(&img);
+            let fin: Vec<f64> = img
+                .data
+                .iter()
+                .filter(|v| v.is_finite())
+                .map(|&v| v as f64)
+                .collect();
+            let m = fin.iter().sum::<f64>() / fin.len() as f64;
+            let sd = (fin.iter().map(|v| (v - m) * (v - m)).sum::<f64>() / fin.len() as f64).sqrt();
+            for (a, b) in img.data.iter().zip(&p.img.data) {
+                let want = if a.is_finite() {
+                    ((*a as f64 - m) / sd) as f32
+                } else {
+                    0.0
+                };
+                assert!((b - want).abs() < 1e-5, "{offset}: {b} vs {want}");
+            }
+            assert_eq!(p.nodata.is_empty(), !nan);
+            if nan {
+                assert_eq!(p.nodata.iter().filter(|&&v| v == 1.0).count(), 1);
+                assert_eq!(p.nodata[5], 1.0);
+            }
+        }
     }
 
     /// The running sums give the NCC that a direct computation over each window gives, for
