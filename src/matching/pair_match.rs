@@ -138,7 +138,7 @@ pub const MAX_DISPARITIES: i64 = 4096;
 /// Largest |MIN| and |MAX|, px (far beyond any photo, far from overflow).
 pub const MAX_ABS_DISPARITY: i64 = 1_000_000;
 /// Rows scored together (one rayon task).
-const BAND: usize = 32;
+const BAND: usize = 64;
 
 /// Bytes that matching `left` against `right` holds at once: the photos (as read, and
 /// prepared), the outputs and matches, each thread's running sums and picks, and for SGM the
