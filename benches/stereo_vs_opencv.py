@@ -230,10 +230,36 @@ def run_peer(matcher, left, right, repeat):
     return disp, statistics.median(times)
 
 
+def rig_cmd(rig, paths, out, rig_args):
+    return [rig, "match", "pair", paths["left"], paths["right"], "--disparity", "0", str(NDISP - 1),
+            "--out", out, "--json"] + shlex.split(rig_args)
+
+
+def paired_ratio(cmd, matcher, left, right, n):
+    """The throughput ratio rig / peer from n interleaved pairs of runs (rig, then peer): each
+    pair's ratio is peer seconds / rig seconds, and the median and quartiles of the n ratios
+    are reported. A machine whose speed drifts between the two blocks of separate timings
+    (a VM's neighbours) moves both halves of a pair alike."""
+    matcher.compute(left, right)  # warm-up, untimed
+    ratios = []
+    for _ in range(n):
+        p = subprocess.run(cmd, capture_output=True, text=True)
+        if p.returncode != 0:
+            return None
+        try:
+            rig_s = float(json.loads(p.stdout)["seconds"])
+        except (ValueError, KeyError, TypeError):
+            return None
+        t0 = time.perf_counter()
+        matcher.compute(left, right)
+        ratios.append((time.perf_counter() - t0) / rig_s)
+    q = statistics.quantiles(ratios, n=4) if len(ratios) >= 2 else [ratios[0]] * 3
+    return dict(pairs=n, median=statistics.median(ratios), q1=q[0], q3=q[2])
+
+
 def run_rig(rig, paths, work, rig_args, repeat, shape):
     out = os.path.join(work, "rig_out")
-    cmd = [rig, "match", "pair", paths["left"], paths["right"], "--disparity", "0", str(NDISP - 1),
-           "--out", out, "--json"] + shlex.split(rig_args)
+    cmd = rig_cmd(rig, paths, out, rig_args)
     log("rig:", shlex.join(cmd))
     secs, walls, info = [], [], {}
     for _ in range(repeat):
@@ -338,6 +364,8 @@ def main():
     ap.add_argument("--repeat", type=int, default=5, help="timed runs per method; the median counts")
     ap.add_argument("--rig-args", default="", help='extra rig flags, e.g. "--aggregate sgm"')
     ap.add_argument("--bm-block", type=int, default=9, help="StereoBM block size (odd, default 9)")
+    ap.add_argument("--paired", type=int, default=15,
+                    help="interleaved rig/StereoBM pairs for the paired throughput ratio (0: none)")
     ap.add_argument("--no-hh", action="store_true", help="skip SGBM's 8-path MODE_HH (slowest)")
     ap.add_argument("--noise", type=float, default=1.5, help="Gaussian noise sigma in grey levels")
     ap.add_argument("--supersample", type=int, default=4, help="samples per pixel side (default 4)")
@@ -383,6 +411,12 @@ def main():
 
     bm = rows[1]
     sgbm = rows[2]
+    paired = None
+    if a.paired > 0 and "throughput" in rig_row:
+        log(f"paired: {a.paired} interleaved rig/StereoBM runs")
+        bm_matcher = opencv_peers(a.bm_block, False)[0][1]
+        paired = paired_ratio(rig_cmd(a.rig, paths, os.path.join(a.work, "rig_out"), a.rig_args),
+                              bm_matcher, imgs["left"], imgs["right"], a.paired)
     ratios = dict(rig_throughput_over_bm=None, rig_bad2_over_sgbm_nonocc=None, rig_bad2_over_sgbm_all=None)
     if "quality" in rig_row:
         ratios["rig_throughput_over_bm"] = rig_row["throughput"] / bm["throughput"]
@@ -393,6 +427,7 @@ def main():
                  opencv_threads=cv2.getNumThreads(), cpu_count=os.cpu_count(), repeat=a.repeat,
                  load_average_at_start=load, noise_sigma=a.noise, supersample=a.supersample, seed=a.seed, border=4,
                  throughput_unit="width*height*64 pixel-candidates per second")
+    ratios["rig_throughput_over_bm_paired"] = paired
     if a.json:
         print(json.dumps(dict(setup=setup, sanity=sanity, methods=rows, ratios=ratios), indent=2))
         return
@@ -404,6 +439,9 @@ def main():
     f = lambda v: "-" if v is None else f"{v:.3f}"
     print(f"rig throughput / StereoBM: {f(ratios['rig_throughput_over_bm'])}; rig bad-2 / SGBM bad-2: "
           f"{f(ratios['rig_bad2_over_sgbm_nonocc'])} non-occluded, {f(ratios['rig_bad2_over_sgbm_all'])} all")
+    if paired:
+        print(f"rig throughput / StereoBM, {paired['pairs']} interleaved pairs: median "
+              f"{paired['median']:.3f} (quartiles {paired['q1']:.3f}-{paired['q3']:.3f})")
     sc = rig_row.get("sigma_check")
     if sc:
         print(f"rig sigma.tif on {sc['pixels']} pixels within 2 px: RMS(true error / sigma) "
