@@ -402,3 +402,48 @@ fn rig_match_pair_writes_what_it_says() {
         assert!(err.contains(want), "{args:?}: {err}");
     }
 }
+
+/// A flat band at mid-grey right under a textured one (in the same band of rows) has nothing
+/// to match, with every filter: its windows are flat, not textured by what the sums kept of
+/// the rows above (the review's case: running column sums in f32 left 10⁻⁶ behind).
+#[test]
+fn a_flat_band_below_texture_gets_no_match() {
+    let (w, h) = (160usize, 90usize);
+    let mut l = ImageF32::new(w, h);
+    let mut r = ImageF32::new(w, h);
+    for y in 0..h {
+        for x in 0..w {
+            let t = |u: f64| {
+                if y < 40 {
+                    (127.0 + 60.0 * texture(u, y as f64, 3.0)).round() as f32
+                } else {
+                    127.0
+                }
+            };
+            l.data[y * w + x] = t(x as f64);
+            r.data[y * w + x] = t(x as f64 + 10.0);
+        }
+    }
+    for filter in [Filter::None, Filter::Regions, Filter::Sgm] {
+        let p = PairParams {
+            d_min: 0,
+            d_max: 20,
+            filter,
+            ..Default::default()
+        };
+        let m = match_pair(&l, &r, &p, 1024, &Silent).unwrap();
+        let flat = (45..h)
+            .flat_map(|y| (0..w).map(move |x| (x, y)))
+            .filter(|&(x, y)| m.d[y * w + x].is_finite())
+            .count();
+        let textured = (5..35)
+            .flat_map(|y| (30..w - 5).map(move |x| (x, y)))
+            .filter(|&(x, y)| (m.d[y * w + x] - 10.0).abs() < 0.5)
+            .count();
+        assert_eq!(flat, 0, "{filter:?}: {flat} matches in the flat band");
+        assert!(
+            textured > 2000,
+            "{filter:?}: only {textured} right in the texture"
+        );
+    }
+}

@@ -107,7 +107,9 @@ fn plane_pass<const W: usize, const RB: bool>(
         }
         // Σ(l − l̄)(w − w̄) = Σl·w − l̄·Σw; rounding may take it a few units in the last
         // place beyond ±1: the winner's scores are clamped when they are picked.
-        let s = (h - ml[i] * rm[i]) * il[i] * ri[i];
+        // + 0.0 makes a −0 (a flat right window's score, by the sign of the rest) +0, so
+        // that two equal scores are never ±0, whose max is left open (see `better`).
+        let s = (h - ml[i] * rm[i]) * il[i] * ri[i] + 0.0;
         out[i] = s;
         let (b, a) = better(best[i], at[i], s, p);
         (best[i], at[i]) = (b, a);
@@ -130,6 +132,36 @@ fn better(b: f32, a: u32, s: f32, p: u32) -> (f32, u32) {
     let nb = b.max(s);
     let m = (((b - nb).to_bits() as i32) >> 31) as u32;
     (nb, a.max(p & m))
+}
+
+/// Σ of `w` consecutive values of `v` from each of `out.len()` starts, by doubling: sums of 2,
+/// 4, 8 … consecutive values, one pass each, taken by w's binary digits (log₂ w passes, not w).
+fn box_sums(v: &[f32], w: usize, out: &mut [f32], lv: &mut Vec<f32>, next: &mut Vec<f32>) {
+    let n = out.len();
+    out.fill(0.0);
+    // Level `size`: lv[i] = Σ v[i..i + size], for i < n + w − size.
+    lv.clear();
+    lv.extend_from_slice(&v[..n + w - 1]);
+    let (mut off, mut size, mut rem) = (0, 1, w);
+    loop {
+        if rem & 1 == 1 {
+            for (o, x) in out.iter_mut().zip(&lv[off..off + n]) {
+                *o += x;
+            }
+            off += size;
+        }
+        rem >>= 1;
+        if rem == 0 {
+            break;
+        }
+        let m = lv.len() - size;
+        next.resize(m, 0.0);
+        for (o, (a, b)) in next.iter_mut().zip(lv.iter().zip(&lv[size..])) {
+            *o = a + b;
+        }
+        std::mem::swap(lv, next);
+        size *= 2;
+    }
 }
 
 /// v += l·r (a row entering the window, the first rows of a band).
@@ -184,6 +216,8 @@ fn band_body<S: RowSink>(
     let mut other = vec![f32::NEG_INFINITY; if want_unique { cols } else { 0 }];
     let (mut rbest, mut rat) = (vec![f32::NEG_INFINITY; wr], vec![0u32; wr]);
     let mut last: Option<usize> = None;
+    // Window sums and their doubling levels for windows above 9.
+    let (mut hsum, mut lv, mut lv2) = (vec![0.0f32; cols], Vec::new(), Vec::new());
     for (j, &r) in rows.iter().enumerate() {
         if r + k >= hr || r < k {
             // The right photo has no such rows: nothing is seen.
@@ -257,20 +291,24 @@ fn band_body<S: RowSink>(
             let (o, b, a) = (&mut out[i0..i1], &mut best[i0..i1], &mut at[i0..i1]);
             let pu = p as u32;
             macro_rules! pass {
-                ($w:expr) => {
+                ($w:expr, $vs:expr, $ww:expr) => {
                     if bp.right_winners {
-                        plane_pass::<$w, true>(vs, w, ms, is, rms, ris, o, b, a, rbs_, rats, pu)
+                        plane_pass::<$w, true>($vs, $ww, ms, is, rms, ris, o, b, a, rbs_, rats, pu)
                     } else {
-                        plane_pass::<$w, false>(vs, w, ms, is, rms, ris, o, b, a, rbs_, rats, pu)
+                        plane_pass::<$w, false>($vs, $ww, ms, is, rms, ris, o, b, a, rbs_, rats, pu)
                     }
                 };
             }
             match w {
-                3 => pass!(3),
-                5 => pass!(5),
-                7 => pass!(7),
-                9 => pass!(9),
-                _ => pass!(0),
+                3 => pass!(3, vs, w),
+                5 => pass!(5, vs, w),
+                7 => pass!(7, vs, w),
+                9 => pass!(9, vs, w),
+                _ => {
+                    // Larger windows: the window sums by doubling (log₂ w passes, not w).
+                    box_sums(vs, w, &mut hsum[..i1 - i0], &mut lv, &mut lv2);
+                    pass!(1, &hsum[..i1 - i0], 1)
+                }
             }
         }
         // The highest score beyond each winner's neighbours, for the uniqueness test.
@@ -306,7 +344,7 @@ fn band_body<S: RowSink>(
             }
             let finite = |v: f32| v.is_finite().then_some(v.clamp(-1.0, 1.0));
             picks.push(Pick {
-                plane: Some(pl),
+                plane: Some(pl as u32),
                 rho: b.clamp(-1.0, 1.0),
                 below: finite(lo),
                 above: finite(hi),
@@ -457,7 +495,8 @@ mod tests {
                     let s = &want.scores[n];
                     let at = format!("k {k} first {first} cell {n}: {g:?} vs {w:?}");
                     // Equal up to the summing order: a different plane only on a near tie.
-                    match (g.plane, w.plane) {
+                    let us = |p: Option<u32>| p.map(|p| p as usize);
+                    match (us(g.plane), us(w.plane)) {
                         (Some(a), Some(b)) if a != b => {
                             assert!((s[a] - s[b]).abs() < 1e-5, "{at}");
                             continue;
@@ -465,7 +504,7 @@ mod tests {
                         _ => assert_eq!(g.plane, w.plane, "{at}"),
                     }
                     assert_eq!(g.unseen, w.unseen, "{at}");
-                    if let Some(p) = g.plane {
+                    if let Some(p) = us(g.plane) {
                         assert!((g.rho - w.rho).abs() < 1e-5, "{at}");
                         for (a, b) in [(g.below, w.below), (g.above, w.above)] {
                             assert_eq!(a.is_some(), b.is_some(), "{at}");

@@ -272,7 +272,7 @@ fn sgm_row_body(
         // The sub-plane peak of the aggregated costs, as Hirschmüller (2008, §2.4) takes it:
         // smoother than the raw correlations' (on the benchmark pair, RMSE 0.17 against
         // 0.24 px for the pixels within 2 px), which give the σ only.
-        pick.offset = win.and_then(|w| w.parabola()).map(|(off, _)| off);
+        pick.offset = win.and_then(|w| w.parabola()).map(|(off, _)| off as f32);
         // The chosen scores are −S: the cost is S, from one cost unit.
         pick.unique = win.is_none_or(|w| unique(&cell, w.plane, uniqueness, 1.0, |v| -v));
         picks.push(pick);
@@ -337,7 +337,7 @@ fn row_matches(x: &Ctx, r: usize, picks: &[Pick], rb: &[u32], out: OutRow) -> Pa
     let mut st = PairStats::default();
     for (i, pick) in picks.iter().enumerate() {
         let c = k + i;
-        let Some(plane) = pick.plane else {
+        let Some(plane) = pick.plane.map(|p| p as usize) else {
             if pick.unseen {
                 st.unseen += 1;
             } else {
@@ -377,7 +377,7 @@ fn row_matches(x: &Ctx, r: usize, picks: &[Pick], rb: &[u32], out: OutRow) -> Pa
             above: pick.above,
         };
         let (off, den) = raw_win.parabola().unwrap_or((0.0, f64::NAN));
-        let mut t = plane as f64 + pick.offset.unwrap_or(off);
+        let mut t = plane as f64 + pick.offset.map_or(off, f64::from);
         // σ from the peak's curvature, in planes (a step of 1).
         let mut sd = height_sigma(rho as f64, den, 1.0, p.window * p.window);
         if p.subpixel == Subpixel::Lsm {

@@ -237,8 +237,6 @@ pub(super) struct RowStats {
     c1: Vec<f32>,
     c2: Vec<f32>,
     s2: Vec<f32>,
-    /// The row (and half-window) the column sums belong to.
-    at: Option<(usize, usize)>,
 }
 
 impl RowStats {
@@ -251,7 +249,6 @@ impl RowStats {
             c1: z.clone(),
             c2: z.clone(),
             s2: z,
-            at: None,
         }
     }
 
@@ -267,26 +264,18 @@ impl RowStats {
         let w = p.img.width;
         let n = ((2 * k + 1) * (2 * k + 1)) as f32;
         let (c0, c1, c2) = (&mut self.c0[..w], &mut self.c1[..w], &mut self.c2[..w]);
-        // The column sums move down from the row above (a row in, a row out), or are summed
-        // afresh.
-        let (rows, sign): (Vec<usize>, &[f32]) = if self.at == Some((r.wrapping_sub(1), k)) {
-            (vec![r + k, r - k - 1], &[1.0, -1.0])
-        } else {
-            c0.fill(0.0);
-            c1.fill(0.0);
-            c2.fill(0.0);
-            ((r - k..=r + k).collect(), &[1.0; 64])
-        };
-        self.at = Some((r, k));
-        for (&rr, &sg) in rows.iter().zip(sign.iter().cycle()) {
+        c0.fill(0.0);
+        c1.fill(0.0);
+        c2.fill(0.0);
+        for rr in r - k..=r + k {
             let row = &p.img.data[rr * w..(rr + 1) * w];
             for x in 0..w {
-                c0[x] += sg * row[x];
-                c1[x] += sg * (row[x] * row[x]);
+                c0[x] += row[x];
+                c1[x] += row[x] * row[x];
             }
             if let Some(nd) = p.nodata.get(rr * w..(rr + 1) * w) {
                 for x in 0..w {
-                    c2[x] += sg * nd[x];
+                    c2[x] += nd[x];
                 }
             }
         }

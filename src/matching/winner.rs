@@ -155,7 +155,7 @@ fn keep_best(best: &mut [f32], at: &mut [u32], d: &[f32], planes: &[u32]) {
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Pick {
     /// The winning plane, None where there is none.
-    pub plane: Option<usize>,
+    pub plane: Option<u32>,
     pub rho: f32,
     /// The raw correlations one plane below and above the winner, where finite.
     pub below: Option<f32>,
@@ -164,7 +164,7 @@ pub struct Pick {
     pub unseen: bool,
     /// The peak below the plane step from the chosen scores, where they are not the raw
     /// correlations (aggregated costs); None: from the raw correlations.
-    pub offset: Option<f64>,
+    pub offset: Option<f32>,
     /// The winner is unique (see [`unique`]); true where there is no winner.
     pub unique: bool,
 }
@@ -176,7 +176,7 @@ impl Pick {
         let finite = |p: Option<usize>| p.filter(|&p| p < np).map(&raw).filter(|v| v.is_finite());
         match win {
             Some(w) => Pick {
-                plane: Some(w.plane),
+                plane: Some(w.plane as u32),
                 rho: raw(w.plane),
                 below: finite(w.plane.checked_sub(1)),
                 above: finite(Some(w.plane + 1)),
