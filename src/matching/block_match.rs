@@ -53,12 +53,12 @@ built_twice! {
 }
 
 /// One plane's pass over a run of cells: each window's Σl·w from `W` consecutive column sums
-/// `v` (W = 0: `w` of them, summed in a loop), the correlation against the right window's
-/// mean·n `rm` and inverse deviation `ri` (NaN: unseen, 0: flat) with the left's mean `ml`
-/// and inverse deviation `il` (NaN where the left has nothing to match), into `out` (not
-/// clamped to [−1, 1]: the picks are); the cells' winners `best`/`at` and, with `RB`, the right photo's winners
-/// `rbest`/`rat` (the same run of columns, moved) keep it where it beats them (NaN never
-/// does; of equal scores the first plane stays; a plane is kept as `at` = max(at, p) where it
+/// `v` (W = 1: `v` holds the window sums), the correlation against the right window's mean·n
+/// `rm` and inverse deviation `ri` (NaN: unseen, 0: flat) with the left's mean `ml` and
+/// inverse deviation `il` (NaN where the left has nothing to match), into `out` (not clamped
+/// to [−1, 1]: the picks are); the cells' winners `best`/`at` and, with `RB`, the right
+/// photo's winners `rbest`/`rat` (the same run of columns, moved) keep it where it beats
+/// them (NaN never does; of equal scores the first plane stays; a plane is kept as `at` = max(at, p) where it
 /// wins, the planes coming in ascending order, 0 before any). One loop, so that nothing but
 /// the scores and the winners goes through memory. No choice between a value and what was
 /// loaded from the same place: the compiler makes that a masked load or store, microcoded
@@ -67,7 +67,6 @@ built_twice! {
 #[allow(clippy::too_many_arguments)]
 fn plane_pass<const W: usize, const RB: bool>(
     v: &[f32],
-    w: usize,
     ml: &[f32],
     il: &[f32],
     rm: &[f32],
@@ -80,7 +79,7 @@ fn plane_pass<const W: usize, const RB: bool>(
     p: u32,
 ) {
     let n = out.len();
-    let v = &v[..n + w - 1];
+    let v = &v[..n + W - 1];
     let (ml, il, rm, ri, best, at) = (
         &ml[..n],
         &il[..n],
@@ -96,14 +95,8 @@ fn plane_pass<const W: usize, const RB: bool>(
     };
     for i in 0..n {
         let mut h = 0.0f32;
-        if W > 0 {
-            for d in 0..W {
-                h += v[i + d];
-            }
-        } else {
-            for d in 0..w {
-                h += v[i + d];
-            }
+        for d in 0..W {
+            h += v[i + d];
         }
         // Σ(l − l̄)(w − w̄) = Σl·w − l̄·Σw; rounding may take it a few units in the last
         // place beyond ±1: the winner's scores are clamped when they are picked.
@@ -291,23 +284,23 @@ fn band_body<S: RowSink>(
             let (o, b, a) = (&mut out[i0..i1], &mut best[i0..i1], &mut at[i0..i1]);
             let pu = p as u32;
             macro_rules! pass {
-                ($w:expr, $vs:expr, $ww:expr) => {
+                ($w:expr, $vs:expr) => {
                     if bp.right_winners {
-                        plane_pass::<$w, true>($vs, $ww, ms, is, rms, ris, o, b, a, rbs_, rats, pu)
+                        plane_pass::<$w, true>($vs, ms, is, rms, ris, o, b, a, rbs_, rats, pu)
                     } else {
-                        plane_pass::<$w, false>($vs, $ww, ms, is, rms, ris, o, b, a, rbs_, rats, pu)
+                        plane_pass::<$w, false>($vs, ms, is, rms, ris, o, b, a, rbs_, rats, pu)
                     }
                 };
             }
             match w {
-                3 => pass!(3, vs, w),
-                5 => pass!(5, vs, w),
-                7 => pass!(7, vs, w),
-                9 => pass!(9, vs, w),
+                3 => pass!(3, vs),
+                5 => pass!(5, vs),
+                7 => pass!(7, vs),
+                9 => pass!(9, vs),
                 _ => {
                     // Larger windows: the window sums by doubling (log₂ w passes, not w).
                     box_sums(vs, w, &mut hsum[..i1 - i0], &mut lv, &mut lv2);
-                    pass!(1, &hsum[..i1 - i0], 1)
+                    pass!(1, &hsum[..i1 - i0])
                 }
             }
         }

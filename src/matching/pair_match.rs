@@ -151,8 +151,8 @@ pub fn bytes_needed(w: usize, h: usize, wr: usize, p: &PairParams) -> f64 {
     // The photos as read and as prepared; the three outputs and the rows' matches (24 B).
     let images = 8.0 * (w * h + wr * h) as f64 + 36.0 * (w * h) as f64;
     let threads = rayon::current_num_threads() as f64;
-    // A thread's column sums (f32 per column and plane), a band's picks (32 B per cell) and
-    // right-photo winners, a row's chosen scores, and the rows of running sums.
+    // A thread's column sums (f32 per column and plane), a band's picks (block matching keeps
+    // only a row's: a bound) and right-photo winners, a row's scores, and the rows of sums.
     let bands = threads
         * (4.0 * np * (w as f64 + cols) + 40.0 * BAND as f64 * cols + 64.0 * (w + wr) as f64);
     let volume = match p.filter {
