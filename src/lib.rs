@@ -2,7 +2,7 @@
 //! turn the photos into elevation models. See README.md and DESIGN.md.
 
 #[macro_use]
-mod simd;
+pub mod simd;
 
 pub mod atomic;
 pub mod calibrate;

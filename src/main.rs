@@ -9,6 +9,7 @@ fn main() {
     quiet_on_closed_pipe();
     let cli = Cli::parse();
     cli::init_logging(&cli.verbosity);
+    limit_simd_from_env();
     let code = match cli.command {
         Command::Stage(a) => cli::stage_cmd::run(a),
         Command::Camera(a) => cli::camera_cmd::run(a),
@@ -51,5 +52,27 @@ fn quiet_on_closed_pipe() {
     // disposition for SIGPIPE.
     unsafe {
         libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
+}
+
+/// `RIG_SIMD=baseline|avx2|avx512` caps the instruction set the hot loops are built for (all
+/// give the same numbers; to compare them, or to rule one out on a suspect machine).
+fn limit_simd_from_env() {
+    use rig::simd::Level;
+    let Ok(v) = std::env::var("RIG_SIMD") else {
+        return;
+    };
+    if v.trim().is_empty() {
+        return;
+    }
+    match Level::parse(&v) {
+        Some(l) => rig::simd::limit(l),
+        None => {
+            eprintln!(
+                "rig: RIG_SIMD={v:?} is not one of {}; unset it to use the best this CPU has",
+                Level::NAMES
+            );
+            std::process::exit(rig::exit::USAGE);
+        }
     }
 }

@@ -95,10 +95,10 @@ impl Averager {
     }
 }
 
-built_twice! {
+built_per_cpu! {
     /// One tile: sum every frame's pixels with 32-bit squares where the tile's largest value
     /// proves they fit (a widening 16×16 multiply that vectorises), else with 64-bit squares; then
-    /// the mean and σ. Built twice (see `simd`).
+    /// the mean and σ. Built per CPU (see `simd`).
     fn tile[](frames: &[&[u16]], off: usize, m: &mut [f32], s: &mut [f32]) = tile_body;
 }
 

@@ -38,11 +38,11 @@ impl<F: FnMut(usize, &[Pick], &[u32])> RowSink for F {
     }
 }
 
-built_twice! {
+built_per_cpu! {
     /// The winners of `rows` (ascending; consecutive rows reuse the column sums), one row at
     /// a time to `sink` (so that no band of picks is kept): the picks of cells
     /// c = k … wl − k − 1 of the left photo, and, with `right_winners`, the right photo's
-    /// winner for each of its columns (u32::MAX where none). Built twice (see `simd`).
+    /// winner for each of its columns (u32::MAX where none). Built per CPU (see `simd`).
     pub fn block_match[S: RowSink](
         left: &Prepared,
         right: &Prepared,

@@ -137,8 +137,17 @@ pub enum PairError {
 pub const MAX_DISPARITIES: i64 = 4096;
 /// Largest |MIN| and |MAX|, px (far beyond any photo, far from overflow).
 pub const MAX_ABS_DISPARITY: i64 = 1_000_000;
-/// Rows scored together (one rayon task).
+/// Most rows scored together (one rayon task).
 const BAND: usize = 64;
+
+/// Rows per band: at most [`BAND`], and as many bands as a multiple of the threads, all of
+/// one size but the last, so that no thread idles while another finishes an extra band
+/// (600 rows in 64s are 10 bands of 64 and one of 24: 6 against 5 on two threads).
+fn band_rows(rows: usize, threads: usize) -> usize {
+    let t = threads.max(1);
+    let bands = rows.div_ceil(BAND).div_ceil(t) * t;
+    rows.div_ceil(bands.max(1)).max(1)
+}
 
 /// Bytes that matching `left` against `right` holds at once: the photos (as read, and
 /// prepared), the outputs and matches, each thread's running sums and picks, and for SGM the
@@ -219,12 +228,12 @@ impl CellSink for Codes<'_> {
     }
 }
 
-built_twice! {
+built_per_cpu! {
     /// One row of the SGM path: each cell's pick on the aggregated costs (chosen score −S,
     /// S = forward + backward sums; unseen planes NaN, unscored cells −∞ throughout), its raw
     /// correlations from the codes, and, with `lr`, the right photo's best plane for each right
     /// column x (u32::MAX where none), the best over the cells that meet x on the chosen scores.
-    /// Built twice (see `simd`).
+    /// Built per CPU (see `simd`).
     #[allow(clippy::too_many_arguments)]
     fn sgm_row[](
         raw: &[i16],
@@ -440,7 +449,8 @@ pub fn match_pair(
     let (lp, rp) = rayon::join(|| Prepared::new(left), || Prepared::new(right));
     let cols = w - 2 * k;
     let rows: Vec<usize> = (k..h - k).collect();
-    let bands: Vec<&[usize]> = rows.chunks(BAND).collect();
+    let band = band_rows(rows.len(), rayon::current_num_threads());
+    let bands: Vec<&[usize]> = rows.chunks(band).collect();
     let x = Ctx {
         left,
         right,
@@ -475,7 +485,7 @@ pub fn match_pair(
             // The whole volume, in 16-bit codes, each band written in place.
             progress.begin("score (rows)", rows.len() as u64);
             let mut vol: Vec<i16> = super::volume::zeroed(row_len * rows.len());
-            vol.par_chunks_mut(BAND * row_len)
+            vol.par_chunks_mut(band * row_len)
                 .zip(bands.par_iter())
                 .for_each(|(chunk, b)| {
                     // The right photo's winners come from the aggregated costs, not here.
@@ -525,10 +535,10 @@ pub fn match_pair(
                 right_winners: p.lr_tolerance.is_some(),
             };
             progress.begin("match (rows)", rows.len() as u64);
-            // The output rows in bands of BAND, as the rows are.
+            // The output rows in the same bands as the rows.
             let st = bands
                 .par_iter()
-                .zip(out_rows(dm, cm, sm, w).chunks(BAND))
+                .zip(out_rows(dm, cm, sm, w).chunks(band))
                 .map(|(b, outs)| {
                     // Each row's matches as its winners come.
                     let mut outs = outs.into_iter();
@@ -605,4 +615,35 @@ pub fn match_pair(
 
 fn failure_name(e: RefineFailure) -> String {
     format!("{e:?}").to_lowercase()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Bands never above BAND rows, every row in one, and as many bands as a multiple of the
+    /// threads wherever there are rows enough (so that no thread has an extra band to do).
+    #[test]
+    fn bands_share_the_rows_evenly() {
+        for threads in 1..=8 {
+            for rows in 0..2000 {
+                let b = band_rows(rows, threads);
+                assert!(
+                    (1..=BAND).contains(&b),
+                    "{rows} rows, {threads} threads: {b}"
+                );
+                let n = rows.div_ceil(b);
+                assert!(n * b >= rows);
+                if rows >= threads * BAND {
+                    assert_eq!(
+                        n % threads,
+                        0,
+                        "{rows} rows, {threads} threads: {n} bands of {b}"
+                    );
+                }
+            }
+        }
+        // 596 rows (the benchmark pair's) on two threads: 10 bands of 60, not 9 of 64 and 20.
+        assert_eq!(band_rows(596, 2), 60);
+    }
 }

@@ -350,13 +350,13 @@ impl<F: FnMut(usize, usize, &[f32])> CellSink for F {
     }
 }
 
-built_twice! {
+built_per_cpu! {
     /// Disparities: the search window of plane p is the right photo's window moved by a whole
     /// pixel, so Σw and 1/√var(w) are the right photo's own, per column; only Σl·w is summed per
     /// plane, and a score is two multiplications. Each cell's scores go to `sink.cell(j, i, scores)`
     /// as soon as they are known (so that a caller who wants only the winner keeps no volume);
     /// `right_best[j·wr + x]` gets the right photo's winner for column x of row j (u32::MAX where
-    /// none); an empty `right_best` asks for none (a quarter of the work per cell). Built twice
+    /// none); an empty `right_best` asks for none (a quarter of the work per cell). Built per CPU
     /// (see `simd`).
     #[allow(clippy::too_many_arguments)]
     pub fn sweep_shifts[F: CellSink](

@@ -176,7 +176,7 @@ pub fn aggregate(q: &[i16], cols: usize, rows: usize, np: usize, p: &SgmParams) 
 
 /// The two sweeps' sums, S = forward + backward, apart (so that a caller who reads S once
 /// adds them as it reads, without another pass over the volume). The sweeps run in parallel;
-/// each is built twice (see `simd`).
+/// each is built per CPU (see `simd`).
 pub fn aggregate_halves(
     q: &[i16],
     cols: usize,
@@ -193,7 +193,7 @@ pub fn aggregate_halves(
     )
 }
 
-built_twice! {
+built_per_cpu! {
     fn sweep_dispatch[](
         q: &[i16],
         cols: usize,
