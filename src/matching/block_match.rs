@@ -9,7 +9,7 @@
 //! ([`super::winner::winner`] with [`super::winner::Unseen::Skip`], the first of equal scores).
 
 use super::plane_sweep::{Prepared, RowStats};
-use super::winner::{stands_out, Pick};
+use super::winner::{stands_out, RowPicks};
 
 /// What the winners need beyond the photos.
 #[derive(Debug, Clone, Copy)]
@@ -29,11 +29,11 @@ pub struct BlockParams {
 /// Takes each row's winners as they come: `row(j, picks, right)` for the j-th of the rows,
 /// the picks of its cells and the right photo's winners (empty when not wanted).
 pub trait RowSink {
-    fn row(&mut self, j: usize, picks: &[Pick], right: &[u32]);
+    fn row(&mut self, j: usize, picks: &RowPicks, right: &[u32]);
 }
 
-impl<F: FnMut(usize, &[Pick], &[u32])> RowSink for F {
-    fn row(&mut self, j: usize, picks: &[Pick], right: &[u32]) {
+impl<F: FnMut(usize, &RowPicks, &[u32])> RowSink for F {
+    fn row(&mut self, j: usize, picks: &RowPicks, right: &[u32]) {
         self(j, picks, right)
     }
 }
@@ -183,7 +183,7 @@ fn band_body<S: RowSink>(
     let w = 2 * k + 1;
     let cols = wl.saturating_sub(2 * k);
     let n = (w * w) as f32;
-    let mut picks = Vec::with_capacity(cols);
+    let mut picks = RowPicks::default();
     let mut rbs = vec![u32::MAX; if bp.right_winners { wr } else { 0 }];
     if cols == 0 || np == 0 {
         return;
@@ -198,7 +198,8 @@ fn band_body<S: RowSink>(
     // Every plane's scores of the row: plane p, cell i at [p·cols + i] (NaN: unseen), for
     // the winners' neighbours and the uniqueness test.
     let mut all = vec![f32::NAN; np * cols];
-    let mut other = vec![f32::NEG_INFINITY; if want_unique { cols } else { 0 }];
+    // (−∞ throughout without the test: every winner stands out.)
+    let mut other = vec![f32::NEG_INFINITY; cols];
     let (mut rbest, mut rat) = (vec![f32::NEG_INFINITY; wr], vec![0u32; wr]);
     let mut last: Option<usize> = None;
     // Window sums and their doubling levels for windows above 9.
@@ -206,8 +207,7 @@ fn band_body<S: RowSink>(
     for (j, &r) in rows.iter().enumerate() {
         if r + k >= hr || r < k {
             // The right photo has no such rows: nothing is seen.
-            picks.clear();
-            picks.extend((0..cols).map(|_| Pick::new(None, 1, |_| f32::NAN)));
+            picks.unseen(cols);
             rbs.fill(u32::MAX);
             sink.row(j, &picks, &rbs);
             last = None;
@@ -303,49 +303,73 @@ fn band_body<S: RowSink>(
                 others(&mut other, &all[p * cols..(p + 1) * cols], &at, p as u32);
             }
         }
-        picks.clear();
-        for i in 0..cols {
-            let (b, pl) = (best[i], at[i] as usize);
-            if il[i].is_nan() {
-                // Nothing to match: unscored.
-                picks.push(Pick::new(None, 1, |_| f32::NEG_INFINITY));
-                continue;
-            }
-            // The neighbours (+∞: beyond the range's ends).
-            let side = |q: Option<usize>| {
-                q.filter(|&q| q < np)
-                    .map_or(f32::INFINITY, |q| all[q * cols + i])
-            };
-            let (lo, hi) = if b > f32::NEG_INFINITY {
-                (side(pl.checked_sub(1)), side(Some(pl + 1)))
-            } else {
-                (f32::NAN, f32::NAN)
-            };
-            if lo.is_nan() || hi.is_nan() {
-                // No winner, or one beside a plane the right photo does not see: some plane
-                // is unseen.
-                picks.push(Pick::new(None, 1, |_| f32::NAN));
-                continue;
-            }
-            let finite = |v: f32| v.is_finite().then_some(v.clamp(-1.0, 1.0) + 0.0);
-            picks.push(Pick {
-                plane: Some(pl as u32),
-                // + 0.0: a flat right window's −0 (by the sign of the rest) is written +0.
-                rho: b.clamp(-1.0, 1.0) + 0.0,
-                below: finite(lo),
-                above: finite(hi),
-                unseen: false,
-                offset: None,
-                unique: !want_unique
-                    || stands_out(b, other[i], bp.uniqueness, bp.floor, |v| 1.0 - v),
-            });
-        }
+        take_picks(&mut picks, &best, &at, &il, &all, &other, np, bp);
         if bp.right_winners {
             for ((o, &a), &b) in rbs.iter_mut().zip(&rat).zip(&rbest) {
                 *o = if b > f32::NEG_INFINITY { a } else { u32::MAX };
             }
         }
         sink.row(j, &picks, &rbs);
+    }
+}
+
+/// A row's picks from its cells' best scores `best` at planes `at`, the left windows'
+/// inverse deviations `il` (NaN: nothing to match), every plane's scores `all` (plane p,
+/// cell i at [p·cols + i]) and the highest score beyond each winner's neighbours `other`.
+/// A winner beside a plane the right photo does not see gets no plane (the peak may be the
+/// flank of a match there); the scores are clamped to [−1, 1] (rounding takes them a few
+/// units in the last place beyond) and a flat right window's −0 (by the sign of the rest)
+/// is made +0. Without a branch, so that the cells are taken on vector lanes; each
+/// neighbour is read at a plane inside the range and replaced by +∞ beyond its ends.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn take_picks(
+    pk: &mut RowPicks,
+    best: &[f32],
+    at: &[u32],
+    il: &[f32],
+    all: &[f32],
+    other: &[f32],
+    np: usize,
+    bp: &BlockParams,
+) {
+    let cols = best.len();
+    pk.clear();
+    pk.plane.resize(cols, RowPicks::NONE);
+    for v in [&mut pk.rho, &mut pk.below, &mut pk.above, &mut pk.offset] {
+        v.resize(cols, f32::NAN);
+    }
+    pk.unique.resize(cols, true);
+    let (at, il, other) = (&at[..cols], &il[..cols], &other[..cols]);
+    let last = np.saturating_sub(1);
+    let clean = |v: f32| v.clamp(-1.0, 1.0) + 0.0;
+    for i in 0..cols {
+        let (b, pl) = (best[i], at[i] as usize);
+        let lo = all[pl.saturating_sub(1) * cols + i];
+        let lo = if pl >= 1 { lo } else { f32::INFINITY };
+        let hi = all[(pl + 1).min(last) * cols + i];
+        let hi = if pl < last { hi } else { f32::INFINITY };
+        let unscored = il[i].is_nan();
+        let seen = b > f32::NEG_INFINITY && !lo.is_nan() && !hi.is_nan();
+        let has = !unscored && seen;
+        pk.plane[i] = if has { pl as u32 } else { RowPicks::NONE };
+        pk.rho[i] = if unscored {
+            f32::NEG_INFINITY
+        } else if seen {
+            clean(b)
+        } else {
+            f32::NAN
+        };
+        let fin = |v: f32| {
+            if has && v.is_finite() {
+                clean(v)
+            } else {
+                f32::NAN
+            }
+        };
+        pk.below[i] = fin(lo);
+        pk.above[i] = fin(hi);
+        pk.unique[i] = !has || stands_out(b, other[i], bp.uniqueness, bp.floor, |v| 1.0 - v);
     }
 }
 
@@ -365,7 +389,7 @@ mod tests {
     use super::*;
     use crate::image::ImageF32;
     use crate::matching::plane_sweep::{sweep_shifts, CellSink, Cells};
-    use crate::matching::winner::{unique, winner, Unseen};
+    use crate::matching::winner::{unique, winner, Pick, Unseen};
 
     /// The cell-major sweep's picks, as the pair matcher took them before this module.
     struct Picks {
@@ -455,8 +479,8 @@ mod tests {
                     &rp,
                     &bpar,
                     &rows,
-                    &mut |_: usize, p: &[Pick], r: &[u32]| {
-                        got.extend_from_slice(p);
+                    &mut |_: usize, p: &RowPicks, r: &[u32]| {
+                        got.extend((0..p.len()).map(|i| p.get(i)));
                         got_rb.extend_from_slice(r);
                     },
                 );

@@ -10,8 +10,8 @@ pub use super::refine::Subpixel;
 use super::refine::{refine, RefineFailure, Window, RHO_MAX};
 use super::regions::{remove_wrong_heights, RegionParams};
 use super::sgm::{aggregate_halves, dequantise, quantise, SgmParams, Q_UNSCORED, Q_UNSEEN};
-use super::sweep::{height_sigma, HeightMap};
-use super::winner::{unique, winner, Pick, RightBest, Unseen, Winner};
+use super::sweep::{height_sigma_or_nan, HeightMap};
+use super::winner::{parabola, unique, winner, Pick, RightBest, RowPicks, Unseen};
 use crate::image::ImageF32;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -245,7 +245,7 @@ built_per_cpu! {
         wr: usize,
         lr: bool,
         uniqueness: f32,
-    ) -> (Vec<Pick>, Vec<u32>) = sgm_row_body;
+    ) -> (RowPicks, Vec<u32>) = sgm_row_body;
 }
 
 #[inline(always)]
@@ -260,10 +260,10 @@ fn sgm_row_body(
     wr: usize,
     lr: bool,
     uniqueness: f32,
-) -> (Vec<Pick>, Vec<u32>) {
+) -> (RowPicks, Vec<u32>) {
     let cols = raw.len() / np.max(1);
     let mut cell = vec![0.0f32; np];
-    let mut picks = Vec::with_capacity(cols);
+    let mut picks = RowPicks::default();
     let mut rb = RightBest::new(wr, np);
     for i in 0..cols {
         let o = i * np;
@@ -284,7 +284,7 @@ fn sgm_row_body(
         pick.offset = win.and_then(|w| w.parabola()).map(|(off, _)| off as f32);
         // The chosen scores are −S: the cost is S, from one cost unit.
         pick.unique = win.is_none_or(|w| unique(&cell, w.plane, uniqueness, 1.0, |v| -v));
-        picks.push(pick);
+        picks.push(&pick);
         if !lr {
             continue;
         }
@@ -337,73 +337,189 @@ fn out_rows<'a>(
         })
 }
 
-/// The matches of pixel row `r` from its cells' picks and the right photo's winners
-/// (`rb[x]`, u32::MAX where none), written into `out` (which is all NaN before); what
-/// happened to the rest.
-fn row_matches(x: &Ctx, r: usize, picks: &[Pick], rb: &[u32], out: OutRow) -> PairStats {
-    let (p, np, k) = (x.p, x.np, x.k);
-    let first = p.d_min;
-    let mut st = PairStats::default();
-    for (i, pick) in picks.iter().enumerate() {
-        let c = k + i;
-        let Some(plane) = pick.plane.map(|p| p as usize) else {
-            if pick.unseen {
-                st.unseen += 1;
+/// What became of a cell (see [`row_matches`]).
+mod fate {
+    pub const MATCH: u8 = 0;
+    pub const UNSEEN: u8 = 1;
+    pub const UNSCORED: u8 = 2;
+    pub const RANGE_END: u8 = 3;
+    pub const AMBIGUOUS: u8 = 4;
+    pub const BELOW_THRESHOLD: u8 = 5;
+    pub const LEFT_RIGHT: u8 = 6;
+}
+
+/// The rules a row's matches follow, and where they go.
+#[derive(Clone, Copy)]
+struct Rules {
+    np: usize,
+    /// Reference column of the first cell.
+    col0: usize,
+    first: i64,
+    threshold: f64,
+    /// The left-right tolerance, planes (None: no check).
+    lr: Option<f64>,
+    /// Pixels in a window (for σ).
+    n: usize,
+}
+
+built_per_cpu! {
+    /// Each cell's fate, and where it is a match its disparity, correlation and σ, into the
+    /// row's outputs from column `rules.col0` (NaN elsewhere). Built per CPU (see `simd`).
+    fn finish_row[](pk: &RowPicks, rb: &[u32], rules: &Rules, fates: &mut [u8], out: &mut OutRow) = finish_row_body;
+}
+
+/// In order: no plane (some plane unseen, or nothing to match); the best at an end of the
+/// range (as a rule the flank of a match beyond it); not unique; below the correlation
+/// threshold; the right photo's winner elsewhere (`rb[x]`, u32::MAX where none). A match's
+/// place below the plane step is the chosen scores' own (aggregated costs) or the parabola of
+/// the raw correlations, and its σ from their curvature, in planes (a step of 1). Without a
+/// branch, so that the cells are taken on vector lanes.
+#[inline(always)]
+fn finish_row_body(pk: &RowPicks, rb: &[u32], rules: &Rules, fates: &mut [u8], out: &mut OutRow) {
+    use fate::*;
+    let n = pk.len();
+    let Rules {
+        np,
+        col0,
+        first,
+        threshold,
+        lr,
+        n: nw,
+    } = *rules;
+    let (pl_, rho_, lo_, hi_, off_, un_) = (
+        &pk.plane[..n],
+        &pk.rho[..n],
+        &pk.below[..n],
+        &pk.above[..n],
+        &pk.offset[..n],
+        &pk.unique[..n],
+    );
+    let fates = &mut fates[..n];
+    let (d, corr, sigma) = (
+        &mut out.d[col0..col0 + n],
+        &mut out.corr[col0..col0 + n],
+        &mut out.sigma[col0..col0 + n],
+    );
+    for i in 0..n {
+        let (pl, rho) = (pl_[i], rho_[i]);
+        let none = pl == RowPicks::NONE;
+        let end = np > 1 && (pl == 0 || pl as usize == np - 1);
+        let low = (rho as f64) < threshold;
+        let f = if none {
+            if rho.is_nan() {
+                UNSEEN
             } else {
-                st.unscored += 1;
+                UNSCORED
             }
-            continue;
+        } else if end {
+            RANGE_END
+        } else if !un_[i] {
+            AMBIGUOUS
+        } else if low {
+            BELOW_THRESHOLD
+        } else {
+            MATCH
         };
-        // The best at an end of the range is, as a rule, the flank of a match beyond it.
-        if np > 1 && (plane == 0 || plane == np - 1) {
-            st.at_range_end += 1;
+        fates[i] = f;
+        let rho = rho as f64;
+        let (off, den) = place(lo_[i], rho, hi_[i], off_[i]);
+        let t = first as f64 + pl as f64 + off;
+        let sd = height_sigma_or_nan(rho, den, 1.0, nw);
+        let ok = f == MATCH;
+        d[i] = if ok { t as f32 } else { f32::NAN };
+        corr[i] = if ok { rho as f32 } else { f32::NAN };
+        sigma[i] = if ok { sd as f32 } else { f32::NAN };
+    }
+    // The left-right check, last: a match whose right column's winner is elsewhere.
+    let Some(tol) = lr else {
+        return;
+    };
+    for i in 0..n {
+        if fates[i] != MATCH {
             continue;
         }
-        if !pick.unique {
-            st.ambiguous += 1;
-            continue;
+        let pl = pl_[i];
+        let xr = (col0 + i) as i64 - first - pl as i64;
+        let ok = usize::try_from(xr)
+            .ok()
+            .and_then(|x| rb.get(x))
+            .is_some_and(|&w| w != u32::MAX && (w as f64 - pl as f64).abs() <= tol);
+        if !ok {
+            fates[i] = LEFT_RIGHT;
+            d[i] = f32::NAN;
+            corr[i] = f32::NAN;
+            sigma[i] = f32::NAN;
         }
-        let rho = pick.rho;
-        if (rho as f64) < p.threshold {
-            st.below_threshold += 1;
-            continue;
-        }
-        if let Some(tol) = p.lr_tolerance {
-            let xr = c as i64 - first - plane as i64;
-            let ok = (0..x.right.width as i64).contains(&xr)
-                && rb[xr as usize] != u32::MAX
-                && (rb[xr as usize] as f64 - plane as f64).abs() <= tol;
-            if !ok {
-                st.left_right += 1;
-                continue;
-            }
-        }
-        // The parabola on the raw correlations (around the chosen plane).
-        let raw_win = Winner {
-            plane,
-            score: rho,
-            below: pick.below,
-            above: pick.above,
-        };
-        let (off, den) = raw_win.parabola().unwrap_or((0.0, f64::NAN));
-        let mut t = plane as f64 + pick.offset.map_or(off, f64::from);
-        // σ from the peak's curvature, in planes (a step of 1).
-        let mut sd = height_sigma(rho as f64, den, 1.0, p.window * p.window);
-        if p.subpixel == Subpixel::Lsm {
+    }
+}
+
+/// A match's place below the plane step: the chosen scores' own `own` (aggregated costs), or
+/// the parabola through the raw correlations `lo`, `rho`, `hi`, or 0 where they are no peak;
+/// and the parabola's second difference (for σ).
+#[inline(always)]
+fn place(lo: f32, rho: f64, hi: f32, own: f32) -> (f64, f64) {
+    let (peak, den) = parabola(lo as f64, rho, hi as f64);
+    let own = own as f64;
+    let off = if !own.is_nan() {
+        own
+    } else if !peak.is_nan() {
+        peak
+    } else {
+        0.0
+    };
+    (off, den)
+}
+
+/// The matches of pixel row `r` from its cells' picks and the right photo's winners
+/// (`rb[x]`, u32::MAX where none), written into `out` (NaN where none, the row's first and
+/// last k pixels included); what happened to the rest. With least squares, each match is
+/// refined from the place [`finish_row`] gave it.
+fn row_matches(x: &Ctx, r: usize, picks: &RowPicks, rb: &[u32], mut out: OutRow) -> PairStats {
+    let (p, k) = (x.p, x.k);
+    let rules = Rules {
+        np: x.np,
+        col0: k,
+        first: p.d_min,
+        threshold: p.threshold,
+        lr: p.lr_tolerance,
+        n: p.window * p.window,
+    };
+    let mut fates = vec![0u8; picks.len()];
+    finish_row(picks, rb, &rules, &mut fates, &mut out);
+    let mut st = PairStats::default();
+    let mut count = [0usize; 7];
+    for &f in &fates {
+        count[f as usize] += 1;
+    }
+    st.unseen = count[fate::UNSEEN as usize];
+    st.unscored = count[fate::UNSCORED as usize];
+    st.at_range_end = count[fate::RANGE_END as usize];
+    st.ambiguous = count[fate::AMBIGUOUS as usize];
+    st.below_threshold = count[fate::BELOW_THRESHOLD as usize];
+    st.left_right = count[fate::LEFT_RIGHT as usize];
+    if p.subpixel == Subpixel::Lsm {
+        for (i, _) in fates.iter().enumerate().filter(|(_, &f)| f == fate::MATCH) {
+            let c = k + i;
             let (xc, yc) = (c as f64 + 0.5, r as f64 + 0.5);
             let locate = |u: f64, v: f64, t: f64| x.planes.locate(xc + u, yc + v, t);
-            match refine(x.left, Window { c, r, k }, x.right, &locate, t, 1.0) {
+            let pl = picks.plane[i] as f64;
+            let t0 = pl
+                + place(
+                    picks.below[i],
+                    picks.rho[i] as f64,
+                    picks.above[i],
+                    picks.offset[i],
+                )
+                .0;
+            match refine(x.left, Window { c, r, k }, x.right, &locate, t0, 1.0) {
                 Ok(f) => {
-                    t = f.t;
-                    sd = Some(f.sigma_t);
+                    out.d[c] = (p.d_min as f64 + f.t) as f32;
+                    out.sigma[c] = f.sigma_t as f32;
                     st.lsm_refined += 1;
                 }
                 Err(e) => *st.lsm_failures.entry(failure_name(e)).or_default() += 1,
             }
         }
-        out.d[c] = (first as f64 + t) as f32;
-        out.corr[c] = rho;
-        out.sigma[c] = sd.map_or(f32::NAN, |v| v as f32);
     }
     st
 }
@@ -548,7 +664,7 @@ pub fn match_pair(
                         &rp,
                         &bm,
                         b,
-                        &mut |jb: usize, pk: &[Pick], rb: &[u32]| {
+                        &mut |jb: usize, pk: &RowPicks, rb: &[u32]| {
                             if let Some(out) = outs.next() {
                                 st = std::mem::take(&mut st)
                                     .add(row_matches(&x, b[jb], pk, rb, out));

@@ -92,12 +92,22 @@ impl HeightMap {
 /// correlation over the height steps divided by the step² (per m²): no pixel-to-metre factor
 /// is needed, the curvature is already measured in height. `None` for a peak with no curvature.
 pub fn height_sigma(rho: f64, second_difference: f64, step_m: f64, n: usize) -> Option<f64> {
+    let sd = height_sigma_or_nan(rho, second_difference, step_m, n);
+    (!sd.is_nan()).then_some(sd)
+}
+
+/// [`height_sigma`], NaN for None: without a branch, so that a row's σ are taken on vector
+/// lanes.
+#[inline(always)]
+pub fn height_sigma_or_nan(rho: f64, second_difference: f64, step_m: f64, n: usize) -> f64 {
     let curvature = -second_difference / (step_m * step_m);
-    if !(rho.is_finite() && curvature.is_finite()) || curvature <= 0.0 || n == 0 {
-        return None;
+    let ok = rho.is_finite() && curvature.is_finite() && curvature > 0.0 && n > 0;
+    let sd = ((1.0 - rho.min(RHO_MAX)) / (n as f64 * curvature)).sqrt();
+    if ok {
+        sd
+    } else {
+        f64::NAN
     }
-    let rho = rho.min(RHO_MAX);
-    Some(((1.0 - rho) / (n as f64 * curvature)).sqrt())
 }
 
 /// Matches every `stride`-th reference pixel whose window lies inside `left`.

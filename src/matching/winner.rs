@@ -17,9 +17,20 @@ impl Winner {
     /// and the second difference (negative at a peak).
     pub fn parabola(&self) -> Option<(f64, f64)> {
         let (a, b) = (self.below? as f64, self.above? as f64);
-        let den = a - 2.0 * self.score as f64 + b;
-        (den < 0.0).then(|| ((0.5 * (a - b) / den).clamp(-0.5, 0.5), den))
+        let (off, den) = parabola(a, self.score as f64, b);
+        (den < 0.0).then_some((off, den))
     }
+}
+
+/// The parabola through the scores `a` one plane below the peak, `s` at it and `b` above: the
+/// peak's place below the plane step (−0.5 … 0.5) and the second difference a − 2s + b. The
+/// place is NaN where the three are no peak (the difference not negative, or a score NaN).
+/// Without a branch, so that a row's peaks are taken on vector lanes.
+#[inline(always)]
+pub fn parabola(a: f64, s: f64, b: f64) -> (f64, f64) {
+    let den = a - 2.0 * s + b;
+    let off = (0.5 * (a - b) / den).clamp(-0.5, 0.5);
+    (if den < 0.0 { off } else { f64::NAN }, den)
 }
 
 /// What a plane the search photo does not see (a NaN score) does to a pixel's winner.
@@ -197,6 +208,94 @@ impl Pick {
     }
 }
 
+/// A row's picks in arrays, one value per cell in each (so that a row's matches are taken on
+/// vector lanes): what [`Pick`] holds, with NaN for None and [`RowPicks::NONE`] for no plane.
+#[derive(Debug, Clone, Default)]
+pub struct RowPicks {
+    /// The winning plane, NONE where there is none.
+    pub plane: Vec<u32>,
+    /// The winner's raw correlation; where there is no plane, NaN where some plane is unseen
+    /// and −∞ where the cell has nothing to match.
+    pub rho: Vec<f32>,
+    /// The raw correlations one plane below and above the winner, NaN where not finite.
+    pub below: Vec<f32>,
+    pub above: Vec<f32>,
+    /// The peak below the plane step from the chosen scores, NaN: from the raw correlations.
+    pub offset: Vec<f32>,
+    /// The winner is unique (see [`unique`]); true where there is no winner.
+    pub unique: Vec<bool>,
+}
+
+impl RowPicks {
+    pub const NONE: u32 = u32::MAX;
+
+    pub fn len(&self) -> usize {
+        self.plane.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.plane.is_empty()
+    }
+
+    pub fn clear(&mut self) {
+        self.plane.clear();
+        self.rho.clear();
+        self.below.clear();
+        self.above.clear();
+        self.offset.clear();
+        self.unique.clear();
+    }
+
+    /// `n` cells of which no plane is seen.
+    pub fn unseen(&mut self, n: usize) {
+        self.clear();
+        self.plane.resize(n, Self::NONE);
+        for v in [
+            &mut self.rho,
+            &mut self.below,
+            &mut self.above,
+            &mut self.offset,
+        ] {
+            v.resize(n, f32::NAN);
+        }
+        self.unique.resize(n, true);
+    }
+
+    pub fn push(&mut self, p: &Pick) {
+        let nan = |v: Option<f32>| v.unwrap_or(f32::NAN);
+        self.plane.push(p.plane.unwrap_or(Self::NONE));
+        let rho = match (p.plane, p.unseen) {
+            (Some(_), _) => p.rho,
+            (None, true) => f32::NAN,
+            (None, false) => f32::NEG_INFINITY,
+        };
+        self.rho.push(rho);
+        self.below.push(nan(p.below));
+        self.above.push(nan(p.above));
+        self.offset.push(nan(p.offset));
+        self.unique.push(p.unique);
+    }
+
+    /// Cell i as a [`Pick`] (a cell without a plane has NaN for its correlation).
+    pub fn get(&self, i: usize) -> Pick {
+        let some = |v: f32| (!v.is_nan()).then_some(v);
+        let plane = (self.plane[i] != Self::NONE).then_some(self.plane[i]);
+        Pick {
+            plane,
+            rho: if plane.is_some() {
+                self.rho[i]
+            } else {
+                f32::NAN
+            },
+            below: some(self.below[i]),
+            above: some(self.above[i]),
+            unseen: plane.is_none() && self.rho[i].is_nan(),
+            offset: some(self.offset[i]),
+            unique: self.unique[i],
+        }
+    }
+}
+
 /// Whether the winner `plane` of the chosen scores is unique, as the uniqueness ratio of
 /// Hirschmüller (2008) and OpenCV takes it: every plane beyond the winner's two neighbours
 /// costs at least 1/(1 − u) times the winner's cost, the costs being `cost(score)` (unseen
@@ -261,6 +360,45 @@ mod tests {
                 assert_eq!(got, want, "{s:?}");
             }
         }
+    }
+
+    /// A row's picks in arrays give back the picks put in: a winner with and without its
+    /// neighbours and its own place, a cell with some plane unseen, one with nothing to match.
+    #[test]
+    fn row_picks_keep_what_a_pick_holds() {
+        let w = |plane, below, above| Winner {
+            plane,
+            score: 0.9,
+            below,
+            above,
+        };
+        let s = [0.2f32, 0.5, 0.9, 0.7, f32::NAN];
+        let mut picks = vec![
+            Pick::new(Some(w(2, Some(0.5), Some(0.7))), 5, |p| s[p]),
+            Pick::new(Some(w(0, None, Some(0.5))), 5, |p| s[p]),
+            Pick::new(None, 5, |p| s[p]),
+            Pick::new(None, 1, |_| f32::NEG_INFINITY),
+        ];
+        picks[0].offset = Some(-0.25);
+        picks[1].unique = false;
+        let mut rp = RowPicks::default();
+        for p in &picks {
+            rp.push(p);
+        }
+        assert_eq!(rp.len(), 4);
+        for (i, p) in picks.iter().enumerate() {
+            let g = rp.get(i);
+            assert_eq!(
+                (g.plane, g.below, g.above, g.unseen),
+                (p.plane, p.below, p.above, p.unseen)
+            );
+            assert_eq!((g.offset, g.unique), (p.offset, p.unique));
+            assert!(g.rho == p.rho || (g.rho.is_nan() && p.rho.is_nan()), "{i}");
+        }
+        assert!(rp.get(2).unseen && !rp.get(3).unseen);
+        // A row the right photo has no rows for: every cell unseen.
+        rp.unseen(3);
+        assert!((0..3).all(|i| rp.get(i).unseen && rp.get(i).plane.is_none()));
     }
 
     /// The uniqueness ratio by its definition: the winner's neighbours do not count, any
