@@ -88,8 +88,15 @@ fn fits(path: &std::path::Path, w: u64, h: u64, max_bytes: u64) -> std::io::Resu
 /// Reads a grey image for the matching core: a one-band TIFF (8/16/32-bit integers, 32/64-bit
 /// floats, either byte order — the decoder converts) or a PNG (8/16-bit grey), its grey values
 /// unscaled. Colour is refused rather than mixed into grey. Its size is checked against
-/// `max_bytes` (as f32) before the pixels are decoded.
+/// `max_bytes` (as f32) before the pixels are decoded. NaN (no data) is refused: the height
+/// sweep's photos have a value everywhere.
 pub fn load_grey(path: &std::path::Path, max_bytes: u64) -> std::io::Result<ImageF32> {
+    read_grey(path, max_bytes, false)
+}
+
+/// [`load_grey`], with NaN in a float TIFF kept as no data when `nodata` (infinite values are
+/// refused either way).
+fn read_grey(path: &std::path::Path, max_bytes: u64, nodata: bool) -> std::io::Result<ImageF32> {
     let bad = |what: String| invalid(path, what);
     let bytes = std::fs::read(path)
         .map_err(|e| std::io::Error::new(e.kind(), format!("{}: {e}", path.display())))?;
@@ -149,10 +156,19 @@ pub fn load_grey(path: &std::path::Path, max_bytes: u64) -> std::io::Result<Imag
         D::F64(v) => v.into_iter().map(|x| x as f32).collect(),
         _ => return Err(bad("a sample type the rig does not read".into())),
     };
-    if data.len() != w as usize * h as usize || data.iter().any(|v| !v.is_finite()) {
+    if data.len() != w as usize * h as usize {
         return Err(bad(
-            "one band of finite grey values expected (NaN or infinite values, or more bands)"
-                .into(),
+            "one band of grey values expected (more bands found)".into()
+        ));
+    }
+    if data.iter().any(|v| v.is_infinite()) {
+        return Err(bad(
+            "infinite grey values: finite values expected (NaN where there is no data)".into(),
+        ));
+    }
+    if !nodata && data.iter().any(|v| v.is_nan()) {
+        return Err(bad(
+            "NaN grey values: this input needs a value at every pixel (fill the gaps first)".into(),
         ));
     }
     Ok(ImageF32 {
@@ -165,9 +181,10 @@ pub fn load_grey(path: &std::path::Path, max_bytes: u64) -> std::io::Result<Imag
 /// Reads an image for a plain stereo pair: grey as [`load_grey`] reads it; anything else the
 /// `image` crate decodes (colour or grey with alpha, 8/16-bit or float samples) turned grey
 /// with Rec. 601 weights 0.299 R + 0.587 G + 0.114 B (as OpenCV's cvtColor does), on a 0–255
-/// scale, alpha ignored. Multi-page TIFFs: the first page.
+/// scale, alpha ignored. Multi-page TIFFs: the first page. NaN in a float TIFF is no data
+/// (never matched).
 pub fn load_luma(path: &std::path::Path, max_bytes: u64) -> std::io::Result<ImageF32> {
-    let grey_error = match load_grey(path, max_bytes) {
+    let grey_error = match read_grey(path, max_bytes, true) {
         Ok(img) => return Ok(img),
         Err(e) => e,
     };
@@ -257,5 +274,31 @@ mod tests {
             .to_string()
             .contains("grey"));
         assert!(load_grey(&t, 8).unwrap_err().to_string().contains("limit"));
+    }
+
+    /// A float TIFF's NaN is no data for a plain pair (kept, never matched) and refused where
+    /// every pixel needs a value; an infinite value is refused by both, naming the file.
+    #[test]
+    fn nan_is_no_data_for_a_pair_and_infinity_is_refused() {
+        let d = tempfile::tempdir().unwrap();
+        let write = |name: &str, px: &[f32]| {
+            let path = d.path().join(name);
+            let f = std::fs::File::create(&path).unwrap();
+            let mut enc = tiff::encoder::TiffEncoder::new(f).unwrap();
+            enc.write_image::<tiff::encoder::colortype::Gray32Float>(2, 2, px)
+                .unwrap();
+            path
+        };
+        let nan = write("nan.tif", &[1.0, f32::NAN, 3.0, 4.5]);
+        let img = load_luma(&nan, 1 << 20).unwrap();
+        assert_eq!((img.data[0], img.data[2], img.data[3]), (1.0, 3.0, 4.5));
+        assert!(img.data[1].is_nan());
+        let e = load_grey(&nan, 1 << 20).unwrap_err().to_string();
+        assert!(e.contains("nan.tif") && e.contains("NaN"), "{e}");
+        let inf = write("inf.tif", &[1.0, f32::INFINITY, 3.0, 4.5]);
+        for e in [load_grey(&inf, 1 << 20), load_luma(&inf, 1 << 20)] {
+            let e = e.unwrap_err().to_string();
+            assert!(e.contains("inf.tif") && e.contains("infinite"), "{e}");
+        }
     }
 }

@@ -70,9 +70,11 @@ pub enum MatchAction {
         /// Output directory (created; empty, or holding only an earlier run's outputs).
         #[arg(long, value_name = "DIR")]
         out: PathBuf,
-        /// Side of the correlation window, px (odd, 3 … 31).
-        #[arg(long, default_value_t = 5)]
-        window: usize,
+        /// Side of the correlation window, px (odd, 3 … 31). Default 5 with --filter sgm, 7
+        /// otherwise: without aggregation a pixel has only its window's evidence (on the
+        /// benchmark pair, bad-2 3.7 % with 7 against 7.0 % with 5; SGM is best with 5).
+        #[arg(long)]
+        window: Option<usize>,
         /// Lowest correlation accepted at the match (−1 … 1).
         #[arg(long, default_value_t = 0.3, allow_negative_numbers = true)]
         threshold: f64,
@@ -161,7 +163,10 @@ pub fn run(a: MatchArgs) -> anyhow::Result<i32> {
     let p = PairParams {
         d_min: disparity[0],
         d_max: disparity[1],
-        window,
+        window: window.unwrap_or(match filter {
+            FilterArg::Sgm => 5,
+            FilterArg::Regions | FilterArg::None => 7,
+        }),
         threshold,
         filter: match filter {
             FilterArg::Sgm => Filter::Sgm,

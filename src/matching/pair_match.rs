@@ -119,7 +119,7 @@ pub enum PairError {
     Range { min: i64, max: i64 },
     #[error("--window {0}: odd, from 3 to 31 px")]
     Window(usize),
-    #[error("the {which} photo ({w} × {h} px) is smaller than the window ({window} px)")]
+    #[error("the {which} photo ({w} × {h} px) is smaller than the window ({window} px){}", if *w >= 3 && *h >= 3 { ": give a smaller --window (3 at least)" } else { ": at least 3 × 3 px is needed" })]
     TooSmall {
         which: &'static str,
         w: usize,
@@ -130,8 +130,13 @@ pub enum PairError {
     Threshold(f64),
     #[error("--uniqueness {0} %: from 0 (no test) to 99 %")]
     Uniqueness(f64),
-    #[error("matching needs about {need_mib:.0} MiB; the limit is {limit_mib} MiB: crop the photos, narrow the disparities, use --filter none or regions (no cost volume kept), or raise --max-memory")]
-    Memory { need_mib: f64, limit_mib: u64 },
+    #[error("matching needs about {need_mib:.0} MiB; the limit is {limit_mib} MiB: crop the photos, narrow the disparities, {}or raise --max-memory", if *volume { "use --filter none or regions (no cost volume kept), " } else { "" })]
+    Memory {
+        need_mib: f64,
+        limit_mib: u64,
+        /// The filter keeps a cost volume (SGM): the other filters need less.
+        volume: bool,
+    },
 }
 
 pub const MAX_DISPARITIES: i64 = 4096;
@@ -142,7 +147,8 @@ const BAND: usize = 64;
 
 /// Rows per band: at most [`BAND`], and as many bands as a multiple of the threads, all of
 /// one size but the last, so that no thread idles while another finishes an extra band
-/// (600 rows in 64s are 10 bands of 64 and one of 24: 6 against 5 on two threads).
+/// (596 rows in 64s are nine bands of 64 and one of 20: 320 rows on one of two threads and 276
+/// on the other; in ten bands of 60, 300 and 296).
 fn band_rows(rows: usize, threads: usize) -> usize {
     let t = threads.max(1);
     let bands = rows.div_ceil(BAND).div_ceil(t) * t;
@@ -555,6 +561,7 @@ pub fn match_pair(
         return Err(PairError::Memory {
             need_mib: need / 1048576.0,
             limit_mib: max_memory_mb,
+            volume: p.filter == Filter::Sgm,
         });
     }
     let t0 = std::time::Instant::now();
@@ -761,5 +768,37 @@ mod tests {
         }
         // 596 rows (the benchmark pair's) on two threads: 10 bands of 60, not 9 of 64 and 20.
         assert_eq!(band_rows(596, 2), 60);
+    }
+
+    /// The errors say what to do: a smaller window where one fits, the filters without a
+    /// cost volume only where the volume is kept.
+    #[test]
+    fn errors_suggest_what_would_help() {
+        let small = ImageF32::new(8, 8);
+        let mut p = PairParams {
+            d_min: 0,
+            d_max: 3,
+            window: 9,
+            ..PairParams::default()
+        };
+        let e = match_pair(&small, &small, &p, 4096, &super::super::progress::Silent).unwrap_err();
+        assert!(e.to_string().contains("smaller --window"), "{e}");
+        let tiny = ImageF32::new(2, 8);
+        p.window = 3;
+        let e = match_pair(&tiny, &tiny, &p, 4096, &super::super::progress::Silent).unwrap_err();
+        assert!(e.to_string().contains("at least 3 × 3"), "{e}");
+        let big = ImageF32::new(2000, 2000);
+        p.d_max = 255;
+        for (filter, hint) in [
+            (Filter::Sgm, true),
+            (Filter::None, false),
+            (Filter::Regions, false),
+        ] {
+            p.filter = filter;
+            let e = match_pair(&big, &big, &p, 16, &super::super::progress::Silent).unwrap_err();
+            let e = e.to_string();
+            assert!(e.contains("--max-memory"), "{e}");
+            assert_eq!(e.contains("--filter none"), hint, "{filter:?}: {e}");
+        }
     }
 }
