@@ -166,10 +166,15 @@ pub fn bytes_needed(w: usize, h: usize, wr: usize, p: &PairParams) -> f64 {
     // The photos as read and as prepared; the three outputs and the rows' matches (24 B).
     let images = 8.0 * (w * h + wr * h) as f64 + 36.0 * (w * h) as f64;
     let threads = rayon::current_num_threads() as f64;
-    // A thread's column sums (f32 per column and plane), a band's picks (block matching keeps
-    // only a row's: a bound) and right-photo winners, a row's scores, and the rows of sums.
+    // A thread's work: with SGM, its column sums (f32 per column and plane), a band's picks
+    // and right-photo winners, a row's scores, and the rows of sums; block matching's own.
     let bands = threads
-        * (4.0 * np * (w as f64 + cols) + 40.0 * BAND as f64 * cols + 64.0 * (w + wr) as f64);
+        * match p.filter {
+            Filter::Sgm => {
+                4.0 * np * (w as f64 + cols) + 40.0 * BAND as f64 * cols + 64.0 * (w + wr) as f64
+            }
+            _ => super::block_match::bytes_per_band(w, wr, np as usize, k, BAND),
+        };
     let volume = match p.filter {
         Filter::Sgm => cols * rows * np * 2.0 + super::sgm::bytes_needed(cols * rows, np, cols),
         _ => 0.0,
