@@ -153,7 +153,15 @@ fn read_grey(path: &std::path::Path, max_bytes: u64, nodata: bool) -> std::io::R
         D::I16(v) => v.into_iter().map(f32::from).collect(),
         D::I32(v) => v.into_iter().map(|x| x as f32).collect(),
         D::F32(v) => v,
-        D::F64(v) => v.into_iter().map(|x| x as f32).collect(),
+        D::F64(v) => {
+            if v.iter().any(|x| x.is_finite() && x.abs() > f32::MAX as f64) {
+                return Err(bad(format!(
+                    "grey values beyond ±{:.1e}, the largest the rig computes with (rescale the image)",
+                    f32::MAX
+                )));
+            }
+            v.into_iter().map(|x| x as f32).collect()
+        }
         _ => return Err(bad("a sample type the rig does not read".into())),
     };
     if data.len() != w as usize * h as usize {
@@ -203,10 +211,14 @@ pub fn load_luma(path: &std::path::Path, max_bytes: u64) -> std::io::Result<Imag
             .decode()
             .map_err(|e| bad(format!("not a readable image ({e})")))?;
         let rgb = img.to_rgb32f();
-        let data = rgb
+        let data: Vec<f32> = rgb
             .pixels()
             .map(|p| 255.0 * (0.299 * p[0] + 0.587 * p[1] + 0.114 * p[2]))
             .collect();
+        // (A float image's values may be infinite, or overflow in the weighting.)
+        if data.iter().any(|v| v.is_infinite()) {
+            return Err(bad("infinite grey values (or too large to weight into grey): finite values expected, NaN where there is no data".into()));
+        }
         Ok(ImageF32 {
             width: w as usize,
             height: h as usize,
@@ -300,5 +312,35 @@ mod tests {
             let e = e.unwrap_err().to_string();
             assert!(e.contains("inf.tif") && e.contains("infinite"), "{e}");
         }
+        // Colour floats go through the colour reader: infinity is refused there too.
+        let rgb = d.path().join("rgb.tif");
+        let mut enc =
+            tiff::encoder::TiffEncoder::new(std::fs::File::create(&rgb).unwrap()).unwrap();
+        let px = [
+            1.0f32,
+            2.0,
+            3.0,
+            f32::INFINITY,
+            0.0,
+            0.0,
+            1.0,
+            1.0,
+            1.0,
+            0.5,
+            0.5,
+            0.5,
+        ];
+        enc.write_image::<tiff::encoder::colortype::RGB32Float>(2, 2, &px)
+            .unwrap();
+        let e = load_luma(&rgb, 1 << 20).unwrap_err().to_string();
+        assert!(e.contains("rgb.tif") && e.contains("infinite"), "{e}");
+        // A 64-bit float beyond f32's range is refused as such, not as infinite.
+        let big = d.path().join("big.tif");
+        let mut enc =
+            tiff::encoder::TiffEncoder::new(std::fs::File::create(&big).unwrap()).unwrap();
+        enc.write_image::<tiff::encoder::colortype::Gray64Float>(2, 1, &[1.0, 1e300])
+            .unwrap();
+        let e = load_luma(&big, 1 << 20).unwrap_err().to_string();
+        assert!(e.contains("big.tif") && e.contains("beyond"), "{e}");
     }
 }

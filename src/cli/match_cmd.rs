@@ -205,6 +205,13 @@ pub fn run(a: MatchArgs) -> anyhow::Result<i32> {
             p.d_max
         );
     }
+    // Most windows flat or on no data: little could be matched at all.
+    if s.pixels > 0 && s.unscored as f64 > 0.5 * s.pixels as f64 {
+        eprintln!(
+            "rig match pair: warning: {:.1} % of the pixels have a flat window or no data (NaN) in it: nothing to match there (is the left photo blank, or mostly no data?)",
+            100.0 * s.unscored as f64 / s.pixels as f64
+        );
+    }
     // Few matches where the photo has texture: as a rule a disparity range that misses the
     // scene (the winners are wrong, and the left-right check or the threshold refuse them).
     let seen = s.pixels.saturating_sub(s.unseen + s.unscored);
@@ -237,7 +244,7 @@ pub fn run(a: MatchArgs) -> anyhow::Result<i32> {
         p.lr_tolerance.map_or("0 (no check)".to_string(), |t| t.to_string())
     );
     println!(
-        "matched {:.1} % of {} pixels; no match: right photo does not see {:.1} %, flat {:.1} %, best at MIN or MAX {:.1} %, ambiguous {:.1} %, below threshold {:.1} %, left-right check {:.1} %, regions {:.1} %",
+        "matched {:.1} % of {} pixels; no match: right photo does not see {:.1} %, flat or no data {:.1} %, best at MIN or MAX {:.1} %, ambiguous {:.1} %, below threshold {:.1} %, left-right check {:.1} %, regions {:.1} %",
         pct(s.matched),
         s.pixels,
         pct(s.unseen),
