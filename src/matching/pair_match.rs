@@ -153,7 +153,13 @@ const BAND: usize = 64;
 /// on the machine.
 fn band_rows(rows: usize) -> usize {
     let bands = rows.div_ceil(BAND).div_ceil(2) * 2;
-    rows.div_ceil(bands.max(1)).max(1)
+    let mut b = rows.div_ceil(bands.max(1)).max(1);
+    // Rounding can leave an odd count (3969 rows in 63s are 63 bands): a row less per band
+    // until the count is even (a few steps at most).
+    while b > 1 && rows.div_ceil(b) % 2 == 1 && rows > b {
+        b -= 1;
+    }
+    b
 }
 
 /// Bytes that matching `left` against `right` holds at once: the photos (as read, and
