@@ -4,8 +4,8 @@
 use crate::coords::PixelXY;
 use crate::digitise::ImageF32;
 use crate::targets::{
-    locate, match_template, render, CoarseMatch, CoarseOptions, LsmMatch, LsmOptions, MarkShape,
-    Polarity, Template, TemplateSpec,
+    locate, match_template, render, CoarseMatch, CoarseOptions, Geometry, LsmMatch, LsmOptions,
+    MarkShape, Polarity, Template, TemplateSpec,
 };
 use serde::Serialize;
 
@@ -13,6 +13,8 @@ use serde::Serialize;
 pub struct MarkTemplates {
     pub whole: Template,
     pub patch: Template,
+    /// The geometric parameters the mark determines (see [`MarkShape::geometry`]).
+    pub geometry: Geometry,
 }
 
 /// Largest template side drawn (px): a mark bigger than this in the image means the pixel size
@@ -53,6 +55,7 @@ impl MarkTemplates {
         Ok(MarkTemplates {
             whole: render(&shape.for_coarse(), &spec(whole, false)),
             patch: render(shape, &spec(patch, true)),
+            geometry: shape.geometry(),
         })
     }
 }
@@ -119,7 +122,11 @@ pub fn measure(img: &ImageF32, t: &MarkTemplates, q: &Quality) -> MarkResult {
             }
         }
     };
-    match match_template(img, &t.patch, coarse.centre, &q.lsm) {
+    let lsm = LsmOptions {
+        geometry: t.geometry,
+        ..q.lsm
+    };
+    match match_template(img, &t.patch, coarse.centre, &lsm) {
         Err(e) => MarkResult {
             coarse: Some(coarse),
             lsm: None,

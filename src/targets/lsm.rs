@@ -16,8 +16,84 @@ use super::template::{Template, FINE, FINE_PAD};
 use crate::coords::PixelXY;
 use crate::digitise::ImageF32;
 use crate::geometry::affine::{inv2, linear_part, mul2};
-use nalgebra::{SMatrix, SVector};
-use serde::Serialize;
+use nalgebra::{DMatrix, DVector};
+use serde::{Deserialize, Serialize};
+
+/// Which of the template's geometric parameters least squares may change: the mark's
+/// symmetry decides (seed 002 matched crosses with all six). A rotationally symmetric mark
+/// (a dot, a ring) determines neither its rotation nor its shear: free, they swing by degrees
+/// per iteration and carry the patch out of the template (ring fiducials failed so). The
+/// parameters act in micrometres on the carriage (through the template's pixel → µm 2×2),
+/// so that a rotation is a rotation on non-square pixels too.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum Geometry {
+    /// The two shifts.
+    Shift,
+    /// Shifts and one scale: dots and rings.
+    ShiftScale,
+    /// Shifts, scale and rotation: marks with one or more lines or spokes.
+    Similarity,
+    /// The full affine: crosses, as seed 002.
+    #[default]
+    Affine,
+}
+
+impl Geometry {
+    /// The number of geometric parameters.
+    pub fn count(self) -> usize {
+        match self {
+            Geometry::Shift => 2,
+            Geometry::ShiftScale => 3,
+            Geometry::Similarity => 4,
+            Geometry::Affine => 6,
+        }
+    }
+
+    /// ∂(u0, u1, u2, v0, v1, v2)/∂(the model's parameters), columns per parameter: the change
+    /// of the image → template map U for a change of each parameter. `a` is the template's
+    /// pixel → µm 2×2: a change N of the mark's µm → µm map is A⁻¹·N·A in template pixels.
+    fn jacobian(self, a: [[f64; 2]; 2]) -> Option<Vec<[f64; 6]>> {
+        let ai = inv2(a)?;
+        // A⁻¹·N·A as (u1, u2, v1, v2).
+        let conj = |n: [[f64; 2]; 2]| mul22(mul22(ai, n), a);
+        let lin = |n: [[f64; 2]; 2]| {
+            let m = conj(n);
+            [0.0, m[0][0], m[0][1], 0.0, m[1][0], m[1][1]]
+        };
+        let shifts = [
+            [1.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+            [0.0, 0.0, 0.0, 1.0, 0.0, 0.0],
+        ];
+        let scale = lin([[1.0, 0.0], [0.0, 1.0]]);
+        let rotation = lin([[0.0, -1.0], [1.0, 0.0]]);
+        Some(match self {
+            Geometry::Shift => shifts.to_vec(),
+            Geometry::ShiftScale => vec![shifts[0], shifts[1], scale],
+            Geometry::Similarity => vec![shifts[0], shifts[1], scale, rotation],
+            Geometry::Affine => (0..6)
+                .map(|i| {
+                    let mut e = [0.0; 6];
+                    e[i] = 1.0;
+                    e
+                })
+                .collect(),
+        })
+    }
+}
+
+fn mul22(a: [[f64; 2]; 2], b: [[f64; 2]; 2]) -> [[f64; 2]; 2] {
+    [
+        [
+            a[0][0] * b[0][0] + a[0][1] * b[1][0],
+            a[0][0] * b[0][1] + a[0][1] * b[1][1],
+        ],
+        [
+            a[1][0] * b[0][0] + a[1][1] * b[1][0],
+            a[1][0] * b[0][1] + a[1][1] * b[1][1],
+        ],
+    ]
+}
 
 /// When to stop and when to give up.
 #[derive(Debug, Clone, Copy)]
@@ -30,6 +106,8 @@ pub struct LsmOptions {
     pub max_shift_px: f64,
     /// The image patch's grey-level σ must reach this (DN) for a match to mean anything.
     pub min_contrast_dn: f64,
+    /// The geometric parameters solved for (see [`Geometry`]).
+    pub geometry: Geometry,
 }
 
 impl Default for LsmOptions {
@@ -41,6 +119,7 @@ impl Default for LsmOptions {
             tolerance_px: 1e-4,
             max_shift_px: 3.0,
             min_contrast_dn: 3.0,
+            geometry: Geometry::Affine,
         }
     }
 }
@@ -160,18 +239,30 @@ fn match_sampling_template(
             [-v[0], -v[1]]
         })
     };
+    // The model's parameters: its geometric ones (their effect on U in `jac`), then r0, r1.
+    let jac = opt
+        .geometry
+        .jacobian(tpl.um_per_px)
+        .ok_or(LsmError::Singular)?;
+    let ng = jac.len();
+    let nu = ng + 2;
     let normal = |r: &[f64; 2], f: &[(f64, f64, f64)]| {
-        let mut nm = SMatrix::<f64, 8, 8>::zeros();
-        let mut rhs = SVector::<f64, 8>::zeros();
+        let mut nm = DMatrix::<f64>::zeros(nu, nu);
+        let mut rhs = DVector::<f64>::zeros(nu);
+        let mut row = DVector::<f64>::zeros(nu);
         let mut vv = 0.0;
         for (&(dx, dy, g), &(fv, fx, fy)) in pix.iter().zip(f) {
             let (ax, ay) = (r[1] * fx, r[1] * fy);
-            let row =
-                SVector::<f64, 8>::from([ax, ax * dx, ax * dy, ay, ay * dx, ay * dy, 1.0, fv]);
+            let full = [ax, ax * dx, ax * dy, ay, ay * dx, ay * dy];
+            for (j, col) in jac.iter().enumerate() {
+                row[j] = (0..6).map(|i| full[i] * col[i]).sum();
+            }
+            row[ng] = 1.0;
+            row[ng + 1] = fv;
             let l = g - r[0] - r[1] * fv;
             vv += l * l;
-            nm += row * row.transpose();
-            rhs += row * l;
+            nm.ger(1.0, &row, &row, 1.0);
+            rhs.axpy(l, &row, 1.0);
         }
         (nm, rhs, vv)
     };
@@ -182,12 +273,19 @@ fn match_sampling_template(
         it += 1;
         let f = sample_f(&u).ok_or(LsmError::LeftWindow)?;
         let (nm, rhs, _) = normal(&r, &f);
-        let d = nm.cholesky().ok_or(LsmError::Singular)?.solve(&rhs);
+        let dp = nm.cholesky().ok_or(LsmError::Singular)?.solve(&rhs);
+        // The change of U, and of the radiometry.
+        let mut d = [0.0; 6];
+        for (j, col) in jac.iter().enumerate() {
+            for i in 0..6 {
+                d[i] += col[i] * dp[j];
+            }
+        }
         for j in 0..6 {
             u[j] += d[j];
         }
-        r[0] += d[6];
-        r[1] += d[7];
+        r[0] += dp[ng];
+        r[1] += dp[ng + 1];
         let det = u[1] * u[5] - u[2] * u[4];
         if !(0.5..2.0).contains(&det) {
             return Err(LsmError::Diverged { iterations: it });
@@ -214,8 +312,19 @@ fn match_sampling_template(
         if (settled >= 2 && shape_small) || settled >= 4 {
             let f = sample_f(&u).ok_or(LsmError::LeftWindow)?;
             let (nm, _, vv) = normal(&r, &f);
-            let q = nm.try_inverse().ok_or(LsmError::Singular)?;
-            let sigma0 = (vv / (np - 8.0)).sqrt();
+            let qp = nm.try_inverse().ok_or(LsmError::Singular)?;
+            // The cofactors of U's six: J·Q·Jᵀ.
+            let mut q = [[0.0; 6]; 6];
+            for (a, ca) in jac.iter().enumerate() {
+                for (b, cb) in jac.iter().enumerate() {
+                    for i in 0..6 {
+                        for j in 0..6 {
+                            q[i][j] += ca[i] * qp[(a, b)] * cb[j];
+                        }
+                    }
+                }
+            }
+            let sigma0 = (vv / (np - nu as f64)).sqrt();
             // ∂centre/∂u: −M⁻¹ applied to the unit vectors (shifts) and to d (shape).
             let mi = inv2(linear_part(&u)).ok_or(LsmError::Singular)?;
             let col = |v: [f64; 2]| {
@@ -234,7 +343,7 @@ fn match_sampling_template(
                 let mut v = 0.0;
                 for i in 0..6 {
                     for j in 0..6 {
-                        v += cols[i][a] * q[(i, j)] * cols[j][a];
+                        v += cols[i][a] * q[i][j] * cols[j][a];
                     }
                 }
                 v.max(0.0)

@@ -9,5 +9,5 @@ pub mod resample;
 pub mod template;
 
 pub use coarse::{locate, CoarseError, CoarseMatch, CoarseOptions};
-pub use lsm::{match_template, LsmError, LsmMatch, LsmOptions};
+pub use lsm::{match_template, Geometry, LsmError, LsmMatch, LsmOptions};
 pub use template::{render, MarkShape, Polarity, Template, TemplateSpec};
