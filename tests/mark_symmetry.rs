@@ -120,11 +120,7 @@ fn rms(v: &[f64]) -> f64 {
 /// within a few thousandths of a pixel; with the full affine the rotation and shear are free.
 #[test]
 fn a_ring_converges_with_shifts_and_scale() {
-    let shape = MarkShape::RingWithDot {
-        ring_radius_um: 300.0,
-        dot_radius_um: 40.0,
-        line_um: 40.0,
-    };
+    let shape = MarkShape::ring_with_dot(300.0, 40.0, 40.0);
     assert_eq!(shape.geometry(), Geometry::ShiftScale);
     let on = |x: f64, y: f64| {
         let r = x.hypot(y);
@@ -147,13 +143,7 @@ fn a_ring_converges_with_shifts_and_scale() {
 /// A dot with one line, turned 2° in the image: shifts, scale and rotation find it.
 #[test]
 fn a_dot_with_a_line_converges_with_a_rotation() {
-    let shape = MarkShape::DotWithLine {
-        dot_radius_um: 60.0,
-        line_um: 40.0,
-        from_um: 150.0,
-        to_um: 320.0,
-        direction: [0.0, -1.0],
-    };
+    let shape = MarkShape::dot_with_line(60.0, 40.0, 150.0, 320.0, [0.0, -1.0]);
     assert_eq!(shape.geometry(), Geometry::Similarity);
     let (s, c) = 2f64.to_radians().sin_cos();
     let on = move |x: f64, y: f64| {

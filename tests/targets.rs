@@ -56,10 +56,7 @@ fn truth_px(w: &World, mark_um: [f64; 2], p_um: [f64; 2]) -> PixelXY {
 /// the centre half a pixel), and for LSM at a nominal spacing 2 % off (its affine parameters
 /// take up the rest).
 fn templates(w: &World) -> (Template, Template) {
-    let shape = MarkShape::Cross {
-        arm_um: w.plate.arm_um,
-        line_um: w.plate.line_um,
-    };
+    let shape = MarkShape::cross(w.plate.arm_um, w.plate.line_um);
     let af = &w.cfg.affine;
     let spec = |size, um_per_px, fine| TemplateSpec {
         size,

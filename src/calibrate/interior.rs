@@ -6,10 +6,10 @@
 //! only, the mid-sides only.
 
 use super::affine_fit::{fit, Fit, Model};
-use super::measure::{measure, MarkResult, MarkTemplates, Quality};
 use super::pixel::{CalibrateError, Rig};
 use crate::coords::{CarriageUm, PixelXY};
 use crate::targets::certificate::{CameraCertificate, FiducialGroup};
+use crate::targets::measure::{measure, MarkResult, MarkTemplates, Quality};
 use serde::{Deserialize, Serialize};
 use serde_json::json;
 
@@ -99,7 +99,7 @@ pub struct InteriorVersion {
 #[derive(Debug, Clone, Serialize, serde::Deserialize)]
 pub struct InteriorOrientation {
     /// Coarse and fine matching of the fiducials (seed Table 4).
-    pub matching: Option<super::measure::MatchTable>,
+    pub matching: Option<crate::targets::measure::MatchTable>,
     pub fiducials: Vec<FiducialObservation>,
     pub versions: Vec<InteriorVersion>,
 }
@@ -343,7 +343,9 @@ pub fn calibrate_interior(
         )));
     }
     Ok(InteriorOrientation {
-        matching: super::measure::match_table(obs.iter().filter_map(|o| o.result.as_ref())),
+        matching: crate::targets::measure::match_table(
+            obs.iter().filter_map(|o| o.result.as_ref()),
+        ),
         fiducials: obs,
         versions,
     })

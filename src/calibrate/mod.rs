@@ -7,7 +7,6 @@ pub mod affine_fit;
 pub mod documents;
 pub mod history;
 pub mod interior;
-pub mod measure;
 pub mod pixel;
 pub mod plot;
 pub mod session;

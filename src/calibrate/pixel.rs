@@ -9,13 +9,13 @@
 //! `−A⁻¹·t`.
 
 use super::affine_fit::{fit, inv2, Fit, FitError, Model};
-use super::measure::{measure, MarkResult, MarkTemplates, Quality};
 use super::session::Session;
 use crate::camera::Camera;
 use crate::coords::{CarriageUm, PixelXY};
 use crate::digitise::{capture, CaptureError, ImageF32};
 use crate::stage::{Stage, StageError};
 use crate::targets::certificate::PlateCertificate;
+use crate::targets::measure::{measure, MarkResult, MarkTemplates, Quality};
 use serde::Serialize;
 use serde_json::json;
 use std::time::Duration;
@@ -143,7 +143,7 @@ pub struct PixelCalibration {
     /// Pixel coordinates centred at the mark, no shifts (the seed's first attempt).
     pub linear4: Option<Fit>,
     /// Coarse and fine matching of every cross measured (seed Table 1).
-    pub matching: Option<super::measure::MatchTable>,
+    pub matching: Option<crate::targets::measure::MatchTable>,
 }
 
 fn mul2(m: [[f64; 2]; 2], v: [f64; 2]) -> [f64; 2] {
@@ -478,7 +478,8 @@ pub fn calibrate_pixel(
             &rig.session.dir.join("residuals-linear4.png"),
         )?;
     }
-    let matching = super::measure::match_table(grid.iter().chain(&crosses).map(|o| &o.result));
+    let matching =
+        crate::targets::measure::match_table(grid.iter().chain(&crosses).map(|o| &o.result));
     Ok(PixelCalibration {
         matching,
         first_look: a,

@@ -454,7 +454,7 @@ fn print_history(h: &rig::calibrate::history::History) {
 
 fn print_interior(c: &InteriorOrientation, dir: &std::path::Path) {
     if let Some(t) = &c.matching {
-        rig::calibrate::measure::print_match_table(t, "fiducials, coarse → fine matching");
+        rig::targets::measure::print_match_table(t, "fiducials, coarse → fine matching");
     }
     println!("fiducials:");
     for f in &c.fiducials {
@@ -515,7 +515,7 @@ fn print_pixel(c: &PixelCalibration, dir: &std::path::Path) {
         .filter(|o| o.result.centre().is_some())
         .count();
     if let Some(t) = &c.matching {
-        rig::calibrate::measure::print_match_table(t, "crosses, coarse → fine matching");
+        rig::targets::measure::print_match_table(t, "crosses, coarse → fine matching");
     }
     println!(
         "pixel → carriage ({used} of {} grid positions used)",

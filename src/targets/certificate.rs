@@ -2,7 +2,8 @@
 //! and of a camera's fiducials, with the geometry the templates are drawn from. TOML files;
 //! the README documents the format. Errors name the file and the line or the field.
 
-use super::template::{MarkShape, Polarity};
+use super::mark::{MarkShape, Part};
+use super::template::Polarity;
 use crate::coords::{CarriageUm, PhotoMm};
 use serde::Deserialize;
 use std::collections::BTreeMap;
@@ -111,10 +112,7 @@ impl PlateCertificate {
         }
         Ok(PlateCertificate {
             name: f.plate.name,
-            shape: MarkShape::Cross {
-                arm_um: f.plate.arm_um,
-                line_um: f.plate.line_um,
-            },
+            shape: MarkShape::cross(f.plate.arm_um, f.plate.line_um),
             polarity: f.plate.polarity,
             crosses: f.cross,
             path: path.to_path_buf(),
@@ -165,6 +163,13 @@ enum ShapeSpec {
     Cross {
         arm_um: f64,
         line_um: f64,
+    },
+    /// Any composite of primitives in µm (see the mark files); `toward_centre` turns the
+    /// parts' angle 0 toward the photo centre at each fiducial.
+    Parts {
+        part: Vec<Part>,
+        #[serde(default)]
+        toward_centre: bool,
     },
 }
 
@@ -242,24 +247,22 @@ impl CameraCertificate {
         // Each shape checked once and drawn as a mark; a line's direction is set per fiducial.
         let mut shapes = BTreeMap::new();
         for (name, spec) in &f.shapes {
-            let (shape, sizes): (MarkShape, Vec<(&str, f64)>) = match *spec {
-                ShapeSpec::RingWithDot {
+            let at = format!("[shapes.{name}] ");
+            let (shape, toward_centre, sizes): (MarkShape, bool, Vec<(&str, f64)>) = match spec {
+                &ShapeSpec::RingWithDot {
                     ring_radius_um,
                     dot_radius_um,
                     line_um,
                 } => (
-                    MarkShape::RingWithDot {
-                        ring_radius_um,
-                        dot_radius_um,
-                        line_um,
-                    },
+                    MarkShape::ring_with_dot(ring_radius_um, dot_radius_um, line_um),
+                    false,
                     vec![
                         ("ring_radius_um", ring_radius_um),
                         ("dot_radius_um", dot_radius_um),
                         ("line_um", line_um),
                     ],
                 ),
-                ShapeSpec::DotWithLine {
+                &ShapeSpec::DotWithLine {
                     dot_radius_um,
                     line_um,
                     from_um,
@@ -267,17 +270,18 @@ impl CameraCertificate {
                 } => {
                     if from_um.is_nan() || to_um.is_nan() || from_um < 0.0 || to_um <= from_um {
                         return Err(bad(format!(
-                            "[shapes.{name}] from_um {from_um} and to_um {to_um}: the line runs from from_um ≥ 0 to a larger to_um"
+                            "{at}from_um {from_um} and to_um {to_um}: the line runs from from_um ≥ 0 to a larger to_um"
                         )));
                     }
                     (
-                        MarkShape::DotWithLine {
+                        MarkShape::dot_with_line(
                             dot_radius_um,
                             line_um,
                             from_um,
                             to_um,
-                            direction: [0.0, 0.0],
-                        },
+                            [1.0, 0.0],
+                        ),
+                        true,
                         vec![
                             ("dot_radius_um", dot_radius_um),
                             ("line_um", line_um),
@@ -285,15 +289,30 @@ impl CameraCertificate {
                         ],
                     )
                 }
-                ShapeSpec::Cross { arm_um, line_um } => (
-                    MarkShape::Cross { arm_um, line_um },
+                &ShapeSpec::Cross { arm_um, line_um } => (
+                    MarkShape::cross(arm_um, line_um),
+                    false,
                     vec![("arm_um", arm_um), ("line_um", line_um)],
                 ),
+                ShapeSpec::Parts {
+                    part,
+                    toward_centre,
+                } => {
+                    super::mark_file::check_parts(part, &at, MIN_MARK_UM, MAX_MARK_UM, "µm")
+                        .map_err(bad)?;
+                    (
+                        MarkShape {
+                            parts: part.clone(),
+                        },
+                        *toward_centre,
+                        Vec::new(),
+                    )
+                }
             };
             for (field, v) in sizes {
-                mark_size(path, &format!("[shapes.{name}] {field}"), v)?;
+                mark_size(path, &format!("{at}{field}"), v)?;
             }
-            shapes.insert(name.clone(), shape);
+            shapes.insert(name.clone(), (shape, toward_centre));
         }
         let mut fiducials = Vec::new();
         let mut seen = BTreeMap::new();
@@ -308,7 +327,7 @@ impl CameraCertificate {
             if seen.insert(s.id, ()).is_some() {
                 return Err(bad(format!("fiducial {} is listed twice", s.id)));
             }
-            let mut shape = shapes.get(&s.shape).cloned().ok_or_else(|| {
+            let (mut shape, toward_centre) = shapes.get(&s.shape).cloned().ok_or_else(|| {
                 bad(format!(
                     "fiducial {}: shape `{}` is not among [shapes] ({})",
                     s.id,
@@ -316,7 +335,7 @@ impl CameraCertificate {
                     f.shapes.keys().cloned().collect::<Vec<_>>().join(", ")
                 ))
             })?;
-            if let MarkShape::DotWithLine { direction, .. } = &mut shape {
+            if toward_centre {
                 let n = s.x_mm.hypot(s.y_mm);
                 if n < 1.0 {
                     return Err(bad(format!(
@@ -324,7 +343,8 @@ impl CameraCertificate {
                         s.id
                     )));
                 }
-                *direction = [-s.x_mm / n, -s.y_mm / n];
+                // The direction (−x, −y) as the mark's angle.
+                shape = shape.turned((-s.y_mm).atan2(-s.x_mm).to_degrees());
             }
             fiducials.push(CertFiducial {
                 id: s.id,

@@ -5,9 +5,13 @@
 pub mod certificate;
 pub mod coarse;
 pub mod lsm;
+pub mod mark;
+pub mod mark_file;
+pub mod measure;
 pub mod resample;
 pub mod template;
 
 pub use coarse::{locate, CoarseError, CoarseMatch, CoarseOptions};
 pub use lsm::{match_template, Geometry, LsmError, LsmMatch, LsmOptions};
-pub use template::{render, MarkShape, Polarity, Template, TemplateSpec};
+pub use mark::{MarkShape, Part};
+pub use template::{render, Polarity, Template, TemplateSpec};

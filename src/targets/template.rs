@@ -3,108 +3,9 @@
 //! gives, at the pixel spacing of the camera, and softened by the optics' blur so that the
 //! template looks like the image it is matched against.
 
+use super::mark::MarkShape;
 use crate::digitise::ImageF32;
 use serde::{Deserialize, Serialize};
-
-/// The form of a mark, in micrometres about its centre (x right, y down the image rows, as the
-/// carriage axes appear under the camera).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(tag = "kind", rename_all = "snake_case")]
-pub enum MarkShape {
-    /// An engraved calibration cross: two bars `line_um` wide, each arm `arm_um` from the centre.
-    Cross { arm_um: f64, line_um: f64 },
-    /// A ring (radius to the middle of its line) around a centre dot.
-    RingWithDot {
-        ring_radius_um: f64,
-        dot_radius_um: f64,
-        line_um: f64,
-    },
-    /// A dot with one line along `direction` (a unit vector) from `from_um` to `to_um`.
-    DotWithLine {
-        dot_radius_um: f64,
-        line_um: f64,
-        from_um: f64,
-        to_um: f64,
-        direction: [f64; 2],
-    },
-}
-
-impl MarkShape {
-    /// Whether the point (µm from the centre) is on the mark.
-    pub fn contains(&self, p: [f64; 2]) -> bool {
-        match *self {
-            MarkShape::Cross { arm_um, line_um } => {
-                let h = line_um / 2.0;
-                (p[0].abs() <= h && p[1].abs() <= arm_um)
-                    || (p[1].abs() <= h && p[0].abs() <= arm_um)
-            }
-            MarkShape::RingWithDot {
-                ring_radius_um,
-                dot_radius_um,
-                line_um,
-            } => {
-                let r = p[0].hypot(p[1]);
-                r <= dot_radius_um || (r - ring_radius_um).abs() <= line_um / 2.0
-            }
-            MarkShape::DotWithLine {
-                dot_radius_um,
-                line_um,
-                from_um,
-                to_um,
-                direction: d,
-            } => {
-                let along = p[0] * d[0] + p[1] * d[1];
-                let across = -p[0] * d[1] + p[1] * d[0];
-                p[0].hypot(p[1]) <= dot_radius_um
-                    || (across.abs() <= line_um / 2.0 && along >= from_um && along <= to_um)
-            }
-        }
-    }
-
-    /// The form to locate coarsely with. A cross's arms are drawn past the template's border:
-    /// the arms' ends then carry no weight, so a cross cut by the frame is found by where its
-    /// arms cross, and a pixel spacing a few per cent off does not pull it toward the one end
-    /// that is in view.
-    pub fn for_coarse(&self) -> MarkShape {
-        match *self {
-            MarkShape::Cross { arm_um, line_um } => MarkShape::Cross {
-                arm_um: 100.0 * arm_um,
-                line_um,
-            },
-            ref other => other.clone(),
-        }
-    }
-
-    /// The geometric parameters least squares can determine from the mark (see
-    /// [`super::lsm::Geometry`]): a ring and its dot are the same turned or sheared, so only
-    /// their shifts and scale; a dot with one line fixes a rotation; a cross all six.
-    pub fn geometry(&self) -> super::lsm::Geometry {
-        use super::lsm::Geometry;
-        match self {
-            MarkShape::Cross { .. } => Geometry::Affine,
-            MarkShape::RingWithDot { .. } => Geometry::ShiftScale,
-            MarkShape::DotWithLine { .. } => Geometry::Similarity,
-        }
-    }
-
-    /// How far the mark reaches from its centre, µm.
-    pub fn reach_um(&self) -> f64 {
-        match *self {
-            MarkShape::Cross { arm_um, line_um } => arm_um.hypot(line_um / 2.0),
-            MarkShape::RingWithDot {
-                ring_radius_um,
-                dot_radius_um,
-                line_um,
-            } => (ring_radius_um + line_um / 2.0).max(dot_radius_um),
-            MarkShape::DotWithLine {
-                dot_radius_um,
-                to_um,
-                line_um,
-                ..
-            } => to_um.hypot(line_um / 2.0).max(dot_radius_um),
-        }
-    }
-}
 
 /// How a mark appears: dark on clear (a diapositive, the plate in transmitted light) or clear
 /// on dark (a negative).
@@ -112,7 +13,9 @@ impl MarkShape {
 #[serde(rename_all = "snake_case")]
 pub enum Polarity {
     #[default]
+    #[serde(alias = "dark_on_bright")]
     DarkOnClear,
+    #[serde(alias = "bright_on_dark")]
     ClearOnDark,
 }
 
@@ -296,10 +199,7 @@ mod tests {
     #[test]
     fn a_cross_template_is_symmetric_and_centred() {
         let t = render(
-            &MarkShape::Cross {
-                arm_um: 1000.0,
-                line_um: 40.0,
-            },
+            &MarkShape::cross(1000.0, 40.0),
             &TemplateSpec {
                 size: 70, // made odd
                 um_per_px: [[10.0, 0.0], [0.0, 10.0]],
@@ -324,26 +224,5 @@ mod tests {
         // The dark area is the line area: 2 bars of 4 px × 71 px, less the overlap.
         let dark: f64 = im.data.iter().map(|&v| 1.0 - v as f64).sum();
         assert!((dark - (2.0 * 4.0 * 71.0 - 16.0)).abs() < 1.0, "{dark}");
-    }
-
-    #[test]
-    fn shapes_contain_what_their_geometry_says() {
-        let ring = MarkShape::RingWithDot {
-            ring_radius_um: 300.0,
-            dot_radius_um: 40.0,
-            line_um: 40.0,
-        };
-        assert!(ring.contains([0.0, 39.0]) && ring.contains([310.0, 0.0]));
-        assert!(!ring.contains([100.0, 0.0]) && !ring.contains([0.0, 330.0]));
-        let dl = MarkShape::DotWithLine {
-            dot_radius_um: 60.0,
-            line_um: 40.0,
-            from_um: 150.0,
-            to_um: 600.0,
-            direction: [0.0, -1.0],
-        };
-        assert!(dl.contains([0.0, -400.0]) && !dl.contains([0.0, 400.0]));
-        assert!(!dl.contains([0.0, -100.0]) && dl.contains([50.0, 0.0]));
-        assert_eq!(ring.reach_um(), 320.0);
     }
 }

@@ -1,12 +1,12 @@
 //! Measuring one mark in a captured picture: coarse location, then least-squares matching,
 //! then the quality gate. A mark that fails any step is reported with why and never used.
 
-use crate::coords::PixelXY;
-use crate::digitise::ImageF32;
-use crate::targets::{
+use super::{
     locate, match_template, render, CoarseMatch, CoarseOptions, Geometry, LsmMatch, LsmOptions,
     MarkShape, Polarity, Template, TemplateSpec,
 };
+use crate::coords::PixelXY;
+use crate::digitise::ImageF32;
 use serde::Serialize;
 
 /// The templates for one kind of mark at the current pixel spacing.
