@@ -32,10 +32,7 @@ fn cases(n: usize) -> (Template, Vec<Case>) {
     let c = plate.crosses[4].true_um;
     let af = cfg.affine;
     let tpl = render(
-        &MarkShape::Cross {
-            arm_um: plate.arm_um,
-            line_um: plate.line_um,
-        },
+        &MarkShape::cross(plate.arm_um, plate.line_um),
         &TemplateSpec {
             size: 71,
             um_per_px: [[af.a[0], af.a[1]], [af.b[0], af.b[1]]],
