@@ -3,13 +3,13 @@
 
 The script renders its own marks (numpy only, exact pixel areas, exactly known centres): a
 cross, a corner fiducial (dot, ring, four spokes) and a mid-side fiducial (dot, ring), on square
-pixels and on 10.19 x 10.96 um pixels, under read noise, CCD artefacts (column stripes, PRNU,
-hot pixels) single-frame and averaged over 32 frames, near an image border, and damaged
-(scratched, half cut by the frame, the wrong mark). It runs the rig once per condition on all
-of that condition's images, and the OpenCV peers on each image, and prints per mark x grid x
-condition: converged %, RMSE and worst error of the centre in px, and for the rig the honesty
-of its sigma (RMS of true error / sigma), the share accepted and the share of accepted marks
-within 3 sigma, and the rig's RMSE over ECC's. Damaged marks: the rig's acceptance rate.
+pixels and on 10.19 x 10.96 um pixels, under read noise (a), CCD artefacts - column stripes,
+PRNU, hot pixels - in one frame (b) and averaged over 32 frames (c), near the frame's edge, and
+damaged (scratched, half cut by the frame, the wrong mark). It runs the rig once per condition
+on all of that condition's images and the OpenCV peers on each image, and prints per mark x
+grid x condition: converged %, RMSE and worst radial error of the centre in px, and for the rig
+RMS(true error / sigma), the share accepted, the share of the accepted within 3 sigma, and its
+RMSE over ECC's; for the damaged marks the rig's acceptance rate. Goals are printed beside.
 
 OpenCV is a dependency of this benchmark only, never of the project. A throwaway venv:
 
@@ -22,12 +22,18 @@ Run from the checkout (the rig built with `cargo build --release`):
     /tmp/cvenv/bin/python benches/marks_vs_ecc.py --self-test     # the renderer's own check
 
 The rig is run as `RIG measure IMG... --mark MARK.toml [--pixel-um 10.19,10.96] --json --csv
-OUT.csv [RIG_ARGS]`, once per condition. If it fails, its rows say FAILED (with the last line
-of its stderr) and the peers still run.
+OUT.csv [RIG_ARGS]`, once per condition with all its images; the CSV (or, without one, the JSON
+on stdout) gives per image: image, col, row, sigma_col, sigma_row, rotation_deg, scale,
+correlation, iterations, converged, accepted, reason. If it fails, its rows say FAILED and the
+peers still run. See benches/README-marks.md.
 """
 import argparse, csv, json, math, os, shlex, subprocess, sys, time
 from multiprocessing import Pool
 
+# One BLAS thread per process (the work is spread over --jobs processes): OpenBLAS's default
+# thread count on a small VM made its matrix products twenty times slower.
+for _v in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_v, "1")
 import numpy as np
 import tifffile
 from PIL import Image
@@ -323,15 +329,10 @@ class Renderer:
         k1 = min(int(math.floor(hi / s + 0.5)) + 1, self.size + ax.M)
         return np.arange(k0, k1 + 1)
 
-    def coverage_image(self, shapes, extra=None):
-        """Per pixel, the blurred mark's share of the pixel's area (0..1). `extra`: more shapes
-        (a scratch), combined with the mark per sub-cell as 1 - (1 - a)(1 - b): exact where the
-        two do not share a sub-cell, an approximation where both edges cross one."""
-        allsh = shapes + (extra or [])
-        kx, ky = self.pixel_range(allsh, 0), self.pixel_range(allsh, 1)
+    def coverage_image(self, shapes):
+        """Per pixel, the blurred mark's share of the pixel's area (0..1)."""
+        kx, ky = self.pixel_range(shapes, 0), self.pixel_range(shapes, 1)
         F = self.fine_coverage(shapes, kx, ky)
-        if extra:
-            F = 1.0 - (1.0 - F) * (1.0 - self.fine_coverage(extra, kx, ky))
         ox = np.arange(max(0, kx[0] - self.ax.M), min(self.size, kx[-1] + self.ax.M + 1))
         oy = np.arange(max(0, ky[0] - self.ay.M), min(self.size, ky[-1] + self.ay.M + 1))
         P = np.zeros((self.size, self.size))
@@ -340,8 +341,8 @@ class Renderer:
             P[oy[0]:oy[-1] + 1, ox[0]:ox[-1] + 1] = Wy @ F @ Wx.T
         return P
 
-    def image(self, shapes, extra=None):
-        return BG - (BG - FG) * self.coverage_image(shapes, extra)
+    def image(self, shapes):
+        return BG - (BG - FG) * self.coverage_image(shapes)
 
 
 def renderer_for(grid, S):
@@ -365,7 +366,7 @@ def mark_reach(parts):
 
 
 # ---------------------------------------------------------------- self-test of the renderer
-def self_test(S, seed, n=12):
+def self_test(S, seed, n=12, pixels=True):
     """(1) The sub-cells' exact areas sum to the mark's analytic area; (2) the areas of single
     pixels (no blur) agree with 2048 x 2048 point samples per pixel; (3) for these centrally
     symmetric marks, the centroid of (BG - value) of the blurred image equals the true centre."""
@@ -390,6 +391,8 @@ def self_test(S, seed, n=12):
                 out["area_rel_err_max"] = max(out["area_rel_err_max"], rel)
                 out["centroid_err_max_px"] = max(out["centroid_err_max_px"], err)
                 out["cases"] += 1
+            if not pixels:
+                continue
             # single pixels on the mark's edges, no blur, against point samples
             Rn = Renderer(g["pixel"], 0.0, S)
             c = np.array([50 + rng.uniform(-1, 1), 50 + rng.uniform(-1, 1)])
@@ -535,12 +538,14 @@ def task(args):
     gi, mi = list(GRIDS).index(grid), list(MARKS).index(mark)
     g = GRIDS[grid]
     R = renderer_for(grid, S)
-    cam = make_camera(np.random.default_rng([seed, 1000 + gi]))  # one camera per grid
+    R_scratch = renderer_for(grid, 4)
+    cam = make_camera(np.random.default_rng([seed, 1000]))  # one camera for every mark and grid
     tpl, tc = template_for(mark, grid, S)
     variants = ecc_variants_for(mark)
     lines = mark != "midside"
     conds = list(CONDITIONS) + ["scratch", "halfcut"]
     truth = {k: np.zeros((trials, 2)) for k in conds}
+    rotation = np.zeros(trials)
     est = {k: {} for k in conds}
     paths = {k: [] for k in conds}
     ext = ".png" if quantise8 else ".tif"
@@ -550,6 +555,7 @@ def task(args):
     for t in range(trials):
         rng = np.random.default_rng([seed, gi, mi, t])
         rot = rng.uniform(-1, 1) if lines else 0.0
+        rotation[t] = rot
         centre = SIZE // 2 + rng.uniform(-2, 2, size=2)
         e_centre = edge_centre(rng, rng.uniform(*edge_dist))
         h_centre = edge_centre(rng, rng.uniform(0, 2))
@@ -572,7 +578,10 @@ def task(args):
         d, nrm = np.array([math.cos(a), math.sin(a)]), np.array([-math.sin(a), math.cos(a)])
         sc = np.array(world(centre)) + s_off * g["scale"] * nrm
         scratch = [(1, ("poly", rect(sc, d, -2 * SIZE * g["scale"], 2 * SIZE * g["scale"], 1.0 * g["scale"])))]
-        si = R.image(shapes_of(MARKS[mark], g["scale"], world(centre), rot), extra=scratch)
+        # the scratch and the mark overlap as 1 - (1 - a)(1 - b) per pixel (blurred): damaged
+        # marks only need to be damaged, not exact; the scratch's sub-cells are coarser (4 x 4)
+        pm = R.coverage_image(shapes_of(MARKS[mark], g["scale"], world(centre), rot))
+        si = BG - (BG - FG) * (1.0 - (1.0 - pm) * (1.0 - R_scratch.coverage_image(scratch)))
         imgs["scratch"] = si + 2.0 * noise("scratch").standard_normal(si.shape)
         hi = R.image(shapes_of(MARKS[mark], g["scale"], world(h_centre), rot))
         imgs["halfcut"] = hi + 2.0 * noise("halfcut").standard_normal(hi.shape)
@@ -591,7 +600,8 @@ def task(args):
                     est[k][name][t] = v
     log(f"{mark} on {grid}: {trials} trials rendered and measured by OpenCV in "
         f"{time.perf_counter() - t0:.1f} s")
-    return dict(mark=mark, grid=grid, truth=truth, est=est, paths=paths, template=list(tpl.shape[::-1]))
+    return dict(mark=mark, grid=grid, truth=truth, rotation=rotation, est=est, paths=paths,
+                template=list(tpl.shape[::-1]))
 
 
 # ---------------------------------------------------------------- the rig
@@ -645,7 +655,9 @@ def run_rig(rig, paths, markfile, grid, out_csv, rig_args):
         return None, dict(error=f"cannot run the rig: {e}")
     wall = time.perf_counter() - t0
     if p.returncode != 0:
-        last = (p.stderr.strip().splitlines() or [""])[-1][:100]
+        lines = [l.strip() for l in p.stderr.splitlines() if l.strip()]
+        first_err = [l for l in lines if l.lower().startswith("error")]
+        last = (first_err or lines or [""])[0 if first_err else -1][:100]
         return None, dict(error=f"exit {p.returncode}: {last}", stderr=p.stderr[-4000:],
                           command=shlex.join(cmd[:4] + ["..."] + cmd[-8:]))
     recs = None
@@ -669,10 +681,11 @@ def run_rig(rig, paths, markfile, grid, out_csv, rig_args):
         if r is None:
             out.append(dict(col=math.nan, row=math.nan, sigma_col=math.nan, sigma_row=math.nan,
                             converged=False, accepted=False, reason="missing from the output",
-                            rotation_deg=math.nan))
+                            rotation_deg=math.nan, scale=math.nan, iterations=math.nan))
             continue
         out.append(dict(col=_num(r.get("col")), row=_num(r.get("row")), sigma_col=_num(r.get("sigma_col")),
                         sigma_row=_num(r.get("sigma_row")), rotation_deg=_num(r.get("rotation_deg")),
+                        scale=_num(r.get("scale")), iterations=_num(r.get("iterations")),
                         converged=_bool(r.get("converged")), accepted=_bool(r.get("accepted")),
                         reason=r.get("reason") or None))
     return out, dict(wall_seconds=wall, images=len(paths))
@@ -687,7 +700,7 @@ def peer_stats(est, truth):
                 max_px=float(r.max()) if ok.any() else None)
 
 
-def rig_stats(recs, truth):
+def rig_stats(recs, truth, rotation=None):
     est = np.array([[r["col"], r["row"]] for r in recs])
     sig = np.array([[r["sigma_col"], r["sigma_row"]] for r in recs])
     conv = np.array([r["converged"] for r in recs]) & np.all(np.isfinite(est), axis=1)
@@ -713,6 +726,15 @@ def rig_stats(recs, truth):
     out["accepted_within_3sigma_percent"] = float(100.0 * within[ah].mean()) if ah.any() else None
     good = hs & within
     out["refused_within_3sigma_percent"] = float(100.0 * (~acc[good]).mean()) if good.any() else None
+    extra = dict(rotation_deg=[r["rotation_deg"] for r in recs], scale=[r["scale"] for r in recs],
+                 iterations=[r["iterations"] for r in recs])
+    rot, sc, it = (np.array(extra[k], float)[conv] for k in ("rotation_deg", "scale", "iterations"))
+    if rotation is not None and np.isfinite(rot).any():
+        out["rms_rotation_err_deg"] = float(np.sqrt(np.nanmean((rot - rotation[conv]) ** 2)))
+    if np.isfinite(sc).any():
+        out["rms_scale_err"] = float(np.sqrt(np.nanmean((sc - 1.0) ** 2)))
+    if np.isfinite(it).any():
+        out["median_iterations"] = float(np.nanmedian(it))
     reasons = {}
     for rec in recs:
         if not rec["accepted"]:
@@ -758,7 +780,7 @@ def table(rows, damaged, ecc_choice, trials):
              f"RMS(err/sigma) {GOAL_Z[0]}-{GOAL_Z[1]}; accepted within 3 sigma ~100 %; damaged marks refused")
     hdr = ("{:<8} {:<13} {:<5}| {:>5} {:>7} {:>7} {:>5} {:>5} {:>6} | {:<15} {:>5} {:>7} {:>7} | "
            "{:>5} {:>7} {:>7} | {:>7} | {:<14}")
-    L.append(hdr.format("mark", "grid", "cond", "rig%", "RMSE", "max", "e/sig", "acc%", "<3sig",
+    L.append(hdr.format("mark", "grid", "cond", "conv%", "RMSE", "max", "e/sig", "acc%", "<3sig",
                         "ECC variant", "conv%", "RMSE", "max", "mT%", "RMSE", "max", "rig/ECC", "goal"))
     for r in rows:
         e = r["peers"]["ECC " + ecc_choice[r["mark"]]]
@@ -788,20 +810,26 @@ def table(rows, damaged, ecc_choice, trials):
              ", ".join(f"{k} {v}" for k, v in ecc_choice.items()) + "; every variant is in --json")
     L.append("")
     L.append(f"Damaged marks (read noise 2 DN, {trials} trials each): the rig should refuse them (goal: accepted % low)")
-    dh = "{:<8} {:<13} {:<38}| {:>7} {:>9} {:>12} | {:>9} {:>9}"
+    with_peers = any(d.get("peers") for d in damaged)
+    dh = "{:<8} {:<13} {:<38}| {:>7} {:>9} {:>12}" + (" | {:>9} {:>9}" if with_peers else "")
     L.append(dh.format("mark", "grid", "damage", "found%", "accepted%", "RMSE acc px", "ECC RMSE", "mT RMSE"))
     for d in damaged:
-        rg = d["rig"]
-        e = d.get("peers", {}).get("ECC " + ecc_choice.get(d["mark"], ""), {}) if d.get("peers") else {}
-        m = d.get("peers", {}).get("matchTemplate+quadratic", {}) if d.get("peers") else {}
+        rg, pe = d["rig"], d.get("peers") or {}
+        e = pe.get("ECC " + ecc_choice.get(d["mark"], ""), {})
+        m = pe.get("matchTemplate+quadratic", {})
         if rg.get("failed"):
             rc = "{:<31}".format(("FAILED: " + rg["failed"])[:31])
         else:
             rc = "{:>7} {:>9} {:>12}".format(fmt(rg["converged_percent"], 0), fmt(rg["accepted_percent"], 1),
                                             fmt(rg["rmse_accepted_px"]))
-        L.append(("{:<8} {:<13} {:<38}| {} | {:>9} {:>9}").format(
-            d["mark"], GRID_TITLE[d["grid"]], DAMAGE_TITLE[d["damage"]][:38], rc,
-            fmt(e.get("rmse_px")), fmt(m.get("rmse_px"))))
+        line = "{:<8} {:<13} {:<38}| {}".format(d["mark"], GRID_TITLE[d["grid"]], DAMAGE_TITLE[d["damage"]][:38], rc)
+        if with_peers:
+            line += " | {:>9} {:>9}".format(fmt(e.get("rmse_px")), fmt(m.get("rmse_px")))
+        L.append(line)
+    fails = sorted({r["rig"]["failed"] for r in list(rows) + list(damaged) if r["rig"].get("failed")})
+    if fails:
+        L.append("")
+        L.append("rig failures: " + "; ".join(fails))
     return "\n".join(L)
 
 
@@ -812,8 +840,8 @@ def main():
     ap.add_argument("--json", action="store_true", help="print JSON instead of the table")
     ap.add_argument("--trials", type=int, default=100, help="trials per mark x grid x condition (default 100)")
     ap.add_argument("--seed", type=int, default=1)
-    ap.add_argument("--supersample", type=int, default=8,
-                    help="sub-cells per pixel side for the blur (their areas are exact; default 8)")
+    ap.add_argument("--supersample", type=int, default=16,
+                    help="sub-cells per pixel side for the blur (their areas are exact; default 16)")
     ap.add_argument("--quantise8", action="store_true", help="write 8-bit PNGs instead of float32 TIFFs")
     ap.add_argument("--edge-ring", type=float, default=16.0,
                     help="near-border condition: the circle about the centre that stays inside the frame, px")
@@ -853,9 +881,9 @@ def main():
     os.makedirs(work, exist_ok=True)
     t_start = time.perf_counter()
 
-    st = self_test(a.supersample, a.seed, n=2)
-    log(f"renderer check: areas within {st['area_rel_err_max']:.1e}, pixels within "
-        f"{st['pixel_vs_points_max']:.1e}, centroid within {st['centroid_err_max_px']:.1e} px: "
+    st = self_test(a.supersample, a.seed, n=2, pixels=False)
+    log(f"renderer check (quick; --self-test for the full one): areas within "
+        f"{st['area_rel_err_max']:.1e}, centroid within {st['centroid_err_max_px']:.1e} px: "
         f"{'passed' if st['passed'] else 'FAILED'}")
 
     tasks = [(m, g, a.trials, a.seed, a.supersample, work, a.quantise8, edge_dist, a.peers_on_damaged)
@@ -883,11 +911,11 @@ def main():
         rig_calls.append(dict(mark=res["mark"], grid=res["grid"], set=tag, **{k: v for k, v in info.items()
                                                                               if k != "stderr"}))
         if recs is None:
-            if len(rig_calls) == 1 or "stderr" in info:
-                log(f"rig failed: {info['error']}" + (f"; its stderr:\n{info['stderr'].rstrip()}"
-                                                      if info.get("stderr") and len(rig_calls) == 1 else ""))
+            first = not any("error" in c for c in rig_calls[:-1])
+            log(f"rig failed: {info['error']}" + (f"; its stderr:\n{info['stderr'].rstrip()}"
+                                                  if first and info.get("stderr") else ""))
             return dict(failed=info["error"])
-        return rig_stats(recs, res["truth"][cond])
+        return rig_stats(recs, res["truth"][cond], res["rotation"] if res["mark"] != "midside" else None)
 
     for res in results:
         mk = markfiles[(res["mark"], res["grid"])]
@@ -914,7 +942,8 @@ def main():
         r["ecc_variant"] = ecc_choice[r["mark"]]
         r["rig_over_ecc"] = rr / e if (rr is not None and e) else None
         r["goal_rmse_px"] = GOAL_RMSE[r["condition"]]
-    damaged.sort(key=lambda d: (DAMAGES.index(d["damage"]), d["mark"], d["grid"]))
+    damaged.sort(key=lambda d: (DAMAGES.index(d["damage"]), list(GRIDS).index(d["grid"]),
+                                list(MARKS).index(d["mark"])))
 
     setup = dict(size=[SIZE, SIZE], background_dn=BG, mark_dn=FG, blur_sigma_px=BLUR_PX,
                  blur_sigma_um_nonsquare=BLUR_PX * UM_PER_PX, supersample=a.supersample,

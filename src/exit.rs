@@ -28,7 +28,7 @@ pub const DRIFT: i32 = 10;
 /// A scan paused (Ctrl-C once): continue it with `--resume`.
 pub const PAUSED: i32 = 11;
 /// `rig dtm --strict`: the run warned (heights piled at a bound of the range, few matched):
-/// its outputs are written but doubtful.
+/// its outputs are written but doubtful; `rig measure --strict`: a mark was refused.
 pub const DOUBTFUL: i32 = 12;
 /// Interrupted by Ctrl-C (the stages were stopped).
 pub const INTERRUPTED: i32 = 130;
@@ -41,7 +41,7 @@ pub const TABLE: &str = "Exit codes (every command):
   3 outside the soft limits      9 a stop NOT confirmed: the motion may go on
     (nothing moved)             10 calibration history found drift
   4 no answer or timeout        11 scan paused: continue with --resume
-    (stages stopped)            12 dtm --strict: the run warned
+    (stages stopped)            12 --strict: the run warned
   5 stage fault, alarm or      130 Ctrl-C (stages stopped)
     not homed";
 

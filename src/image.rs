@@ -60,6 +60,20 @@ impl ImageF32 {
     pub fn row(&self, row: usize) -> &[f32] {
         &self.data[row * self.width..(row + 1) * self.width]
     }
+
+    /// The part from column `c0`, row `r0`, at most `w` × `h` (clipped to the image).
+    pub fn window(&self, c0: usize, r0: usize, w: usize, h: usize) -> ImageF32 {
+        let c0 = c0.min(self.width);
+        let r0 = r0.min(self.height);
+        let w = w.min(self.width - c0);
+        let h = h.min(self.height - r0);
+        let mut out = ImageF32::new(w, h);
+        for r in 0..h {
+            out.data[r * w..(r + 1) * w]
+                .copy_from_slice(&self.data[(r0 + r) * self.width + c0..][..w]);
+        }
+        out
+    }
 }
 
 /// An error about the image at `path`: its name, then what is wrong.

@@ -24,6 +24,7 @@ fn main() {
             .map_err(anyhow::Error::from),
         Command::Dtm(a) => cli::dtm_cmd::run(a),
         Command::Match(a) => cli::match_cmd::run(a),
+        Command::Measure(a) => cli::measure_cmd::run(a),
         Command::Demo(a) => cli::demo_cmd::run(&a),
         Command::Config(c) => match c.action {
             cli::ConfigAction::Show => cli::config::show(

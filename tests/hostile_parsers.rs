@@ -163,6 +163,28 @@ fn scan_scripts_survive_mutation() {
 }
 
 #[test]
+fn mark_files_survive_mutation() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    for f in [
+        "examples/marks/corner-fiducial.toml",
+        "examples/marks/mid-side-fiducial.toml",
+        "examples/marks/cross.toml",
+    ] {
+        let seed = std::fs::read_to_string(root.join(f)).unwrap();
+        survive(f, seed, 3000, |t| {
+            rig::targets::mark_file::MarkFile::parse(t, Path::new("mark.toml"))
+                .map(|m| {
+                    // What the rig does next with a file it accepted.
+                    let (shape, a) = m.in_um(Some([10.0, 11.0])).unwrap();
+                    let _ = (shape.geometry(), shape.reach_um(), a);
+                    let _ = rig::targets::template::render_work(&shape, 101);
+                })
+                .is_ok()
+        });
+    }
+}
+
+#[test]
 fn certificates_survive_mutation() {
     let w = rig_sim::World::new(&rig_sim::SimConfig {
         time_scale: 0.0,

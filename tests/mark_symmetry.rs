@@ -2,24 +2,15 @@
 //! here by their own coverage integration (not the rig's template renderer): a ring with a
 //! dot, whose rotation and shear nothing determines, and a dot with one line, turned 2°.
 
+mod common;
+
+use common::{gauss, uniform};
+
 use rig::coords::PixelXY;
 use rig::digitise::ImageF32;
 use rig::targets::{
     match_template, render, Geometry, LsmOptions, MarkShape, Polarity, TemplateSpec,
 };
-
-/// Uniform in [0, 1) from a 64-bit LCG.
-fn uniform(s: &mut u64) -> f64 {
-    *s = s
-        .wrapping_mul(6364136223846793005)
-        .wrapping_add(1442695040888963407);
-    (*s >> 11) as f64 / (1u64 << 53) as f64
-}
-
-fn gauss(s: &mut u64) -> f64 {
-    let (u, v) = (uniform(s).max(1e-300), uniform(s));
-    (-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * v).cos()
-}
 
 /// A `n`×`n` image of a dark mark (`on(x, y)`, µm about its centre) at `centre` (px, pixel
 /// centres at whole numbers + 0.5 as the README's corner origin has them), `px_um` µm square

@@ -172,13 +172,22 @@ fn no_mark_is_reported_not_invented() {
         matches!(e, rig::targets::LsmError::LowContrast { .. }),
         "{e}"
     );
-    // Started so that the patch leaves the image.
+    // Started where the window is partly outside the image and holds no mark: no match.
     let c = w.plate.crosses[4].true_um;
     let img = grab(&w, c, 100);
     let e = match_template(
         &img,
         &patch,
         PixelXY::new(20.0, 240.0),
+        &LsmOptions::default(),
+    )
+    .unwrap_err();
+    println!("window half out, no mark in it: {e}");
+    // Started wholly outside the image.
+    let e = match_template(
+        &img,
+        &patch,
+        PixelXY::new(-40.0, 240.0),
         &LsmOptions::default(),
     )
     .unwrap_err();

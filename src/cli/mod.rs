@@ -7,6 +7,7 @@ pub mod connect;
 pub mod demo_cmd;
 pub mod dtm_cmd;
 pub mod match_cmd;
+pub mod measure_cmd;
 pub use rig::exit;
 pub mod progress_bar;
 pub mod scan_cmd;
@@ -202,6 +203,13 @@ pub enum Command {
     ///
     #[command(verbatim_doc_comment, after_help = exit::TABLE)]
     Match(match_cmd::MatchArgs),
+    /// Measure a mark (fiducial or cross) in images, to a hundredth of a pixel, with its σ.
+    ///
+    /// Example:
+    ///   rig measure fid.png --mark corner.toml --json
+    ///
+    #[command(after_help = exit::TABLE)]
+    Measure(measure_cmd::MeasureArgs),
     /// The settings in force (stage, dialect, camera) and where each comes from.
     ///
     /// Precedence: a flag, then the environment (RIG_STAGE, RIG_DIALECT, RIG_CAMERA), then

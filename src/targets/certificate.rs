@@ -390,14 +390,14 @@ fn mark_size(path: &Path, field: &str, v: f64) -> Result<(), CertificateError> {
     })
 }
 
-fn read(path: &Path) -> Result<String, CertificateError> {
+pub(super) fn read(path: &Path) -> Result<String, CertificateError> {
     std::fs::read_to_string(path).map_err(|source| CertificateError::Read {
         path: path.to_path_buf(),
         source,
     })
 }
 
-fn parse_error(path: &Path, e: toml::de::Error) -> CertificateError {
+pub(super) fn parse_error(path: &Path, e: toml::de::Error) -> CertificateError {
     CertificateError::Parse {
         path: path.to_path_buf(),
         message: e.to_string().trim_end().to_string(),

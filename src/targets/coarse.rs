@@ -163,6 +163,24 @@ fn score_at(g: &ImageF32, t: &ImageF32, t_sum: f64, ox: i64, oy: i64) -> (f64, f
     )
 }
 
+/// Pyramid levels above full resolution for a template of `size` px: the coarsest keeps it at
+/// 25 to 50 px.
+fn pyramid_levels(size: usize) -> usize {
+    let mut levels = 0;
+    while size >> levels > 50 {
+        levels += 1;
+    }
+    levels
+}
+
+/// The work of [`locate`] in template-pixel visits (the exhaustive search at the coarsest
+/// level dominates), to refuse a search that would take hours before it starts.
+pub fn locate_work(width: usize, height: usize, tpl_size: usize) -> f64 {
+    let s = (1u64 << pyramid_levels(tpl_size)) as f64;
+    let t = (tpl_size as f64 / s).ceil();
+    (width as f64 / s + t) * (height as f64 / s + t) * t * t
+}
+
 /// Finds the template's mark in the image; the template must show the whole mark on a flat
 /// background.
 pub fn locate(
@@ -174,10 +192,7 @@ pub fn locate(
     let gt = gradient_magnitude(&tpl.image);
     // The coarsest level keeps the template at 25 to 50 px: the exhaustive search there costs
     // (image + template)² × template², so each level less makes it about 16 times dearer.
-    let mut levels = 0;
-    while tpl.size() >> levels > 50 {
-        levels += 1;
-    }
+    let levels = pyramid_levels(tpl.size());
     let pyr: Vec<(ImageF32, ImageF32)> = (0..=levels)
         .map(|l| {
             let s = 1 << l;
@@ -192,14 +207,19 @@ pub fn locate(
     let t_sum: f64 = t.data.iter().map(|&v| v as f64).sum();
     // Exhaustive at the top: every placement with enough of the template inside.
     let (tw, th) = (t.width as i64, t.height as i64);
-    let cands: Vec<(i64, i64)> = (-th + 1..g.height as i64)
-        .flat_map(|oy| (-tw + 1..g.width as i64).map(move |ox| (ox, oy)))
-        .collect();
-    let best = cands
-        .par_iter()
-        .map(|&(ox, oy)| {
-            let (s, v) = score_at(g, t, t_sum, ox, oy);
-            (if v >= opt.min_visible { s } else { -1.0 }, ox, oy)
+    let gw = g.width as i64;
+    let best = (-th + 1..g.height as i64)
+        .into_par_iter()
+        .map(|oy| {
+            let mut b = (-2.0, 0, 0);
+            for ox in -tw + 1..gw {
+                let (s, v) = score_at(g, t, t_sum, ox, oy);
+                let s = if v >= opt.min_visible { s } else { -1.0 };
+                if s > b.0 {
+                    b = (s, ox, oy);
+                }
+            }
+            b
         })
         .reduce(|| (-2.0, 0, 0), |a, b| if b.0 > a.0 { b } else { a });
     let (mut ox, mut oy) = (best.1, best.2);

@@ -15,7 +15,7 @@ use super::resample::sample;
 use super::template::{Template, FINE, FINE_PAD};
 use crate::coords::PixelXY;
 use crate::digitise::ImageF32;
-use crate::geometry::affine::{inv2, linear_part, mul2};
+use crate::geometry::affine::{inv2, linear_part, mul2, mul22};
 use nalgebra::{DMatrix, DVector};
 use serde::{Deserialize, Serialize};
 
@@ -82,19 +82,6 @@ impl Geometry {
     }
 }
 
-fn mul22(a: [[f64; 2]; 2], b: [[f64; 2]; 2]) -> [[f64; 2]; 2] {
-    [
-        [
-            a[0][0] * b[0][0] + a[0][1] * b[1][0],
-            a[0][0] * b[0][1] + a[0][1] * b[1][1],
-        ],
-        [
-            a[1][0] * b[0][0] + a[1][1] * b[1][0],
-            a[1][0] * b[0][1] + a[1][1] * b[1][1],
-        ],
-    ]
-}
-
 /// When to stop and when to give up.
 #[derive(Debug, Clone, Copy)]
 pub struct LsmOptions {
@@ -108,6 +95,10 @@ pub struct LsmOptions {
     pub min_contrast_dn: f64,
     /// The geometric parameters solved for (see [`Geometry`]).
     pub geometry: Geometry,
+    /// Residuals beyond this many robust σ (median absolute deviation, at least 3 % of the
+    /// mark's contrast) are down-weighted (Huber) and count as outliers: a scratch or a hot
+    /// pixel on the mark must not pull the centre.
+    pub huber_k: f64,
 }
 
 impl Default for LsmOptions {
@@ -120,6 +111,7 @@ impl Default for LsmOptions {
             max_shift_px: 3.0,
             min_contrast_dn: 3.0,
             geometry: Geometry::Affine,
+            huber_k: 3.0,
         }
     }
 }
@@ -142,6 +134,79 @@ pub struct LsmMatch {
     pub iterations: u32,
     /// How far the centre moved from the start (the coarse location's error), px.
     pub moved_px: [f64; 2],
+    /// Share of the template's mark (its ink) that the image's part of the window holds: below
+    /// 1 when the frame cuts the window through the mark.
+    #[serde(default = "one")]
+    pub inside_share: f64,
+    /// Share of the evidence (the template's squared gradients) on pixels whose residuals are
+    /// outliers ([`LsmOptions::huber_k`]): noise puts a few tenths of a per cent there, a
+    /// scratch or a wrong mark far more.
+    #[serde(default)]
+    pub outlier_share: f64,
+    /// Share of the window's pixels whose residuals are outliers: noise puts 0.3 % there; a
+    /// scratch is caught by it also where it crosses only the background, whose pixels carry
+    /// no evidence.
+    #[serde(default)]
+    pub outlier_pixels: f64,
+}
+
+fn one() -> f64 {
+    1.0
+}
+
+/// The residuals' robust σ is taken as at least this share of the mark's contrast: a template
+/// a little unlike the mark (its line ends, a blur not quite Gaussian) leaves residuals of a
+/// few per cent of the contrast along every edge, which on a quiet image would read as
+/// outliers; a scratch or a wrong mark leaves residuals of tens of per cent.
+const ROBUST_FLOOR: f64 = 0.03;
+
+/// Largest lag of the residuals' autocovariance taken into the centre's σ, px.
+const HAC_LAG: usize = 12;
+
+/// Σᵢ Σⱼ hᵢ hⱼ C(i − j) over an n×n window (row-major, `inside` marking the pixels used), C the
+/// autocovariance of `psi` at lags up to [`HAC_LAG`] in each direction with Bartlett weights,
+/// times `dof` (n / (n − u)).
+fn hac_variance(h: &[f64], psi: &[f64], inside: &[bool], n: usize, dof: f64) -> f64 {
+    let l = HAC_LAG.min(n.saturating_sub(1)) as i64;
+    let n_i = n as i64;
+    let mut total = 0.0;
+    for dy in -l..=l {
+        for dx in -l..=l {
+            let (mut cov, mut pairs, mut hh) = (0.0, 0usize, 0.0);
+            for y in 0.max(-dy)..n_i.min(n_i - dy) {
+                for x in 0.max(-dx)..n_i.min(n_i - dx) {
+                    let i = (y * n_i + x) as usize;
+                    let j = ((y + dy) * n_i + x + dx) as usize;
+                    if inside[i] && inside[j] {
+                        cov += psi[i] * psi[j];
+                        pairs += 1;
+                        hh += h[i] * h[j];
+                    }
+                }
+            }
+            if pairs > 0 {
+                let bartlett = (1.0 - dx.abs() as f64 / (l + 1) as f64)
+                    * (1.0 - dy.abs() as f64 / (l + 1) as f64);
+                total += bartlett * hh * cov / pairs as f64;
+            }
+        }
+    }
+    total.max(0.0) * dof
+}
+
+/// The residuals' robust σ: the median absolute deviation × 1.4826 (a Gaussian's σ), at least
+/// `floor`.
+fn robust_sigma(v: &[f64], floor: f64) -> f64 {
+    let mut a: Vec<f64> = v.to_vec();
+    let mid = a.len() / 2;
+    if a.is_empty() {
+        return floor;
+    }
+    let (_, m, _) = a.select_nth_unstable_by(mid, f64::total_cmp);
+    let m = *m;
+    let mut d: Vec<f64> = v.iter().map(|x| (x - m).abs()).collect();
+    let (_, mad, _) = d.select_nth_unstable_by(mid, f64::total_cmp);
+    (1.4826 * *mad).max(floor)
 }
 
 #[derive(Debug, Clone, PartialEq, thiserror::Error, Serialize, serde::Deserialize)]
@@ -191,22 +256,44 @@ fn match_sampling_template(
     let n = tpl.size();
     let half = n as f64 / 2.0;
     let k = FINE as f64;
-    // The window: the n×n image pixels around the start.
-    let c0 = (start.col - half).round() as i64;
-    let r0 = (start.row - half).round() as i64;
-    if c0 < 0 || r0 < 0 || c0 + n as i64 > img.width as i64 || r0 + n as i64 > img.height as i64 {
+    // The window: the n×n image pixels around the start, as far as the image has them (the
+    // share of the mark's ink they hold is reported; the gate decides).
+    if !(start.col.is_finite() && start.row.is_finite()) {
         return Err(LsmError::LeftWindow);
     }
-    let pix: Vec<(f64, f64, f64)> = (0..n * n)
-        .map(|i| {
-            let (c, r) = (c0 as usize + i % n, r0 as usize + i / n);
-            (
-                c as f64 + 0.5 - start.col,
-                r as f64 + 0.5 - start.row,
-                img.data[r * img.width + c] as f64,
-            )
-        })
-        .collect();
+    let c0 = (start.col - half).round();
+    let r0 = (start.row - half).round();
+    let (w, h) = (img.width as f64, img.height as f64);
+    if c0 + n as f64 <= 0.0 || r0 + n as f64 <= 0.0 || c0 >= w || r0 >= h {
+        return Err(LsmError::LeftWindow);
+    }
+    let (c0, r0) = (c0 as i64, r0 as i64);
+    let background = tpl.image.data[0] as f64;
+    let (mut ink_all, mut ink_in) = (0.0, 0.0);
+    let mut pix: Vec<(f64, f64, f64)> = Vec::with_capacity(n * n);
+    // Each of them's place in the window, for the residuals' correlation.
+    let mut place: Vec<usize> = Vec::with_capacity(n * n);
+    for i in 0..n * n {
+        let ink = (tpl.image.data[i] as f64 - background).abs();
+        ink_all += ink;
+        let (c, r) = (c0 + (i % n) as i64, r0 + (i / n) as i64);
+        if c < 0 || r < 0 || c >= img.width as i64 || r >= img.height as i64 {
+            continue;
+        }
+        ink_in += ink;
+        place.push(i);
+        let (c, r) = (c as usize, r as usize);
+        pix.push((
+            c as f64 + 0.5 - start.col,
+            r as f64 + 0.5 - start.row,
+            img.data[r * img.width + c] as f64,
+        ));
+    }
+    let inside_share = if ink_all > 0.0 { ink_in / ink_all } else { 0.0 };
+    // Too little of the window or of the mark to solve anything.
+    if pix.len() < n * n / 4 || inside_share < 0.25 {
+        return Err(LsmError::LeftWindow);
+    }
     let np = pix.len() as f64;
     let gm = pix.iter().map(|p| p.2).sum::<f64>() / np;
     let gs = (pix.iter().map(|p| (p.2 - gm).powi(2)).sum::<f64>() / np).sqrt();
@@ -246,12 +333,27 @@ fn match_sampling_template(
         .ok_or(LsmError::Singular)?;
     let ng = jac.len();
     let nu = ng + 2;
-    let normal = |r: &[f64; 2], f: &[(f64, f64, f64)]| {
+    // Residuals, their robust σ and the Huber weights.
+    let weights = |r: &[f64; 2], f: &[(f64, f64, f64)]| {
+        let v: Vec<f64> = pix
+            .iter()
+            .zip(f)
+            .map(|(p, f)| p.2 - r[0] - r[1] * f.0)
+            .collect();
+        let s = robust_sigma(&v, ROBUST_FLOOR * r[1].abs());
+        let cut = opt.huber_k * s;
+        let w: Vec<f64> = v
+            .iter()
+            .map(|x| if x.abs() <= cut { 1.0 } else { cut / x.abs() })
+            .collect();
+        (v, w, s)
+    };
+    let normal = |r: &[f64; 2], f: &[(f64, f64, f64)], wt: &[f64]| {
         let mut nm = DMatrix::<f64>::zeros(nu, nu);
         let mut rhs = DVector::<f64>::zeros(nu);
         let mut row = DVector::<f64>::zeros(nu);
         let mut vv = 0.0;
-        for (&(dx, dy, g), &(fv, fx, fy)) in pix.iter().zip(f) {
+        for ((&(dx, dy, g), &(fv, fx, fy)), &wi) in pix.iter().zip(f).zip(wt) {
             let (ax, ay) = (r[1] * fx, r[1] * fy);
             let full = [ax, ax * dx, ax * dy, ay, ay * dx, ay * dy];
             for (j, col) in jac.iter().enumerate() {
@@ -260,9 +362,9 @@ fn match_sampling_template(
             row[ng] = 1.0;
             row[ng + 1] = fv;
             let l = g - r[0] - r[1] * fv;
-            vv += l * l;
-            nm.ger(1.0, &row, &row, 1.0);
-            rhs.axpy(l, &row, 1.0);
+            vv += wi * l * l;
+            nm.ger(wi, &row, &row, 1.0);
+            rhs.axpy(wi * l, &row, 1.0);
         }
         (nm, rhs, vv)
     };
@@ -272,7 +374,8 @@ fn match_sampling_template(
     loop {
         it += 1;
         let f = sample_f(&u).ok_or(LsmError::LeftWindow)?;
-        let (nm, rhs, _) = normal(&r, &f);
+        let (_, wt, _) = weights(&r, &f);
+        let (nm, rhs, _) = normal(&r, &f, &wt);
         let dp = nm.cholesky().ok_or(LsmError::Singular)?.solve(&rhs);
         // The change of U, and of the radiometry.
         let mut d = [0.0; 6];
@@ -311,20 +414,20 @@ fn match_sampling_template(
         };
         if (settled >= 2 && shape_small) || settled >= 4 {
             let f = sample_f(&u).ok_or(LsmError::LeftWindow)?;
-            let (nm, _, vv) = normal(&r, &f);
-            let qp = nm.try_inverse().ok_or(LsmError::Singular)?;
-            // The cofactors of U's six: J·Q·Jᵀ.
-            let mut q = [[0.0; 6]; 6];
-            for (a, ca) in jac.iter().enumerate() {
-                for (b, cb) in jac.iter().enumerate() {
-                    for i in 0..6 {
-                        for j in 0..6 {
-                            q[i][j] += ca[i] * qp[(a, b)] * cb[j];
-                        }
-                    }
+            let (v, wt, s) = weights(&r, &f);
+            let (nm, _, vv) = normal(&r, &f, &wt);
+            let (mut e_all, mut e_out, mut n_out) = (0.0, 0.0, 0usize);
+            for (fi, vi) in f.iter().zip(&v) {
+                let e = fi.1 * fi.1 + fi.2 * fi.2;
+                e_all += e;
+                if vi.abs() > opt.huber_k * s {
+                    e_out += e;
+                    n_out += 1;
                 }
             }
-            let sigma0 = (vv / (np - nu as f64)).sqrt();
+            let n_eff: f64 = wt.iter().sum();
+            let qp = nm.try_inverse().ok_or(LsmError::Singular)?;
+            let sigma0 = (vv / (n_eff - nu as f64).max(1.0)).sqrt();
             // ∂centre/∂u: −M⁻¹ applied to the unit vectors (shifts) and to d (shape).
             let mi = inv2(linear_part(&u)).ok_or(LsmError::Singular)?;
             let col = |v: [f64; 2]| {
@@ -339,21 +442,39 @@ fn match_sampling_template(
                 col([0.0, c[0]]),
                 col([0.0, c[1]]),
             ];
-            let var = |a: usize| -> f64 {
-                let mut v = 0.0;
-                for i in 0..6 {
-                    for j in 0..6 {
-                        v += cols[i][a] * q[i][j] * cols[j][a];
-                    }
+            // The centre's variance without assuming white residuals: each pixel's influence on
+            // the centre, h = g·N⁻¹·aᵢ (g = ∂centre/∂parameters), against the residuals'
+            // own autocovariance up to HAC_LAG px (Bartlett-tapered: the Newey–West
+            // estimator, with Huber's ψ(v) = w·v), so that column stripes, grain or a blur
+            // that the template lacks widen σ as they widen the true error.
+            let hac = |a: usize| -> f64 {
+                let mut gp = DVector::<f64>::zeros(nu);
+                for (p, jc) in jac.iter().enumerate() {
+                    gp[p] = (0..6).map(|i| cols[i][a] * jc[i]).sum();
                 }
-                v.max(0.0)
+                let t = &qp * gp;
+                let mut h = vec![0.0; n * n];
+                let mut psi = vec![0.0; n * n];
+                let mut inside = vec![false; n * n];
+                for (k, (&(dx, dy, _), &(fv, fx, fy))) in pix.iter().zip(&f).enumerate() {
+                    let (ax, ay) = (r[1] * fx, r[1] * fy);
+                    let full = [ax, ax * dx, ax * dy, ay, ay * dx, ay * dy];
+                    let mut x = t[ng] + t[ng + 1] * fv;
+                    for (j, col) in jac.iter().enumerate() {
+                        x += t[j] * (0..6).map(|i| full[i] * col[i]).sum::<f64>();
+                    }
+                    h[place[k]] = x;
+                    psi[place[k]] = wt[k] * v[k];
+                    inside[place[k]] = true;
+                }
+                hac_variance(&h, &psi, &inside, n, np / (np - nu as f64).max(1.0))
             };
             let (g, t): (Vec<f64>, Vec<f64>) = pix.iter().zip(&f).map(|(p, f)| (p.2, f.0)).unzip();
             let corr = crate::correlation::ncc(&g, &t);
             let centre = PixelXY::new(start.col + c[0], start.row + c[1]);
             return Ok(LsmMatch {
                 centre,
-                sigma_px: [sigma0 * var(0).sqrt(), sigma0 * var(1).sqrt()],
+                sigma_px: [hac(0).sqrt(), hac(1).sqrt()],
                 // Image from template: x = centre + M⁻¹·t.
                 affine: [
                     centre.col, mi[0][0], mi[0][1], centre.row, mi[1][0], mi[1][1],
@@ -363,6 +484,9 @@ fn match_sampling_template(
                 correlation: corr,
                 iterations: it,
                 moved_px: c,
+                inside_share,
+                outlier_share: if e_all > 0.0 { e_out / e_all } else { 0.0 },
+                outlier_pixels: n_out as f64 / np,
             });
         }
         if it >= opt.max_iterations {

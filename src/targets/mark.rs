@@ -71,10 +71,26 @@ impl Part {
                 to,
                 width,
                 angle0_deg,
-            } => (0..count).any(|k| {
-                let a = angle0_deg + 360.0 * k as f64 / count as f64;
-                on_strip(p, dir(a), from, to, width / 2.0)
-            }),
+            } => {
+                // Only spokes within asin(w/2 / r) of the point's direction can hold it:
+                // those around the nearest in angle, not all `count`.
+                let step = 360.0 / count as f64;
+                let r = p[0].hypot(p[1]);
+                let a = p[1].atan2(p[0]).to_degrees() - angle0_deg;
+                let k = (a / step).round() as i64;
+                let spread = (width / 2.0 / r.max(1e-300)).min(1.0).asin().to_degrees();
+                let m = ((spread / step).ceil() as i64 + 1).min(count as i64);
+                (k - m..=k + m)
+                    .any(|k| on_strip(p, dir(angle0_deg + step * k as f64), from, to, width / 2.0))
+            }
+        }
+    }
+
+    /// The cost of one [`Part::contains`], in tests of a strip or circle.
+    pub fn cost(&self) -> f64 {
+        match self {
+            Part::Spokes { .. } => 3.0,
+            _ => 1.0,
         }
     }
 
@@ -329,6 +345,41 @@ mod tests {
             assert!(spokes.contains(p), "{p:?}");
         }
         assert!(!spokes.contains([15.0, 0.0]) && !spokes.contains([0.0, 5.0]));
+    }
+
+    /// The spokes' test by the nearest angles agrees with testing every spoke.
+    #[test]
+    fn spokes_by_angle_are_spokes_by_brute_force() {
+        let mut seed = 1u64;
+        let mut u = || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (seed >> 11) as f64 / (1u64 << 53) as f64
+        };
+        for (count, from, to, width, a0) in [
+            (4, 17.0, 22.0, 2.0, 0.0),
+            (1, 5.0, 30.0, 3.0, -37.0),
+            (360, 0.0, 40.0, 4.0, 0.5),
+            (7, 0.0, 10.0, 25.0, 200.0),
+            (3, 2.0, 9.0, 0.3, 90.0),
+        ] {
+            let part = Part::Spokes {
+                count,
+                from,
+                to,
+                width,
+                angle0_deg: a0,
+            };
+            for _ in 0..20_000 {
+                let p = [(u() - 0.5) * 100.0, (u() - 0.5) * 100.0];
+                let brute = (0..count).any(|k| {
+                    let a = a0 + 360.0 * k as f64 / count as f64;
+                    on_strip(p, dir(a), from, to, width / 2.0)
+                });
+                assert_eq!(part.contains(p), brute, "{count} spokes at {p:?}");
+            }
+        }
     }
 
     #[test]

@@ -23,7 +23,7 @@
 //! width = 3.0
 //! ```
 
-use super::certificate::{CertificateError, MAX_MARK_UM, MIN_MARK_UM};
+use super::certificate::{parse_error, read, CertificateError, MAX_MARK_UM, MIN_MARK_UM};
 use super::mark::{MarkShape, Part, MAX_SPOKES};
 use super::template::Polarity;
 use serde::Deserialize;
@@ -66,18 +66,11 @@ pub struct MarkFile {
 
 impl MarkFile {
     pub fn load(path: &Path) -> Result<Self, CertificateError> {
-        let text = std::fs::read_to_string(path).map_err(|source| CertificateError::Read {
-            path: path.to_path_buf(),
-            source,
-        })?;
-        Self::parse(&text, path)
+        Self::parse(&read(path)?, path)
     }
 
     pub fn parse(text: &str, path: &Path) -> Result<Self, CertificateError> {
-        let f: File = toml::from_str(text).map_err(|e| CertificateError::Parse {
-            path: path.to_path_buf(),
-            message: e.to_string().trim_end().to_string(),
-        })?;
+        let f: File = toml::from_str(text).map_err(|e| parse_error(path, e))?;
         let (lo, hi, unit) = match f.units {
             Units::Px => (MIN_MARK_PX, MAX_MARK_PX, "px"),
             Units::Um => (MIN_MARK_UM, MAX_MARK_UM, "µm"),
@@ -239,7 +232,10 @@ angle0_deg = 0.0
             ),
             (CORNER.replace("\"px\"", "\"mm\""), "mm"),
             ("units = \"px\"\npart = []\n".to_string(), "no [[part]]"),
-            (CORNER.replace("count = 4", "count = 4294967296"), "4294967296"),
+            (
+                CORNER.replace("count = 4", "count = 4294967296"),
+                "4294967296",
+            ),
         ];
         for (text, want) in cases {
             let e = MarkFile::parse(&text, Path::new("m.toml"))

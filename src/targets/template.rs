@@ -92,9 +92,20 @@ pub fn render(shape: &MarkShape, spec: &TemplateSpec) -> Template {
     }
 }
 
+/// Sub-samples per pixel side of the coverage integration.
+const SUB: usize = 6;
+
+/// The work of [`render`] with `fine` drawn, in tests of a part (pixels × sub-samples × the
+/// parts' cost), to refuse a mark too large to draw before it is drawn.
+pub fn render_work(shape: &MarkShape, size: usize) -> f64 {
+    let per_sample: f64 = shape.parts.iter().map(|p| p.cost()).sum();
+    let fine = ((size + 2 * FINE_PAD) * FINE) as f64;
+    let px = (size as f64).powi(2) + fine * fine;
+    px * (SUB * SUB) as f64 * per_sample
+}
+
 /// Draws a `size`×`size` template centred at size/2.
 fn draw(shape: &MarkShape, spec: &TemplateSpec, size: usize) -> ImageF32 {
-    const SUB: usize = 6;
     let margin = (3.0 * spec.blur_px).ceil() as usize;
     let big = size + 2 * margin;
     let c = big as f64 / 2.0;

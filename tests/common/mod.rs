@@ -217,3 +217,18 @@ pub fn run_hostile(cmd: &mut Command, mem_gib: u64, secs: u64) -> Hostile {
     assert!(!h.stderr.contains("panicked"), "panicked: {what}");
     h
 }
+
+/// Uniform in [0, 1) from a 64-bit LCG (Knuth's MMIX constants): test noise that is the same
+/// on every machine.
+pub fn uniform(s: &mut u64) -> f64 {
+    *s = s
+        .wrapping_mul(6364136223846793005)
+        .wrapping_add(1442695040888963407);
+    (*s >> 11) as f64 / (1u64 << 53) as f64
+}
+
+/// A standard normal deviate (Box–Muller) from [`uniform`].
+pub fn gauss(s: &mut u64) -> f64 {
+    let (u, v) = (uniform(s).max(1e-300), uniform(s));
+    (-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * v).cos()
+}

@@ -1,0 +1,430 @@
+//! `rig measure`: a mark (fiducial or cross) in any image, by coarse location and
+//! least-squares matching, with its σ and the gate's verdict.
+
+use anyhow::Context;
+use clap::Args;
+use rig::coords::PixelXY;
+use rig::targets::mark_file::MarkFile;
+use rig::targets::measure::{
+    measure_near, scale_rotation, BlurSearch, MarkTemplates, Quality, BLUR_GRID,
+};
+use rig::targets::template::render_work;
+use rig::targets::{coarse::locate_work, Geometry};
+use serde::Serialize;
+use std::path::{Path, PathBuf};
+
+/// Measure a mark (a fiducial or a cross) in images: where its centre is, to a hundredth of
+/// a pixel, with its standard deviation.
+///
+/// The mark is described by a mark file (TOML) of primitives: dot {radius}, ring {radius,
+/// width} (the radius to the line's centre), bar {length, width, angle_deg} (full length,
+/// through the centre; a cross is two bars), spokes {count, from, to, width, angle0_deg}
+/// (radial, from `from` to `to`); sizes in px or µm (`units`), angles in degrees from +col
+/// toward +row (clockwise as shown); polarity dark_on_bright or bright_on_dark:
+///
+///   units = "px"
+///   polarity = "dark_on_bright"
+///   [[part]]
+///   kind = "dot"
+///   radius = 2.0
+///   [[part]]
+///   kind = "ring"
+///   radius = 14.0
+///   width = 2.0
+///
+/// The mark is found by its edges (anywhere, or within --search px of --near), then least
+/// squares fits the drawn mark to the image's own pixels with as many geometric parameters as
+/// the mark determines: dots and rings shifts and scale (their rotation means nothing), lines
+/// in one direction add a rotation, lines in two or more directions the full affine. Where the
+/// frame cuts the matching window, its part in the image is used.
+///
+/// Output: col, row with integer values at pixel centres ((0, 0) the centre of the top-left
+/// pixel), their σ in px (from the normal equations, scaled by σ0), the mark's scale and
+/// rotation in the image (physical, also on non-square pixels; rotation null for marks
+/// without lines), the correlation, the iterations, and the gate's verdict: a mark is refused
+/// when the frame cuts it (--min-inside), its residuals show damage or a different mark
+/// (--max-outliers), or its σ is above --max-sigma. Reasons: not_found, diverged, wandered,
+/// singular, left_window, low_contrast, cut, damaged, imprecise.
+///
+/// Images: PNG or TIFF, grey or colour (turned grey as 0.299 R + 0.587 G + 0.114 B), 8/16-bit
+/// or float.
+///
+/// Examples:
+///   rig measure fid.png --mark corner.toml
+///   rig measure scan.tif --mark cross.toml --near 1200,840 --search 30 --json
+///   rig measure frames/*.png --mark ring.toml --pixel-um 10.19,10.96 --csv marks.csv
+#[derive(Debug, Args)]
+#[command(verbatim_doc_comment)]
+pub struct MeasureArgs {
+    /// The images (one mark measured in each).
+    #[arg(required = true, value_name = "IMAGE")]
+    pub images: Vec<PathBuf>,
+    /// The mark file.
+    #[arg(long, value_name = "MARK.toml")]
+    pub mark: PathBuf,
+    /// The pixel size in µm along columns and rows (one value for square pixels): needed
+    /// when the mark file's units are "um".
+    #[arg(long, value_name = "SX[,SY]")]
+    pub pixel_um: Option<String>,
+    /// Where to look for the mark: COL,ROW in the pixel convention above.
+    #[arg(long, value_name = "COL,ROW", allow_hyphen_values = true)]
+    pub near: Option<String>,
+    /// How far from --near the centre may lie, px.
+    #[arg(
+        long,
+        value_name = "PX",
+        default_value_t = 20.0,
+        requires = "near",
+        allow_hyphen_values = true
+    )]
+    pub search: f64,
+    /// The optics' blur in the images, a Gaussian σ in px (0 … 20). Without it, each image's
+    /// blur is found by least squares (the blur whose template leaves the least residual).
+    #[arg(long, value_name = "PX")]
+    pub blur: Option<f64>,
+    /// Largest σ of the centre accepted, px.
+    #[arg(long, value_name = "PX", default_value_t = Quality::default().max_sigma_px)]
+    pub max_sigma: f64,
+    /// Largest share of the evidence (the template's squared gradients) on outlying
+    /// residuals accepted, percent.
+    #[arg(long, value_name = "PERCENT", default_value_t = 100.0 * Quality::default().max_outlier_share)]
+    pub max_outliers: f64,
+    /// Largest share of the window's pixels with outlying residuals accepted, percent.
+    #[arg(long, value_name = "PERCENT", default_value_t = 100.0 * Quality::default().max_outlier_pixels)]
+    pub max_outlier_pixels: f64,
+    /// Smallest share of the mark inside the image accepted, percent.
+    #[arg(long, value_name = "PERCENT", default_value_t = 100.0 * Quality::default().min_inside_share)]
+    pub min_inside: f64,
+    /// Most work the search for the mark in one image, or drawing its templates, may take, in
+    /// billions of template-pixel visits or sample tests (a 4000 × 3000 image with a 60-px
+    /// mark takes about 3, drawing a 60-px mark 0.2): use --near and --search on larger
+    /// images.
+    #[arg(long, value_name = "G", default_value_t = 5.0)]
+    pub max_work: f64,
+    /// Print the results as JSON: an object for one image, an array for several.
+    #[arg(long)]
+    pub json: bool,
+    /// Also write the results as CSV (one row per image, atomically).
+    #[arg(long, value_name = "FILE")]
+    pub csv: Option<PathBuf>,
+    /// Exit with code 12 when any mark is refused.
+    #[arg(long)]
+    pub strict: bool,
+}
+
+/// One image's result, in the README's pixel convention.
+#[derive(Debug, Serialize)]
+struct Row {
+    image: String,
+    col: Option<f64>,
+    row: Option<f64>,
+    sigma_col: Option<f64>,
+    sigma_row: Option<f64>,
+    rotation_deg: Option<f64>,
+    scale: Option<f64>,
+    correlation: Option<f64>,
+    /// The blur used (found, or given).
+    blur_px: Option<f64>,
+    iterations: Option<u32>,
+    converged: bool,
+    accepted: bool,
+    /// A code (see --help), null when accepted.
+    reason: Option<String>,
+    /// The reason in words.
+    message: Option<String>,
+}
+
+/// How the templates are had.
+enum How {
+    Fixed(MarkTemplates),
+    Search(BlurSearch),
+}
+
+const CSV_COLUMNS: [&str; 14] = [
+    "image",
+    "col",
+    "row",
+    "sigma_col",
+    "sigma_row",
+    "rotation_deg",
+    "scale",
+    "correlation",
+    "blur_px",
+    "iterations",
+    "converged",
+    "accepted",
+    "reason",
+    "message",
+];
+
+fn usage(what: String) -> anyhow::Result<i32> {
+    eprintln!("rig measure: {what}");
+    Ok(rig::exit::USAGE)
+}
+
+/// "A" or "A,B" as one or two finite numbers.
+fn pair(s: &str) -> Option<[f64; 2]> {
+    let v: Vec<f64> = s
+        .split(',')
+        .map(|x| x.trim().parse::<f64>())
+        .collect::<Result<_, _>>()
+        .ok()?;
+    let v = match v.as_slice() {
+        [a] => [*a, *a],
+        [a, b] => [*a, *b],
+        _ => return None,
+    };
+    v.iter().all(|x| x.is_finite()).then_some(v)
+}
+
+pub fn run(a: MeasureArgs) -> anyhow::Result<i32> {
+    let pixel_um = match &a.pixel_um {
+        None => None,
+        Some(s) => match pair(s) {
+            Some(p) if p.iter().all(|v| (0.01..=1000.0).contains(v)) => Some(p),
+            _ => {
+                return usage(format!(
+                    "--pixel-um {s}: one or two sizes (SX or SX,SY), 0.01 to 1000 µm"
+                ))
+            }
+        },
+    };
+    let near = match &a.near {
+        None => None,
+        Some(s) => match pair(s) {
+            Some(p) if s.contains(',') && p.iter().all(|v| v.abs() <= 1e7) => {
+                Some(PixelXY::new(p[0] + 0.5, p[1] + 0.5))
+            }
+            _ => return usage(format!("--near {s}: COL,ROW in pixels (within ±10⁷)")),
+        },
+    };
+    if !(a.search.is_finite() && (0.0..=100_000.0).contains(&a.search)) {
+        return usage(format!("--search {}: 0 to 100000 px", a.search));
+    }
+    if let Some(b) = a.blur {
+        if !(b.is_finite() && (0.0..=20.0).contains(&b)) {
+            return usage(format!("--blur {b}: 0 to 20 px"));
+        }
+    }
+    if !(a.max_sigma.is_finite() && a.max_sigma > 0.0 && a.max_sigma <= 100.0) {
+        return usage(format!(
+            "--max-sigma {}: above 0, at most 100 px",
+            a.max_sigma
+        ));
+    }
+    for (name, v) in [
+        ("--max-outliers", a.max_outliers),
+        ("--max-outlier-pixels", a.max_outlier_pixels),
+        ("--min-inside", a.min_inside),
+    ] {
+        if !(v.is_finite() && (0.0..=100.0).contains(&v)) {
+            return usage(format!("{name} {v}: 0 to 100 percent"));
+        }
+    }
+    if !(a.max_work.is_finite() && a.max_work > 0.0 && a.max_work <= 1e6) {
+        return usage(format!("--max-work {}: above 0, at most 10⁶", a.max_work));
+    }
+    let mark = MarkFile::load(&a.mark)?;
+    if mark.units == rig::targets::mark_file::Units::Px && pixel_um.is_some() {
+        eprintln!(
+            "rig measure: note: {} gives its sizes in px; --pixel-um is not used",
+            a.mark.display()
+        );
+    }
+    let (shape, um_per_px) = match mark.in_um(pixel_um) {
+        Ok(v) => v,
+        Err(e) => return usage(e),
+    };
+    let px = um_per_px[0][0].min(um_per_px[1][1]);
+    let reach_px = shape.reach_um() / px;
+    let widest = a.blur.unwrap_or(BLUR_GRID[BLUR_GRID.len() - 1]);
+    let patch = (2.0 * reach_px + 2.0 * (3.0 * widest + 4.0)).ceil() as usize | 1;
+    let context = || format!("the mark of {}", a.mark.display());
+    // Drawing the templates (each blur tried: the grid and up to four refinements per image,
+    // the drawings kept on a 0.02 px grid) before anything is drawn.
+    let renders = if a.blur.is_some() {
+        1.0
+    } else {
+        BLUR_GRID.len() as f64 + 4.0
+    };
+    let drawing = renders * render_work(&shape, patch) / 1e9;
+    if drawing > a.max_work {
+        return usage(format!(
+            "the mark of {} reaches {reach_px:.0} px: drawing its templates would take {drawing:.0} G \
+             sample tests (--max-work {}): check its sizes, units and --pixel-um, or raise --max-work",
+            a.mark.display(),
+            a.max_work
+        ));
+    }
+    let mut how = match a.blur {
+        Some(b) => How::Fixed(
+            MarkTemplates::new(&shape, mark.polarity, um_per_px, patch, b)
+                .map_err(anyhow::Error::msg)
+                .with_context(context)?,
+        ),
+        None => How::Search(
+            BlurSearch::new(&shape, mark.polarity, um_per_px, patch)
+                .map_err(anyhow::Error::msg)
+                .with_context(context)?,
+        ),
+    };
+    let (whole_size, geometry) = match &how {
+        How::Fixed(t) => (t.whole.size(), t.geometry),
+        How::Search(s) => (s.whole().size(), shape.geometry()),
+    };
+    let quality = Quality {
+        max_sigma_px: a.max_sigma,
+        max_outlier_share: a.max_outliers / 100.0,
+        max_outlier_pixels: a.max_outlier_pixels / 100.0,
+        min_inside_share: a.min_inside / 100.0,
+        ..Quality::default()
+    };
+    let max_bytes = 4u64 << 30;
+    let mut rows = Vec::with_capacity(a.images.len());
+    for path in &a.images {
+        let img = rig::image::load_luma(path, max_bytes)?;
+        if img.data.iter().any(|v| v.is_nan()) {
+            anyhow::bail!(
+                "{}: NaN grey values: marks are measured on images with a value at every pixel",
+                path.display()
+            );
+        }
+        let near = near.map(|p| (p, a.search));
+        let (sw, sh) = match near {
+            Some((_, s)) => {
+                let side = (2.0 * s + whole_size as f64 + 2.0) as usize;
+                (side.min(img.width), side.min(img.height))
+            }
+            None => (img.width, img.height),
+        };
+        let work = locate_work(sw, sh, whole_size) / 1e9;
+        if work > a.max_work {
+            anyhow::bail!(
+                "{}: finding the mark in {sw} × {sh} px would take {work:.0} G template-pixel visits \
+                 (--max-work {}): give --near COL,ROW and --search PX, or raise --max-work",
+                path.display(),
+                a.max_work
+            );
+        }
+        let (r, blur) = match &mut how {
+            How::Fixed(t) => (measure_near(&img, t, &quality, near), a.blur),
+            How::Search(s) => {
+                let (r, b) = s.measure(&img, &quality, near);
+                (r, b.is_finite().then_some(b))
+            }
+        };
+        let m = r.lsm.as_ref();
+        let sr = m.and_then(|m| scale_rotation(m, um_per_px));
+        rows.push(Row {
+            image: path.display().to_string(),
+            col: r.seen_at().map(|p| p.col - 0.5),
+            row: r.seen_at().map(|p| p.row - 0.5),
+            sigma_col: m.map(|m| m.sigma_px[0]),
+            sigma_row: m.map(|m| m.sigma_px[1]),
+            rotation_deg: sr.filter(|_| geometry != Geometry::ShiftScale).map(|s| s.1),
+            scale: sr.map(|s| s.0),
+            correlation: m.map(|m| m.correlation),
+            blur_px: blur,
+            iterations: m.map(|m| m.iterations),
+            converged: m.is_some(),
+            accepted: r.refusal.is_none() && m.is_some(),
+            reason: r.refusal.as_ref().map(|x| x.code().to_string()),
+            message: r.rejected.clone(),
+        });
+    }
+    if let Some(csv) = &a.csv {
+        rig::atomic::write(csv, to_csv(&rows).as_bytes())
+            .with_context(|| format!("writing {}", csv.display()))?;
+    }
+    if a.json {
+        if rows.len() == 1 {
+            println!("{}", serde_json::to_string_pretty(&rows[0])?);
+        } else {
+            println!("{}", serde_json::to_string_pretty(&rows)?);
+        }
+    } else {
+        print_rows(&rows, &mark.path);
+    }
+    let refused = rows.iter().filter(|r| !r.accepted).count();
+    Ok(if a.strict && refused > 0 {
+        rig::exit::DOUBTFUL
+    } else {
+        rig::exit::OK
+    })
+}
+
+fn print_rows(rows: &[Row], mark: &Path) {
+    println!(
+        "{} image(s), mark {} (col, row: integer values at pixel centres)",
+        rows.len(),
+        mark.display()
+    );
+    for r in rows {
+        match (r.col, r.row, r.sigma_col, r.sigma_row) {
+            (Some(c), Some(w), Some(sc), Some(sw)) => println!(
+                "{}: {:.4} ± {:.4}, {:.4} ± {:.4} px; scale {:.4}{}; correlation {:.4}; blur {:.2} px; {} iterations; {}",
+                r.image,
+                c,
+                sc,
+                w,
+                sw,
+                r.scale.unwrap_or(f64::NAN),
+                r.rotation_deg
+                    .map(|d| format!(", rotation {d:+.3}°"))
+                    .unwrap_or_default(),
+                r.correlation.unwrap_or(f64::NAN),
+                r.blur_px.unwrap_or(f64::NAN),
+                r.iterations.unwrap_or(0),
+                match &r.message {
+                    None => "accepted".to_string(),
+                    Some(m) => format!("REFUSED: {m}"),
+                }
+            ),
+            (Some(c), Some(w), _, _) => println!(
+                "{}: seen near {c:.1}, {w:.1}, not measured: {}",
+                r.image,
+                r.message.as_deref().unwrap_or("?")
+            ),
+            _ => println!(
+                "{}: {}",
+                r.image,
+                r.message.as_deref().unwrap_or("?")
+            ),
+        }
+    }
+}
+
+/// One field: numbers in full precision, empty for none, text quoted when it must be.
+fn field(s: Option<String>) -> String {
+    match s {
+        None => String::new(),
+        Some(s) if s.contains([',', '"', '\n', '\r']) => format!("\"{}\"", s.replace('"', "\"\"")),
+        Some(s) => s,
+    }
+}
+
+fn to_csv(rows: &[Row]) -> String {
+    let mut out = CSV_COLUMNS.join(",") + "\n";
+    let num = |v: Option<f64>| v.map(|x| x.to_string());
+    for r in rows {
+        let fields = [
+            field(Some(r.image.clone())),
+            field(num(r.col)),
+            field(num(r.row)),
+            field(num(r.sigma_col)),
+            field(num(r.sigma_row)),
+            field(num(r.rotation_deg)),
+            field(num(r.scale)),
+            field(num(r.correlation)),
+            field(num(r.blur_px)),
+            field(r.iterations.map(|i| i.to_string())),
+            r.converged.to_string(),
+            r.accepted.to_string(),
+            field(r.reason.clone()),
+            field(r.message.clone()),
+        ];
+        out += &fields.join(",");
+        out.push('\n');
+    }
+    out
+}
