@@ -32,6 +32,16 @@ impl PixelToCarriage {
         }
     }
 
+    /// A camera with square pixels of 10.5 µm (shears about 0.1 µm): the form that hid no
+    /// rotation of a rotationally symmetric mark, unlike seed 002's 10.19 × 10.96.
+    pub fn square() -> Self {
+        PixelToCarriage {
+            a: [10.5, 0.09],
+            b: [0.10, 10.5],
+            mark_px: [238.3, 229.6],
+        }
+    }
+
     pub fn local_um(&self, col: f64, row: f64) -> [f64; 2] {
         let (dc, dr) = (col - self.mark_px[0], row - self.mark_px[1]);
         [

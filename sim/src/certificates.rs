@@ -40,10 +40,25 @@ pub fn camera_certificate(film: &Film, seed: u64) -> String {
          [shapes.mid_side]\nkind = \"dot_with_line\"\ndot_radius_um = 60.0\nline_um = 40.0\n\
          from_um = 150.0\nto_um = 600.0"
     );
+    if film
+        .fiducials
+        .iter()
+        .any(|f| f.shape == FiducialShape::RingDotSpokes)
+    {
+        let _ = writeln!(
+            s,
+            "\n[shapes.corner_spokes]\nkind = \"parts\"\n\
+             [[shapes.corner_spokes.part]]\nkind = \"dot\"\nradius = 40.0\n\
+             [[shapes.corner_spokes.part]]\nkind = \"ring\"\nradius = 300.0\nwidth = 40.0\n\
+             [[shapes.corner_spokes.part]]\nkind = \"spokes\"\ncount = 4\nfrom = 340.0\nto = 440.0\nwidth = 40.0"
+        );
+    }
     for f in &film.fiducials {
-        let (group, shape) = match f.shape {
-            FiducialShape::RingWithDot => ("corner", "corner"),
-            FiducialShape::DotWithLine => ("mid_side", "mid_side"),
+        let group = if f.id <= 4 { "corner" } else { "mid_side" };
+        let shape = match f.shape {
+            FiducialShape::RingWithDot => "corner",
+            FiducialShape::DotWithLine => "mid_side",
+            FiducialShape::RingDotSpokes => "corner_spokes",
         };
         let _ = writeln!(
             s,

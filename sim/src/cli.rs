@@ -56,6 +56,13 @@ pub struct SimArgs {
     /// two runs byte for byte).
     #[arg(long)]
     pub repeatable: bool,
+    /// The camera has square pixels (10.5 µm), not seed 002's 10.19 × 10.96 µm.
+    #[arg(long)]
+    pub square_pixels: bool,
+    /// The film camera's fiducials are rings: corners a ring, a dot and four radial lines,
+    /// mid-sides a ring and a dot.
+    #[arg(long)]
+    pub ring_fiducials: bool,
     /// Smudge dirt over these crosses' centres (comma-separated ids, 1–9).
     #[arg(long, value_name = "IDS", value_delimiter = ',')]
     pub dirty_crosses: Vec<u32>,
@@ -143,6 +150,8 @@ pub fn run(args: SimArgs) -> std::io::Result<()> {
         dirty_crosses: args.dirty_crosses,
         missing_fiducials: args.missing_fiducials,
         photo: args.photo,
+        square_pixels: args.square_pixels,
+        ring_fiducials: args.ring_fiducials,
         repeatable: args.repeatable,
     };
     let world = crate::server::World::new(&cfg);

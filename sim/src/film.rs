@@ -16,6 +16,10 @@ pub enum FiducialShape {
     RingWithDot,
     /// A dot (radius 60 µm) with a line 40 µm wide from 150 to 600 µm toward the photo centre.
     DotWithLine,
+    /// A ring (radius 300 µm) around a centre dot (radius 40 µm) with four radial lines from
+    /// 340 to 440 µm along the photo axes; lines 40 µm wide (corner fiducials of cameras
+    /// whose mid-sides are plain rings).
+    RingDotSpokes,
 }
 
 #[derive(Debug, Clone, Copy, Serialize)]
@@ -60,6 +64,20 @@ fn disk(r: f64, radius: f64, s: f64) -> f64 {
 }
 
 impl Film {
+    /// The same film from a camera whose corner fiducials are rings with a dot and four
+    /// radial lines and whose mid-side fiducials are rings with a dot (the certificate errors
+    /// stay those of the corners and mid-sides).
+    pub fn with_ring_fiducials(mut self) -> Film {
+        for f in self.fiducials.iter_mut() {
+            f.shape = if f.id <= 4 {
+                FiducialShape::RingDotSpokes
+            } else {
+                FiducialShape::RingWithDot
+            };
+        }
+        self
+    }
+
     /// Photo `number` of an RC10-like camera laid on the middle of the carriage, slightly
     /// shifted, rotated and deformed. The camera (its fiducials and their certificate) comes
     /// from `rng`; how the film lies from `rng` and the photo's number, so each photo of a
@@ -101,10 +119,7 @@ impl Film {
         let camera_seed = rng.next_u64();
         let mut cert = Rng::new(camera_seed ^ 0xCE27_1F1C);
         for f in fiducials.iter_mut() {
-            let s = match f.shape {
-                FiducialShape::RingWithDot => 0.3,
-                FiducialShape::DotWithLine => 2.0,
-            };
+            let s = if f.id <= 4 { 0.3 } else { 2.0 };
             f.cert_error_um = [s * cert.normal(), s * cert.normal()];
         }
         let mut lay = Rng::new(camera_seed ^ (number as u64).wrapping_mul(0xA24B_AED4_963E_E407));
@@ -198,6 +213,20 @@ impl Film {
                 continue;
             }
             let cov = match f.shape {
+                FiducialShape::RingDotSpokes => {
+                    let ring = band(r - 300.0, LINE_UM / 2.0, s);
+                    let dot = disk(r, 40.0, s);
+                    // Four spokes along ±u and ±v: two bars of 340–440 µm each way.
+                    let spoke = |along: f64, across: f64| {
+                        band(across, LINE_UM / 2.0, s) * band(along.abs() - 390.0, 50.0, s)
+                    };
+                    let (h, v) = (spoke(d[0], d[1]), spoke(d[1], d[0]));
+                    let mut clear = 1.0;
+                    for c in [ring, dot, h, v] {
+                        clear *= 1.0 - c;
+                    }
+                    1.0 - clear
+                }
                 FiducialShape::RingWithDot => {
                     let ring = band(r - 300.0, LINE_UM / 2.0, s);
                     let dot = disk(r, 40.0, s);

@@ -61,6 +61,11 @@ pub struct SimConfig {
     pub missing_fiducials: Vec<u32>,
     /// Which photo of the 2×2 block the film is (1, 2 along the first strip; 3, 4 the second).
     pub photo: u32,
+    /// The camera has square pixels (10.5 µm) instead of seed 002's 10.19 × 10.96 µm.
+    pub square_pixels: bool,
+    /// The film camera's fiducials are rings: corners a ring, a dot and four radial lines,
+    /// mid-sides a ring and a dot (instead of rings and dots with a line).
+    pub ring_fiducials: bool,
     /// A perfect stage (no repeatability noise, switch noise or drift) and frames that depend
     /// only on where the stage stands and how many were taken there: two runs that visit the
     /// same places see the same pixels, so a resumed scan can be compared byte for byte.
@@ -83,6 +88,8 @@ impl Default for SimConfig {
             dirty_crosses: Vec::new(),
             missing_fiducials: Vec::new(),
             photo: 1,
+            square_pixels: false,
+            ring_fiducials: false,
             repeatable: false,
         }
     }
@@ -158,10 +165,16 @@ impl World {
             stage_cfg.drift_um_per_h = [0.0; 2];
         }
         // Drawn after the stage, so the stage of a seed is the same with or without a camera.
-        let camera = CameraConfig::new(&mut rng);
+        let mut camera = CameraConfig::new(&mut rng);
+        if cfg.square_pixels {
+            camera.affine = crate::camera::PixelToCarriage::square();
+        }
         let mut plate = Plate::new(&mut rng);
         // Drawn whether loaded or not, so a seed's world is the same either way.
         let mut film = crate::film::Film::rc10(&mut rng, cfg.photo);
+        if cfg.ring_fiducials {
+            film = film.with_ring_fiducials();
+        }
         for id in &cfg.dirty_crosses {
             if let Some(c) = plate.crosses.iter().find(|c| c.id == *id) {
                 // Off the centre, so that it would pull a match that used it.

@@ -105,6 +105,12 @@ pub struct ConnectArgs {
     /// that two runs can be compared byte for byte.
     #[arg(long, requires = "sim", global = true)]
     pub sim_repeatable: bool,
+    /// Simulator: the camera has square pixels (10.5 µm), not seed 002's 10.19 × 10.96 µm.
+    #[arg(long, requires = "sim", global = true)]
+    pub sim_square_pixels: bool,
+    /// Simulator: the film camera's fiducials are rings (corners with four radial lines).
+    #[arg(long, requires = "sim", global = true)]
+    pub sim_ring_fiducials: bool,
 }
 
 fn driver_options(a: &ConnectArgs) -> DriverOptions {
@@ -167,6 +173,8 @@ pub fn connect(
             dirty_crosses: a.sim_dirty_crosses.clone(),
             missing_fiducials: a.sim_missing_fiducials.clone(),
             photo: a.sim_photo,
+            square_pixels: a.sim_square_pixels,
+            ring_fiducials: a.sim_ring_fiducials,
             repeatable: a.sim_repeatable,
             ..Default::default()
         })

@@ -4,6 +4,7 @@
 use anyhow::Context;
 use clap::Args;
 use rig::coords::PixelXY;
+use rig::digitise::{estimate_stripes, remove_stripes};
 use rig::targets::mark_file::MarkFile;
 use rig::targets::measure::{
     measure_near, scale_rotation, BlurSearch, MarkTemplates, Quality, BLUR_GRID,
@@ -89,7 +90,8 @@ pub struct MeasureArgs {
     /// residuals accepted, percent.
     #[arg(long, value_name = "PERCENT", default_value_t = 100.0 * Quality::default().max_outlier_share)]
     pub max_outliers: f64,
-    /// Largest share of the window's pixels with outlying residuals accepted, percent.
+    /// Largest share of the mark's own pixels (where its template has a gradient) with
+    /// outlying residuals accepted, percent.
     #[arg(long, value_name = "PERCENT", default_value_t = 100.0 * Quality::default().max_outlier_pixels)]
     pub max_outlier_pixels: f64,
     /// Smallest share of the mark inside the image accepted, percent.
@@ -101,6 +103,15 @@ pub struct MeasureArgs {
     /// images.
     #[arg(long, value_name = "G", default_value_t = 5.0)]
     pub max_work: f64,
+    /// Remove the camera's stripe noise (the shift between the video fields, the periodic
+    /// column pattern) as estimated from IMAGE, a flat or a full frame of the same camera with
+    /// the same columns as the images measured: a crop of a few dozen pixels holds too few
+    /// periods to find the pattern in.
+    #[arg(long, value_name = "IMAGE")]
+    pub stripes_from: Option<PathBuf>,
+    /// Remove stripe noise estimated from each image itself (full frames).
+    #[arg(long, conflicts_with = "stripes_from")]
+    pub destripe: bool,
     /// Print the results as JSON: an object for one image, an array for several.
     #[arg(long)]
     pub json: bool,
@@ -125,6 +136,10 @@ struct Row {
     correlation: Option<f64>,
     /// The blur used (found, or given).
     blur_px: Option<f64>,
+    /// Shares of the evidence and of the mark's pixels on outlying residuals (the gate's
+    /// `damaged`).
+    outlier_share: Option<f64>,
+    outlier_pixels: Option<f64>,
     iterations: Option<u32>,
     converged: bool,
     accepted: bool,
@@ -140,7 +155,7 @@ enum How {
     Search(BlurSearch),
 }
 
-const CSV_COLUMNS: [&str; 14] = [
+const CSV_COLUMNS: [&str; 16] = [
     "image",
     "col",
     "row",
@@ -150,6 +165,8 @@ const CSV_COLUMNS: [&str; 14] = [
     "scale",
     "correlation",
     "blur_px",
+    "outlier_share",
+    "outlier_pixels",
     "iterations",
     "converged",
     "accepted",
@@ -280,6 +297,27 @@ pub fn run(a: MeasureArgs) -> anyhow::Result<i32> {
         ..Quality::default()
     };
     let max_bytes = 4u64 << 30;
+    let stripes = match &a.stripes_from {
+        None => None,
+        Some(p) => {
+            let flat = rig::image::load_luma(p, max_bytes)?;
+            if flat.data.iter().any(|v| v.is_nan()) {
+                anyhow::bail!(
+                    "{}: NaN grey values: a flat needs a value at every pixel",
+                    p.display()
+                );
+            }
+            let e = estimate_stripes(&flat);
+            if e.column_period.is_none() && !a.json {
+                eprintln!(
+                    "rig measure: note: {} shows no column pattern; only the field shift ({:.2} DN) is removed",
+                    p.display(),
+                    e.field_offset
+                );
+            }
+            Some((p.clone(), flat.width, e))
+        }
+    };
     let mut rows = Vec::with_capacity(a.images.len());
     for path in &a.images {
         let img = rig::image::load_luma(path, max_bytes)?;
@@ -288,6 +326,22 @@ pub fn run(a: MeasureArgs) -> anyhow::Result<i32> {
                 "{}: NaN grey values: marks are measured on images with a value at every pixel",
                 path.display()
             );
+        }
+        let mut img = img;
+        if let Some((p, w, e)) = &stripes {
+            if img.width != *w {
+                anyhow::bail!(
+                    "{}: {} px wide, but the stripes were estimated on {} ({w} px wide): give a \
+                     flat of the same camera and geometry",
+                    path.display(),
+                    img.width,
+                    p.display()
+                );
+            }
+            remove_stripes(&mut img, e);
+        } else if a.destripe {
+            let e = estimate_stripes(&img);
+            remove_stripes(&mut img, &e);
         }
         let near = near.map(|p| (p, a.search));
         let (sw, sh) = match near {
@@ -325,6 +379,8 @@ pub fn run(a: MeasureArgs) -> anyhow::Result<i32> {
             scale: sr.map(|s| s.0),
             correlation: m.map(|m| m.correlation),
             blur_px: blur,
+            outlier_share: m.map(|m| m.outlier_share),
+            outlier_pixels: m.map(|m| m.outlier_pixels),
             iterations: m.map(|m| m.iterations),
             converged: m.is_some(),
             accepted: r.refusal.is_none() && m.is_some(),
@@ -417,6 +473,8 @@ fn to_csv(rows: &[Row]) -> String {
             field(num(r.scale)),
             field(num(r.correlation)),
             field(num(r.blur_px)),
+            field(num(r.outlier_share)),
+            field(num(r.outlier_pixels)),
             field(r.iterations.map(|i| i.to_string())),
             r.converged.to_string(),
             r.accepted.to_string(),

@@ -143,9 +143,10 @@ pub struct LsmMatch {
     /// scratch or a wrong mark far more.
     #[serde(default)]
     pub outlier_share: f64,
-    /// Share of the window's pixels whose residuals are outliers: noise puts 0.3 % there; a
-    /// scratch is caught by it also where it crosses only the background, whose pixels carry
-    /// no evidence.
+    /// Share of the mark's own pixels (where the template's squared gradient is at least 5 %
+    /// of its largest) whose residuals are outliers: noise puts 0.3 % there; a scratch across
+    /// the mark's lines more, however the evidence is weighted. Dust on the background away
+    /// from the lines counts in neither.
     #[serde(default)]
     pub outlier_pixels: f64,
 }
@@ -416,13 +417,22 @@ fn match_sampling_template(
             let f = sample_f(&u).ok_or(LsmError::LeftWindow)?;
             let (v, wt, s) = weights(&r, &f);
             let (nm, _, vv) = normal(&r, &f, &wt);
-            let (mut e_all, mut e_out, mut n_out) = (0.0, 0.0, 0usize);
+            let (mut e_all, mut e_out) = (0.0, 0.0);
+            let e_max = f
+                .iter()
+                .map(|fi| fi.1 * fi.1 + fi.2 * fi.2)
+                .fold(0.0, f64::max);
+            let (mut n_mark, mut n_out) = (0usize, 0usize);
             for (fi, vi) in f.iter().zip(&v) {
                 let e = fi.1 * fi.1 + fi.2 * fi.2;
+                let out = vi.abs() > opt.huber_k * s;
                 e_all += e;
-                if vi.abs() > opt.huber_k * s {
+                if out {
                     e_out += e;
-                    n_out += 1;
+                }
+                if e >= 0.05 * e_max {
+                    n_mark += 1;
+                    n_out += out as usize;
                 }
             }
             let n_eff: f64 = wt.iter().sum();
@@ -486,7 +496,7 @@ fn match_sampling_template(
                 moved_px: c,
                 inside_share,
                 outlier_share: if e_all > 0.0 { e_out / e_all } else { 0.0 },
-                outlier_pixels: n_out as f64 / np,
+                outlier_pixels: n_out as f64 / n_mark.max(1) as f64,
             });
         }
         if it >= opt.max_iterations {
