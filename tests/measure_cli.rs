@@ -302,6 +302,26 @@ fn damaged_marks_are_refused_with_typed_reasons() {
         assert_eq!(r["accepted"], false, "{r}");
     }
     assert_eq!(v[0]["reason"], "damaged");
+    // The right mark with the wrong polarity: refused as inverted, not fitted with a
+    // negative contrast.
+    let neg = d.path().join("negative.toml");
+    std::fs::write(&neg, CORNER.replace("dark_on_bright", "bright_on_dark")).unwrap();
+    let good = d.path().join("good.tif");
+    write_tiff(
+        &good,
+        101,
+        101,
+        &draw(101, 101, c, [1.0, 1.0], &corner_on, &mut seed),
+    );
+    let (code, out, err) = measure(&[
+        good.to_str().unwrap(),
+        "--mark",
+        neg.to_str().unwrap(),
+        "--json",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let r: Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(r["reason"], "inverted", "{r}");
     assert!(
         ["cut", "left_window", "not_found"].contains(&v[1]["reason"].as_str().unwrap()),
         "{}",

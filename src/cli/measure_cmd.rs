@@ -14,48 +14,8 @@ use rig::targets::{coarse::locate_work, Geometry};
 use serde::Serialize;
 use std::path::{Path, PathBuf};
 
-/// Measure a mark (a fiducial or a cross) in images: where its centre is, to a hundredth of
-/// a pixel, with its standard deviation.
-///
-/// The mark is described by a mark file (TOML) of primitives: dot {radius}, ring {radius,
-/// width} (the radius to the line's centre), bar {length, width, angle_deg} (full length,
-/// through the centre; a cross is two bars), spokes {count, from, to, width, angle0_deg}
-/// (radial, from `from` to `to`); sizes in px or µm (`units`), angles in degrees from +col
-/// toward +row (clockwise as shown); polarity dark_on_bright or bright_on_dark:
-///
-///   units = "px"
-///   polarity = "dark_on_bright"
-///   [[part]]
-///   kind = "dot"
-///   radius = 2.0
-///   [[part]]
-///   kind = "ring"
-///   radius = 14.0
-///   width = 2.0
-///
-/// The mark is found by its edges (anywhere, or within --search px of --near), then least
-/// squares fits the drawn mark to the image's own pixels with as many geometric parameters as
-/// the mark determines: dots and rings shifts and scale (their rotation means nothing), lines
-/// in one direction add a rotation, lines in two or more directions the full affine. Where the
-/// frame cuts the matching window, its part in the image is used.
-///
-/// Output: col, row with integer values at pixel centres ((0, 0) the centre of the top-left
-/// pixel), their σ in px (from the normal equations, scaled by σ0), the mark's scale and
-/// rotation in the image (physical, also on non-square pixels; rotation null for marks
-/// without lines), the correlation, the iterations, and the gate's verdict: a mark is refused
-/// when the frame cuts it (--min-inside), its residuals show damage or a different mark
-/// (--max-outliers), or its σ is above --max-sigma. Reasons: not_found, diverged, wandered,
-/// singular, left_window, low_contrast, cut, damaged, imprecise.
-///
-/// Images: PNG or TIFF, grey or colour (turned grey as 0.299 R + 0.587 G + 0.114 B), 8/16-bit
-/// or float.
-///
-/// Examples:
-///   rig measure fid.png --mark corner.toml
-///   rig measure scan.tif --mark cross.toml --near 1200,840 --search 30 --json
-///   rig measure frames/*.png --mark ring.toml --pixel-um 10.19,10.96 --csv marks.csv
+/// `rig measure`: the flags (the command's help is on [`super::Command::Measure`]).
 #[derive(Debug, Args)]
-#[command(verbatim_doc_comment)]
 pub struct MeasureArgs {
     /// The images (one mark measured in each).
     #[arg(required = true, value_name = "IMAGE")]

@@ -298,6 +298,8 @@ pub enum Refusal {
         max_share: f64,
         max_pixels: f64,
     },
+    #[error("the mark appears inverted (correlation {correlation:.3}): dark on bright where the mark file or certificate says bright on dark, or the other way round: check its polarity")]
+    Inverted { correlation: f64 },
     #[error("imprecise: σ of the centre {sigma_px:.4} px (at most {max:.4} px; too noisy, too little contrast?)")]
     Imprecise { sigma_px: f64, max: f64 },
 }
@@ -317,6 +319,7 @@ impl Refusal {
                 LsmError::NoFineDrawing => "no_fine_drawing",
             },
             Refusal::Cut { .. } => "cut",
+            Refusal::Inverted { .. } => "inverted",
             Refusal::Damaged { .. } => "damaged",
             Refusal::Imprecise { .. } => "imprecise",
         }
@@ -369,7 +372,11 @@ pub fn scale_rotation(m: &LsmMatch, um_per_px: [[f64; 2]; 2]) -> Option<(f64, f6
 /// The gate: the first test a match fails, or `None`.
 pub fn gate(m: &LsmMatch, q: &Quality) -> Option<Refusal> {
     let sigma = m.sigma_px[0].max(m.sigma_px[1]);
-    if m.inside_share < q.min_inside_share {
+    if m.radiometric[1] <= 0.0 {
+        Some(Refusal::Inverted {
+            correlation: m.correlation,
+        })
+    } else if m.inside_share < q.min_inside_share {
         Some(Refusal::Cut {
             inside_share: m.inside_share,
             min: q.min_inside_share,
