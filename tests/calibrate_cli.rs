@@ -373,4 +373,59 @@ fn square_pixels_and_ring_fiducials_work_end_to_end() {
         worst < 1.5,
         "fiducials within 1.5 µm of the truth: {worst:.3}"
     );
+
+    // Any form from a mark file: the simulator draws it with its own code, the certificate
+    // carries it as parts, the session measures it (three spokes: the full affine).
+    let mark = store.path().join("three-spokes.toml");
+    std::fs::write(
+        &mark,
+        "units = \"um\"\n[[part]]\nkind = \"dot\"\nradius = 40.0\n[[part]]\nkind = \"ring\"\nradius = 300.0\nwidth = 40.0\n[[part]]\nkind = \"spokes\"\ncount = 3\nfrom = 340.0\nto = 440.0\nwidth = 40.0\nangle0_deg = 90.0\n",
+    )
+    .unwrap();
+    let out = store.path().join("interior-file");
+    let doc = run_ok(
+        rig()
+            .args([
+                "calibrate",
+                "interior",
+                "--sim",
+                "--sim-square-pixels",
+                "--sim-fiducial-mark",
+            ])
+            .arg(&mark)
+            .args(["--sim-seed", "6", "--json", "--store"])
+            .arg(store.path())
+            .arg("--out")
+            .arg(&out),
+    );
+    let truth = read_json(&out.join("sim-truth.json"));
+    let film = &truth["film"];
+    let p = |k: usize| f(&film["photo_to_carriage"][k]);
+    let cert = std::fs::read_to_string(out.join("camera-cert.toml")).unwrap();
+    assert!(
+        cert.contains("kind = \"parts\"") && cert.contains("count = 3"),
+        "{cert}"
+    );
+    let mut worst = 0.0f64;
+    for o in doc["calibration"]["fiducials"].as_array().unwrap() {
+        let id = o["id"].as_u64().unwrap();
+        assert!(o["missing"].is_null(), "fiducial {id}: {o}");
+        let t = film["fiducials"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|t| t["id"].as_u64() == Some(id))
+            .unwrap();
+        assert_eq!(t["shape"], "from_file");
+        let (u, v) = (f(&t["photo_mm"][0]), f(&t["photo_mm"][1]));
+        let want = [p(0) + p(1) * u + p(2) * v, p(3) + p(4) * u + p(5) * v];
+        let got = [f(&o["carriage_um"]["x"]), f(&o["carriage_um"]["y"])];
+        let e = (got[0] - want[0]).hypot(got[1] - want[1]);
+        println!("fiducial {id} (from the mark file): carriage error {e:.3} µm");
+        worst = worst.max(e);
+    }
+    assert!(
+        worst < 1.5,
+        "fiducials within 1.5 µm of the truth: {worst:.3}"
+    );
 }

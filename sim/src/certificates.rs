@@ -40,6 +40,9 @@ pub fn camera_certificate(film: &Film, seed: u64) -> String {
          [shapes.mid_side]\nkind = \"dot_with_line\"\ndot_radius_um = 60.0\nline_um = 40.0\n\
          from_um = 150.0\nto_um = 600.0"
     );
+    if let Some(m) = &film.mark_file {
+        s += &m.certificate_shape("from_file");
+    }
     if film
         .fiducials
         .iter()
@@ -59,6 +62,7 @@ pub fn camera_certificate(film: &Film, seed: u64) -> String {
             FiducialShape::RingWithDot => "corner",
             FiducialShape::DotWithLine => "mid_side",
             FiducialShape::RingDotSpokes => "corner_spokes",
+            FiducialShape::FromFile => "from_file",
         };
         let _ = writeln!(
             s,

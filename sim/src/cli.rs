@@ -63,6 +63,9 @@ pub struct SimArgs {
     /// mid-sides a ring and a dot.
     #[arg(long)]
     pub ring_fiducials: bool,
+    /// Every fiducial of the form a mark file gives (units = "um"; as `rig measure` reads).
+    #[arg(long, value_name = "MARK.toml")]
+    pub fiducial_mark: Option<PathBuf>,
     /// Smudge dirt over these crosses' centres (comma-separated ids, 1–9).
     #[arg(long, value_name = "IDS", value_delimiter = ',')]
     pub dirty_crosses: Vec<u32>,
@@ -152,6 +155,10 @@ pub fn run(args: SimArgs) -> std::io::Result<()> {
         photo: args.photo,
         square_pixels: args.square_pixels,
         ring_fiducials: args.ring_fiducials,
+        fiducial_mark: match &args.fiducial_mark {
+            Some(p) => Some(crate::marks::SimMark::load(p).map_err(std::io::Error::other)?),
+            None => None,
+        },
         repeatable: args.repeatable,
     };
     let world = crate::server::World::new(&cfg);

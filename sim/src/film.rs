@@ -20,6 +20,8 @@ pub enum FiducialShape {
     /// 340 to 440 µm along the photo axes; lines 40 µm wide (corner fiducials of cameras
     /// whose mid-sides are plain rings).
     RingDotSpokes,
+    /// The film's own mark ([`Film::mark_file`]), from a mark file.
+    FromFile,
 }
 
 #[derive(Debug, Clone, Copy, Serialize)]
@@ -50,16 +52,18 @@ pub struct Film {
     pub photo_number: u32,
     /// The aerial photo in the picture area (none: clear base).
     pub aerial: Option<Arc<AerialPhoto>>,
+    /// Every fiducial's form, when a mark file gives it.
+    pub mark_file: Option<crate::marks::SimMark>,
 }
 
 const LINE_UM: f64 = 40.0;
 
-fn band(d: f64, half: f64, s: f64) -> f64 {
+pub(crate) fn band(d: f64, half: f64, s: f64) -> f64 {
     let k = std::f64::consts::SQRT_2 * s;
     0.5 * (erf((d + half) / k) - erf((d - half) / k))
 }
 
-fn disk(r: f64, radius: f64, s: f64) -> f64 {
+pub(crate) fn disk(r: f64, radius: f64, s: f64) -> f64 {
     0.5 * (1.0 - erf((r - radius) / (std::f64::consts::SQRT_2 * s)))
 }
 
@@ -67,6 +71,15 @@ impl Film {
     /// The same film from a camera whose corner fiducials are rings with a dot and four
     /// radial lines and whose mid-side fiducials are rings with a dot (the certificate errors
     /// stay those of the corners and mid-sides).
+    /// The same film with every fiducial of the form `mark` (from a mark file).
+    pub fn with_mark(mut self, mark: crate::marks::SimMark) -> Film {
+        for f in self.fiducials.iter_mut() {
+            f.shape = FiducialShape::FromFile;
+        }
+        self.mark_file = Some(mark);
+        self
+    }
+
     pub fn with_ring_fiducials(mut self) -> Film {
         for f in self.fiducials.iter_mut() {
             f.shape = if f.id <= 4 {
@@ -155,6 +168,7 @@ impl Film {
             picture_half_mm: 100.0,
             photo_number: number,
             aerial: None,
+            mark_file: None,
         }
     }
 
@@ -209,10 +223,17 @@ impl Film {
         for f in self.fiducials.iter().filter(|f| !f.missing) {
             let d = [(u - f.photo_mm[0]) * 1000.0, (v - f.photo_mm[1]) * 1000.0];
             let r = d[0].hypot(d[1]);
-            if r > 1_000.0 {
+            let reach = self
+                .mark_file
+                .as_ref()
+                .map_or(1_000.0, |m| m.reach_um().max(1_000.0));
+            if r > reach {
                 continue;
             }
             let cov = match f.shape {
+                FiducialShape::FromFile => {
+                    self.mark_file.as_ref().map_or(0.0, |m| m.coverage(d, s))
+                }
                 FiducialShape::RingDotSpokes => {
                     let ring = band(r - 300.0, LINE_UM / 2.0, s);
                     let dot = disk(r, 40.0, s);

@@ -18,6 +18,7 @@ pub mod faults;
 pub mod film;
 pub mod frames;
 pub mod grbl;
+pub mod marks;
 pub mod native;
 pub mod plate;
 pub mod profile;

@@ -66,6 +66,8 @@ pub struct SimConfig {
     /// The film camera's fiducials are rings: corners a ring, a dot and four radial lines,
     /// mid-sides a ring and a dot (instead of rings and dots with a line).
     pub ring_fiducials: bool,
+    /// Every fiducial of this form (a mark file in µm).
+    pub fiducial_mark: Option<crate::marks::SimMark>,
     /// A perfect stage (no repeatability noise, switch noise or drift) and frames that depend
     /// only on where the stage stands and how many were taken there: two runs that visit the
     /// same places see the same pixels, so a resumed scan can be compared byte for byte.
@@ -90,6 +92,7 @@ impl Default for SimConfig {
             photo: 1,
             square_pixels: false,
             ring_fiducials: false,
+            fiducial_mark: None,
             repeatable: false,
         }
     }
@@ -174,6 +177,9 @@ impl World {
         let mut film = crate::film::Film::rc10(&mut rng, cfg.photo);
         if cfg.ring_fiducials {
             film = film.with_ring_fiducials();
+        }
+        if let Some(m) = &cfg.fiducial_mark {
+            film = film.with_mark(m.clone());
         }
         for id in &cfg.dirty_crosses {
             if let Some(c) = plate.crosses.iter().find(|c| c.id == *id) {

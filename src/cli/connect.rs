@@ -111,6 +111,9 @@ pub struct ConnectArgs {
     /// Simulator: the film camera's fiducials are rings (corners with four radial lines).
     #[arg(long, requires = "sim", global = true)]
     pub sim_ring_fiducials: bool,
+    /// Simulator: every fiducial of the form a mark file gives (units = "um").
+    #[arg(long, value_name = "MARK.toml", requires = "sim", global = true)]
+    pub sim_fiducial_mark: Option<std::path::PathBuf>,
 }
 
 fn driver_options(a: &ConnectArgs) -> DriverOptions {
@@ -175,6 +178,10 @@ pub fn connect(
             photo: a.sim_photo,
             square_pixels: a.sim_square_pixels,
             ring_fiducials: a.sim_ring_fiducials,
+            fiducial_mark: match &a.sim_fiducial_mark {
+                Some(p) => Some(rig_sim::marks::SimMark::load(p).map_err(anyhow::Error::msg)?),
+                None => None,
+            },
             repeatable: a.sim_repeatable,
             ..Default::default()
         })
