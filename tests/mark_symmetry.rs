@@ -8,6 +8,7 @@ use common::{gauss, uniform};
 
 use rig::coords::PixelXY;
 use rig::digitise::ImageF32;
+use rig::targets::measure::scale_rotation;
 use rig::targets::{
     match_template, render, Geometry, LsmOptions, MarkShape, Polarity, TemplateSpec,
 };
@@ -45,6 +46,8 @@ fn draw(
 
 struct Run {
     converged: usize,
+    /// The mark's rotation in the image, degrees, per converged trial.
+    rotations: Vec<f64>,
     errors: Vec<f64>,
     /// True error / σ, per axis.
     ratios: Vec<f64>,
@@ -77,6 +80,7 @@ fn run(
         converged: 0,
         errors: Vec::new(),
         ratios: Vec::new(),
+        rotations: Vec::new(),
     };
     for _ in 0..trials {
         let centre = [60.0 + uniform(&mut seed), 60.0 + uniform(&mut seed)];
@@ -95,6 +99,9 @@ fn run(
                     "{:+.4} {:+.4}  σ {:.4} {:.4}",
                     e[0], e[1], m.sigma_px[0], m.sigma_px[1]
                 );
+            }
+            if let Some((_, rot)) = scale_rotation(&m, [[px, 0.0], [0.0, px]]) {
+                out.rotations.push(rot);
             }
             out.ratios.push(e[0] / m.sigma_px[0]);
             out.ratios.push(e[1] / m.sigma_px[1]);
@@ -129,6 +136,13 @@ fn a_ring_converges_with_shifts_and_scale() {
     );
     assert_eq!(ring.converged, n);
     assert!(rms(&ring.errors) < 0.01, "RMSE {}", rms(&ring.errors));
+    // The σ is honest; the free rotation and shear of the full affine lose trials.
+    assert!(
+        (0.7..1.4).contains(&rms(&ring.ratios)),
+        "{}",
+        rms(&ring.ratios)
+    );
+    assert!(affine.converged < n, "{}", affine.converged);
 }
 
 /// A dot with one line, turned 2° in the image: shifts, scale and rotation find it.
@@ -155,4 +169,9 @@ fn a_dot_with_a_line_converges_with_a_rotation() {
     );
     assert_eq!(r.converged, n);
     assert!(rms(&r.errors) < 0.01, "RMSE {}", rms(&r.errors));
+    assert!((0.7..1.4).contains(&rms(&r.ratios)), "{}", rms(&r.ratios));
+    // The rotation found is the 2° the mark was drawn turned by.
+    for rot in &r.rotations {
+        assert!((rot - 2.0).abs() < 0.2, "rotation {rot}°");
+    }
 }

@@ -68,9 +68,6 @@ pub(crate) fn disk(r: f64, radius: f64, s: f64) -> f64 {
 }
 
 impl Film {
-    /// The same film from a camera whose corner fiducials are rings with a dot and four
-    /// radial lines and whose mid-side fiducials are rings with a dot (the certificate errors
-    /// stay those of the corners and mid-sides).
     /// The same film with every fiducial of the form `mark` (from a mark file).
     pub fn with_mark(mut self, mark: crate::marks::SimMark) -> Film {
         for f in self.fiducials.iter_mut() {
@@ -80,6 +77,9 @@ impl Film {
         self
     }
 
+    /// The same film from a camera whose corner fiducials are rings with a dot and four
+    /// radial lines and whose mid-side fiducials are rings with a dot (the certificate errors
+    /// stay those of the corners and mid-sides).
     pub fn with_ring_fiducials(mut self) -> Film {
         for f in self.fiducials.iter_mut() {
             f.shape = if f.id <= 4 {

@@ -34,6 +34,7 @@ pub enum SimPart {
 }
 
 #[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
 struct File {
     units: String,
     #[serde(default)]
@@ -87,24 +88,43 @@ impl SimMark {
                     vec![to, width]
                 }
             };
+            // The rig's own bounds for a certificate's marks (1 µm to 10 mm, angles ±360°),
+            // so that the certificate written from it reads.
             if sizes
                 .iter()
-                .any(|v| !(v.is_finite() && *v > 0.0 && *v <= 5000.0))
+                .any(|v| !(v.is_finite() && (1.0..=10_000.0).contains(v)))
             {
-                return bad(format!("part {}: sizes above 0, at most 5000 µm", i + 1));
+                return bad(format!("part {}: sizes from 1 to 10000 µm", i + 1));
+            }
+            if let SimPart::Ring { radius, width } = *p {
+                if width / 2.0 > radius {
+                    return bad(format!(
+                        "part {}: a ring wider than twice its radius",
+                        i + 1
+                    ));
+                }
             }
             let angle_ok = match *p {
-                SimPart::Bar { angle_deg: a, .. } => a.is_finite(),
+                SimPart::Bar { angle_deg: a, .. } => a.is_finite() && a.abs() <= 360.0,
                 SimPart::Spokes {
                     angle0_deg: a,
                     from,
                     to,
                     ..
-                } => a.is_finite() && from.is_finite() && from >= 0.0 && from < to,
+                } => {
+                    a.is_finite()
+                        && a.abs() <= 360.0
+                        && from.is_finite()
+                        && from >= 0.0
+                        && from < to
+                }
                 _ => true,
             };
             if !angle_ok {
-                return bad(format!("part {}: angles finite, 0 <= from < to", i + 1));
+                return bad(format!(
+                    "part {}: angles within ±360°, 0 <= from < to",
+                    i + 1
+                ));
             }
         }
         Ok(SimMark { parts: f.part })
@@ -214,6 +234,7 @@ mod tests {
             (good.replace("40.0", "-1.0"), "part 1"),
             (good.replace("40.0", "nan"), "part 1"),
             (good.replace("40.0", "1e9"), "part 1"),
+            (good.replace("radius", "radius = 1.0\nwidht"), "widht"),
             (good.replace("dot", "star"), "star"),
             (
                 "units = \"um\"\n[[part]]\nkind = \"spokes\"\ncount = 0\nfrom = 1.0\nto = 2.0\nwidth = 1.0\n"

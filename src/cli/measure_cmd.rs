@@ -5,9 +5,10 @@ use anyhow::Context;
 use clap::Args;
 use rig::coords::PixelXY;
 use rig::digitise::{estimate_stripes, remove_stripes};
+use rig::targets::lsm::match_work;
 use rig::targets::mark_file::MarkFile;
 use rig::targets::measure::{
-    measure_near, scale_rotation, BlurSearch, MarkTemplates, Quality, BLUR_GRID,
+    measure_near, scale_rotation, BlurSearch, MarkTemplates, Quality, BLUR_DRAWINGS, BLUR_GRID,
 };
 use rig::targets::template::render_work;
 use rig::targets::{coarse::locate_work, Geometry};
@@ -18,8 +19,12 @@ use std::path::{Path, PathBuf};
 #[derive(Debug, Args)]
 pub struct MeasureArgs {
     /// The images (one mark measured in each).
-    #[arg(required = true, value_name = "IMAGE")]
+    #[arg(required_unless_present = "list", value_name = "IMAGE")]
     pub images: Vec<PathBuf>,
+    /// Also the images listed in FILE, one path per line (relative to FILE's folder; blank
+    /// lines and lines starting with # left out).
+    #[arg(long, value_name = "FILE")]
+    pub list: Option<PathBuf>,
     /// The mark file.
     #[arg(long, value_name = "MARK.toml")]
     pub mark: PathBuf,
@@ -108,6 +113,11 @@ struct Row {
     /// The reason in words.
     message: Option<String>,
 }
+
+/// Most images in one run (each one's result is kept until the end).
+const MAX_IMAGES: usize = 1_000_000;
+/// Largest list file read.
+const MAX_LIST_BYTES: u64 = 64 << 20;
 
 /// How the templates are had.
 enum How {
@@ -222,9 +232,10 @@ pub fn run(a: MeasureArgs) -> anyhow::Result<i32> {
     let renders = if a.blur.is_some() {
         1.0
     } else {
-        BLUR_GRID.len() as f64 + 4.0
+        BLUR_DRAWINGS as f64
     };
-    let drawing = renders * render_work(&shape, patch) / 1e9;
+    // Drawing, and matching the patch once per drawing in each image.
+    let drawing = renders * (render_work(&shape, patch) + match_work(patch)) / 1e9;
     if drawing > a.max_work {
         return usage(format!(
             "the mark of {} reaches {reach_px:.0} px: drawing its templates would take {drawing:.0} G \
@@ -257,6 +268,35 @@ pub fn run(a: MeasureArgs) -> anyhow::Result<i32> {
         ..Quality::default()
     };
     let max_bytes = 4u64 << 30;
+    let mut images = a.images.clone();
+    if let Some(list) = &a.list {
+        let size = std::fs::metadata(list)
+            .with_context(|| format!("reading the list {}", list.display()))?
+            .len();
+        if size > MAX_LIST_BYTES {
+            return usage(format!(
+                "--list {}: {size} bytes; at most {MAX_LIST_BYTES} (split the list)",
+                list.display()
+            ));
+        }
+        let text = std::fs::read_to_string(list)
+            .with_context(|| format!("reading the list {}", list.display()))?;
+        let base = list.parent().unwrap_or(Path::new("."));
+        for line in text.lines().map(str::trim) {
+            if !line.is_empty() && !line.starts_with('#') {
+                images.push(base.join(line));
+            }
+        }
+        if images.len() > MAX_IMAGES {
+            return usage(format!(
+                "{} images: at most {MAX_IMAGES} in one run (split the list)",
+                images.len()
+            ));
+        }
+    }
+    if images.is_empty() {
+        return usage("no images: give IMAGE… or a --list that names some".into());
+    }
     let stripes = match &a.stripes_from {
         None => None,
         Some(p) => {
@@ -279,7 +319,7 @@ pub fn run(a: MeasureArgs) -> anyhow::Result<i32> {
         }
     };
     let mut rows = Vec::with_capacity(a.images.len());
-    for path in &a.images {
+    for path in &images {
         let img = rig::image::load_luma(path, max_bytes)?;
         if img.data.iter().any(|v| v.is_nan()) {
             anyhow::bail!(

@@ -164,16 +164,23 @@ const ROBUST_FLOOR: f64 = 0.03;
 /// Largest lag of the residuals' autocovariance taken into the centre's σ, px.
 const HAC_LAG: usize = 12;
 
-/// Σᵢ Σⱼ hᵢ hⱼ C(i − j) over an n×n window (row-major, `inside` marking the pixels used), C the
-/// autocovariance of `psi` at lags up to [`HAC_LAG`] in each direction with Bartlett weights,
-/// times `dof` (n / (n − u)).
-fn hac_variance(h: &[f64], psi: &[f64], inside: &[bool], n: usize, dof: f64) -> f64 {
+/// The work of one match with a template of side `n`, in multiply-adds: the iterations' normal
+/// equations and the centre's σ (to refuse a match too large before it starts).
+pub fn match_work(n: usize) -> f64 {
+    let lags = (2 * HAC_LAG + 1) as f64;
+    (n * n) as f64 * (LsmOptions::default().max_iterations as f64 * 64.0 + 2.0 * lags * lags)
+}
+
+/// Σᵢ Σⱼ hᵢ hⱼ C(i − j) for the two axes' influences `h` over an n×n window (row-major,
+/// `inside` marking the pixels used), C the autocovariance of `psi` at lags up to
+/// [`HAC_LAG`] in each direction with Bartlett weights, times `dof` (n / (n − u)).
+fn hac_variance(h: [&[f64]; 2], psi: &[f64], inside: &[bool], n: usize, dof: f64) -> [f64; 2] {
     let l = HAC_LAG.min(n.saturating_sub(1)) as i64;
     let n_i = n as i64;
-    let mut total = 0.0;
+    let mut total = [0.0; 2];
     for dy in -l..=l {
         for dx in -l..=l {
-            let (mut cov, mut pairs, mut hh) = (0.0, 0usize, 0.0);
+            let (mut cov, mut pairs, mut hh) = (0.0, 0usize, [0.0; 2]);
             for y in 0.max(-dy)..n_i.min(n_i - dy) {
                 for x in 0.max(-dx)..n_i.min(n_i - dx) {
                     let i = (y * n_i + x) as usize;
@@ -181,18 +188,21 @@ fn hac_variance(h: &[f64], psi: &[f64], inside: &[bool], n: usize, dof: f64) -> 
                     if inside[i] && inside[j] {
                         cov += psi[i] * psi[j];
                         pairs += 1;
-                        hh += h[i] * h[j];
+                        hh[0] += h[0][i] * h[0][j];
+                        hh[1] += h[1][i] * h[1][j];
                     }
                 }
             }
             if pairs > 0 {
                 let bartlett = (1.0 - dx.abs() as f64 / (l + 1) as f64)
                     * (1.0 - dy.abs() as f64 / (l + 1) as f64);
-                total += bartlett * hh * cov / pairs as f64;
+                for a in 0..2 {
+                    total[a] += bartlett * hh[a] * cov / pairs as f64;
+                }
             }
         }
     }
-    total.max(0.0) * dof
+    total.map(|t| t.max(0.0) * dof)
 }
 
 /// The residuals' robust σ: the median absolute deviation × 1.4826 (a Gaussian's σ), at least
@@ -457,15 +467,13 @@ fn match_sampling_template(
             // own autocovariance up to HAC_LAG px (Bartlett-tapered: the Newey–West
             // estimator, with Huber's ψ(v) = w·v), so that column stripes, grain or a blur
             // that the template lacks widen σ as they widen the true error.
-            let hac = |a: usize| -> f64 {
+            let influence = |a: usize| -> Vec<f64> {
                 let mut gp = DVector::<f64>::zeros(nu);
                 for (p, jc) in jac.iter().enumerate() {
                     gp[p] = (0..6).map(|i| cols[i][a] * jc[i]).sum();
                 }
                 let t = &qp * gp;
                 let mut h = vec![0.0; n * n];
-                let mut psi = vec![0.0; n * n];
-                let mut inside = vec![false; n * n];
                 for (k, (&(dx, dy, _), &(fv, fx, fy))) in pix.iter().zip(&f).enumerate() {
                     let (ax, ay) = (r[1] * fx, r[1] * fy);
                     let full = [ax, ax * dx, ax * dy, ay, ay * dx, ay * dy];
@@ -474,17 +482,28 @@ fn match_sampling_template(
                         x += t[j] * (0..6).map(|i| full[i] * col[i]).sum::<f64>();
                     }
                     h[place[k]] = x;
-                    psi[place[k]] = wt[k] * v[k];
-                    inside[place[k]] = true;
                 }
-                hac_variance(&h, &psi, &inside, n, np / (np - nu as f64).max(1.0))
+                h
             };
+            let mut psi = vec![0.0; n * n];
+            let mut inside = vec![false; n * n];
+            for k in 0..pix.len() {
+                psi[place[k]] = wt[k] * v[k];
+                inside[place[k]] = true;
+            }
+            let var = hac_variance(
+                [&influence(0), &influence(1)],
+                &psi,
+                &inside,
+                n,
+                np / (np - nu as f64).max(1.0),
+            );
             let (g, t): (Vec<f64>, Vec<f64>) = pix.iter().zip(&f).map(|(p, f)| (p.2, f.0)).unzip();
             let corr = crate::correlation::ncc(&g, &t);
             let centre = PixelXY::new(start.col + c[0], start.row + c[1]);
             return Ok(LsmMatch {
                 centre,
-                sigma_px: [hac(0).sqrt(), hac(1).sqrt()],
+                sigma_px: [var[0].sqrt(), var[1].sqrt()],
                 // Image from template: x = centre + M⁻¹·t.
                 affine: [
                     centre.col, mi[0][0], mi[0][1], centre.row, mi[1][0], mi[1][1],

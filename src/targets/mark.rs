@@ -76,6 +76,10 @@ impl Part {
                 // those around the nearest in angle, not all `count`.
                 let step = 360.0 / count as f64;
                 let r = p[0].hypot(p[1]);
+                // Beyond the spokes' ring of radii nothing (the along-coordinate is at most r).
+                if r < from || r > to.hypot(width / 2.0) {
+                    return false;
+                }
                 let a = p[1].atan2(p[0]).to_degrees() - angle0_deg;
                 let k = (a / step).round() as i64;
                 let spread = (width / 2.0 / r.max(1e-300)).min(1.0).asin().to_degrees();
@@ -86,10 +90,19 @@ impl Part {
         }
     }
 
-    /// The cost of one [`Part::contains`], in tests of a strip or circle.
+    /// The cost of one [`Part::contains`] at the worst point, in tests of a strip or circle:
+    /// the spokes within asin(w/2 / r) of a point's direction, r at least `from` (or w/2).
     pub fn cost(&self) -> f64 {
-        match self {
-            Part::Spokes { .. } => 3.0,
+        match *self {
+            Part::Spokes {
+                count, from, width, ..
+            } => {
+                let step = 360.0 / count as f64;
+                let r = from.max(width / 2.0).max(1e-300);
+                let spread = (width / 2.0 / r).min(1.0).asin().to_degrees();
+                let m = ((spread / step).ceil() + 1.0).min(count as f64);
+                2.0 * m + 1.0
+            }
             _ => 1.0,
         }
     }

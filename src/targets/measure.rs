@@ -1,9 +1,10 @@
 //! Measuring one mark in a captured picture: coarse location, then least-squares matching,
 //! then the quality gate. A mark that fails any step is reported with why and never used.
 
+use super::template::render_work;
 use super::{
-    locate, match_template, render, CoarseMatch, CoarseOptions, Geometry, LsmError, LsmMatch,
-    LsmOptions, MarkShape, Polarity, Template, TemplateSpec,
+    coarse::CoarseError, locate, match_template, render, CoarseMatch, CoarseOptions, Geometry,
+    LsmError, LsmMatch, LsmOptions, MarkShape, Polarity, Template, TemplateSpec,
 };
 use crate::coords::PixelXY;
 use crate::digitise::ImageF32;
@@ -31,20 +32,10 @@ impl MarkTemplates {
         patch: usize,
         blur_px: f64,
     ) -> Result<Self, String> {
-        let px = um_per_px[0][0].abs().min(um_per_px[1][1].abs());
-        let side = 2.0 * shape.reach_um() / px + 12.0;
-        if !side.is_finite() || side > MAX_TEMPLATE_PX as f64 || patch > MAX_TEMPLATE_PX {
-            return Err(format!(
-                "a mark reaching {:.0} µm at {px:.4} µm/px would need a template of {side:.0} px \
-                 (patch {patch} px; at most {MAX_TEMPLATE_PX}): check the certificate's mark sizes \
-                 and the pixel size (--pixel-um)",
-                shape.reach_um()
-            ));
-        }
         if !(blur_px.is_finite() && (0.0..=50.0).contains(&blur_px)) {
             return Err(format!("blur {blur_px} px: 0 to 50 px"));
         }
-        let whole = side.ceil() as usize;
+        let whole = whole_side(shape, um_per_px, patch, 1.0)?;
         let spec = |size, fine| TemplateSpec {
             size,
             um_per_px,
@@ -58,6 +49,42 @@ impl MarkTemplates {
             geometry: shape.geometry(),
         })
     }
+}
+
+/// Most work of drawing a mark's templates, in tests of a part ([`render_work`]): a mark of a
+/// few hundred pixels with tens of parts; more means wrong sizes or a wrong pixel size.
+pub const MAX_DRAW_WORK: f64 = 2e10;
+
+/// The side of the template to locate `shape` with, after the checks that it (and `renders`
+/// fine patches of side `patch`) can be drawn: refused with what to check when the mark
+/// would be larger than [`MAX_TEMPLATE_PX`] or take more than [`MAX_DRAW_WORK`].
+fn whole_side(
+    shape: &MarkShape,
+    um_per_px: [[f64; 2]; 2],
+    patch: usize,
+    renders: f64,
+) -> Result<usize, String> {
+    let px = um_per_px[0][0].abs().min(um_per_px[1][1].abs());
+    let side = 2.0 * shape.reach_um() / px + 12.0;
+    if !side.is_finite() || side > MAX_TEMPLATE_PX as f64 || patch > MAX_TEMPLATE_PX {
+        return Err(format!(
+            "a mark reaching {:.0} µm at {px:.4} µm/px would need a template of {side:.0} px \
+             (patch {patch} px; at most {MAX_TEMPLATE_PX}): check the certificate's mark sizes \
+             and the pixel size (--pixel-um)",
+            shape.reach_um()
+        ));
+    }
+    let work = render_work(shape, side.ceil() as usize) + renders * render_work(shape, patch);
+    if work > MAX_DRAW_WORK {
+        return Err(format!(
+            "drawing the mark's templates would take {:.0} G tests of its {} parts (at most {:.0} G): \
+             check its sizes, its spokes' count and width, and the pixel size",
+            work / 1e9,
+            shape.parts.len(),
+            MAX_DRAW_WORK / 1e9
+        ));
+    }
+    Ok(side.ceil() as usize)
 }
 
 /// A mark whose optics' blur is not known: templates drawn at the blurs tried, kept for the
@@ -78,6 +105,10 @@ pub struct BlurSearch {
 
 /// The blurs tried first, px; the best is refined by a parabola through its neighbours.
 pub const BLUR_GRID: [f64; 6] = [0.0, 0.4, 0.8, 1.2, 1.6, 2.4];
+/// Most drawings one image may need: the grid, two rounds of two brackets and a vertex.
+pub const BLUR_DRAWINGS: usize = BLUR_GRID.len() + 6;
+/// Drawings kept between images.
+const KEEP_DRAWINGS: usize = 24;
 
 impl BlurSearch {
     pub fn new(
@@ -86,14 +117,24 @@ impl BlurSearch {
         um_per_px: [[f64; 2]; 2],
         patch: usize,
     ) -> Result<Self, String> {
-        let t = MarkTemplates::new(shape, polarity, um_per_px, patch, 0.8)?;
+        let side = whole_side(shape, um_per_px, patch, BLUR_DRAWINGS as f64)?;
+        let whole = render(
+            &shape.for_coarse(),
+            &TemplateSpec {
+                size: side,
+                um_per_px,
+                blur_px: 0.8,
+                polarity,
+                fine: false,
+            },
+        );
         Ok(BlurSearch {
             shape: shape.clone(),
             polarity,
             um_per_px,
             patch,
-            whole: t.whole,
-            geometry: t.geometry,
+            whole,
+            geometry: shape.geometry(),
             drawn: std::collections::BTreeMap::new(),
         })
     }
@@ -104,6 +145,14 @@ impl BlurSearch {
 
     fn patch(&mut self, blur: f64) -> &Template {
         let key = (blur * 100.0).round().clamp(0.0, 2_000.0) as u32;
+        // Kept for the next images, but not without bound: the grid's stay.
+        if self.drawn.len() >= KEEP_DRAWINGS && !self.drawn.contains_key(&key) {
+            let grid: Vec<u32> = BLUR_GRID
+                .iter()
+                .map(|b| (b * 100.0).round() as u32)
+                .collect();
+            self.drawn.retain(|k, _| grid.contains(k));
+        }
         let (shape, spec) = (
             &self.shape,
             TemplateSpec {
@@ -206,29 +255,51 @@ fn coarse_near(
     near: Option<(PixelXY, f64)>,
 ) -> Result<CoarseMatch, Refusal> {
     let located = match near {
-        None => locate(img, whole, &q.coarse),
+        None => locate(img, whole, &q.coarse).map_err(|e| Refusal::NotFound {
+            message: e.to_string(),
+        }),
         Some((p, radius)) => {
             // The part of the image where the whole template can lie with its centre within
             // the radius.
             let reach = radius.max(0.0) + whole.size() as f64 / 2.0 + 1.0;
-            let c0 = (p.col - reach).floor().max(0.0);
-            let r0 = (p.row - reach).floor().max(0.0);
-            let side = (2.0 * reach).ceil();
+            let (w, h) = (img.width as f64, img.height as f64);
+            let c0 = (p.col - reach).floor().clamp(0.0, w);
+            let r0 = (p.row - reach).floor().clamp(0.0, h);
+            let c1 = (p.col + reach).ceil().clamp(c0, w);
+            let r1 = (p.row + reach).ceil().clamp(r0, h);
             let part = img.window(
-                c0.min(img.width as f64) as usize,
-                r0.min(img.height as f64) as usize,
-                side.min(img.width as f64) as usize,
-                side.min(img.height as f64) as usize,
+                c0 as usize,
+                r0 as usize,
+                (c1 - c0) as usize,
+                (r1 - r0) as usize,
             );
-            locate(&part, whole, &q.coarse).map(|mut c| {
-                c.centre = PixelXY::new(c.centre.col + c0, c.centre.row + r0);
-                c
-            })
+            if part.width < 3 || part.height < 3 {
+                return Err(Refusal::NotFound {
+                    message: format!(
+                        "--near ({:.1}, {:.1}) with --search {radius} lies outside the image",
+                        p.col - 0.5,
+                        p.row - 0.5
+                    ),
+                });
+            }
+            let not_found = |e: CoarseError| Refusal::NotFound {
+                message: e.to_string(),
+            };
+            let mut c = locate(&part, whole, &q.coarse).map_err(not_found)?;
+            c.centre = PixelXY::new(c.centre.col + c0, c.centre.row + r0);
+            // A placement partly beyond the crop can put the centre outside the radius.
+            let d = c.centre.dist(p);
+            if d > radius + 1.0 {
+                return Err(Refusal::NotFound {
+                    message: format!(
+                        "the best match lies {d:.1} px from --near, beyond --search {radius} px"
+                    ),
+                });
+            }
+            Ok(c)
         }
     };
-    located.map_err(|e| Refusal::NotFound {
-        message: e.to_string(),
-    })
+    located
 }
 
 /// A match (or its failure) through the gate.
@@ -306,7 +377,8 @@ pub enum Refusal {
 
 impl Refusal {
     /// A short code for scripts: `not_found`, `diverged`, `wandered`, `singular`,
-    /// `left_window`, `low_contrast`, `cut`, `damaged`, `imprecise`.
+    /// `left_window`, `low_contrast`, `no_fine_drawing`, `cut`, `inverted`, `damaged`,
+    /// `imprecise`.
     pub fn code(&self) -> &'static str {
         match self {
             Refusal::NotFound { .. } => "not_found",
