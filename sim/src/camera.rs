@@ -6,7 +6,7 @@
 //!
 //! Every parameter and the affine are part of the truth ([`CameraConfig`] serialises).
 
-use crate::film::erf;
+use crate::edges::{band, erf};
 use crate::plate::Plate;
 use crate::rng::Rng;
 use serde::Serialize;
@@ -141,12 +141,6 @@ impl CameraConfig {
             _ => 0.0,
         }
     }
-}
-
-/// Fraction of a blurred band |d| ≤ half covers at offset `d` (blur σ `s`).
-fn band(d: f64, half: f64, s: f64) -> f64 {
-    let k = std::f64::consts::SQRT_2 * s;
-    0.5 * (erf((d + half) / k) - erf((d - half) / k))
 }
 
 /// Pixel spacing along x and along y, µm.

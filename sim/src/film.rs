@@ -4,6 +4,7 @@
 //! film deformation, all part of the truth. The picture area carries an aerial photo rendered
 //! from a DEM ([`crate::scene`]).
 
+use crate::edges::{band, disk};
 use crate::rng::Rng;
 use crate::scene::AerialPhoto;
 use serde::Serialize;
@@ -57,15 +58,6 @@ pub struct Film {
 }
 
 const LINE_UM: f64 = 40.0;
-
-pub(crate) fn band(d: f64, half: f64, s: f64) -> f64 {
-    let k = std::f64::consts::SQRT_2 * s;
-    0.5 * (erf((d + half) / k) - erf((d - half) / k))
-}
-
-pub(crate) fn disk(r: f64, radius: f64, s: f64) -> f64 {
-    0.5 * (1.0 - erf((r - radius) / (std::f64::consts::SQRT_2 * s)))
-}
 
 impl Film {
     /// The same film with every fiducial of the form `mark` (from a mark file).
@@ -267,19 +259,6 @@ impl Film {
         }
         self.base * (1.0 - (1.0 - self.mark / self.base) * (1.0 - clear))
     }
-}
-
-/// Error function (Abramowitz & Stegun 7.1.26, |error| < 1.5e-7).
-pub fn erf(x: f64) -> f64 {
-    let s = x.signum();
-    let x = x.abs();
-    let t = 1.0 / (1.0 + 0.327_591_1 * x);
-    let y = 1.0
-        - (((((1.061_405_429 * t - 1.453_152_027) * t) + 1.421_413_741) * t - 0.284_496_736) * t
-            + 0.254_829_592)
-            * t
-            * (-x * x).exp();
-    s * y
 }
 
 #[cfg(test)]

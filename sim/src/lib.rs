@@ -14,6 +14,7 @@ pub mod camera;
 pub mod camera_socket;
 pub mod certificates;
 pub mod cli;
+pub mod edges;
 pub mod faults;
 pub mod film;
 pub mod frames;

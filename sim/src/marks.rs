@@ -3,7 +3,7 @@
 //! form. The simulator parses and draws it with its own code, so the host's templates are
 //! checked against an independent drawing of the same description.
 
-use crate::film::{band, disk};
+use crate::edges::{band, disk};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 

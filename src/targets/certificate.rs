@@ -298,7 +298,7 @@ impl CameraCertificate {
                     part,
                     toward_centre,
                 } => {
-                    super::mark_file::check_parts(part, &at, MIN_MARK_UM, MAX_MARK_UM, "µm")
+                    super::mark::check_parts(part, &at, MIN_MARK_UM, MAX_MARK_UM, "µm")
                         .map_err(bad)?;
                     (
                         MarkShape {

@@ -11,45 +11,16 @@
 //! Tables 1 and 4 list it: shifts, their standard deviations (σ0²·N⁻¹), the correlation
 //! coefficient, σ0 and the iterations; failures are typed, never a silent bad position.
 
+use super::mark::Geometry;
 use super::resample::sample;
 use super::template::{Template, FINE, FINE_PAD};
 use crate::coords::PixelXY;
 use crate::digitise::ImageF32;
 use crate::geometry::affine::{inv2, linear_part, mul2, mul22};
 use nalgebra::{DMatrix, DVector};
-use serde::{Deserialize, Serialize};
-
-/// Which of the template's geometric parameters least squares may change: the mark's
-/// symmetry decides (seed 002 matched crosses with all six). A rotationally symmetric mark
-/// (a dot, a ring) determines neither its rotation nor its shear: free, they swing by degrees
-/// per iteration and carry the patch out of the template (ring fiducials failed so). The
-/// parameters act in micrometres on the carriage (through the template's pixel → µm 2×2),
-/// so that a rotation is a rotation on non-square pixels too.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
-#[serde(rename_all = "snake_case")]
-pub enum Geometry {
-    /// The two shifts.
-    Shift,
-    /// Shifts and one scale: dots and rings.
-    ShiftScale,
-    /// Shifts, scale and rotation: marks with one or more lines or spokes.
-    Similarity,
-    /// The full affine: crosses, as seed 002.
-    #[default]
-    Affine,
-}
+use serde::Serialize;
 
 impl Geometry {
-    /// The number of geometric parameters.
-    pub fn count(self) -> usize {
-        match self {
-            Geometry::Shift => 2,
-            Geometry::ShiftScale => 3,
-            Geometry::Similarity => 4,
-            Geometry::Affine => 6,
-        }
-    }
-
     /// ∂(u0, u1, u2, v0, v1, v2)/∂(the model's parameters), columns per parameter: the change
     /// of the image → template map U for a change of each parameter. `a` is the template's
     /// pixel → µm 2×2: a change N of the mark's µm → µm map is A⁻¹·N·A in template pixels.

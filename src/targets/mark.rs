@@ -4,7 +4,6 @@
 //! corner fiducial a dot, a ring and four spokes. The symmetry of the parts decides which
 //! geometric parameters least squares can determine ([`MarkShape::geometry`]).
 
-use super::lsm::Geometry;
 use serde::{Deserialize, Serialize};
 
 /// One primitive. Sizes are radii and full lengths; a ring's radius is its centre line;
@@ -39,6 +38,8 @@ pub enum Part {
 
 /// Most spokes in one part.
 pub const MAX_SPOKES: u32 = 360;
+/// Most parts in one mark.
+pub const MAX_PARTS: usize = 64;
 
 /// (cos, sin) of an angle in degrees.
 fn dir(deg: f64) -> [f64; 2] {
@@ -324,6 +325,93 @@ impl MarkShape {
         MarkShape {
             parts: self.parts.iter().map(|p| p.turned(deg)).collect(),
         }
+    }
+}
+
+/// Which of the template's geometric parameters least squares may change: the mark's
+/// symmetry decides (seed 002 matched crosses with all six). A rotationally symmetric mark
+/// (a dot, a ring) determines neither its rotation nor its shear: free, they swing by degrees
+/// per iteration and carry the patch out of the template (ring fiducials failed so). The
+/// parameters act in micrometres on the carriage (through the template's pixel → µm 2×2),
+/// so that a rotation is a rotation on non-square pixels too.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum Geometry {
+    /// The two shifts.
+    Shift,
+    /// Shifts and one scale: dots and rings.
+    ShiftScale,
+    /// Shifts, scale and rotation: marks with one or more lines or spokes.
+    Similarity,
+    /// The full affine: crosses, as seed 002.
+    #[default]
+    Affine,
+}
+
+impl Geometry {
+    /// The number of geometric parameters.
+    pub fn count(self) -> usize {
+        match self {
+            Geometry::Shift => 2,
+            Geometry::ShiftScale => 3,
+            Geometry::Similarity => 4,
+            Geometry::Affine => 6,
+        }
+    }
+}
+
+/// Range checks of a list of parts; `at` prefixes the messages (e.g. `[shapes.corner] `).
+pub fn check_parts(parts: &[Part], at: &str, lo: f64, hi: f64, unit: &str) -> Result<(), String> {
+    if parts.is_empty() {
+        return Err(format!(
+            "{at}no [[part]]: a mark needs at least one (dot, ring, bar or spokes)"
+        ));
+    }
+    if parts.len() > MAX_PARTS {
+        return Err(format!("{at}{} parts; at most {MAX_PARTS}", parts.len()));
+    }
+    for (i, p) in parts.iter().enumerate() {
+        let name = format!("{at}part {} ({})", i + 1, kind(p));
+        for (field, v, zero_ok) in p.sizes() {
+            let ok = v.is_finite() && ((zero_ok && v == 0.0) || (lo..=hi).contains(&v));
+            if !ok {
+                return Err(format!(
+                    "{name}: {field} {v}: from {lo} to {hi} {unit}{}",
+                    if zero_ok { " (or 0)" } else { "" }
+                ));
+            }
+        }
+        match *p {
+            Part::Bar { angle_deg: a, .. } | Part::Spokes { angle0_deg: a, .. }
+                if !(a.is_finite() && a.abs() <= 360.0) =>
+            {
+                return Err(format!("{name}: angle {a}: from -360 to 360 degrees"));
+            }
+            Part::Spokes { count, .. } if !(1..=MAX_SPOKES).contains(&count) => {
+                return Err(format!("{name}: count {count}: from 1 to {MAX_SPOKES}"));
+            }
+            Part::Spokes { from, to, .. } if to <= from => {
+                return Err(format!(
+                    "{name}: from {from} and to {to}: spokes run outward, from < to"
+                ));
+            }
+            Part::Ring { radius, width } if width / 2.0 > radius => {
+                return Err(format!(
+                    "{name}: width {width} is more than twice the radius {radius}: use a dot"
+                ));
+            }
+            _ => {}
+        }
+    }
+    Ok(())
+}
+
+fn kind(p: &Part) -> &'static str {
+    match p {
+        Part::Dot { .. } => "dot",
+        Part::Ring { .. } => "ring",
+        Part::Bar { .. } => "bar",
+        Part::Spokes { .. } => "spokes",
     }
 }
 

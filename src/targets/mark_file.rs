@@ -24,7 +24,7 @@
 //! ```
 
 use super::certificate::{parse_error, read, CertificateError, MAX_MARK_UM, MIN_MARK_UM};
-use super::mark::{MarkShape, Part, MAX_SPOKES};
+use super::mark::{check_parts, MarkShape, Part};
 use super::template::Polarity;
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
@@ -48,8 +48,6 @@ struct File {
     part: Vec<Part>,
 }
 
-/// Most parts in one mark.
-pub const MAX_PARTS: usize = 64;
 /// Sizes in pixels: from a fifth of a pixel to a mark that would still fit a template.
 pub const MIN_MARK_PX: f64 = 0.2;
 pub const MAX_MARK_PX: f64 = 500.0;
@@ -99,61 +97,6 @@ impl MarkFile {
                 self.path.display()
             )),
         }
-    }
-}
-
-/// Range checks of a list of parts; `at` prefixes the messages (e.g. `[shapes.corner] `).
-pub fn check_parts(parts: &[Part], at: &str, lo: f64, hi: f64, unit: &str) -> Result<(), String> {
-    if parts.is_empty() {
-        return Err(format!(
-            "{at}no [[part]]: a mark needs at least one (dot, ring, bar or spokes)"
-        ));
-    }
-    if parts.len() > MAX_PARTS {
-        return Err(format!("{at}{} parts; at most {MAX_PARTS}", parts.len()));
-    }
-    for (i, p) in parts.iter().enumerate() {
-        let name = format!("{at}part {} ({})", i + 1, kind(p));
-        for (field, v, zero_ok) in p.sizes() {
-            let ok = v.is_finite() && ((zero_ok && v == 0.0) || (lo..=hi).contains(&v));
-            if !ok {
-                return Err(format!(
-                    "{name}: {field} {v}: from {lo} to {hi} {unit}{}",
-                    if zero_ok { " (or 0)" } else { "" }
-                ));
-            }
-        }
-        match *p {
-            Part::Bar { angle_deg: a, .. } | Part::Spokes { angle0_deg: a, .. }
-                if !(a.is_finite() && a.abs() <= 360.0) =>
-            {
-                return Err(format!("{name}: angle {a}: from -360 to 360 degrees"));
-            }
-            Part::Spokes { count, .. } if !(1..=MAX_SPOKES).contains(&count) => {
-                return Err(format!("{name}: count {count}: from 1 to {MAX_SPOKES}"));
-            }
-            Part::Spokes { from, to, .. } if to <= from => {
-                return Err(format!(
-                    "{name}: from {from} and to {to}: spokes run outward, from < to"
-                ));
-            }
-            Part::Ring { radius, width } if width / 2.0 > radius => {
-                return Err(format!(
-                    "{name}: width {width} is more than twice the radius {radius}: use a dot"
-                ));
-            }
-            _ => {}
-        }
-    }
-    Ok(())
-}
-
-fn kind(p: &Part) -> &'static str {
-    match p {
-        Part::Dot { .. } => "dot",
-        Part::Ring { .. } => "ring",
-        Part::Bar { .. } => "bar",
-        Part::Spokes { .. } => "spokes",
     }
 }
 

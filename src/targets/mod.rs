@@ -12,6 +12,6 @@ pub mod resample;
 pub mod template;
 
 pub use coarse::{locate, CoarseError, CoarseMatch, CoarseOptions};
-pub use lsm::{match_template, Geometry, LsmError, LsmMatch, LsmOptions};
-pub use mark::{MarkShape, Part};
+pub use lsm::{match_template, LsmError, LsmMatch, LsmOptions};
+pub use mark::{Geometry, MarkShape, Part};
 pub use template::{render, Polarity, Template, TemplateSpec};
