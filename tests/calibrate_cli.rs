@@ -15,6 +15,23 @@ fn read_json(p: &std::path::Path) -> Value {
     serde_json::from_slice(&std::fs::read(p).unwrap()).unwrap()
 }
 
+/// A measured fiducial's truth record and its carriage error (µm) against where the film's
+/// true photo → carriage placement puts it.
+fn truth_and_error<'a>(film: &'a Value, o: &Value) -> (&'a Value, f64) {
+    let id = o["id"].as_u64();
+    let t = film["fiducials"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|t| t["id"].as_u64() == id)
+        .unwrap();
+    let p = |k: usize| f(&film["photo_to_carriage"][k]);
+    let (u, v) = (f(&t["photo_mm"][0]), f(&t["photo_mm"][1]));
+    let want = [p(0) + p(1) * u + p(2) * v, p(3) + p(4) * u + p(5) * v];
+    let got = [f(&o["carriage_um"]["x"]), f(&o["carriage_um"]["y"])];
+    (t, (got[0] - want[0]).hypot(got[1] - want[1]))
+}
+
 fn f(v: &Value) -> f64 {
     v.as_f64().unwrap_or_else(|| panic!("not a number: {v}"))
 }
@@ -195,7 +212,6 @@ fn interior_orientation_finds_every_fiducial_and_fits_the_corners_within_a_micro
     let c = &doc["calibration"];
     let truth = read_json(&out.join("sim-truth.json"));
     let film = &truth["film"];
-    let p = |k: usize| f(&film["photo_to_carriage"][k]);
     // Every fiducial found, measured where the truth puts it (carriage, µm).
     let fids = c["fiducials"].as_array().unwrap();
     assert_eq!(fids.len(), 8);
@@ -208,16 +224,7 @@ fn interior_orientation_finds_every_fiducial_and_fits_the_corners_within_a_micro
             continue;
         }
         assert!(o["missing"].is_null(), "{o}");
-        let t = film["fiducials"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .find(|t| t["id"].as_u64() == Some(id))
-            .unwrap();
-        let (u, v) = (f(&t["photo_mm"][0]), f(&t["photo_mm"][1]));
-        let want = [p(0) + p(1) * u + p(2) * v, p(3) + p(4) * u + p(5) * v];
-        let got = [f(&o["carriage_um"]["x"]), f(&o["carriage_um"]["y"])];
-        let e = (got[0] - want[0]).hypot(got[1] - want[1]);
+        let (_, e) = truth_and_error(film, o);
         println!("fiducial {id}: carriage error {e:.3} µm");
         worst = worst.max(e);
     }
@@ -343,29 +350,19 @@ fn square_pixels_and_ring_fiducials_work_end_to_end() {
     let truth = read_json(&out.join("sim-truth.json"));
     assert_eq!(f(&truth["camera"]["affine"]["a"][0]), 10.5, "square pixels");
     let film = &truth["film"];
-    let p = |k: usize| f(&film["photo_to_carriage"][k]);
     let fids = c["fiducials"].as_array().unwrap();
     assert_eq!(fids.len(), 8);
     let mut worst = 0.0f64;
     for o in fids {
         let id = o["id"].as_u64().unwrap();
         assert!(o["missing"].is_null(), "fiducial {id}: {o}");
-        let t = film["fiducials"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .find(|t| t["id"].as_u64() == Some(id))
-            .unwrap();
+        let (t, e) = truth_and_error(film, o);
         let shape = if id <= 4 {
             "ring_dot_spokes"
         } else {
             "ring_with_dot"
         };
         assert_eq!(t["shape"], shape);
-        let (u, v) = (f(&t["photo_mm"][0]), f(&t["photo_mm"][1]));
-        let want = [p(0) + p(1) * u + p(2) * v, p(3) + p(4) * u + p(5) * v];
-        let got = [f(&o["carriage_um"]["x"]), f(&o["carriage_um"]["y"])];
-        let e = (got[0] - want[0]).hypot(got[1] - want[1]);
         println!("fiducial {id} ({shape}): carriage error {e:.3} µm");
         worst = worst.max(e);
     }
@@ -400,7 +397,6 @@ fn square_pixels_and_ring_fiducials_work_end_to_end() {
     );
     let truth = read_json(&out.join("sim-truth.json"));
     let film = &truth["film"];
-    let p = |k: usize| f(&film["photo_to_carriage"][k]);
     let cert = std::fs::read_to_string(out.join("camera-cert.toml")).unwrap();
     assert!(
         cert.contains("kind = \"parts\"") && cert.contains("count = 3"),
@@ -410,17 +406,8 @@ fn square_pixels_and_ring_fiducials_work_end_to_end() {
     for o in doc["calibration"]["fiducials"].as_array().unwrap() {
         let id = o["id"].as_u64().unwrap();
         assert!(o["missing"].is_null(), "fiducial {id}: {o}");
-        let t = film["fiducials"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .find(|t| t["id"].as_u64() == Some(id))
-            .unwrap();
+        let (t, e) = truth_and_error(film, o);
         assert_eq!(t["shape"], "from_file");
-        let (u, v) = (f(&t["photo_mm"][0]), f(&t["photo_mm"][1]));
-        let want = [p(0) + p(1) * u + p(2) * v, p(3) + p(4) * u + p(5) * v];
-        let got = [f(&o["carriage_um"]["x"]), f(&o["carriage_um"]["y"])];
-        let e = (got[0] - want[0]).hypot(got[1] - want[1]);
         println!("fiducial {id} (from the mark file): carriage error {e:.3} µm");
         worst = worst.max(e);
     }

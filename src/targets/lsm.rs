@@ -330,19 +330,27 @@ fn match_sampling_template(
             .collect();
         (v, w, s)
     };
+    // One observation's row of the design matrix: ∂g/∂(the geometric parameters, r0, r1).
+    let design_row = |r: &[f64; 2],
+                      &(dx, dy, _): &(f64, f64, f64),
+                      &(fv, fx, fy): &(f64, f64, f64),
+                      row: &mut DVector<f64>| {
+        let (ax, ay) = (r[1] * fx, r[1] * fy);
+        let full = [ax, ax * dx, ax * dy, ay, ay * dx, ay * dy];
+        for (j, col) in jac.iter().enumerate() {
+            row[j] = (0..6).map(|i| full[i] * col[i]).sum();
+        }
+        row[ng] = 1.0;
+        row[ng + 1] = fv;
+    };
     let normal = |r: &[f64; 2], f: &[(f64, f64, f64)], wt: &[f64]| {
         let mut nm = DMatrix::<f64>::zeros(nu, nu);
         let mut rhs = DVector::<f64>::zeros(nu);
         let mut row = DVector::<f64>::zeros(nu);
         let mut vv = 0.0;
-        for ((&(dx, dy, g), &(fv, fx, fy)), &wi) in pix.iter().zip(f).zip(wt) {
-            let (ax, ay) = (r[1] * fx, r[1] * fy);
-            let full = [ax, ax * dx, ax * dy, ay, ay * dx, ay * dy];
-            for (j, col) in jac.iter().enumerate() {
-                row[j] = (0..6).map(|i| full[i] * col[i]).sum();
-            }
-            row[ng] = 1.0;
-            row[ng + 1] = fv;
+        for ((p, fi), &wi) in pix.iter().zip(f).zip(wt) {
+            design_row(r, p, fi, &mut row);
+            let (g, fv) = (p.2, fi.0);
             let l = g - r[0] - r[1] * fv;
             vv += wi * l * l;
             nm.ger(wi, &row, &row, 1.0);
@@ -445,14 +453,10 @@ fn match_sampling_template(
                 }
                 let t = &qp * gp;
                 let mut h = vec![0.0; n * n];
-                for (k, (&(dx, dy, _), &(fv, fx, fy))) in pix.iter().zip(&f).enumerate() {
-                    let (ax, ay) = (r[1] * fx, r[1] * fy);
-                    let full = [ax, ax * dx, ax * dy, ay, ay * dx, ay * dy];
-                    let mut x = t[ng] + t[ng + 1] * fv;
-                    for (j, col) in jac.iter().enumerate() {
-                        x += t[j] * (0..6).map(|i| full[i] * col[i]).sum::<f64>();
-                    }
-                    h[place[k]] = x;
+                let mut row = DVector::<f64>::zeros(nu);
+                for (k, (p, fi)) in pix.iter().zip(&f).enumerate() {
+                    design_row(&r, p, fi, &mut row);
+                    h[place[k]] = row.dot(&t);
                 }
                 h
             };

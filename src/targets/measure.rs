@@ -254,7 +254,7 @@ fn coarse_near(
     q: &Quality,
     near: Option<(PixelXY, f64)>,
 ) -> Result<CoarseMatch, Refusal> {
-    let located = match near {
+    match near {
         None => locate(img, whole, &q.coarse).map_err(|e| Refusal::NotFound {
             message: e.to_string(),
         }),
@@ -298,8 +298,7 @@ fn coarse_near(
             }
             Ok(c)
         }
-    };
-    located
+    }
 }
 
 /// A match (or its failure) through the gate.
