@@ -12,6 +12,7 @@ pub mod correlation;
 pub mod digitise;
 pub mod exit;
 pub mod geometry;
+pub mod hac;
 pub mod image;
 pub mod matching;
 pub mod picture;

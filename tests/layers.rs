@@ -6,8 +6,9 @@
 use std::path::{Path, PathBuf};
 
 /// The core: these files and folders under `src/`.
-const CORE: [&str; 9] = [
+const CORE: [&str; 10] = [
     "geometry",
+    "hac.rs",
     "simd.rs",
     "seconds.rs",
     "picture.rs",

@@ -10,6 +10,7 @@ pub mod block_match;
 pub mod grid;
 pub mod html;
 pub mod maps;
+pub mod mgcm;
 pub mod ortho;
 pub mod output;
 pub mod pair_match;

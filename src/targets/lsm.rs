@@ -142,40 +142,6 @@ pub fn match_work(n: usize) -> f64 {
     (n * n) as f64 * (LsmOptions::default().max_iterations as f64 * 64.0 + 2.0 * lags * lags)
 }
 
-/// Σᵢ Σⱼ hᵢ hⱼ C(i − j) for the two axes' influences `h` over an n×n window (row-major,
-/// `inside` marking the pixels used), C the autocovariance of `psi` at lags up to
-/// [`HAC_LAG`] in each direction with Bartlett weights, times `dof` (n / (n − u)).
-fn hac_variance(h: [&[f64]; 2], psi: &[f64], inside: &[bool], n: usize, dof: f64) -> [f64; 2] {
-    let l = HAC_LAG.min(n.saturating_sub(1)) as i64;
-    let n_i = n as i64;
-    let mut total = [0.0; 2];
-    for dy in -l..=l {
-        for dx in -l..=l {
-            let (mut cov, mut pairs, mut hh) = (0.0, 0usize, [0.0; 2]);
-            for y in 0.max(-dy)..n_i.min(n_i - dy) {
-                for x in 0.max(-dx)..n_i.min(n_i - dx) {
-                    let i = (y * n_i + x) as usize;
-                    let j = ((y + dy) * n_i + x + dx) as usize;
-                    if inside[i] && inside[j] {
-                        cov += psi[i] * psi[j];
-                        pairs += 1;
-                        hh[0] += h[0][i] * h[0][j];
-                        hh[1] += h[1][i] * h[1][j];
-                    }
-                }
-            }
-            if pairs > 0 {
-                let bartlett = (1.0 - dx.abs() as f64 / (l + 1) as f64)
-                    * (1.0 - dy.abs() as f64 / (l + 1) as f64);
-                for a in 0..2 {
-                    total[a] += bartlett * hh[a] * cov / pairs as f64;
-                }
-            }
-        }
-    }
-    total.map(|t| t.max(0.0) * dof)
-}
-
 /// The residuals' robust σ: the median absolute deviation × 1.4826 (a Gaussian's σ), at least
 /// `floor`.
 fn robust_sigma(v: &[f64], floor: f64) -> f64 {
@@ -466,11 +432,12 @@ fn match_sampling_template(
                 psi[place[k]] = wt[k] * v[k];
                 inside[place[k]] = true;
             }
-            let var = hac_variance(
+            let var = crate::hac::variance(
                 [&influence(0), &influence(1)],
                 &psi,
                 &inside,
                 n,
+                HAC_LAG,
                 np / (np - nu as f64).max(1.0),
             );
             let (g, t): (Vec<f64>, Vec<f64>) = pix.iter().zip(&f).map(|(p, f)| (p.2, f.0)).unzip();
