@@ -6,6 +6,7 @@ pub mod pmf_set;
 
 pub use pmf_set::{PmfSet, StereoPoint};
 pub use point::MatchedPoint;
+pub mod accuracy;
 pub mod block_match;
 pub mod grid;
 pub mod html;

@@ -3,6 +3,7 @@
 //! operator, the constrained adjustment at one point and its blunder tests per ray.
 
 pub mod adjust;
+pub mod interest;
 pub mod point;
 pub mod pyramid;
 
