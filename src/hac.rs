@@ -15,6 +15,25 @@ pub fn variance<const K: usize>(
     lag: usize,
     dof: f64,
 ) -> [f64; K] {
+    covariance(h, psi, h, psi, inside, n, lag, dof)
+}
+
+/// The cross term of two series observed at the same pixels (two photos' residuals against
+/// one template, whose own noise they share): Σᵢ Σⱼ aᵢ bⱼ C_ab(i − j), C_ab the
+/// cross-covariance of `psi_a` and `psi_b` at lags up to `lag`, Bartlett-weighted, times
+/// `dof`. With a = b it is [`variance`]; the sum over both orders of two series is the
+/// covariance their estimates share (negative where it cancels).
+#[allow(clippy::too_many_arguments)]
+pub fn covariance<const K: usize>(
+    h_a: [&[f64]; K],
+    psi_a: &[f64],
+    h_b: [&[f64]; K],
+    psi_b: &[f64],
+    inside: &[bool],
+    n: usize,
+    lag: usize,
+    dof: f64,
+) -> [f64; K] {
     let l = lag.min(n.saturating_sub(1)) as i64;
     let n_i = n as i64;
     let mut total = [0.0; K];
@@ -26,10 +45,10 @@ pub fn variance<const K: usize>(
                     let i = (y * n_i + x) as usize;
                     let j = ((y + dy) * n_i + x + dx) as usize;
                     if inside[i] && inside[j] {
-                        cov += psi[i] * psi[j];
+                        cov += psi_a[i] * psi_b[j];
                         pairs += 1;
                         for a in 0..K {
-                            hh[a] += h[a][i] * h[a][j];
+                            hh[a] += h_a[a][i] * h_b[a][j];
                         }
                     }
                 }
@@ -43,7 +62,7 @@ pub fn variance<const K: usize>(
             }
         }
     }
-    total.map(|t| t.max(0.0) * dof)
+    total.map(|t| t * dof)
 }
 
 #[cfg(test)]

@@ -174,8 +174,50 @@ fn run_format2(
     let p = Project2::load(project)?;
     let photos = pipeline2::load_photos(&p, &scan_photo)?;
     let bar = super::progress_bar::Bar::new(!json);
+    if p.matching.method == "mgcm" {
+        let r = rig::matching::mgcm::run::run(&p, &photos, out, max_memory, &bar)?;
+        return print_mgcm(&r, out, json, strict);
+    }
     let r = pipeline2::run(&p, &photos, out, max_memory, &bar)?;
     print_format2(&p, &r, out, json, strict)
+}
+
+/// The report of an MGCM run.
+fn print_mgcm(
+    r: &rig::matching::mgcm::run::MgcmReport,
+    out: &std::path::Path,
+    json: bool,
+    strict: bool,
+) -> anyhow::Result<i32> {
+    // Few points kept is the run's doubt.
+    let doubtful = r.kept * 4 < r.selected;
+    if doubtful {
+        eprintln!(
+            "rig dtm: warning: only {} of {} points kept: see points.csv for the reasons",
+            r.kept, r.selected
+        );
+    }
+    let code = if strict && doubtful {
+        rig::exit::DOUBTFUL
+    } else {
+        rig::exit::OK
+    };
+    if json {
+        println!("{}", serde_json::to_string(r)?);
+        return Ok(code);
+    }
+    for (k, v) in r.summary() {
+        println!("{k}: {v}");
+    }
+    if let Some(a) = &r.accuracy {
+        println!("\n{}", a.table());
+    }
+    println!(
+        "outputs in {}: dem.tif, quality.tif (σ m, correlation), points.csv (every point, kept or refused, and why), points.ply, points.las, ortho.tif, hillshade.png, quality.png{}, report.json, report.html",
+        out.display(),
+        if r.accuracy.is_some() { ", error.png, accuracy.txt, accuracy.json" } else { "" }
+    );
+    Ok(code)
 }
 
 /// Share `spec` of a format-2 run into `out`: the plan from every photo's geometry (each

@@ -39,6 +39,19 @@ pub struct SceneArgs {
     pub photo_noise_um: f64,
     #[arg(long, default_value_t = 0.5)]
     pub ground_noise_m: f64,
+    /// Photos of the block to render over the area: 2 (photos 1 and 2 of the strip), 3 (and
+    /// photo 3 of the next strip) or 4. Photos 3 and 4 see only the part of photo 1 below
+    /// y ≈ −46 mm (30 % side lap): give an --area there, e.g. 38,-70,50,-58.
+    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(2..=4))]
+    pub photos: u32,
+    /// White noise added to every pixel, grey values (σ; the photos span about 3 000 to
+    /// 53 000).
+    #[arg(long, default_value_t = 0.0)]
+    pub noise_dn: f64,
+    /// Cell of truth-dem.tif, m (the simulator's DEM resampled bilinearly; finer cells follow
+    /// its 74 × 92 m facets more closely where a cell straddles their edges).
+    #[arg(long, default_value_t = 10.0)]
+    pub truth_cell_m: f64,
 }
 
 fn parse_area(s: &str) -> anyhow::Result<[f64; 4]> {
@@ -61,11 +74,20 @@ fn write_photo(
     name: &str,
     photo: &AerialPhoto,
     grid: &PhotoGrid,
+    noise_dn: f64,
 ) -> anyhow::Result<PathBuf> {
     let img = photo.render(grid.corner_mm, grid.step_mm, grid.width, grid.height, 3);
+    let mut rng = rig_sim::rng::Rng::new(0x9015E ^ photo.number as u64 ^ photo.texture_seed);
     let px: Vec<u16> = img
         .iter()
-        .map(|v| (v * 60_000.0).round().clamp(1.0, 65535.0) as u16)
+        .map(|v| {
+            let n = if noise_dn > 0.0 {
+                noise_dn * rng.normal()
+            } else {
+                0.0
+            };
+            (*v as f64 * 60_000.0 + n).round().clamp(1.0, 65535.0) as u16
+        })
         .collect();
     let tiff = dir.join(format!("{name}.tiff"));
     rig::digitise::output::write_tiff16(&tiff, grid.width, grid.height, &px)?;
@@ -242,6 +264,36 @@ pub fn truth_grid(
     Ok(rig::sim_scene::grid_to_crs(grid))
 }
 
+/// A format-2 project of the rendered photos with their true orientations (the simulator's
+/// truth, in the world's CRS), the heights of the terrain ± 30 m and the true DEM as the
+/// reference: for the matchers alone, with no orientation error.
+fn block_toml(seed: u64, photos: &[&AerialPhoto], hs: [f64; 2]) -> String {
+    let [ox, oy] = rig::sim_scene::ORIGIN_M;
+    let mut t = format!(
+        "# The photos of `rig sim scene --seed {seed}` with their true orientations: the matchers\n# alone, with no orientation error. Run it with\n#   rig dtm block.toml --out OUT\nformat = 2\ncrs = \"{}\"\n",
+        rig::sim_scene::CRS
+    );
+    for p in photos {
+        let e = p.exterior;
+        t += &format!(
+            "\n[[photo]]\nid = \"{n}\"\nscan = \"photo-{n}.json\"\nposition = [{:.4}, {:.4}, {:.4}]\nangles_deg = [{:.8}, {:.8}, {:.8}]\n",
+            e.x0_m + ox,
+            e.y0_m + oy,
+            e.z0_m,
+            e.omega_deg,
+            e.phi_deg,
+            e.kappa_deg,
+            n = p.number
+        );
+    }
+    t += &format!(
+        "\n[dem]\ncell_m = 10.0\nheights = [{:.0}, {:.0}]\n\n[matching]\nmethod = \"sweep\"   # or \"mgcm\" (seed 002's multiphoto matching; see [matching.mgcm] in the README)\n\n[check]\nreference = \"truth-dem.tif\"\n",
+        hs[0] - 30.0,
+        hs[1] + 30.0
+    );
+    t
+}
+
 /// A project for `left`/`right` (sidecars) with seed 000's parameters over the terrain range
 /// `hs` (± 30 m), the points in points.json and the true DEM in truth-dem.tif.
 pub fn project_toml(header: &str, [left, right]: [&Path; 2], hs: [f64; 2]) -> String {
@@ -291,6 +343,12 @@ pub fn run(a: &SceneArgs) -> anyhow::Result<i32> {
     if !(1.0..=200.0).contains(&a.resolution_um) {
         anyhow::bail!("--resolution-um {}: 1 to 200", a.resolution_um);
     }
+    if !(a.noise_dn.is_finite() && (0.0..=10_000.0).contains(&a.noise_dn)) {
+        anyhow::bail!("--noise-dn {}: 0 to 10000 grey values", a.noise_dn);
+    }
+    if !(a.truth_cell_m.is_finite() && (0.5..=100.0).contains(&a.truth_cell_m)) {
+        anyhow::bail!("--truth-cell-m {}: 0.5 to 100 m", a.truth_cell_m);
+    }
     if a.out.exists() && std::fs::read_dir(&a.out)?.next().is_some() {
         anyhow::bail!("{} is not empty: give a new directory", a.out.display());
     }
@@ -311,8 +369,24 @@ pub fn run(a: &SceneArgs) -> anyhow::Result<i32> {
         "rendering photo 1 ({}×{} px) and photo 2 ({}×{} px)…",
         g1.width, g1.height, g2.width, g2.height
     );
-    let s1 = write_photo(&a.out, "photo-1", &p1, &g1)?;
-    let s2 = write_photo(&a.out, "photo-2", &p2, &g2)?;
+    let s1 = write_photo(&a.out, "photo-1", &p1, &g1, a.noise_dn)?;
+    let s2 = write_photo(&a.out, "photo-2", &p2, &g2, a.noise_dn)?;
+    // Photos 3 and 4 of the block, over where they see photo 1's area.
+    let mut more = Vec::new();
+    for n in 3..=a.photos {
+        let pn = AerialPhoto::new(dem.clone(), a.seed, n, 110.0);
+        let an = matching_area(&p1, &pn, area, [hs[0] - 30.0, hs[1] + 30.0]);
+        if an.iter().any(|v| v.abs() > 114.0) {
+            anyhow::bail!(
+                "--area {:?}: photo {n} does not see all of it (it needs photo {n}'s {:.0},{:.0} … {:.0},{:.0} mm, beyond the 230 mm format); photos 3 and 4 see photo 1 below y ≈ −46 mm, e.g. --area 38,-70,50,-58",
+                area, an[0], an[1], an[2], an[3]
+            );
+        }
+        let gn = PhotoGrid::covering(an, step);
+        eprintln!("rendering photo {n} ({}×{} px)…", gn.width, gn.height);
+        write_photo(&a.out, &format!("photo-{n}"), &pn, &gn, a.noise_dn)?;
+        more.push((pn, an));
+    }
     let mut rng = rig_sim::rng::Rng::new(a.seed ^ 0x6C9);
     let noise = (a.photo_noise_um / 1000.0, a.ground_noise_m);
     let gcps = draw_points((&p1, &g1), (&p2, &g2), a.gcps, "gcp", noise, &mut rng);
@@ -321,7 +395,7 @@ pub fn run(a: &SceneArgs) -> anyhow::Result<i32> {
         &a.out.join("points.json"),
         &json!({"gcps": gcps, "cps": cps}),
     )?;
-    let truth = truth_grid(&p1, area, 10.0)?;
+    let truth = truth_grid(&p1, area, a.truth_cell_m)?;
     rig::matching::output::write_geotiff(
         &a.out.join("truth-dem.tif"),
         &truth,
@@ -329,10 +403,19 @@ pub fn run(a: &SceneArgs) -> anyhow::Result<i32> {
     )?;
     rig::digitise::output::write_json(
         &a.out.join("truth.json"),
-        &json!({"seed": a.seed, "photos": [p1, p2], "area_mm": [area, area2],
-                "terrain_m": hs, "dem": "tests/data/jacksboro_fault_dem.asc (bilinear, 10 m grid in truth-dem.tif)",
-                "photo_noise_um": a.photo_noise_um, "ground_noise_m": a.ground_noise_m}),
+        &json!({"seed": a.seed,
+                "photos": std::iter::once(&p1).chain([&p2]).chain(more.iter().map(|m| &m.0)).collect::<Vec<_>>(),
+                "area_mm": std::iter::once(area).chain([area2]).chain(more.iter().map(|m| m.1)).collect::<Vec<_>>(),
+                "terrain_m": hs,
+                "dem": format!("tests/data/jacksboro_fault_dem.asc (bilinear, {} m grid in truth-dem.tif)", a.truth_cell_m),
+                "photo_noise_um": a.photo_noise_um, "ground_noise_m": a.ground_noise_m,
+                "noise_dn": a.noise_dn}),
     )?;
+    let all: Vec<&AerialPhoto> = std::iter::once(&p1)
+        .chain([&p2])
+        .chain(more.iter().map(|m| &m.0))
+        .collect();
+    std::fs::write(a.out.join("block.toml"), block_toml(a.seed, &all, hs))?;
     let project = project_toml(
         &format!(
             "# A matching project made by `rig sim scene` (seed {}); run it with\n#   rig dtm {}/project.toml --out OUT",
@@ -344,12 +427,14 @@ pub fn run(a: &SceneArgs) -> anyhow::Result<i32> {
     );
     std::fs::write(a.out.join("project.toml"), project)?;
     println!(
-        "scene in {}: {} and {}, {} control and {} check points, truth-dem.tif, project.toml",
+        "scene in {}: {} and {}{}, {} control and {} check points, truth-dem.tif, project.toml (format 1, photos 1 and 2), block.toml (format 2, all {} photos with their true orientations)",
         a.out.display(),
         s1.display(),
         s2.display(),
+        if more.is_empty() { String::new() } else { format!(" and photos 3{}", if more.len() > 1 { "-4" } else { "" }) },
         gcps.len(),
-        cps.len()
+        cps.len(),
+        all.len()
     );
     Ok(0)
 }

@@ -110,7 +110,9 @@ fn version(d: impl Iterator<Item = f64> + Clone, hg: f64) -> Version {
 pub fn analyse(diffs: &[(f64, f64)], refused: usize, hg: f64) -> Accuracy {
     let d: Vec<f64> = diffs.iter().map(|p| p.0).collect();
     let bl = blunders_3sigma(&d);
-    let clean: Vec<usize> = (0..d.len()).filter(|i| bl.binary_search(i).is_err()).collect();
+    let clean: Vec<usize> = (0..d.len())
+        .filter(|i| bl.binary_search(i).is_err())
+        .collect();
     let mean = |ix: &mut dyn Iterator<Item = f64>| {
         let (s, n) = ix.fold((0.0, 0usize), |a, v| (a.0 + v, a.1 + 1));
         s / n.max(1) as f64
@@ -204,10 +206,11 @@ mod tests {
     /// one of +10.0 m; σ's of 0.5 m throughout, flying height 1000 m.
     ///
     /// All twenty: mean (9·0.5 − 9·0.5 + 1 + 10)/20 = 0.55 m; sample σ: Σ(d − 0.55)² =
-    /// 9·0.0025 + 9·1.1025 + 0.2025 + 89.3025 = 99.45, /19 = 5.234, σ = 2.288; 10 − 0.55 = 9.45
-    /// > 3·2.288 = 6.86: a blunder. The nineteen left: mean 1/19 = 0.05263, Σ(d − m)² =
-    /// 9·0.44744² + 9·0.55263² + 0.94737² = 1.80180 + 2.74861 + 0.89751 = 5.44792, /18 =
-    /// 0.30266, σ = 0.55015; the largest, 1 − 0.05263 = 0.947 < 1.65: none more.
+    /// 9·0.0025 + 9·1.1025 + 0.2025 + 89.3025 = 99.45, /19 = 5.234, σ = 2.288; 10 − 0.55 =
+    /// 9.45, beyond 3·2.288 = 6.86: a blunder. The nineteen left: mean 1/19 = 0.05263, Σ(d − m)² =
+    /// 9·0.44744² + 9·0.55263² + 0.94737² = 1.80180 + 2.74861 + 0.89751 = 5.44792, divided
+    /// by 18 = 0.30266, σ = 0.55015; the largest, 1 − 0.05263 = 0.947, is below 1.65: none
+    /// more.
     ///
     /// Version 4 (with bias, with blunders): |d| = 18 × 0.5, 1, 10: RMS √((4.5 + 1 + 100)/20)
     /// = √5.275 = 2.29674; max 10; mean (9 + 11)/20 = 1.0; sd √(5.275 − 1) = 2.06761.
@@ -225,12 +228,18 @@ mod tests {
         d.push((1.0, 0.5));
         d.push((10.0, 0.5));
         let a = analyse(&d, 5, 1000.0);
-        assert_eq!(blunders_3sigma(&d.iter().map(|p| p.0).collect::<Vec<_>>()), vec![19]);
+        assert_eq!(
+            blunders_3sigma(&d.iter().map(|p| p.0).collect::<Vec<_>>()),
+            vec![19]
+        );
         assert!((a.bias_m - 0.55).abs() < 1e-12);
         assert!((a.bias_without_blunders_m - 1.0 / 19.0).abs() < 1e-12);
         let close = |a: f64, b: f64| (a - b).abs() < 5e-5;
         let [v1, v2, v3, v4] = a.versions;
-        assert_eq!((v1.points, v2.points, v3.points, v4.points), (19, 20, 19, 20));
+        assert_eq!(
+            (v1.points, v2.points, v3.points, v4.points),
+            (19, 20, 19, 20)
+        );
         assert!(close(v4.rms_m, 2.29674) && close(v4.max_abs_m, 10.0));
         assert!(close(v4.mean_abs_m, 1.0) && close(v4.sd_abs_m, 2.06761));
         assert!(close(v3.rms_m, 0.53803) && close(v3.max_abs_m, 1.0));

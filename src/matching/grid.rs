@@ -200,6 +200,123 @@ impl ElevationGrid {
         }
     }
 
+    /// Each node's height from scattered points (a sparse matcher's, a few cells apart): a
+    /// plane fitted by least squares to the points within `radius_m`, each weighted by
+    /// (1 − (d/R)²)², its value at the node; at least 3 points not in a line, else no height.
+    /// The node's σ propagates the points' own and the plane's misfit s (what the terrain
+    /// does between the points): a = Σ ℓᵢ zᵢ, σ² = Σ ℓᵢ² (σᵢ² + s²). The correlation is the
+    /// weighted mean of the points'.
+    pub fn fill_scattered(&mut self, pts: &[MatchedPoint], radius_m: f64) -> NodeQuality {
+        let n = self.z.len();
+        let mut q = NodeQuality {
+            sigma_m: vec![f32::NAN; n],
+            corr: vec![f32::NAN; n],
+        };
+        let r = radius_m.max(self.cell_m);
+        // Buckets of side r over the grid's extent.
+        let (bx0, by0) = (self.x0 - r, self.y0 + r);
+        let bc = ((self.cols as f64 * self.cell_m + 2.0 * r) / r).ceil() as usize + 1;
+        let br = ((self.rows as f64 * self.cell_m + 2.0 * r) / r).ceil() as usize + 1;
+        let mut buckets: Vec<Vec<usize>> = vec![Vec::new(); bc * br];
+        let bucket = |x: f64, y: f64| -> Option<(usize, usize)> {
+            let (u, v) = ((x - bx0) / r, (by0 - y) / r);
+            (u >= 0.0 && v >= 0.0 && u < bc as f64 && v < br as f64)
+                .then_some((u as usize, v as usize))
+        };
+        for (i, p) in pts.iter().enumerate() {
+            if !p.ground.z.is_finite() {
+                continue;
+            }
+            if let Some((u, v)) = bucket(p.ground.x, p.ground.y) {
+                buckets[v * bc + u].push(i);
+            }
+        }
+        for row in 0..self.rows {
+            for col in 0..self.cols {
+                let [x, y] = self.node(col, row);
+                let Some((u, v)) = bucket(x, y) else { continue };
+                let mut near = Vec::new();
+                for vv in v.saturating_sub(1)..(v + 2).min(br) {
+                    for uu in u.saturating_sub(1)..(u + 2).min(bc) {
+                        for &i in &buckets[vv * bc + uu] {
+                            let g = pts[i].ground;
+                            let d2 = (g.x - x).powi(2) + (g.y - y).powi(2);
+                            if d2 < r * r {
+                                near.push((i, (1.0 - d2 / (r * r)).powi(2)));
+                            }
+                        }
+                    }
+                }
+                if near.len() < 3 {
+                    continue;
+                }
+                // Weighted normal equations of z = a + b·dx + c·dy (dx, dy in units of r).
+                let mut nm = nalgebra::Matrix3::<f64>::zeros();
+                for &(i, w) in &near {
+                    let g = pts[i].ground;
+                    let a = nalgebra::Vector3::new(1.0, (g.x - x) / r, (g.y - y) / r);
+                    nm += w * a * a.transpose();
+                }
+                let Some(inv) = nm.try_inverse().filter(|m| m.iter().all(|v| v.is_finite())) else {
+                    continue;
+                };
+                if nm.determinant().abs() < 1e-9 * nm[(0, 0)].powi(3) {
+                    continue;
+                }
+                // ℓᵢ = wᵢ·(N⁻¹·aᵢ)₀.
+                let mut z = 0.0;
+                let mut ell = Vec::with_capacity(near.len());
+                for &(i, w) in &near {
+                    let g = pts[i].ground;
+                    let a = nalgebra::Vector3::new(1.0, (g.x - x) / r, (g.y - y) / r);
+                    let l = w * (inv * a)[0];
+                    z += l * g.z;
+                    ell.push(l);
+                }
+                let sol = {
+                    let mut b = nalgebra::Vector3::<f64>::zeros();
+                    for &(i, w) in &near {
+                        let g = pts[i].ground;
+                        let a = nalgebra::Vector3::new(1.0, (g.x - x) / r, (g.y - y) / r);
+                        b += w * a * g.z;
+                    }
+                    inv * b
+                };
+                let (mut vv, mut sw) = (0.0, 0.0);
+                for &(i, w) in &near {
+                    let g = pts[i].ground;
+                    let fit = sol[0] + sol[1] * (g.x - x) / r + sol[2] * (g.y - y) / r;
+                    vv += w * (g.z - fit).powi(2);
+                    sw += w;
+                }
+                let dof = near.len() as f64 - 3.0;
+                let s2 = if dof > 0.0 {
+                    vv / sw * near.len() as f64 / dof
+                } else {
+                    0.0
+                };
+                let (mut var, mut corr, mut wc) = (0.0, 0.0, 0.0);
+                for (&(i, w), l) in near.iter().zip(&ell) {
+                    let s = pts[i].sigma_m as f64;
+                    var += l * l * (if s.is_finite() { s * s } else { 0.0 } + s2);
+                    if pts[i].corr.is_finite() {
+                        corr += w * pts[i].corr as f64;
+                        wc += w;
+                    }
+                }
+                let k = row * self.cols + col;
+                self.z[k] = z as f32;
+                q.sigma_m[k] = var.sqrt() as f32;
+                q.corr[k] = if wc > 0.0 {
+                    (corr / wc) as f32
+                } else {
+                    f32::NAN
+                };
+            }
+        }
+        q
+    }
+
     /// Bilinear height at ground (x, y); NaN outside, next to nodata, or on a grid of fewer
     /// than 2 × 2 nodes (nothing to interpolate between).
     pub fn interpolate(&self, x: f64, y: f64) -> f64 {
@@ -311,6 +428,40 @@ fn node_height(v: &[[f64; 3]], cell: f64, median: bool) -> f32 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Points on the plane z = 100 + 0.2·x − 0.1·y with σ 0.5 m, on a 3 m lattice: every
+    /// node inside gets the plane's height exactly, and a σ below the points' (several
+    /// averaged) but above σ/√n; nodes far from every point get none.
+    #[test]
+    fn scattered_points_on_a_plane_give_the_plane_and_propagated_sigmas() {
+        let mut g = ElevationGrid::covering([0.0, 0.0, 60.0, 60.0], 5.0, 64).unwrap();
+        let plane = |x: f64, y: f64| 100.0 + 0.2 * x - 0.1 * y;
+        let mut pts = Vec::new();
+        for j in 0..14 {
+            for i in 0..14 {
+                let (x, y) = (1.0 + 3.0 * i as f64, 1.0 + 3.0 * j as f64);
+                pts.push(MatchedPoint {
+                    ground: GroundM::new(x, y, plane(x, y)),
+                    corr: 0.9,
+                    sigma_m: 0.5,
+                });
+            }
+        }
+        let q = g.fill_scattered(&pts, 7.0);
+        let [x, y] = g.node(4, 4);
+        let k = g.node_index(x, y).unwrap();
+        assert!(
+            (g.z[k] as f64 - plane(x, y)).abs() < 1e-4,
+            "{} at ({x}, {y})",
+            g.z[k]
+        );
+        let s = q.sigma_m[k] as f64;
+        assert!(s < 0.5 && s > 0.5 / (pts.len() as f64).sqrt(), "{s}");
+        assert!((q.corr[k] - 0.9).abs() < 1e-6);
+        // (60, 0) lies 18 m from the nearest point: nothing.
+        let far = g.node_index(60.0, 0.0).unwrap();
+        assert!(g.z[far].is_nan() && q.sigma_m[far].is_nan());
+    }
 
     #[test]
     fn degenerate_grids_and_points_are_refused_or_skipped_never_a_panic() {

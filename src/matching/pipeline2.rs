@@ -321,13 +321,21 @@ impl Plan {
     }
 }
 
-/// The orientations, heights, pairs, mappings and sweep parameters of a project, with each
-/// pair's work checked against the budget.
-pub fn plan(
-    p: &Project2,
-    photos: &[PhotoGeometry],
-    max_memory_mb: Option<u64>,
-) -> Result<Plan, Pipeline2Error> {
+/// A project's photos as sensors, what the matchers share before they differ: each photo's
+/// orientation (given or resected), the heights to search, the ground extent of the model and
+/// the pairs of photos whose footprints overlap.
+#[derive(Debug, Clone)]
+pub struct Oriented {
+    pub sensors: Vec<FrameSensor>,
+    pub resected: Vec<(String, Resection)>,
+    pub heights: [f64; 2],
+    pub extent: [f64; 4],
+    /// Pairs (i, j), i < j, of photos that overlap on the ground at the middle height.
+    pub overlapping: Vec<(usize, usize)>,
+}
+
+/// The orientations, heights, extent and overlapping pairs of a project.
+pub fn orient(p: &Project2, photos: &[PhotoGeometry]) -> Result<Oriented, Pipeline2Error> {
     let obs = p.observations()?;
     let control: Vec<&Observation> = obs.iter().filter(|o| o.kind == Kind::Gcp).collect();
     // Orientation: given, or resected from this photo's control points.
@@ -417,6 +425,29 @@ pub fn plan(
     if overlapping.is_empty() {
         return Err(Pipeline2Error::NoOverlap);
     }
+    Ok(Oriented {
+        sensors,
+        resected,
+        heights,
+        extent,
+        overlapping,
+    })
+}
+
+/// The orientations, heights, pairs, mappings and sweep parameters of a project, with each
+/// pair's work checked against the budget.
+pub fn plan(
+    p: &Project2,
+    photos: &[PhotoGeometry],
+    max_memory_mb: Option<u64>,
+) -> Result<Plan, Pipeline2Error> {
+    let Oriented {
+        sensors,
+        resected,
+        heights,
+        extent,
+        overlapping,
+    } = orient(p, photos)?;
     let budget = Budget {
         max_memory_mb: max_memory_mb.unwrap_or(p.limits.max_memory_mb),
         max_candidates: p.limits.max_candidates_g * 1e9,

@@ -119,6 +119,9 @@ pub struct Matching2 {
     pub height_threshold: Option<f64>,
     #[serde(default = "d_population")]
     pub population_threshold: usize,
+    /// `[matching.mgcm]`: the multiphoto matching's parameters (method = "mgcm").
+    #[serde(default)]
+    pub mgcm: super::mgcm::config::MgcmConfig,
 }
 
 #[derive(Debug, Deserialize)]
@@ -402,12 +405,13 @@ impl Project2 {
         let m = raw
             .matching
             .unwrap_or_else(|| toml::from_str("").expect("every [matching] key has a default"));
-        if m.method != "sweep" {
+        if m.method != "sweep" && m.method != "mgcm" {
             return Err(bad(format!(
-                "[matching] method `{}`: \"sweep\" (seed 000's height sweep) is the one built so far",
+                "[matching] method `{}`: \"sweep\" (seed 000's height sweep) or \"mgcm\" (seed 002's multiphoto geometrically constrained matching)",
                 m.method
             )));
         }
+        m.mgcm.check().map_err(bad)?;
         if let Some(s) = m.h_step {
             if !(s.is_finite() && (0.001..=1000.0).contains(&s)) {
                 return Err(bad(format!("[matching] h_step {s}: 0.001 to 1000 m")));

@@ -78,7 +78,7 @@ impl Default for AdjustParams {
 #[derive(Clone, Copy)]
 pub struct View<'a> {
     pub image: &'a Textured,
-    pub sensor: &'a dyn Sensor,
+    pub sensor: &'a (dyn Sensor + Sync),
 }
 
 /// Why a point could not be matched at all.
@@ -165,7 +165,7 @@ impl Solution {
 
 /// Reference pixel offset (du, dv) → search pixel offset at ground height z: the sensors'
 /// local mapping of a level plane, by differences of ±1 px.
-fn local_shape(
+pub(super) fn local_shape(
     reference: &dyn Sensor,
     search: &dyn Sensor,
     q0: PixelXY,
@@ -218,20 +218,30 @@ pub(super) fn mean_sd(v: &[f64]) -> (f64, f64) {
     (m, s)
 }
 
-/// The patch's samples at the template's pixels: value and the row of partial derivatives
-/// with respect to (centre col, centre row, shape 00, 01, 10, 11, r0, r1).
+/// One template pixel's sample of a search patch: the modelled grey value r0 + r1·g and two
+/// rows of partial derivatives with respect to (centre col, centre row, shape 00, 01, 10,
+/// 11, r0, r1): `a` with the slope taken from the template, `j` with the patch's own.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct Sample {
+    pub g: f64,
+    pub a: [f64; 8],
+    pub j: [f64; 8],
+}
+
+/// The patch's samples at the template's pixels.
 ///
-/// The slope r1·∇g of the patch is taken from the template, M⁻ᵀ·∇t (the model says
-/// t(u) = r0 + r1·g(c + M·u), so ∇t = r1·Mᵀ·∇g), not from the resampled patch: the patch's
-/// own slope, resampled with its noise, correlates with its resampled value and pulls the
-/// solution toward whole pixels (and the formal σ to half the true one at a gradient
-/// signal-to-noise of a few); the template's slope at a pixel does not contain that pixel.
+/// The design uses the slope from the template, M⁻ᵀ·∇t (the model says t(u) = r0 +
+/// r1·g(c + M·u), so ∇t = r1·Mᵀ·∇g), not the resampled patch's: the patch's own slope,
+/// resampled with its noise, correlates with its resampled value and pulls the solution
+/// toward whole pixels; the template's slope at a pixel does not contain that pixel. Both
+/// slopes are noisy, and independently so: the precision is taken from both (see
+/// [`finish`]).
 pub(super) fn sample_patch(
     img: &Textured,
     p: &Patch,
     h: usize,
     tgrad: &[[f64; 2]],
-    out: &mut Vec<(f64, [f64; 8])>,
+    out: &mut Vec<Sample>,
 ) -> Option<()> {
     out.clear();
     let m = p.shape;
@@ -251,17 +261,19 @@ pub(super) fn sample_patch(
             let (du, dv) = (u as f64, v as f64);
             let x = p.centre.col + p.shape[0][0] * du + p.shape[0][1] * dv;
             let y = p.centre.row + p.shape[1][0] * du + p.shape[1][1] * dv;
-            let g = img.image.bilinear(x, y)? as f64;
+            let [g, gx, gy] = img.sample(x, y)?;
             let [tx, ty] = tgrad[i];
             i += 1;
             let (ax, ay) = (
                 mit[0][0] * tx + mit[0][1] * ty,
                 mit[1][0] * tx + mit[1][1] * ty,
             );
-            out.push((
-                p.r0 + p.r1 * g,
-                [ax, ay, ax * du, ax * dv, ay * du, ay * dv, 1.0, g],
-            ));
+            let (jx, jy) = (p.r1 * gx, p.r1 * gy);
+            out.push(Sample {
+                g: p.r0 + p.r1 * g,
+                a: [ax, ay, ax * du, ax * dv, ay * du, ay * dv, 1.0, g],
+                j: [jx, jy, jx * du, jx * dv, jy * du, jy * dv, 1.0, g],
+            });
         }
     }
     Some(())
@@ -289,6 +301,28 @@ impl Layout {
     }
     fn total(&self, patches: usize) -> usize {
         self.point + self.per * patches
+    }
+
+    /// The observation row of patch k's grey value from its derivatives `d` (see
+    /// [`Sample`]); `dcdz` the patch centre's movement per metre of height (hard constraints).
+    fn design(&self, k: usize, d: &[f64; 8], dcdz: [f64; 2], row: &mut DVector<f64>) {
+        row.fill(0.0);
+        let base = self.base(k);
+        if self.soft {
+            row[base] = d[0];
+            row[base + 1] = d[1];
+        } else {
+            row[0] = d[0] * dcdz[0] + d[1] * dcdz[1];
+        }
+        let mut j = base + if self.soft { 2 } else { 0 };
+        if self.affine {
+            for s in 2..6 {
+                row[j] = d[s];
+                j += 1;
+            }
+        }
+        row[j] = d[6];
+        row[j + 1] = d[7];
     }
     /// Index of patch k's first own unknown.
     fn base(&self, k: usize) -> usize {
@@ -338,7 +372,7 @@ pub fn solve(
         // The seed's radiometric equalisation: the patch's mean and σ made the template's.
         sample_patch(s.image, &patch, h, &tpl.grad, &mut buf)
             .ok_or(PointFailure::TemplateOutside)?;
-        let g: Vec<f64> = buf.iter().map(|b| b.0).collect();
+        let g: Vec<f64> = buf.iter().map(|b| b.g).collect();
         let (gm, gs) = mean_sd(&g);
         patch.r1 = if gs > 0.0 { ts / gs } else { 1.0 };
         patch.r0 = tm - patch.r1 * gm;
@@ -371,25 +405,10 @@ pub fn solve(
             sample_patch(searches[k].image, patch, h, &tpl.grad, &mut buf)
                 .ok_or(PointFailure::TemplateOutside)?;
             let base = lay.base(k);
-            for (ti, (g, d)) in t.iter().zip(&buf) {
-                let l = ti - g;
+            for (ti, smp) in t.iter().zip(&buf) {
+                let l = ti - smp.g;
                 vv += l * l;
-                row.fill(0.0);
-                if lay.soft {
-                    row[base] = d[0];
-                    row[base + 1] = d[1];
-                } else {
-                    row[0] = d[0] * dcdz[k][0] + d[1] * dcdz[k][1];
-                }
-                let mut j = base + if lay.soft { 2 } else { 0 };
-                if lay.affine {
-                    for s in 2..6 {
-                        row[j] = d[s];
-                        j += 1;
-                    }
-                }
-                row[j] = d[6];
-                row[j + 1] = d[7];
+                lay.design(k, &smp.a, dcdz[k], &mut row);
                 // Only this patch's unknowns (and the point's) are non-zero.
                 accumulate(&mut normal, &mut rhs, &row, l, 1.0, &lay, base);
             }
@@ -518,8 +537,20 @@ fn accumulate_full(n: &mut DMatrix<f64>, b: &mut DVector<f64>, row: &DVector<f64
     }
 }
 
+/// One grey-value observation at the solution: its design row (template slopes), its
+/// residual, and the patch's own slope there.
+type Observed = (DVector<f64>, f64, [f64; 2]);
+
 /// The converged point's σ's and each ray's figures, from the last linearisation at the
 /// solution.
+///
+/// The solution is the root of Aᵀ(t − f(θ)) = 0, A the design with the template's slopes; a
+/// perturbation n of the grey values moves it by δθ = (AᵀJ)⁻¹·Aᵀ·n, J the design with the
+/// patches' own slopes (the model's Jacobian, noisy independently of A). So the covariance
+/// is the sandwich σ₀²·B⁻¹·N·B⁻ᵀ (B = AᵀJ, N = AᵀA), not σ₀²·N⁻¹, which with noisy slopes
+/// is too small by their (signal + noise)/signal power: by half at a slope signal-to-noise
+/// of 1. Each observation's influence on a coordinate gᵀθ is hᵢ = gᵀ·B⁻¹·aᵢ; against the
+/// residuals' autocovariance ([`crate::hac`]) they give the reported σ.
 #[allow(clippy::too_many_arguments)]
 fn finish(
     reference: View<'_>,
@@ -537,9 +568,10 @@ fn finish(
     let side = 2 * h + 1;
     let nu = lay.total(patches.len());
     let on_ray = |z: f64| reference.sensor.image_to_ground(qc, z);
-    let mut normal = DMatrix::<f64>::zeros(nu, nu);
-    let mut rhs = DVector::<f64>::zeros(nu);
-    let mut rows: Vec<Vec<(DVector<f64>, f64)>> = Vec::with_capacity(patches.len());
+    let mut n_mat = DMatrix::<f64>::zeros(nu, nu);
+    let mut b_mat = DMatrix::<f64>::zeros(nu, nu);
+    // Per patch: each observation's A row, residual, and the patch's slope (for the pointing).
+    let mut rows: Vec<Vec<Observed>> = Vec::with_capacity(patches.len());
     let mut buf = Vec::new();
     let mut dcdz = vec![[0.0; 2]; patches.len()];
     if !lay.soft {
@@ -553,36 +585,24 @@ fn finish(
     }
     let mut vv = 0.0;
     let mut rays = Vec::with_capacity(patches.len());
+    let mut jrow = DVector::<f64>::zeros(nu);
     for (k, patch) in patches.iter().enumerate() {
         sample_patch(searches[k].image, patch, h, &tpl.grad, &mut buf)
             .ok_or(PointFailure::TemplateOutside)?;
-        let base = lay.base(k);
         let mut these = Vec::with_capacity(t.len());
         let mut rv = 0.0;
-        for (ti, (g, d)) in t.iter().zip(&buf) {
-            let l = ti - g;
+        for (ti, smp) in t.iter().zip(&buf) {
+            let l = ti - smp.g;
             rv += l * l;
-            let mut row = DVector::<f64>::zeros(nu);
-            if lay.soft {
-                row[base] = d[0];
-                row[base + 1] = d[1];
-            } else {
-                row[0] = d[0] * dcdz[k][0] + d[1] * dcdz[k][1];
-            }
-            let mut j = base + if lay.soft { 2 } else { 0 };
-            if lay.affine {
-                for s in 2..6 {
-                    row[j] = d[s];
-                    j += 1;
-                }
-            }
-            row[j] = d[6];
-            row[j + 1] = d[7];
-            accumulate(&mut normal, &mut rhs, &row, l, 1.0, lay, base);
-            these.push((row, l));
+            let mut arow = DVector::<f64>::zeros(nu);
+            lay.design(k, &smp.a, dcdz[k], &mut arow);
+            lay.design(k, &smp.j, dcdz[k], &mut jrow);
+            n_mat += &arow * arow.transpose();
+            b_mat += &arow * jrow.transpose();
+            these.push((arow, l, [smp.j[0], smp.j[1]]));
         }
         vv += rv;
-        let g: Vec<f64> = buf.iter().map(|b| b.0).collect();
+        let g: Vec<f64> = buf.iter().map(|b| b.g).collect();
         let f = searches[k]
             .sensor
             .ground_to_image(point)
@@ -603,7 +623,8 @@ fn finish(
     let n_grey = t.len() * patches.len();
     let dof = (n_grey as f64 - nu as f64).max(1.0);
     let sigma0_sq = vv / dof;
-    let mut constraint_rows: Vec<(DVector<f64>, f64)> = Vec::new();
+    // The soft constraints' normal matrix, apart: their observations are not grey values.
+    let mut c_mat = DMatrix::<f64>::zeros(nu, nu);
     if let Constraint::Soft { sigma_px } = p.constraint {
         let w = sigma0_sq.max(1e-12) / (sigma_px * sigma_px).max(1e-12);
         let mut add = |k: Option<usize>, s: &dyn Sensor| -> Result<(), PointFailure> {
@@ -616,8 +637,8 @@ fn finish(
                 if let Some(k) = k {
                     row[lay.base(k) + a] = 1.0;
                 }
-                accumulate_full(&mut normal, &mut rhs, &row, 0.0, w);
-                constraint_rows.push((row, w));
+                let wr = w * &row;
+                c_mat += &wr * row.transpose();
             }
             Ok(())
         };
@@ -626,7 +647,17 @@ fn finish(
             add(Some(k), searches[k].sensor)?;
         }
     }
-    let q = normal.clone().try_inverse().ok_or(PointFailure::Singular)?;
+    let b_sym = 0.5 * (&b_mat + b_mat.transpose());
+    let b_inv = (&b_mat + &c_mat)
+        .try_inverse()
+        .ok_or(PointFailure::Singular)?;
+    // Half the residual variance is the template's, half the patches' (their noise alike):
+    // the template's noise moves the solution through the true slopes (its own noisy slope
+    // telescopes out: Σ (nᵢ₊₁ − nᵢ₋₁)·nᵢ sums to the ends), the patches' through the
+    // template's noisy slopes. So Cov = σ₀²/2 · B⁻¹ (B̄ + N) B⁻ᵀ, B̄ = (B + Bᵀ)/2 standing for
+    // the true slopes' Gram matrix.
+    let cov_grey = 0.5 * sigma0_sq * &b_inv * (&b_sym + &n_mat) * b_inv.transpose();
+    let cov_constraints = sigma0_sq * &b_inv * &c_mat * b_inv.transpose();
     // X, Y, Z as linear functions of the unknowns: soft, the first three; hard, Z and the
     // reference ray's slope dX/dZ, dY/dZ.
     let slope = {
@@ -647,33 +678,51 @@ fn finish(
     let mut sigma_formal = [0.0; 3];
     let mut sigma = [0.0; 3];
     let lag = (h / 2).max(1);
-    let mut psi = vec![0.0; side * side];
     let inside = vec![true; side * side];
     for axis in 0..3 {
         let g = gvec(axis);
-        let qg = &q * &g;
-        let formal_var = sigma0_sq * g.dot(&qg);
-        sigma_formal[axis] = formal_var.max(0.0).sqrt();
-        // Each grey observation's influence on this coordinate: h = gᵀ·N⁻¹·aᵢ, summed against
-        // the residuals' autocovariance patch by patch (residuals of different photos are
-        // independent).
+        let grey_var = g.dot(&(&cov_grey * &g));
+        let constraint_var = g.dot(&(&cov_constraints * &g));
+        sigma_formal[axis] = (grey_var + constraint_var).max(0.0).sqrt();
+        let hvec = b_inv.transpose() * &g;
         let mut hac = 0.0;
+        let mut white = 0.0;
         let mut orientation = 0.0;
         // The reference photo's pointing error δ moves every patch by its shape·δ.
         let mut through_reference = [0.0; 2];
-        for (k, these) in rows.iter().enumerate() {
-            let hv: Vec<f64> = these.iter().map(|(a, _)| a.dot(&qg)).collect();
-            // The residuals at the solution: the misclosures of the last linearisation.
-            for (i, (_, l)) in these.iter().enumerate() {
-                psi[i] = *l;
+        let hvs: Vec<Vec<f64>> = rows
+            .iter()
+            .map(|these| these.iter().map(|(a, _, _)| a.dot(&hvec)).collect())
+            .collect();
+        let psis: Vec<Vec<f64>> = rows
+            .iter()
+            .map(|these| these.iter().map(|(_, l, _)| *l).collect())
+            .collect();
+        // Every pair of photos, each with itself included: their residuals share the
+        // template's noise, whose effect on the point cancels between photos on opposite
+        // sides of the reference and adds up between photos on the same side.
+        for k in 0..rows.len() {
+            for m in 0..rows.len() {
+                let [v] = crate::hac::covariance(
+                    [&hvs[k]],
+                    &psis[k],
+                    [&hvs[m]],
+                    &psis[m],
+                    &inside,
+                    side,
+                    lag,
+                    n_grey as f64 / dof,
+                );
+                hac += v;
             }
-            let [v] = crate::hac::variance([&hv], &psi, &inside, side, lag, n_grey as f64 / dof);
-            hac += v;
+        }
+        for (k, these) in rows.iter().enumerate() {
+            let hv = &hvs[k];
+            let s2 = psis[k].iter().map(|v| v * v).sum::<f64>() / psis[k].len() as f64;
+            white += hv.iter().map(|h| h * h).sum::<f64>() * s2 * n_grey as f64 / dof;
             // A shift δ of this photo's pointing changes each residual by −r1·∇g·δ, and the
             // coordinate by Σ hᵢ·r1·∇gᵢ·δ.
-            sample_patch(searches[k].image, &patches[k], h, &tpl.grad, &mut buf)
-                .ok_or(PointFailure::TemplateOutside)?;
-            let s = buf.iter().zip(&hv).fold([0.0; 2], |acc, ((_, d), hi)| {
+            let s = these.iter().zip(hv).fold([0.0; 2], |acc, ((_, _, d), hi)| {
                 [acc[0] + hi * d[0], acc[1] + hi * d[1]]
             });
             orientation += s[0] * s[0] + s[1] * s[1];
@@ -683,7 +732,17 @@ fn finish(
         }
         let orientation_var = p.orientation_px.powi(2)
             * (orientation + through_reference[0].powi(2) + through_reference[1].powi(2));
-        sigma[axis] = (hac.max(formal_var) + orientation_var).max(0.0).sqrt();
+        // The residuals' correlation (within a patch, and between photos through the
+        // template) scales the model's variance by what it adds to white residuals' (never
+        // below a quarter: a window too small to estimate it may read near zero).
+        let factor = if white > 0.0 {
+            (hac / white).max(0.25)
+        } else {
+            1.0
+        };
+        sigma[axis] = (factor * grey_var + constraint_var + orientation_var)
+            .max(0.0)
+            .sqrt();
     }
     let m_per_px = if lay.soft {
         let mut best: f64 = 0.0;

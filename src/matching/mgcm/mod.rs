@@ -3,9 +3,11 @@
 //! operator, the constrained adjustment at one point and its blunder tests per ray.
 
 pub mod adjust;
+pub mod config;
 pub mod interest;
 pub mod point;
 pub mod pyramid;
+pub mod run;
 
 pub use adjust::{AdjustParams, Constraint, PointFailure, RayFit, Solution, View};
 pub use point::{match_point, PointResult, RayRejection, RayTests};

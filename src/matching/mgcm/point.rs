@@ -7,7 +7,7 @@
 //! are kept with their reasons.
 
 use super::adjust::{
-    mean_sd, sample_patch, solve, template, AdjustParams, Patch, PointFailure, Template,
+    mean_sd, sample_patch, solve, template, AdjustParams, Patch, PointFailure, Sample, Template,
 };
 use super::adjust::{Solution, View};
 use crate::coords::PixelXY;
@@ -72,8 +72,9 @@ pub struct PointResult {
 }
 
 /// The template's own match into one photo with the shape fixed: shift (2) and radiometry
-/// (2), from `start`; returns the shift and its 2 × 2 covariance (formal, widened by the
-/// residuals' autocovariance as in the adjustment).
+/// (2), from `start`; returns the shift and its 2 × 2 covariance (the sandwich of the
+/// template's and the patch's slopes, widened by the residuals' autocovariance, as in the
+/// adjustment).
 fn free_match(
     view: View<'_>,
     tpl: &Template,
@@ -94,7 +95,7 @@ fn free_match(
     let mut buf = Vec::new();
     for _ in 0..10 {
         sample_patch(view.image, &p, half, &tpl.grad, &mut buf)?;
-        let (n, b) = normals(t, &buf);
+        let (n, _, b) = normals(t, &buf);
         let d = n.cholesky()?.solve(&b);
         p.centre = PixelXY::new(p.centre.col + d[0], p.centre.row + d[1]);
         p.r0 += d[2];
@@ -107,18 +108,17 @@ fn free_match(
         }
     }
     sample_patch(view.image, &p, half, &tpl.grad, &mut buf)?;
-    let (n, _) = normals(t, &buf);
-    let q = n.try_inverse()?;
+    let (n, bj, _) = normals(t, &buf);
+    let bi = bj.try_inverse()?;
     let side = 2 * half + 1;
-    let v: Vec<f64> = t.iter().zip(&buf).map(|(ti, (g, _))| ti - g).collect();
+    let v: Vec<f64> = t.iter().zip(&buf).map(|(ti, smp)| ti - smp.g).collect();
     let dof = (v.len() as f64 - 4.0).max(1.0);
     let s0 = v.iter().map(|x| x * x).sum::<f64>() / dof;
+    let cov = s0 * bi * n * bi.transpose();
     let infl = |a: usize| -> Vec<f64> {
+        let hv = bi.transpose().column(a).into_owned();
         buf.iter()
-            .map(|(_, d)| {
-                let row = Vector4::new(d[0], d[1], d[6], d[7]);
-                (q * row)[a]
-            })
+            .map(|smp| Vector4::new(smp.a[0], smp.a[1], smp.a[6], smp.a[7]).dot(&hv))
             .collect()
     };
     let (h0, h1) = (infl(0), infl(1));
@@ -132,26 +132,30 @@ fn free_match(
         v.len() as f64 / dof,
     );
     let scale = [
-        (a / (s0 * q[(0, 0)]).max(1e-30)).max(1.0),
-        (b / (s0 * q[(1, 1)]).max(1e-30)).max(1.0),
+        (a / cov[(0, 0)].max(1e-30)).max(1.0),
+        (b / cov[(1, 1)].max(1e-30)).max(1.0),
     ];
     let f = (scale[0] * scale[1]).sqrt();
     let cov = [
-        [s0 * q[(0, 0)] * f, s0 * q[(0, 1)] * f],
-        [s0 * q[(1, 0)] * f, s0 * q[(1, 1)] * f],
+        [cov[(0, 0)] * f, cov[(0, 1)] * f],
+        [cov[(1, 0)] * f, cov[(1, 1)] * f],
     ];
     Some(([p.centre.col - start.col, p.centre.row - start.row], cov))
 }
 
-fn normals(t: &[f64], buf: &[(f64, [f64; 8])]) -> (Matrix4<f64>, Vector4<f64>) {
+/// AᵀA, AᵀJ and Aᵀl of the free match (shift, r0, r1).
+fn normals(t: &[f64], buf: &[Sample]) -> (Matrix4<f64>, Matrix4<f64>, Vector4<f64>) {
     let mut n = Matrix4::zeros();
+    let mut bj = Matrix4::zeros();
     let mut b = Vector4::zeros();
-    for (ti, (g, d)) in t.iter().zip(buf) {
-        let row = Vector4::new(d[0], d[1], d[6], d[7]);
-        n += row * row.transpose();
-        b += row * (ti - g);
+    for (ti, smp) in t.iter().zip(buf) {
+        let a = Vector4::new(smp.a[0], smp.a[1], smp.a[6], smp.a[7]);
+        let j = Vector4::new(smp.j[0], smp.j[1], smp.j[6], smp.j[7]);
+        n += a * a.transpose();
+        bj += a * j.transpose();
+        b += a * (ti - smp.g);
     }
-    (n, b)
+    (n, bj, b)
 }
 
 /// The snooping statistic: √(Δᵀ Σ⁻¹ Δ).

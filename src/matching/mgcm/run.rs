@@ -1,0 +1,944 @@
+//! The hierarchical multiphoto matching over a format-2 project (seed 002, "Automatic D.T.M.
+//! measurements"): one reference photo carries the templates and every photo overlapping it
+//! is searched at once. Pyramids of all of them; at the top a height sweep (mean correlation
+//! over the search photos) on a regular grid gives first heights, refined there by the
+//! constrained matching with two shifts; at each level below, the grid's heights (blunders
+//! removed, holes filled from their neighbours) are the approximations of the next; at the
+//! finest level the interest operator's points are matched with the full model, every ray
+//! tested, and the points tested against their neighbours. The points, a DEM interpolated from
+//! them with its σ, the point files with every refused point and ray and why, and seed 002's
+//! accuracy analysis against the reference are written as the sweep's outputs are.
+
+use super::adjust::{local_shape, template, AdjustParams, PointFailure, View};
+use super::config::MgcmConfig;
+use super::interest::{epipolar_direction, select};
+use super::point::{match_point, PointResult, RayTests};
+use super::pyramid::{levels_for, pyramid, AtLevel, Textured};
+use crate::coords::{GroundM, PixelXY};
+use crate::geometry::{Crs, Resection, Sensor};
+use crate::matching::accuracy::{analyse, Accuracy};
+use crate::matching::grid::{Comparison, ElevationGrid};
+use crate::matching::ortho::View as OrthoView;
+use crate::matching::output::read_geotiff;
+use crate::matching::pipeline::{Photo, PipelineError};
+use crate::matching::pipeline2::{orient, Oriented, Pipeline2Error};
+use crate::matching::precision::{check_sigma, sigma_vs_reference, SigmaCheck};
+use crate::matching::progress::Progress;
+use crate::matching::project2::{Kind, Project2};
+use crate::matching::MatchedPoint;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+/// One pyramid level's part of the run.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct LevelReport {
+    pub level: usize,
+    /// The reference image's size at this level, px.
+    pub size: [usize; 2],
+    /// Grid nodes (or, at level 0, selected points) tried, matched, and refused as blunders.
+    pub tried: usize,
+    pub matched: usize,
+    pub blunders: usize,
+}
+
+/// Why a point of the finest level was refused.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum Refusal {
+    /// The matching itself failed (see the failure).
+    Matching { failure: PointFailure },
+    /// Its height lies away from the plane through its neighbours by more than they allow.
+    Neighbourhood { residual_m: f64, limit_m: f64 },
+    /// Its σ₀ is many times its neighbours'.
+    Sigma0 { ratio: f64 },
+}
+
+impl std::fmt::Display for Refusal {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Refusal::Matching { failure } => write!(f, "{failure}"),
+            Refusal::Neighbourhood {
+                residual_m,
+                limit_m,
+            } => write!(
+                f,
+                "{residual_m:+.2} m from its neighbours' plane (limit {limit_m:.2} m)"
+            ),
+            Refusal::Sigma0 { ratio } => write!(f, "σ0 {ratio:.1} × its neighbours'"),
+        }
+    }
+}
+
+/// A finest-level point as it is written: the matching's result and the verdict.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FinePoint {
+    pub result: PointResult,
+    pub refusal: Option<Refusal>,
+}
+
+/// `report.json` of an MGCM run.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct MgcmReport {
+    pub project: PathBuf,
+    pub method: String,
+    pub crs: Crs,
+    pub resected: Vec<(String, Resection)>,
+    /// The photo carrying the templates, and the photos searched.
+    pub reference: String,
+    pub searched: Vec<String>,
+    pub heights_m: [f64; 2],
+    pub extent: [f64; 4],
+    pub config: MgcmConfig,
+    pub levels: Vec<LevelReport>,
+    /// Finest-level points: selected, kept, and how many rays the kept ones have (index =
+    /// rays including the reference).
+    pub selected: usize,
+    pub kept: usize,
+    pub rays_histogram: Vec<usize>,
+    /// Mean height error per pixel of parallax along the widest epipolar line, m/px.
+    pub m_per_px: f64,
+    pub seconds: f64,
+    pub points_per_second: f64,
+    pub grid: ElevationGrid,
+    pub grid_filled: usize,
+    pub comparison: Option<Comparison>,
+    /// Seed 002's accuracy analysis of the points against the reference model.
+    pub accuracy: Option<Accuracy>,
+    pub check_points: Option<SigmaCheck>,
+    pub sigma_vs_reference: Option<SigmaCheck>,
+}
+
+impl MgcmReport {
+    pub fn summary(&self) -> Vec<(String, String)> {
+        let mut v = vec![
+            (
+                "method".to_string(),
+                format!(
+                    "multiphoto geometrically constrained matching: photo {} against {}",
+                    self.reference,
+                    self.searched.join(", ")
+                ),
+            ),
+            (
+                "heights tried".into(),
+                format!("{:.1} … {:.1} m", self.heights_m[0], self.heights_m[1]),
+            ),
+        ];
+        for l in &self.levels {
+            v.push((
+                format!("level {}", l.level),
+                format!(
+                    "{} × {} px: {} tried, {} matched, {} blunders",
+                    l.size[0], l.size[1], l.tried, l.matched, l.blunders
+                ),
+            ));
+        }
+        v.push((
+            "points".into(),
+            format!(
+                "{} selected, {} kept ({:.0} points/s)",
+                self.selected, self.kept, self.points_per_second
+            ),
+        ));
+        v.push((
+            "grid".into(),
+            format!(
+                "{} × {} nodes, {} with a height",
+                self.grid.cols, self.grid.rows, self.grid_filled
+            ),
+        ));
+        if let Some(c) = &self.comparison {
+            v.push(("against the reference".into(), c.summary()));
+        }
+        if let Some(a) = &self.accuracy {
+            let v1 = &a.versions[0];
+            v.push((
+                "points against the reference".into(),
+                format!(
+                    "RMS {:.3} m ({:.3} ‰ hg, {:.3} px of parallax), max {:.2} m; {} undetected blunders ({:.2} %)",
+                    v1.rms_m,
+                    v1.rms_permille,
+                    v1.rms_m / self.m_per_px,
+                    v1.max_abs_m,
+                    a.undetected,
+                    a.undetected_percent
+                ),
+            ));
+            if let Some(p) = &a.precision {
+                v.push((
+                    "σ against the true error".into(),
+                    format!(
+                        "RMS(error/σ) {:.2}, {:.0} % within 2σ",
+                        p.rms_ratio, p.within_2_sigma_percent
+                    ),
+                ));
+            }
+        }
+        v
+    }
+}
+
+/// Heights on a regular grid of one level's reference image: node (i, j) at pixel
+/// (margin + i·spacing, margin + j·spacing).
+#[derive(Debug, Clone)]
+struct LevelGrid {
+    spacing: usize,
+    margin: usize,
+    cols: usize,
+    rows: usize,
+    z: Vec<f64>,
+}
+
+impl LevelGrid {
+    fn new(width: usize, height: usize, spacing: usize, margin: usize) -> Option<LevelGrid> {
+        if width <= 2 * margin + spacing || height <= 2 * margin + spacing {
+            return None;
+        }
+        let cols = (width - 2 * margin) / spacing + 1;
+        let rows = (height - 2 * margin) / spacing + 1;
+        Some(LevelGrid {
+            spacing,
+            margin,
+            cols,
+            rows,
+            z: vec![f64::NAN; cols * rows],
+        })
+    }
+
+    fn pixel(&self, i: usize, j: usize) -> (usize, usize) {
+        (
+            self.margin + i * self.spacing,
+            self.margin + j * self.spacing,
+        )
+    }
+
+    /// Bilinear height at continuous point (x, y) of this level (clamped to the nodes).
+    fn at(&self, x: f64, y: f64) -> f64 {
+        let s = self.spacing as f64;
+        let u = ((x - 0.5 - self.margin as f64) / s).clamp(0.0, (self.cols - 1) as f64);
+        let v = ((y - 0.5 - self.margin as f64) / s).clamp(0.0, (self.rows - 1) as f64);
+        let (i, j) = (
+            (u as usize).min(self.cols.saturating_sub(2)),
+            (v as usize).min(self.rows.saturating_sub(2)),
+        );
+        let (fu, fv) = (u - i as f64, v - j as f64);
+        let i1 = (i + 1).min(self.cols - 1);
+        let j1 = (j + 1).min(self.rows - 1);
+        let z = |a: usize, b: usize| self.z[b * self.cols + a];
+        let top = z(i, j) + fu * (z(i1, j) - z(i, j));
+        let bottom = z(i, j1) + fu * (z(i1, j1) - z(i, j1));
+        top + fv * (bottom - top)
+    }
+
+    /// Blunders: a node further than `limit` from the median of its (at least 3) neighbours
+    /// with a height. Returns how many were removed.
+    fn remove_blunders(&mut self, limit: f64) -> usize {
+        let mut out = Vec::new();
+        for j in 0..self.rows {
+            for i in 0..self.cols {
+                let z = self.z[j * self.cols + i];
+                if !z.is_finite() {
+                    continue;
+                }
+                let mut n = self.neighbours(i, j);
+                if n.len() < 3 {
+                    continue;
+                }
+                let mid = n.len() / 2;
+                let med = *n.select_nth_unstable_by(mid, f64::total_cmp).1;
+                if (z - med).abs() > limit {
+                    out.push(j * self.cols + i);
+                }
+            }
+        }
+        for &k in &out {
+            self.z[k] = f64::NAN;
+        }
+        out.len()
+    }
+
+    fn neighbours(&self, i: usize, j: usize) -> Vec<f64> {
+        let mut n = Vec::with_capacity(8);
+        for b in j.saturating_sub(1)..(j + 2).min(self.rows) {
+            for a in i.saturating_sub(1)..(i + 2).min(self.cols) {
+                let v = self.z[b * self.cols + a];
+                if (a, b) != (i, j) && v.is_finite() {
+                    n.push(v);
+                }
+            }
+        }
+        n
+    }
+
+    /// Holes filled with the mean of their neighbours, ring by ring; false when the grid has
+    /// no height at all.
+    fn fill_holes(&mut self) -> bool {
+        if !self.z.iter().any(|v| v.is_finite()) {
+            return false;
+        }
+        while self.z.iter().any(|v| !v.is_finite()) {
+            let mut next = self.z.clone();
+            for j in 0..self.rows {
+                for i in 0..self.cols {
+                    if !self.z[j * self.cols + i].is_finite() {
+                        let n = self.neighbours(i, j);
+                        if !n.is_empty() {
+                            next[j * self.cols + i] = n.iter().sum::<f64>() / n.len() as f64;
+                        }
+                    }
+                }
+            }
+            self.z = next;
+        }
+        true
+    }
+}
+
+/// The multi-photo height sweep at the top level: the height whose patches correlate best
+/// with the template, on average over the search photos that see them.
+fn sweep_height(
+    reference: View<'_>,
+    q0: (usize, usize),
+    searches: &[View<'_>],
+    heights: [f64; 2],
+    step: f64,
+    half: usize,
+) -> Option<f64> {
+    let tpl = template(reference.image, q0.0, q0.1, half).ok()?;
+    let qc = PixelXY::new(q0.0 as f64 + 0.5, q0.1 as f64 + 0.5);
+    let mid = 0.5 * (heights[0] + heights[1]);
+    let shapes: Vec<Option<[[f64; 2]; 2]>> = searches
+        .iter()
+        .map(|s| local_shape(reference.sensor, s.sensor, qc, mid))
+        .collect();
+    let n = ((heights[1] - heights[0]) / step).ceil() as usize + 1;
+    let mut best: Option<(f64, f64)> = None;
+    let mut g = Vec::with_capacity(tpl.values.len());
+    let h = half as i64;
+    for k in 0..n.min(100_000) {
+        let z = heights[0] + k as f64 * step;
+        let Some(p) = reference.sensor.image_to_ground(qc, z) else {
+            continue;
+        };
+        let (mut sum, mut seen) = (0.0, 0);
+        for (s, shape) in searches.iter().zip(&shapes) {
+            let (Some(c), Some(m)) = (s.sensor.ground_to_image(p), shape) else {
+                continue;
+            };
+            g.clear();
+            let mut ok = true;
+            'patch: for v in -h..=h {
+                for u in -h..=h {
+                    let (du, dv) = (u as f64, v as f64);
+                    match s.image.image.bilinear(
+                        c.col + m[0][0] * du + m[0][1] * dv,
+                        c.row + m[1][0] * du + m[1][1] * dv,
+                    ) {
+                        Some(x) => g.push(x as f64),
+                        None => {
+                            ok = false;
+                            break 'patch;
+                        }
+                    }
+                }
+            }
+            if ok {
+                sum += crate::correlation::ncc(&tpl.values, &g);
+                seen += 1;
+            }
+        }
+        if seen > 0 {
+            let score = sum / seen as f64;
+            if best.is_none_or(|b| score > b.1) {
+                best = Some((z, score));
+            }
+        }
+    }
+    best.filter(|b| b.1 > 0.3).map(|b| b.0)
+}
+
+/// The largest movement of any search patch per metre of height at reference pixel `q`,
+/// px/m.
+fn parallax_per_m(reference: &dyn Sensor, searches: &[&dyn Sensor], q: PixelXY, z: f64) -> f64 {
+    let (Some(a), Some(b)) = (
+        reference.image_to_ground(q, z + 1.0),
+        reference.image_to_ground(q, z - 1.0),
+    ) else {
+        return f64::NAN;
+    };
+    searches
+        .iter()
+        .filter_map(|s| {
+            let (p, m) = (s.ground_to_image(a)?, s.ground_to_image(b)?);
+            Some(0.5 * (p.col - m.col).hypot(p.row - m.row))
+        })
+        .fold(0.0, f64::max)
+}
+
+/// The height of the sensor above the ground at reference pixel `q` and height `z`, m, from
+/// how the ground footprint of a pixel grows with the distance: for a frame camera
+/// d = (Z₀ − z) and a pixel covers p·d/f, so d = gsd(z)·Δz / (gsd(z) − gsd(z + Δz)).
+fn flying_height(s: &dyn Sensor, q: PixelXY, z: f64) -> Option<f64> {
+    let gsd = |z: f64| -> Option<f64> {
+        let a = s.image_to_ground(q, z)?;
+        let b = s.image_to_ground(PixelXY::new(q.col + 1.0, q.row), z)?;
+        Some((a.x - b.x).hypot(a.y - b.y))
+    };
+    let dz = 50.0;
+    let (g0, g1) = (gsd(z)?, gsd(z + dz)?);
+    let d = g0 * dz / (g0 - g1);
+    (d.is_finite() && d > 0.0).then_some(d)
+}
+
+/// The grey range (1st to 99th percentile) of an image, from a sample of its pixels.
+fn grey_range(img: &crate::image::ImageF32) -> f64 {
+    let step = (img.data.len() / 100_000).max(1);
+    let mut v: Vec<f32> = img.data.iter().step_by(step).copied().collect();
+    if v.is_empty() {
+        return 0.0;
+    }
+    v.sort_unstable_by(f32::total_cmp);
+    let at = |f: f64| v[((v.len() - 1) as f64 * f) as usize] as f64;
+    at(0.99) - at(0.01)
+}
+
+/// Matches the nodes of one level, from approximations `approx` (None: the top level's sweep).
+#[allow(clippy::too_many_arguments)]
+fn match_level(
+    reference: View<'_>,
+    searches: &[View<'_>],
+    grid: &mut LevelGrid,
+    approx: Option<&LevelGrid>,
+    heights: [f64; 2],
+    step: f64,
+    p: &AdjustParams,
+    tests: &RayTests,
+) -> usize {
+    let nodes: Vec<(usize, usize)> = (0..grid.rows)
+        .flat_map(|j| (0..grid.cols).map(move |i| (i, j)))
+        .collect();
+    let z: Vec<f64> = nodes
+        .par_iter()
+        .map(|&(i, j)| {
+            let q = grid.pixel(i, j);
+            let z0 = match approx {
+                // Level k + 1's continuous point is this level's halved.
+                Some(a) => a.at((q.0 as f64 + 0.5) / 2.0, (q.1 as f64 + 0.5) / 2.0),
+                None => match sweep_height(reference, q, searches, heights, step, p.half) {
+                    Some(z) => z,
+                    None => return f64::NAN,
+                },
+            };
+            match match_point(reference, q, searches, z0, p, tests).solution {
+                Ok(s) => s.ground.z,
+                Err(_) => f64::NAN,
+            }
+        })
+        .collect();
+    grid.z = z;
+    grid.z.iter().filter(|v| v.is_finite()).count()
+}
+
+/// A kept point as its neighbours see it: index, template pixel, Z, σ₀, σ_Z.
+type Neighbour = (usize, (f64, f64), f64, f64, f64);
+
+/// Tests every finest-level point against its neighbours (those kept in the cells around it):
+/// its height against their plane, its σ₀ against theirs.
+fn neighbourhood_tests(points: &mut [FinePoint], radius_px: f64, m_per_px: f64) {
+    let kept: Vec<Neighbour> = points
+        .iter()
+        .enumerate()
+        .filter_map(|(k, p)| {
+            let s = p.result.solution.as_ref().ok()?;
+            let (c, r) = p.result.pixel;
+            Some((k, (c as f64, r as f64), s.ground.z, s.sigma0, s.sigma[2]))
+        })
+        .collect();
+    let verdicts: Vec<(usize, Option<Refusal>)> = kept
+        .par_iter()
+        .map(|&(k, (c, r), z, s0, sz)| {
+            let near: Vec<&Neighbour> = kept
+                .iter()
+                .filter(|o| {
+                    o.0 != k && ((o.1 .0 - c).powi(2) + (o.1 .1 - r).powi(2)).sqrt() < radius_px
+                })
+                .collect();
+            if near.len() < 5 {
+                return (k, None);
+            }
+            let mut s0s: Vec<f64> = near.iter().map(|o| o.3).collect();
+            let mid = s0s.len() / 2;
+            let med = *s0s.select_nth_unstable_by(mid, f64::total_cmp).1;
+            if med > 0.0 && s0 > 3.0 * med {
+                return (k, Some(Refusal::Sigma0 { ratio: s0 / med }));
+            }
+            // z = a + b·dc + c·dr through the neighbours.
+            let mut nm = nalgebra::Matrix3::<f64>::zeros();
+            let mut b = nalgebra::Vector3::<f64>::zeros();
+            for o in &near {
+                let a =
+                    nalgebra::Vector3::new(1.0, (o.1 .0 - c) / radius_px, (o.1 .1 - r) / radius_px);
+                nm += a * a.transpose();
+                b += a * o.2;
+            }
+            let Some(sol) = nm.try_inverse().map(|i| i * b) else {
+                return (k, None);
+            };
+            let mut res: Vec<f64> = near
+                .iter()
+                .map(|o| {
+                    (o.2 - sol[0]
+                        - sol[1] * (o.1 .0 - c) / radius_px
+                        - sol[2] * (o.1 .1 - r) / radius_px)
+                        .abs()
+                })
+                .collect();
+            let mid = res.len() / 2;
+            let mad = *res.select_nth_unstable_by(mid, f64::total_cmp).1;
+            let scale = 1.4826 * mad;
+            let limit = (4.0 * (scale * scale + sz * sz).sqrt()).max(m_per_px);
+            let residual = z - sol[0];
+            if residual.abs() > limit {
+                (
+                    k,
+                    Some(Refusal::Neighbourhood {
+                        residual_m: residual,
+                        limit_m: limit,
+                    }),
+                )
+            } else {
+                (k, None)
+            }
+        })
+        .collect();
+    for (k, v) in verdicts {
+        points[k].refusal = v;
+    }
+}
+
+/// Runs the MGCM of project `p` on its loaded photos into `out`.
+pub fn run(
+    p: &Project2,
+    photos: &[Photo],
+    out: &Path,
+    max_memory_mb: Option<u64>,
+    progress: &dyn Progress,
+) -> Result<MgcmReport, Pipeline2Error> {
+    crate::matching::pipeline::check_out_dir(out)?;
+    let started = std::time::Instant::now();
+    let cfg = p.matching.mgcm.clone();
+    let geometry: Vec<_> = photos.iter().map(Photo::geometry).collect();
+    let Oriented {
+        sensors,
+        resected,
+        heights,
+        extent,
+        overlapping,
+    } = orient(p, &geometry)?;
+    // The reference: named, or the photo overlapping most others.
+    let partners = |k: usize| -> Vec<usize> {
+        overlapping
+            .iter()
+            .filter_map(|&(i, j)| {
+                if i == k {
+                    Some(j)
+                } else if j == k {
+                    Some(i)
+                } else {
+                    None
+                }
+            })
+            .collect()
+    };
+    let r = match &cfg.reference {
+        Some(id) => p.photos.iter().position(|ph| &ph.id == id).ok_or_else(|| {
+            Pipeline2Error::Heights(format!(
+                "[matching.mgcm] reference = \"{id}\": no photo of that id in the project"
+            ))
+        })?,
+        None => (0..photos.len())
+            .max_by_key(|&k| (partners(k).len(), std::cmp::Reverse(k)))
+            .unwrap_or(0),
+    };
+    let others = partners(r);
+    if others.is_empty() {
+        return Err(Pipeline2Error::NoOverlap);
+    }
+    // Memory: every pyramid (image and two gradients, 4/3 of level 0's pixels).
+    let bytes: u64 = std::iter::once(r)
+        .chain(others.iter().copied())
+        .map(|k| (photos[k].image.data.len() as u64) * 4 * 3 * 4 / 3)
+        .sum();
+    let limit = max_memory_mb.unwrap_or(p.limits.max_memory_mb) << 20;
+    if bytes > limit {
+        return Err(Pipeline2Error::Grid(format!(
+            "the pyramids of {} photos need {} MiB; the limit is {} MiB ([limits] max_memory_mb or --max-memory-mb)",
+            others.len() + 1,
+            bytes >> 20,
+            limit >> 20
+        )));
+    }
+    let (rw, rh) = (photos[r].image.width, photos[r].image.height);
+    let levels = levels_for(rw, rh, cfg.top_px);
+    progress.begin("pyramids", (others.len() + 1) as u64);
+    let pyr: Vec<(usize, Vec<Textured>)> = std::iter::once(r)
+        .chain(others.iter().copied())
+        .collect::<Vec<_>>()
+        .into_par_iter()
+        .map(|k| {
+            let t = pyramid(photos[k].image.clone(), levels);
+            progress.advance(1);
+            (k, t)
+        })
+        .collect();
+    progress.end();
+    let sensor_at = |k: usize, level: usize| AtLevel {
+        inner: &sensors[k],
+        level,
+    };
+    let mid = 0.5 * (heights[0] + heights[1]);
+    let centre0 = PixelXY::new(0.5 * rw as f64, 0.5 * rh as f64);
+    let search_sensors: Vec<&dyn Sensor> =
+        others.iter().map(|&k| &sensors[k] as &dyn Sensor).collect();
+    let px_per_m0 = parallax_per_m(&sensors[r], &search_sensors, centre0, mid);
+    if px_per_m0.is_nan() || px_per_m0 <= 1e-9 {
+        return Err(Pipeline2Error::Grid(
+            "the photos show no parallax with height (no base between them): nothing to match"
+                .into(),
+        ));
+    }
+    let m_per_px = 1.0 / px_per_m0;
+    // Coarse to fine, on grids.
+    let coarse = cfg.coarse();
+    let tests = cfg.tests();
+    let mut level_reports = Vec::new();
+    let mut previous: Option<LevelGrid> = None;
+    for level in (1..=levels).rev() {
+        let refs: Vec<AtLevel> = std::iter::once(r)
+            .chain(others.iter().copied())
+            .map(|k| sensor_at(k, level))
+            .collect();
+        let img = |k: usize| &pyr.iter().find(|(i, _)| *i == k).expect("built").1[level];
+        let reference = View {
+            image: img(r),
+            sensor: &refs[0],
+        };
+        let searches: Vec<View> = others
+            .iter()
+            .zip(&refs[1..])
+            .map(|(&k, s)| View {
+                image: img(k),
+                sensor: s,
+            })
+            .collect();
+        let (w, h) = (reference.image.image.width, reference.image.image.height);
+        let spacing = 2;
+        let margin = coarse.half + 2;
+        let Some(mut grid) = LevelGrid::new(w, h, spacing, margin) else {
+            continue;
+        };
+        let scale = (1u64 << level) as f64;
+        let step = 0.5 * m_per_px * scale;
+        progress.begin(&format!("level {level}"), 1);
+        let matched = match_level(
+            reference,
+            &searches,
+            &mut grid,
+            previous.as_ref(),
+            heights,
+            step,
+            &coarse,
+            &tests,
+        );
+        let blunders = grid.remove_blunders(2.0 * m_per_px * scale);
+        progress.advance(1);
+        progress.end();
+        tracing::info!(level, matched, blunders, "pyramid level matched");
+        level_reports.push(LevelReport {
+            level,
+            size: [w, h],
+            tried: grid.z.len(),
+            matched,
+            blunders,
+        });
+        if !grid.fill_holes() {
+            return Err(Pipeline2Error::Grid(format!(
+                "no point of pyramid level {level} matched: do the photos overlap within [dem] heights {heights:?}?"
+            )));
+        }
+        previous = Some(grid);
+    }
+    // The finest level.
+    let img0 = |k: usize| &pyr.iter().find(|(i, _)| *i == k).expect("built").1[0];
+    let reference = View {
+        image: img0(r),
+        sensor: &sensors[r],
+    };
+    let searches: Vec<View> = others
+        .iter()
+        .map(|&k| View {
+            image: img0(k),
+            sensor: &sensors[k],
+        })
+        .collect();
+    let directions: Vec<[f64; 2]> = others
+        .iter()
+        .filter_map(|&k| epipolar_direction(&sensors[r], &sensors[k], centre0, mid, 10.0))
+        .collect();
+    let selected = select(
+        &reference.image.image,
+        &directions,
+        &cfg.interest(grey_range(&reference.image.image)),
+    );
+    // The orientation's pointing error: the project's, and each resected photo's own.
+    let mut fine = cfg.fine();
+    for (_, res) in &resected {
+        let px_mm = {
+            let a = sensors[r].frame.photo(PixelXY::new(0.0, 0.0));
+            let b = sensors[r].frame.photo(PixelXY::new(1.0, 0.0));
+            (a.x - b.x).hypot(a.y - b.y)
+        };
+        let n = res.residuals_mm.len().max(7) as f64;
+        let own = res.sigma0_mm / px_mm * (6.0 / n).sqrt();
+        fine.orientation_px = fine.orientation_px.hypot(own);
+    }
+    progress.begin("points", selected.len() as u64);
+    let fine_started = std::time::Instant::now();
+    let mut points: Vec<FinePoint> = selected
+        .par_iter()
+        .map(|pt| {
+            let q = pt.pixel;
+            let z0 = match &previous {
+                Some(g) => g.at((q.0 as f64 + 0.5) / 2.0, (q.1 as f64 + 0.5) / 2.0),
+                None => sweep_height(reference, q, &searches, heights, 0.5 * m_per_px, fine.half)
+                    .unwrap_or(mid),
+            };
+            let result = match_point(reference, q, &searches, z0, &fine, &tests);
+            progress.advance(1);
+            FinePoint {
+                result,
+                refusal: None,
+            }
+        })
+        .collect();
+    progress.end();
+    let fine_seconds = fine_started.elapsed().as_secs_f64();
+    for pt in points.iter_mut() {
+        if let Err(e) = &pt.result.solution {
+            pt.refusal = Some(Refusal::Matching { failure: *e });
+        }
+    }
+    neighbourhood_tests(&mut points, 2.5 * cfg.cell as f64, m_per_px);
+    let kept: Vec<&FinePoint> = points.iter().filter(|p| p.refusal.is_none()).collect();
+    level_reports.push(LevelReport {
+        level: 0,
+        size: [rw, rh],
+        tried: points.len(),
+        matched: kept.len(),
+        blunders: points.len() - kept.len(),
+    });
+    let mut rays_histogram = vec![0usize; others.len() + 2];
+    let matched: Vec<MatchedPoint> = kept
+        .iter()
+        .filter_map(|p| {
+            let s = p.result.solution.as_ref().ok()?;
+            rays_histogram[s.rays.len() + 1] += 1;
+            Some(MatchedPoint {
+                ground: s.ground,
+                corr: s.corr() as f32,
+                sigma_m: s.sigma[2] as f32,
+            })
+        })
+        .collect();
+    // The DEM from the points.
+    let budget = max_memory_mb.unwrap_or(p.limits.max_memory_mb);
+    let mut grid = ElevationGrid::covering(extent, p.cell_m, budget)
+        .map_err(|e| Pipeline2Error::Grid(e.to_string()))?;
+    let gsd = {
+        let a = sensors[r].image_to_ground(centre0, mid);
+        let b = sensors[r].image_to_ground(PixelXY::new(centre0.col + 1.0, centre0.row), mid);
+        a.zip(b).map_or(1.0, |(a, b)| (a.x - b.x).hypot(a.y - b.y))
+    };
+    let quality = grid.fill_scattered(&matched, 1.6 * cfg.cell as f64 * gsd);
+    let reference_dem = match &p.reference {
+        Some(f) => Some(read_geotiff(f).map_err(|source| PipelineError::Reference {
+            path: f.clone(),
+            cause: source,
+        })?),
+        None => None,
+    };
+    let comparison = reference_dem
+        .as_ref()
+        .map(|g| grid.compare(|x, y| g.interpolate(x, y)));
+    let sigma_vs_ref = reference_dem
+        .as_ref()
+        .and_then(|g| sigma_vs_reference(&grid, &quality.sigma_m, g));
+    let hg = flying_height(&sensors[r], centre0, mid).unwrap_or(f64::NAN);
+    let refused = points.len() - kept.len();
+    let accuracy = reference_dem.as_ref().map(|g| {
+        let d: Vec<(f64, f64)> = matched
+            .iter()
+            .filter_map(|m| {
+                let z = g.interpolate(m.ground.x, m.ground.y);
+                z.is_finite().then_some((m.ground.z - z, m.sigma_m as f64))
+            })
+            .collect();
+        analyse(&d, refused, hg)
+    });
+    let obs = p.observations()?;
+    let mut seen = std::collections::HashSet::new();
+    let check_points = check_sigma(
+        obs.iter()
+            .filter(|o| o.kind == Kind::Cp && seen.insert(o.id.as_str()))
+            .filter_map(|o| {
+                let g = o.ground?;
+                let s = grid
+                    .node_index(g.x, g.y)
+                    .map_or(f64::NAN, |i| quality.sigma_m[i] as f64);
+                Some((grid.interpolate(g.x, g.y) - g.z, s))
+            }),
+    );
+    let seconds = started.elapsed().as_secs_f64();
+    let report = MgcmReport {
+        project: p.path.clone(),
+        method: "mgcm".into(),
+        crs: p.crs,
+        resected,
+        reference: p.photos[r].id.clone(),
+        searched: others.iter().map(|&k| p.photos[k].id.clone()).collect(),
+        heights_m: heights,
+        extent,
+        config: cfg.clone(),
+        levels: level_reports,
+        selected: points.len(),
+        kept: matched.len(),
+        rays_histogram,
+        m_per_px,
+        seconds,
+        points_per_second: points.len() as f64 / fine_seconds.max(1e-9),
+        grid_filled: grid.filled(),
+        grid,
+        comparison,
+        accuracy,
+        check_points,
+        sigma_vs_reference: sigma_vs_ref,
+    };
+    let write = |source| PipelineError::Write {
+        dir: out.to_path_buf(),
+        cause: source,
+    };
+    let projections: Vec<_> = sensors
+        .iter()
+        .map(|s| move |g: GroundM| s.ground_to_image(g))
+        .collect();
+    let views: Vec<OrthoView> = photos
+        .iter()
+        .zip(&projections)
+        .map(|(ph, f)| OrthoView {
+            image: &ph.image,
+            project: f,
+        })
+        .collect();
+    crate::matching::pipeline::write_outputs(
+        out,
+        &report.grid,
+        &matched,
+        &quality,
+        &views,
+        reference_dem.as_ref().zip(report.comparison.as_ref()),
+        p.crs,
+        &report,
+        &report.summary(),
+    )
+    .map_err(write)?;
+    let ids: Vec<&str> = p.photos.iter().map(|ph| ph.id.as_str()).collect();
+    let search_ids: Vec<&str> = others.iter().map(|&k| ids[k]).collect();
+    crate::atomic::write(
+        &out.join("points.csv"),
+        points_csv(&points, &search_ids).as_bytes(),
+    )
+    .map_err(write)?;
+    if let Some(a) = &report.accuracy {
+        crate::atomic::write(&out.join("accuracy.txt"), a.table().as_bytes()).map_err(write)?;
+        crate::atomic::write_json(&out.join("accuracy.json"), a).map_err(write)?;
+    } else {
+        for f in ["accuracy.txt", "accuracy.json"] {
+            let _ = std::fs::remove_file(out.join(f));
+        }
+    }
+    Ok(report)
+}
+
+/// Every finest-level point, kept or refused, with its precision, its rays and the reasons:
+/// `col`, `row` of the template in the reference photo (integer values at pixel centres, as
+/// everywhere), X, Y, Z and their σ (m), the formal σ of Z, σ₀, iterations, mean correlation,
+/// the rays used (photo ids), `status` (kept or refused), `reason`, and the rays refused
+/// (`id: reason`, separated by `; `).
+fn points_csv(points: &[FinePoint], ids: &[&str]) -> String {
+    let mut s = String::from(
+        "id,col,row,x,y,z,sigma_x,sigma_y,sigma_z,sigma_z_formal,sigma0,iterations,corr,rays,status,reason,refused_rays\n",
+    );
+    let quote = |t: &str| format!("\"{}\"", t.replace('"', "'"));
+    for (k, p) in points.iter().enumerate() {
+        let (c, r) = p.result.pixel;
+        let refused_rays = p
+            .result
+            .rejected
+            .iter()
+            .map(|j| format!("{}: {}", ids.get(j.photo).unwrap_or(&"?"), j.reason))
+            .collect::<Vec<_>>()
+            .join("; ");
+        let status = if p.refusal.is_none() {
+            "kept"
+        } else {
+            "refused"
+        };
+        let reason = p
+            .refusal
+            .as_ref()
+            .map(|r| r.to_string())
+            .unwrap_or_default();
+        match &p.result.solution {
+            Ok(sol) => {
+                let rays: Vec<&str> = sol
+                    .rays
+                    .iter()
+                    .map(|ray| *ids.get(ray.photo).unwrap_or(&"?"))
+                    .collect();
+                s += &format!(
+                    "{},{},{},{:.3},{:.3},{:.3},{:.4},{:.4},{:.4},{:.4},{:.4},{},{:.4},{},{},{},{}\n",
+                    k + 1,
+                    c,
+                    r,
+                    sol.ground.x,
+                    sol.ground.y,
+                    sol.ground.z,
+                    sol.sigma[0],
+                    sol.sigma[1],
+                    sol.sigma[2],
+                    sol.sigma_formal[2],
+                    sol.sigma0,
+                    sol.iterations,
+                    sol.corr(),
+                    quote(&rays.join(" ")),
+                    status,
+                    quote(&reason),
+                    quote(&refused_rays)
+                );
+            }
+            Err(_) => {
+                s += &format!(
+                    "{},{},{},,,,,,,,,,,,{},{},{}\n",
+                    k + 1,
+                    c,
+                    r,
+                    status,
+                    quote(&reason),
+                    quote(&refused_rays)
+                );
+            }
+        }
+    }
+    s
+}
