@@ -192,9 +192,12 @@ fn soft_constraints_with_affine_patches_agree_with_the_hard_solution() {
 #[test]
 fn the_reported_sigma_matches_the_scatter_under_white_noise_and_more_rays_help() {
     let b = Block::new(&[(100.0, 0.0), (-100.0, 0.0), (0.0, 100.0)], 4.0);
-    let p = AdjustParams::default();
     let mut stats = Vec::new();
-    for rays in [1usize, 3] {
+    for (rays, affine) in [(1usize, false), (3, false), (1, true), (3, true)] {
+        let p = AdjustParams {
+            affine,
+            ..Default::default()
+        };
         let searches: Vec<View> = b.searches().into_iter().take(rays).collect();
         let (mut e2, mut r2, mut n, mut em, mut fs, mut hs) = (0.0, 0.0, 0, 0.0, 0.0, 0.0);
         for i in 0..8 {
@@ -211,7 +214,7 @@ fn the_reported_sigma_matches_the_scatter_under_white_noise_and_more_rays_help()
             }
         }
         let (rmse, ratio) = ((e2 / n as f64).sqrt(), (r2 / n as f64).sqrt());
-        eprintln!("{} search rays: RMSE {rmse:.3} m, RMS(err/σ) {ratio:.2} mean {:.3} formal {:.3} hac {:.3}", rays, em / n as f64, (fs / n as f64).sqrt(), (hs / n as f64).sqrt());
+        eprintln!("affine {affine}: {} search rays: RMSE {rmse:.3} m, RMS(err/σ) {ratio:.2} mean {:.3} formal {:.3} hac {:.3}", rays, em / n as f64, (fs / n as f64).sqrt(), (hs / n as f64).sqrt());
         assert!(
             (0.7..1.4).contains(&ratio),
             "{rays} rays: RMS(err/σ) {ratio:.2}"
