@@ -9,6 +9,7 @@ use anyhow::{bail, Context};
 use clap::Args;
 use rig::calibrate::documents::{InteriorResults, PixelResults};
 use rig::coords::PhotoMm;
+use rig::matching::mgcm::run::MgcmReport;
 use rig::matching::pipeline2::Report2;
 use rig::scan::ScannedPhoto;
 use rig_sim::scene::{jacksboro, AerialPhoto};
@@ -28,6 +29,46 @@ pub struct DemoArgs {
     /// Fewer positions and frames in the calibrations (a quicker, slightly rougher run).
     #[arg(long)]
     pub quick: bool,
+    /// The matcher of the elevation model: "sweep" (seed 000's height sweep over every pair)
+    /// or "mgcm" (seed 002's multiphoto geometrically constrained matching, all three photos
+    /// at once).
+    #[arg(long, value_enum, default_value_t = Method::Sweep)]
+    pub method: Method,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Method {
+    Sweep,
+    Mgcm,
+}
+
+/// The elevation model's report, of either matcher.
+#[derive(serde::Serialize)]
+#[serde(untagged)]
+enum Model {
+    Sweep(Box<Report2>),
+    Mgcm(Box<MgcmReport>),
+}
+
+impl Model {
+    fn summary(&self) -> Vec<(String, String)> {
+        match self {
+            Model::Sweep(r) => r.summary(),
+            Model::Mgcm(r) => r.summary(),
+        }
+    }
+    fn comparison(&self) -> Option<&rig::matching::grid::Comparison> {
+        match self {
+            Model::Sweep(r) => r.comparison.as_ref(),
+            Model::Mgcm(r) => r.comparison.as_ref(),
+        }
+    }
+    fn crs(&self) -> rig::geometry::Crs {
+        match self {
+            Model::Sweep(r) => r.crs,
+            Model::Mgcm(r) => r.crs,
+        }
+    }
 }
 
 /// The area of photo 1 that is scanned and matched, photo mm: where photos 2 (about 92 mm
@@ -209,27 +250,38 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<i32> {
     };
     project.push_str(&format!(
         "\n[points]\nfile = \"points.csv\"\n\n[dem]\ncell_m = 10.0\nextent = [{:.0}, {:.0}, {:.0}, {:.0}]\nheights = [{:.0}, {:.0}]\n\n\
-         [matching]\nmethod = \"sweep\"\nwindow = 9\nthreshold = 0.5\n\n[check]\nreference = \"truth-dem.tif\"\n",
+         [matching]\nmethod = \"{}\"\nwindow = 9\nthreshold = 0.5\n\n[check]\nreference = \"truth-dem.tif\"\n",
         e[0],
         e[1],
         e[2],
         e[3],
         hs[0] - 30.0,
-        hs[1] + 30.0
+        hs[1] + 30.0,
+        match a.method {
+            Method::Sweep => "sweep",
+            Method::Mgcm => "mgcm",
+        }
     ));
     std::fs::write(out.join("project.toml"), project)?;
     // 5. The elevation model.
     let dtm_dir = out.join("dtm");
-    let dtm: Report2 = step(
-        "elevation model: every pair of the three photos swept along its mapping functions (seeds 000, 004)",
-        &[
-            "dtm".into(),
-            s(&out.join("project.toml")),
-            "--json".into(),
-            "--out".into(),
-            s(&dtm_dir),
-        ],
-    )?;
+    let args = [
+        "dtm".into(),
+        s(&out.join("project.toml")),
+        "--json".into(),
+        "--out".into(),
+        s(&dtm_dir),
+    ];
+    let dtm = match a.method {
+        Method::Sweep => Model::Sweep(step(
+            "elevation model: every pair of the three photos swept along its mapping functions (seeds 000, 004)",
+            &args,
+        )?),
+        Method::Mgcm => Model::Mgcm(step(
+            "elevation model: the three photos matched at once, geometrically constrained (seed 002)",
+            &args,
+        )?),
+    };
     let report = json!({
         "seed": a.seed,
         "seconds": t0.elapsed().as_secs_f64(),
@@ -267,18 +319,43 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<i32> {
             sidecars[k].display()
         );
     }
-    for pr in &dtm.pairs {
-        println!(
-            "  photos {} × {}: step {:.2} m (half a pixel of parallax), {:.1} % of {} points matched, {:.1} % kept after the height and population criteria",
-            pr.left,
-            pr.right,
-            pr.h_step_m,
-            pr.dtm.matched_percent,
-            pr.dtm.points_total,
-            pr.dtm.remaining_percent
-        );
+    match &dtm {
+        Model::Sweep(r) => {
+            for pr in &r.pairs {
+                println!(
+                    "  photos {} × {}: step {:.2} m (half a pixel of parallax), {:.1} % of {} points matched, {:.1} % kept after the height and population criteria",
+                    pr.left,
+                    pr.right,
+                    pr.h_step_m,
+                    pr.dtm.matched_percent,
+                    pr.dtm.points_total,
+                    pr.dtm.remaining_percent
+                );
+            }
+        }
+        Model::Mgcm(r) => {
+            println!(
+                "  photo {} against {}: {} of {} points kept ({:.0} points/s)",
+                r.reference,
+                r.searched.join(", "),
+                r.kept,
+                r.selected,
+                r.points_per_second
+            );
+            if let Some(acc) = &r.accuracy {
+                let v1 = &acc.versions[0];
+                println!(
+                    "  the points vs the true DEM: RMS {:.3} m ({:.3} px of parallax), max {:.2} m, {} undetected blunders; RMS(error/σ) {:.2}",
+                    v1.rms_m,
+                    v1.rms_m / r.m_per_px,
+                    v1.max_abs_m,
+                    acc.undetected,
+                    acc.precision.as_ref().map_or(f64::NAN, |p| p.rms_ratio)
+                );
+            }
+        }
     }
-    if let Some(c) = &dtm.comparison {
+    if let Some(c) = dtm.comparison() {
         println!(
             "  elevation model vs the true DEM: RMSE {:.2} m ({:.3} ‰ of the 6 500 m flying height), mean {:+.2} m, max +{:.2} / {:.2} m over {} nodes; in {}",
             c.rmse_m,
@@ -287,17 +364,19 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<i32> {
             c.max_positive_m,
             c.max_negative_m,
             c.nodes,
-            dtm.crs
+            dtm.crs()
         );
     }
-    if let Some(sv) = &dtm.sigma_vs_reference {
-        println!(
+    if let Model::Sweep(dtm) = &dtm {
+        if let Some(sv) = &dtm.sigma_vs_reference {
+            println!(
             "  its standard deviations (quality.tif, × {:.2} from the pairs' disagreement): RMS {:.2} m; the true errors are {:.1} × them, {:.0} % within 2σ",
             dtm.variance_factor.map_or(1.0, |f| f.s0),
             sv.rms_sigma_m,
             sv.ratio,
             sv.within_2_sigma_percent
         );
+        }
     }
     println!(
         "  look at: {} (the plots and maps on one page); the model: {}/dem.tif, quality.tif, ortho.tif, points.las; everything: report.json",
@@ -326,7 +405,7 @@ fn demo_page(
     pixel: &PixelResults,
     interiors: &[InteriorResults],
     sidecars: &[PathBuf],
-    dtm: &Report2,
+    dtm: &Model,
 ) -> rig::matching::html::Page {
     use rig::matching::html::{Page, Section};
     let rel = |p: &std::path::Path| {

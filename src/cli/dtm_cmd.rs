@@ -235,6 +235,14 @@ fn run_tile(
     use rig::matching::tiles;
     let bytes = std::fs::read(project).with_context(|| format!("reading {}", project.display()))?;
     let p = Project2::load(project)?;
+    if p.matching.method != "sweep" {
+        eprintln!(
+            "rig dtm: --tile splits the sweep's work; {} uses method \"{}\": run it whole",
+            project.display(),
+            p.matching.method
+        );
+        return Ok(rig::exit::USAGE);
+    }
     tiles::prepare_dir(out)?;
     let mut geometry = Vec::new();
     let mut pixels = Vec::new();

@@ -250,6 +250,17 @@ impl ElevationGrid {
                 if near.len() < 3 {
                     continue;
                 }
+                // Points around the node, not all off to one side of it: no extrapolation
+                // beyond the points' edge.
+                let (mut cx, mut cy, mut sw) = (0.0, 0.0, 0.0);
+                for &(i, w) in &near {
+                    cx += w * (pts[i].ground.x - x);
+                    cy += w * (pts[i].ground.y - y);
+                    sw += w;
+                }
+                if (cx / sw).hypot(cy / sw) > 0.35 * r {
+                    continue;
+                }
                 // Weighted normal equations of z = a + b·dx + c·dy (dx, dy in units of r).
                 let mut nm = nalgebra::Matrix3::<f64>::zeros();
                 for &(i, w) in &near {

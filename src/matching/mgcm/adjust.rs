@@ -730,8 +730,11 @@ fn finish(
             through_reference[0] += s[0] * m[0][0] + s[1] * m[1][0];
             through_reference[1] += s[0] * m[0][1] + s[1] * m[1][1];
         }
-        let orientation_var = p.orientation_px.powi(2)
-            * (orientation + through_reference[0].powi(2) + through_reference[1].powi(2));
+        // The pointing errors that move a point are those between photos: each search
+        // photo's against the reference, as if its own (the reference's own, moving every
+        // patch at once, is in them; counting it again doubles it).
+        let _ = through_reference;
+        let orientation_var = p.orientation_px.powi(2) * orientation;
         // The residuals' correlation (within a patch, and between photos through the
         // template) scales the model's variance by what it adds to white residuals' (never
         // below a quarter: a window too small to estimate it may read near zero).

@@ -889,11 +889,12 @@ pub fn run(
 /// Every finest-level point, kept or refused, with its precision, its rays and the reasons:
 /// `col`, `row` of the template in the reference photo (integer values at pixel centres, as
 /// everywhere), X, Y, Z and their σ (m), the formal σ of Z, σ₀, iterations, mean correlation,
-/// the rays used (photo ids), `status` (kept or refused), `reason`, and the rays refused
-/// (`id: reason`, separated by `; `).
+/// the rays used (photo ids), each used ray's figures (`id: ρ correlation, rms grey residual,
+/// Δ constraint residual col/row px`, separated by `; `), `status` (kept or refused), `reason`,
+/// and the rays refused (`id: reason`, separated by `; `).
 fn points_csv(points: &[FinePoint], ids: &[&str]) -> String {
     let mut s = String::from(
-        "id,col,row,x,y,z,sigma_x,sigma_y,sigma_z,sigma_z_formal,sigma0,iterations,corr,rays,status,reason,refused_rays\n",
+        "id,col,row,x,y,z,sigma_x,sigma_y,sigma_z,sigma_z_formal,sigma0,iterations,corr,rays,ray_figures,status,reason,refused_rays\n",
     );
     let quote = |t: &str| format!("\"{}\"", t.replace('"', "'"));
     for (k, p) in points.iter().enumerate() {
@@ -922,8 +923,22 @@ fn points_csv(points: &[FinePoint], ids: &[&str]) -> String {
                     .iter()
                     .map(|ray| *ids.get(ray.photo).unwrap_or(&"?"))
                     .collect();
+                let figures: Vec<String> = sol
+                    .rays
+                    .iter()
+                    .map(|ray| {
+                        format!(
+                            "{}: ρ {:.4}, rms {:.3}, Δ {:.3}/{:.3} px",
+                            ids.get(ray.photo).unwrap_or(&"?"),
+                            ray.corr,
+                            ray.rms,
+                            ray.constraint_px[0],
+                            ray.constraint_px[1]
+                        )
+                    })
+                    .collect();
                 s += &format!(
-                    "{},{},{},{:.3},{:.3},{:.3},{:.4},{:.4},{:.4},{:.4},{:.4},{},{:.4},{},{},{},{}\n",
+                    "{},{},{},{:.3},{:.3},{:.3},{:.4},{:.4},{:.4},{:.4},{:.4},{},{:.4},{},{},{},{},{}\n",
                     k + 1,
                     c,
                     r,
@@ -938,6 +953,7 @@ fn points_csv(points: &[FinePoint], ids: &[&str]) -> String {
                     sol.iterations,
                     sol.corr(),
                     quote(&rays.join(" ")),
+                    quote(&figures.join("; ")),
                     status,
                     quote(&reason),
                     quote(&refused_rays)
@@ -945,7 +961,7 @@ fn points_csv(points: &[FinePoint], ids: &[&str]) -> String {
             }
             Err(_) => {
                 s += &format!(
-                    "{},{},{},,,,,,,,,,,,{},{},{}\n",
+                    "{},{},{},,,,,,,,,,,,,{},{},{}\n",
                     k + 1,
                     c,
                     r,
