@@ -305,17 +305,24 @@ impl AerialPhoto {
         [-self.focal_mm * kx / kz, -self.focal_mm * ky / kz]
     }
 
-    /// Where the ray through photo point `p` (mm) first meets the terrain: marched down from
-    /// above the highest point in steps of a fifth of a cell, then bisected to a millimetre.
-    pub fn ground_point(&self, p: [f64; 2]) -> [f64; 3] {
+    /// The ray through photo point `p` (mm): its direction in the ground system, and where it
+    /// is at height z (ground x, y).
+    fn ray(&self, p: [f64; 2]) -> ([f64; 3], impl Fn(f64) -> [f64; 2] + '_) {
         let r = self.exterior.rotation();
         let v = [p[0], p[1], -self.focal_mm];
         let d: [f64; 3] = std::array::from_fn(|i| r[i][0] * v[0] + r[i][1] * v[1] + r[i][2] * v[2]);
         let e = &self.exterior;
-        let at = |z: f64| {
+        let at = move |z: f64| {
             let l = (z - e.z0_m) / d[2];
             [e.x0_m + l * d[0], e.y0_m + l * d[1]]
         };
+        (d, at)
+    }
+
+    /// Where the ray through photo point `p` (mm) first meets the terrain: marched down from
+    /// above the highest point in steps of a fifth of a cell, then bisected to a millimetre.
+    pub fn ground_point(&self, p: [f64; 2]) -> [f64; 3] {
+        let (d, at) = self.ray(p);
         // f(z) = z − h(ray at height z): positive above the terrain.
         let f = |z: f64| {
             let [x, y] = at(z);
@@ -387,14 +394,7 @@ impl AerialPhoto {
     pub fn ground_point_near(&self, p: [f64; 2]) -> [f64; 3] {
         let [gx, gy] = self.ground_fast(p);
         let guess = self.dem.height(gx, gy);
-        let r = self.exterior.rotation();
-        let v = [p[0], p[1], -self.focal_mm];
-        let d: [f64; 3] = std::array::from_fn(|i| r[i][0] * v[0] + r[i][1] * v[1] + r[i][2] * v[2]);
-        let e = &self.exterior;
-        let at = |z: f64| {
-            let l = (z - e.z0_m) / d[2];
-            [e.x0_m + l * d[0], e.y0_m + l * d[1]]
-        };
+        let (_, at) = self.ray(p);
         let f = |z: f64| {
             let [x, y] = at(z);
             z - self.dem.height(x, y)

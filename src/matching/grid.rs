@@ -306,6 +306,21 @@ impl ElevationGrid {
                 } else {
                     0.0
                 };
+                // The misfit holds the points' own noise too: only what exceeds it is the
+                // terrain's.
+                let (mut ws2, mut wsum) = (0.0, 0.0);
+                for &(i, w) in &near {
+                    let si = pts[i].sigma_m as f64;
+                    if si.is_finite() {
+                        ws2 += w * si * si;
+                        wsum += w;
+                    }
+                }
+                let s2 = if wsum > 0.0 {
+                    (s2 - ws2 / wsum).max(0.0)
+                } else {
+                    s2
+                };
                 let (mut var, mut corr, mut wc) = (0.0, 0.0, 0.0);
                 for (&(i, w), l) in near.iter().zip(&ell) {
                     let s = pts[i].sigma_m as f64;

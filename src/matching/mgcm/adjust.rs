@@ -87,6 +87,8 @@ pub struct View<'a> {
 pub enum PointFailure {
     #[error("the template lies too near the reference photo's edge")]
     TemplateOutside,
+    #[error("a search patch left its photo")]
+    PatchOutside,
     #[error("the template is flat: nothing to match")]
     Flat,
     #[error("the ray does not reach the height (the sensor cannot see it)")]
@@ -141,9 +143,9 @@ pub struct RayFit {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Solution {
     pub ground: GroundM,
-    /// Standard deviations of X, Y, Z, m, as reported: √(σ²_residuals + σ²_orientation), the
-    /// first from the residuals' autocovariance (never below the formal σ), the second the
-    /// orientation's pointing error propagated.
+    /// Standard deviations of X, Y, Z, m, as reported: the grey values' part of the formal σ
+    /// scaled by what the residuals' correlation adds (at least a quarter of it, see
+    /// [`finish`]), the soft constraints' part, and the orientation's pointing error.
     pub sigma: [f64; 3],
     /// The formal ones: σ₀·√Q from the normal matrix, m.
     pub sigma_formal: [f64; 3],
@@ -370,8 +372,7 @@ pub fn solve(
             r1: 1.0,
         };
         // The seed's radiometric equalisation: the patch's mean and σ made the template's.
-        sample_patch(s.image, &patch, h, &tpl.grad, &mut buf)
-            .ok_or(PointFailure::TemplateOutside)?;
+        sample_patch(s.image, &patch, h, &tpl.grad, &mut buf).ok_or(PointFailure::PatchOutside)?;
         let g: Vec<f64> = buf.iter().map(|b| b.g).collect();
         let (gm, gs) = mean_sd(&g);
         patch.r1 = if gs > 0.0 { ts / gs } else { 1.0 };
@@ -403,7 +404,7 @@ pub fn solve(
         let mut vv = 0.0;
         for (k, patch) in patches.iter().enumerate() {
             sample_patch(searches[k].image, patch, h, &tpl.grad, &mut buf)
-                .ok_or(PointFailure::TemplateOutside)?;
+                .ok_or(PointFailure::PatchOutside)?;
             let base = lay.base(k);
             for (ti, smp) in t.iter().zip(&buf) {
                 let l = ti - smp.g;
@@ -504,6 +505,25 @@ pub fn solve(
     )
 }
 
+/// Each search patch's centre's movement per metre of height along the reference ray at
+/// height `z` (central differences over ±0.5 m), px/m.
+fn centre_rates(
+    on_ray: &dyn Fn(f64) -> Option<GroundM>,
+    searches: &[View<'_>],
+    z: f64,
+) -> Result<Vec<[f64; 2]>, PointFailure> {
+    let dz = 0.5;
+    searches
+        .iter()
+        .map(|s| {
+            let a = on_ray(z + dz).and_then(|g| s.sensor.ground_to_image(g));
+            let b = on_ray(z - dz).and_then(|g| s.sensor.ground_to_image(g));
+            let (a, b) = a.zip(b).ok_or(PointFailure::NoRay)?;
+            Ok([(a.col - b.col) / (2.0 * dz), (a.row - b.row) / (2.0 * dz)])
+        })
+        .collect()
+}
+
 /// Adds observation `row` (non-zero only at the point's unknowns and at patch `base`'s) with
 /// misclosure `l` and weight `w` to the normal equations.
 fn accumulate(
@@ -573,22 +593,19 @@ fn finish(
     // Per patch: each observation's A row, residual, and the patch's slope (for the pointing).
     let mut rows: Vec<Vec<Observed>> = Vec::with_capacity(patches.len());
     let mut buf = Vec::new();
-    let mut dcdz = vec![[0.0; 2]; patches.len()];
-    if !lay.soft {
-        for (k, s) in searches.iter().enumerate() {
-            let dz = 0.5;
-            let a = on_ray(point.z + dz).and_then(|g| s.sensor.ground_to_image(g));
-            let b = on_ray(point.z - dz).and_then(|g| s.sensor.ground_to_image(g));
-            let (a, b) = a.zip(b).ok_or(PointFailure::NoRay)?;
-            dcdz[k] = [(a.col - b.col) / (2.0 * dz), (a.row - b.row) / (2.0 * dz)];
-        }
-    }
+    // Along the reference ray: the hard constraints' design, and the parallax per metre.
+    let rates = centre_rates(&on_ray, searches, point.z)?;
+    let dcdz = if lay.soft {
+        vec![[0.0; 2]; patches.len()]
+    } else {
+        rates.clone()
+    };
     let mut vv = 0.0;
     let mut rays = Vec::with_capacity(patches.len());
     let mut jrow = DVector::<f64>::zeros(nu);
     for (k, patch) in patches.iter().enumerate() {
         sample_patch(searches[k].image, patch, h, &tpl.grad, &mut buf)
-            .ok_or(PointFailure::TemplateOutside)?;
+            .ok_or(PointFailure::PatchOutside)?;
         let mut these = Vec::with_capacity(t.len());
         let mut rv = 0.0;
         for (ti, smp) in t.iter().zip(&buf) {
@@ -747,18 +764,8 @@ fn finish(
             .max(0.0)
             .sqrt();
     }
-    let m_per_px = if lay.soft {
-        let mut best: f64 = 0.0;
-        for s in searches {
-            if let Some(j) = s.sensor.partials(point) {
-                best = best.max(j[0][2].hypot(j[1][2]));
-            }
-        }
-        1.0 / best.max(1e-12)
-    } else {
-        let best = dcdz.iter().map(|d| d[0].hypot(d[1])).fold(0.0, f64::max);
-        1.0 / best.max(1e-12)
-    };
+    let best = rates.iter().map(|d| d[0].hypot(d[1])).fold(0.0, f64::max);
+    let m_per_px = 1.0 / best.max(1e-12);
     Ok(Solution {
         ground: point,
         sigma,

@@ -268,7 +268,9 @@ pub fn match_point(
                     (mahalanobis(d, c), d[0].hypot(d[1]))
                 }
                 Some((d, _)) => (f64::INFINITY, d[0].hypot(d[1])),
-                None => (f64::INFINITY, f64::NAN),
+                // No free match (a straight edge leaves the shift along it undetermined):
+                // untestable, not a blunder.
+                None => (f64::NAN, f64::NAN),
             };
             ws.push(w);
         }
@@ -276,7 +278,7 @@ pub fn match_point(
             let big = ws
                 .iter()
                 .enumerate()
-                .filter(|(_, w)| w.0.is_nan() || w.0 > tests.snoop)
+                .filter(|(_, w)| w.0 > tests.snoop)
                 .max_by(|a, b| a.1 .0.total_cmp(&b.1 .0));
             if let Some((i, &(w, shift_px))) = big {
                 worst = Some((i, RayRejection::Snooped { w, shift_px }));

@@ -284,7 +284,8 @@ impl LevelGrid {
                     if !self.z[j * self.cols + i].is_finite() {
                         let n = self.neighbours(i, j);
                         if !n.is_empty() {
-                            next[j * self.cols + i] = n.iter().sum::<f64>() / n.len() as f64;
+                            let k = n.len() as f64;
+                            next[j * self.cols + i] = n.iter().map(|v| v / k).sum::<f64>();
                         }
                     }
                 }
@@ -312,7 +313,9 @@ fn sweep_height(
         .iter()
         .map(|s| local_shape(reference.sensor, s.sensor, qc, mid))
         .collect();
-    let n = ((heights[1] - heights[0]) / step).ceil() as usize + 1;
+    // At most 100 000 heights: a finer step than that is widened, never the range cut.
+    let step = step.max((heights[1] - heights[0]) / 1e5);
+    let n = (((heights[1] - heights[0]) / step).ceil().clamp(0.0, 1e5)) as usize + 1;
     let mut best: Option<(f64, f64)> = None;
     let mut g = Vec::with_capacity(tpl.values.len());
     let h = half as i64;
@@ -467,11 +470,20 @@ fn neighbourhood_tests(points: &mut [FinePoint], radius_px: f64, m_per_px: f64) 
             Some((k, (c as f64, r as f64), s.ground.z, s.sigma0, s.sigma[2]))
         })
         .collect();
+    let mut buckets: std::collections::HashMap<(i64, i64), Vec<usize>> = Default::default();
+    for (i, o) in kept.iter().enumerate() {
+        let key = ((o.1 .0 / radius_px) as i64, (o.1 .1 / radius_px) as i64);
+        buckets.entry(key).or_default().push(i);
+    }
     let verdicts: Vec<(usize, Option<Refusal>)> = kept
         .par_iter()
         .map(|&(k, (c, r), z, s0, sz)| {
-            let near: Vec<&Neighbour> = kept
-                .iter()
+            let (bc, br) = ((c / radius_px) as i64, (r / radius_px) as i64);
+            let near: Vec<&Neighbour> = (bc - 1..=bc + 1)
+                .flat_map(|u| (br - 1..=br + 1).map(move |v| (u, v)))
+                .filter_map(|key| buckets.get(&key))
+                .flatten()
+                .map(|&i| &kept[i])
                 .filter(|o| {
                     o.0 != k && ((o.1 .0 - c).powi(2) + (o.1 .1 - r).powi(2)).sqrt() < radius_px
                 })
@@ -704,16 +716,23 @@ pub fn run(
         &cfg.interest(grey_range(&reference.image.image)),
     );
     // The orientation's pointing error: the project's, and each resected photo's own.
+    // Each resected photo's σ₀ × √(6/n) in its own pixels; their RMS for every ray (the
+    // adjustment takes one value per point).
     let mut fine = cfg.fine();
-    for (_, res) in &resected {
-        let px_mm = {
-            let a = sensors[r].frame.photo(PixelXY::new(0.0, 0.0));
-            let b = sensors[r].frame.photo(PixelXY::new(1.0, 0.0));
-            (a.x - b.x).hypot(a.y - b.y)
-        };
-        let n = res.residuals_mm.len().max(7) as f64;
-        let own = res.sigma0_mm / px_mm * (6.0 / n).sqrt();
-        fine.orientation_px = fine.orientation_px.hypot(own);
+    let owns: Vec<f64> = resected
+        .iter()
+        .filter_map(|(id, res)| {
+            let k = p.photos.iter().position(|ph| &ph.id == id)?;
+            let a = sensors[k].frame.photo(PixelXY::new(0.0, 0.0));
+            let b = sensors[k].frame.photo(PixelXY::new(1.0, 0.0));
+            let px_mm = (a.x - b.x).hypot(a.y - b.y);
+            let n = res.residuals_mm.len().max(7) as f64;
+            Some(res.sigma0_mm / px_mm * (6.0 / n).sqrt())
+        })
+        .collect();
+    if !owns.is_empty() {
+        let rms = (owns.iter().map(|v| v * v).sum::<f64>() / owns.len() as f64).sqrt();
+        fine.orientation_px = fine.orientation_px.hypot(rms);
     }
     progress.begin("points", selected.len() as u64);
     let fine_started = std::time::Instant::now();
@@ -790,7 +809,19 @@ pub fn run(
         .as_ref()
         .and_then(|g| sigma_vs_reference(&grid, &quality.sigma_m, g));
     let hg = flying_height(&sensors[r], centre0, mid).unwrap_or(f64::NAN);
-    let refused = points.len() - kept.len();
+    // Blunders the matcher detected: points its tests refused (not those it could not try:
+    // a flat template, one at the edge, a ray that cannot reach the height).
+    let refused = points
+        .iter()
+        .filter(|p| match &p.refusal {
+            None => false,
+            Some(Refusal::Matching { failure }) => !matches!(
+                failure,
+                PointFailure::Flat | PointFailure::TemplateOutside | PointFailure::NoRay
+            ),
+            Some(_) => true,
+        })
+        .count();
     let accuracy = reference_dem.as_ref().map(|g| {
         let d: Vec<(f64, f64)> = matched
             .iter()
