@@ -705,8 +705,6 @@ fn finish(
         let mut hac = 0.0;
         let mut white = 0.0;
         let mut orientation = 0.0;
-        // The reference photo's pointing error δ moves every patch by its shape·δ.
-        let mut through_reference = [0.0; 2];
         let hvs: Vec<Vec<f64>> = rows
             .iter()
             .map(|these| these.iter().map(|(a, _, _)| a.dot(&hvec)).collect())
@@ -743,14 +741,10 @@ fn finish(
                 [acc[0] + hi * d[0], acc[1] + hi * d[1]]
             });
             orientation += s[0] * s[0] + s[1] * s[1];
-            let m = patches[k].shape;
-            through_reference[0] += s[0] * m[0][0] + s[1] * m[1][0];
-            through_reference[1] += s[0] * m[0][1] + s[1] * m[1][1];
         }
         // The pointing errors that move a point are those between photos: each search
         // photo's against the reference, as if its own (the reference's own, moving every
         // patch at once, is in them; counting it again doubles it).
-        let _ = through_reference;
         let orientation_var = p.orientation_px.powi(2) * orientation;
         // The residuals' correlation (within a patch, and between photos through the
         // template) scales the model's variance by what it adds to white residuals' (never
