@@ -29,6 +29,7 @@ fn photo(a: &AerialPhoto, g: PhotoGrid) -> (FrameSensor, ImageF32) {
     let r = FrameSensor {
         camera: rig::sim_scene::frame_camera(a),
         frame: g.into(),
+        exterior_cov: None,
     };
     let img = ImageF32 {
         width: g.width,

@@ -111,6 +111,7 @@ fn three_photos_meet_the_goals_and_four_rays_beat_two() {
     assert!(undetected < 0.5, "{undetected:.2} % undetected");
     assert!((0.8..=1.25).contains(&ratio), "RMS(error/σ) {ratio:.2}");
     assert!(kept * 10 >= selected * 8, "{kept} of {selected} kept");
+    assert_eq!(v["warnings"], serde_json::json!([]), "a good run warns");
     // The outputs, as the sweep's, and the points with their reasons.
     for f in [
         "dem.tif",
@@ -158,4 +159,31 @@ fn three_photos_meet_the_goals_and_four_rays_beat_two() {
         rmse[1] <= 0.75 * rmse[0],
         "{rmse:?}: 4 rays cut less than 25 %"
     );
+    // Heights that miss the top of the terrain: the run says so, and --strict fails it.
+    let text = std::fs::read_to_string(&p3).unwrap();
+    let line = text
+        .lines()
+        .find(|l| l.starts_with("heights = ["))
+        .expect("block.toml gives [dem] heights");
+    let hs: Vec<f64> = line
+        .trim_start_matches("heights = [")
+        .trim_end_matches(']')
+        .split(',')
+        .map(|v| v.trim().parse().unwrap())
+        .collect();
+    let cut = format!("heights = [{}, {}]", hs[0], 0.5 * (hs[0] + hs[1]));
+    let low = scene.join("low.toml");
+    std::fs::write(&low, text.replace(line, &cut)).unwrap();
+    let o = rig()
+        .arg("dtm")
+        .arg(&low)
+        .args(["--json", "--strict", "--out"])
+        .arg(d.path().join("low"))
+        .output()
+        .unwrap();
+    let v: Value = serde_json::from_slice(&o.stdout)
+        .unwrap_or_else(|e| panic!("{cut}: {e}: {}", String::from_utf8_lossy(&o.stderr)));
+    let w = v["warnings"].to_string();
+    assert!(w.contains("widen [dem] heights"), "{cut}: {w}");
+    assert_eq!(o.status.code(), Some(rig::exit::DOUBTFUL), "{cut}: {w}");
 }

@@ -12,6 +12,7 @@ fn rigorous(p: &AerialPhoto, area: [f64; 4]) -> FrameSensor {
     FrameSensor {
         camera: rig::sim_scene::frame_camera(p),
         frame: PhotoGrid::covering(area, 0.025).into(),
+        exterior_cov: None,
     }
 }
 

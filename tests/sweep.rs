@@ -13,6 +13,7 @@ fn rigorous(p: &AerialPhoto, grid: PhotoGrid) -> FrameSensor {
     FrameSensor {
         camera: rig::sim_scene::frame_camera(p),
         frame: grid.into(),
+        exterior_cov: None,
     }
 }
 

@@ -345,12 +345,14 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<i32> {
             if let Some(acc) = &r.accuracy {
                 let v1 = &acc.versions[0];
                 println!(
-                    "  the points vs the true DEM: RMS {:.3} m ({:.3} px of parallax), max {:.2} m, {} undetected blunders; RMS(error/σ) {:.2}",
+                    "  the points vs the true DEM: RMS {:.3} m ({:.3} px of parallax), max {:.2} m, {} undetected blunders; RMS(error/σ) {:.2} ({:.2} with the bias {:+.2} m)",
                     v1.rms_m,
                     v1.rms_m / r.m_per_px,
                     v1.max_abs_m,
                     acc.undetected,
-                    acc.precision.as_ref().map_or(f64::NAN, |p| p.rms_ratio)
+                    acc.precision.as_ref().map_or(f64::NAN, |p| p.rms_ratio),
+                    acc.precision.as_ref().map_or(f64::NAN, |p| p.rms_ratio_with_bias),
+                    acc.bias_without_blunders_m
                 );
             }
         }

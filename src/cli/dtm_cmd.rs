@@ -190,13 +190,20 @@ fn print_mgcm(
     strict: bool,
 ) -> anyhow::Result<i32> {
     // Few points kept is the run's doubt.
-    let doubtful = r.kept * 4 < r.selected;
-    if doubtful {
+    let few = r.kept * 4 < r.selected;
+    if few {
         eprintln!(
-            "rig dtm: warning: only {} of {} points kept: see points.csv for the reasons",
+            "rig dtm: warning: only {} of {} points kept: see points.csv for the reasons (do [dem] heights bracket the terrain?)",
             r.kept, r.selected
         );
     }
+    // (Without --json the summary below carries them.)
+    if json {
+        for w in &r.warnings {
+            eprintln!("rig dtm: warning: {w}");
+        }
+    }
+    let doubtful = few || !r.warnings.is_empty();
     let code = if strict && doubtful {
         rig::exit::DOUBTFUL
     } else {

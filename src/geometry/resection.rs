@@ -14,6 +14,10 @@ pub struct Resection {
     pub sigma0_mm: f64,
     /// Standard deviations of ω, φ, κ (rad) and X0, Y0, Z0 (m).
     pub sigma: [f64; 6],
+    /// Their covariance σ0²·N⁻¹ (rad, m), for propagating the orientation's uncertainty to
+    /// where the photo puts a ground point ([`crate::geometry::Sensor::pointing_covariance`]).
+    #[serde(default)]
+    pub covariance: [[f64; 6]; 6],
     pub residuals_mm: Vec<[f64; 2]>,
     pub iterations: usize,
 }
@@ -120,10 +124,13 @@ pub fn resect(
             let red = (v.len() as f64 - 6.0).max(1.0);
             let s0 = (v.iter().map(|x| x * x).sum::<f64>() / red).sqrt();
             let sigma = std::array::from_fn(|k| s0 * ninv[(k, k)].sqrt());
+            let covariance =
+                std::array::from_fn(|i| std::array::from_fn(|k| s0 * s0 * ninv[(i, k)]));
             return Ok(Resection {
                 exterior: exterior(&p),
                 sigma0_mm: s0,
                 sigma,
+                covariance,
                 residuals_mm: v.chunks(2).map(|c| [c[0], c[1]]).collect(),
                 iterations: it,
             });

@@ -31,6 +31,10 @@ pub struct PrecisionCheck {
     pub rms_sigma_m: f64,
     /// RMS of (true error / estimated σ): 1 when the σ's are honest.
     pub rms_ratio: f64,
+    /// The same with the bias kept: the one to read when the σ's include an error common
+    /// to many points (a resected orientation's), which the bias would otherwise remove.
+    #[serde(default)]
+    pub rms_ratio_with_bias: f64,
     /// Share of the errors within 2σ, % (95.4 for honest Gaussian σ's).
     pub within_2_sigma_percent: f64,
 }
@@ -132,9 +136,9 @@ pub fn analyse(diffs: &[(f64, f64)], refused: usize, hg: f64, floor_m: f64) -> A
         version(d.iter().copied(), hg),
     ];
     let tried = (d.len() + refused).max(1) as f64;
-    let with_sigma: Vec<(f64, f64)> = clean
+    let with_sigma: Vec<(f64, f64, f64)> = clean
         .iter()
-        .map(|&i| (d[i] - bias_clean, diffs[i].1))
+        .map(|&i| (d[i] - bias_clean, diffs[i].1, d[i]))
         .filter(|p| p.1.is_finite() && p.1 > 0.0)
         .collect();
     let precision = (!with_sigma.is_empty()).then(|| {
@@ -143,6 +147,8 @@ pub fn analyse(diffs: &[(f64, f64)], refused: usize, hg: f64, floor_m: f64) -> A
             points: with_sigma.len(),
             rms_sigma_m: (with_sigma.iter().map(|p| p.1 * p.1).sum::<f64>() / n).sqrt(),
             rms_ratio: (with_sigma.iter().map(|p| (p.0 / p.1).powi(2)).sum::<f64>() / n).sqrt(),
+            rms_ratio_with_bias: (with_sigma.iter().map(|p| (p.2 / p.1).powi(2)).sum::<f64>() / n)
+                .sqrt(),
             within_2_sigma_percent: 100.0
                 * with_sigma.iter().filter(|p| p.0.abs() <= 2.0 * p.1).count() as f64
                 / n,
@@ -201,8 +207,8 @@ impl Accuracy {
         );
         if let Some(p) = &self.precision {
             s += &format!(
-                "estimated σ against the true error ({} points): RMS σ {:.3} m, RMS(error/σ) {:.2}, {:.1} % within 2σ\n",
-                p.points, p.rms_sigma_m, p.rms_ratio, p.within_2_sigma_percent
+                "estimated σ against the true error ({} points): RMS σ {:.3} m, RMS(error/σ) {:.2} without the bias ({:.2} with it), {:.1} % within 2σ\n",
+                p.points, p.rms_sigma_m, p.rms_ratio, p.rms_ratio_with_bias, p.within_2_sigma_percent
             );
         }
         s
@@ -266,6 +272,8 @@ mod tests {
         // Precision: errors without bias and blunders over σ 0.5: RMS ratio 0.53547/0.5.
         let p = a.precision.unwrap();
         assert!(close(p.rms_ratio, 1.07094) && p.points == 19);
+        // With the bias: version 3's RMS over σ, 0.53803/0.5.
+        assert!(close(p.rms_ratio_with_bias, 1.07606));
         assert!(close(p.within_2_sigma_percent, 100.0));
         assert!(a.table().contains("1 without bias, without blunders"));
     }

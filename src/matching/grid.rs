@@ -45,6 +45,10 @@ pub struct Comparison {
 impl Comparison {
     /// One line for a person: RMSE, mean, the extremes and the nodes.
     pub fn summary(&self) -> String {
+        if self.nodes == 0 {
+            return "no node to compare (the model has no height where the reference has one)"
+                .into();
+        }
         format!(
             "RMSE {:.2} m, mean {:+.2} m, max +{:.2} / {:.2} m over {} nodes",
             self.rmse_m, self.mean_m, self.max_positive_m, self.max_negative_m, self.nodes

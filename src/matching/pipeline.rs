@@ -224,6 +224,7 @@ fn mappings(
                     exterior: r.exterior,
                 },
                 frame,
+                exterior_cov: Some(r.covariance),
             };
             let (l, r) = (photo(il, &rl, left.frame), photo(ir, &rr, right.frame));
             let m = PmfSet::from_sensors(&l, &r, [p.matching.h_min, p.matching.h_max], p.pmf.order)

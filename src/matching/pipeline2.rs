@@ -42,8 +42,8 @@ pub enum Pipeline2Error {
     },
     #[error("{0}")]
     Heights(String),
-    #[error("no two photos overlap on the ground: nothing to match")]
-    NoOverlap,
+    #[error("no two photos overlap on the ground at {z:.0} m (the middle of the heights tried): check [dem] heights (do they bracket the terrain?) and the photos' orientations")]
+    NoOverlap { z: f64 },
     #[error("photos `{left}` and `{right}`: {cause}")]
     Pair {
         left: String,
@@ -342,8 +342,8 @@ pub fn orient(p: &Project2, photos: &[PhotoGeometry]) -> Result<Oriented, Pipeli
     let mut resected = Vec::new();
     let mut sensors = Vec::new();
     for (ph, input) in p.photos.iter().zip(photos) {
-        let exterior = match ph.exterior {
-            Some(e) => e,
+        let (exterior, cov) = match ph.exterior {
+            Some(e) => (e, None),
             None => {
                 let pts: Vec<_> = control
                     .iter()
@@ -358,7 +358,7 @@ pub fn orient(p: &Project2, photos: &[PhotoGeometry]) -> Result<Oriented, Pipeli
                         points: pts.len(),
                         cause: source,
                     })?;
-                let e = r.exterior;
+                let e = (r.exterior, Some(r.covariance));
                 resected.push((ph.id.clone(), r));
                 e
             }
@@ -369,6 +369,7 @@ pub fn orient(p: &Project2, photos: &[PhotoGeometry]) -> Result<Oriented, Pipeli
                 exterior,
             },
             frame: input.frame,
+            exterior_cov: cov,
         });
     }
     // Heights: given, or the control and check points' range with a margin.
@@ -420,10 +421,10 @@ pub fn orient(p: &Project2, photos: &[PhotoGeometry]) -> Result<Oriented, Pipeli
     let extent = match (p.extent, union) {
         (Some(e), _) => e,
         (None, Some(u)) => u,
-        (None, None) => return Err(Pipeline2Error::NoOverlap),
+        (None, None) => return Err(Pipeline2Error::NoOverlap { z: mid }),
     };
     if overlapping.is_empty() {
-        return Err(Pipeline2Error::NoOverlap);
+        return Err(Pipeline2Error::NoOverlap { z: mid });
     }
     Ok(Oriented {
         sensors,
@@ -744,6 +745,7 @@ mod tests {
                 exterior: Exterior::from_degrees(0.0, 0.0, 0.0, GroundM::new(x0, 0.0, z0)),
             },
             frame: centred_grid(2000, 2000, 0.1).into(),
+            exterior_cov: None,
         }
     }
 

@@ -524,6 +524,11 @@ fn centre_rates(
         .collect()
 }
 
+/// vᵀ·C·v for a 2-vector and a 2 × 2 covariance.
+fn quadratic(v: [f64; 2], c: [[f64; 2]; 2]) -> f64 {
+    v[0] * (c[0][0] * v[0] + c[0][1] * v[1]) + v[1] * (c[1][0] * v[0] + c[1][1] * v[1])
+}
+
 /// Adds observation `row` (non-zero only at the point's unknowns and at patch `base`'s) with
 /// misclosure `l` and weight `w` to the normal equations.
 fn accumulate(
@@ -692,6 +697,28 @@ fn finish(
         }
         g
     };
+    // What the orientations' own uncertainty needs: the reference's pointing covariance,
+    // each search photo's pixels per reference pixel at the point's height (Tₖ), and the
+    // reference ray's sideways ground displacement per pixel (L).
+    let reference_pointing = reference.sensor.pointing_covariance(point);
+    let transfers: Vec<[[f64; 2]; 2]> = searches
+        .iter()
+        .map(|s| local_shape(reference.sensor, s.sensor, qc, point.z))
+        .collect::<Option<_>>()
+        .ok_or(PointFailure::NoRay)?;
+    let lateral = {
+        let at = |dc: f64, dr: f64| {
+            reference
+                .sensor
+                .image_to_ground(PixelXY::new(qc.col + dc, qc.row + dr), point.z)
+        };
+        let (a, b, c, d) = at(0.5, 0.0)
+            .zip(at(-0.5, 0.0))
+            .zip(at(0.0, 0.5).zip(at(0.0, -0.5)))
+            .map(|((a, b), (c, d))| (a, b, c, d))
+            .ok_or(PointFailure::NoRay)?;
+        [[a.x - b.x, c.x - d.x], [a.y - b.y, c.y - d.y]]
+    };
     let mut sigma_formal = [0.0; 3];
     let mut sigma = [0.0; 3];
     let lag = (h / 2).max(1);
@@ -731,21 +758,43 @@ fn finish(
                 hac += v;
             }
         }
+        // Through the reference: Σₖ sₖ·Tₖ (a pointing error of the reference moves every
+        // search patch against the model by Tₖ times it).
+        let mut through_reference = [0.0; 2];
         for (k, these) in rows.iter().enumerate() {
             let hv = &hvs[k];
             let s2 = psis[k].iter().map(|v| v * v).sum::<f64>() / psis[k].len() as f64;
             white += hv.iter().map(|h| h * h).sum::<f64>() * s2 * n_grey as f64 / dof;
-            // A shift δ of this photo's pointing changes each residual by −r1·∇g·δ, and the
-            // coordinate by Σ hᵢ·r1·∇gᵢ·δ.
+            // A model centre δ off the feature changes each residual by −r1·∇g·δ, and the
+            // coordinate by sₖ·δ = −Σ hᵢ·r1·∇gᵢ·δ.
             let s = these.iter().zip(hv).fold([0.0; 2], |acc, ((_, _, d), hi)| {
-                [acc[0] + hi * d[0], acc[1] + hi * d[1]]
+                [acc[0] - hi * d[0], acc[1] - hi * d[1]]
             });
-            orientation += s[0] * s[0] + s[1] * s[1];
+            let mut c = searches[k]
+                .sensor
+                .pointing_covariance(point)
+                .unwrap_or([[0.0; 2]; 2]);
+            // The project's pointing error, between each search photo and the reference.
+            c[0][0] += p.orientation_px.powi(2);
+            c[1][1] += p.orientation_px.powi(2);
+            orientation += quadratic(s, c);
+            let t = &transfers[k];
+            through_reference[0] += s[0] * t[0][0] + s[1] * t[1][0];
+            through_reference[1] += s[0] * t[0][1] + s[1] * t[1][1];
         }
-        // The pointing errors that move a point are those between photos: each search
-        // photo's against the reference, as if its own (the reference's own, moving every
-        // patch at once, is in them; counting it again doubles it).
-        let orientation_var = p.orientation_px.powi(2) * orientation;
+        // The reference's own pointing error e (its model ray through the template's
+        // centre meets the feature's true ray only if e = 0): every search patch's model
+        // centre is off by −Tₖ·e, and the ray itself lies −L·e aside (L = ∂(X, Y)/∂(col,
+        // row) at the point's height; 0 for Z).
+        if let Some(c) = reference_pointing {
+            let l = if axis < 2 { lateral[axis] } else { [0.0; 2] };
+            let w = [
+                -(through_reference[0] + l[0]),
+                -(through_reference[1] + l[1]),
+            ];
+            orientation += quadratic(w, c);
+        }
+        let orientation_var = orientation;
         // The residuals' correlation (within a patch, and between photos through the
         // template) scales the model's variance by what it adds to white residuals' (never
         // below a quarter: a window too small to estimate it may read near zero).

@@ -147,6 +147,13 @@ impl Sensor for AtLevel<'_> {
         let s = self.scale();
         self.inner.partials(g).map(|d| d.map(|r| r.map(|v| v / s)))
     }
+
+    fn pointing_covariance(&self, g: GroundM) -> Option<[[f64; 2]; 2]> {
+        let s2 = self.scale().powi(2);
+        self.inner
+            .pointing_covariance(g)
+            .map(|c| c.map(|r| r.map(|v| v / s2)))
+    }
 }
 
 #[cfg(test)]

@@ -107,6 +107,9 @@ pub struct MgcmReport {
     pub accuracy: Option<Accuracy>,
     pub check_points: Option<SigmaCheck>,
     pub sigma_vs_reference: Option<SigmaCheck>,
+    /// What makes the run doubtful (the heights tried missing the terrain, …).
+    #[serde(default)]
+    pub warnings: Vec<String>,
 }
 
 impl MgcmReport {
@@ -151,6 +154,9 @@ impl MgcmReport {
         if let Some(c) = &self.comparison {
             v.push(("against the reference".into(), c.summary()));
         }
+        for w in &self.warnings {
+            v.push(("warning".into(), w.clone()));
+        }
         if let Some(a) = &self.accuracy {
             let v1 = &a.versions[0];
             v.push((
@@ -169,8 +175,8 @@ impl MgcmReport {
                 v.push((
                     "σ against the true error".into(),
                     format!(
-                        "RMS(error/σ) {:.2}, {:.0} % within 2σ",
-                        p.rms_ratio, p.within_2_sigma_percent
+                        "RMS(error/σ) {:.2} without the bias, {:.2} with it; {:.0} % within 2σ",
+                        p.rms_ratio, p.rms_ratio_with_bias, p.within_2_sigma_percent
                     ),
                 ));
             }
@@ -417,31 +423,63 @@ fn match_level(
     step: f64,
     p: &AdjustParams,
     tests: &RayTests,
-) -> usize {
+) -> LevelOutcome {
     let nodes: Vec<(usize, usize)> = (0..grid.rows)
         .flat_map(|j| (0..grid.cols).map(move |i| (i, j)))
         .collect();
-    let z: Vec<f64> = nodes
+    // Per node: the matched height, and where the sweep put it (-1 at the lowest height
+    // tried, 1 at the highest, 0 between; None without a sweep).
+    let found: Vec<(f64, Option<i8>)> = nodes
         .par_iter()
         .map(|&(i, j)| {
             let q = grid.pixel(i, j);
-            let z0 = match approx {
+            let (z0, bound) = match approx {
                 // Level k + 1's continuous point is this level's halved.
-                Some(a) => a.at((q.0 as f64 + 0.5) / 2.0, (q.1 as f64 + 0.5) / 2.0),
+                Some(a) => (
+                    a.at((q.0 as f64 + 0.5) / 2.0, (q.1 as f64 + 0.5) / 2.0),
+                    None,
+                ),
                 None => match sweep_height(reference, q, searches, heights, step, p.half) {
-                    Some(z) => z,
-                    None => return f64::NAN,
+                    Some(z) => {
+                        let at = if z < heights[0] + step {
+                            -1
+                        } else if z > heights[1] - step {
+                            1
+                        } else {
+                            0
+                        };
+                        (z, Some(at))
+                    }
+                    None => return (f64::NAN, None),
                 },
             };
             match match_point(reference, q, searches, z0, p, tests).solution {
-                Ok(s) => s.ground.z,
-                Err(_) => f64::NAN,
+                Ok(s) => (s.ground.z, bound),
+                Err(_) => (f64::NAN, bound),
             }
         })
         .collect();
-    grid.z = z;
-    grid.z.iter().filter(|v| v.is_finite()).count()
+    grid.z = found.iter().map(|f| f.0).collect();
+    let count = |b: i8| found.iter().filter(|f| f.1 == Some(b)).count();
+    LevelOutcome {
+        matched: grid.z.iter().filter(|v| v.is_finite()).count(),
+        swept: found.iter().filter(|f| f.1.is_some()).count(),
+        at_bounds: [count(-1), count(1)],
+    }
 }
+
+/// One level's matching: heights found, and at the top where the sweep found them.
+struct LevelOutcome {
+    matched: usize,
+    /// Nodes the sweep gave a height, and those within a step of the lowest and the
+    /// highest height tried (a pile there: the terrain reaches beyond).
+    swept: usize,
+    at_bounds: [usize; 2],
+}
+
+/// A share of the top level's sweep heights at a bound of the range above which a run
+/// warns, %: the coarse top level has a few hundred nodes, some of them flat.
+const PILE_WARNING_PERCENT: f64 = 10.0;
 
 /// What the patch model leaves of the terrain (a crease between two slopes, a knoll: no
 /// affine follows them) and of resampling, px of parallax, added to every point's σ_Z. The
@@ -578,7 +616,9 @@ pub fn run(
     let r = match &cfg.reference {
         Some(id) => p.photos.iter().position(|ph| &ph.id == id).ok_or_else(|| {
             Pipeline2Error::Heights(format!(
-                "[matching.mgcm] reference = \"{id}\": no photo of that id in the project"
+                "{}: [matching.mgcm] reference = \"{id}\": no photo of that id in the project (its photos: {})",
+                p.path.display(),
+                p.photos.iter().map(|ph| ph.id.as_str()).collect::<Vec<_>>().join(", ")
             ))
         })?,
         None => (0..photos.len())
@@ -587,7 +627,12 @@ pub fn run(
     };
     let others = partners(r);
     if others.is_empty() {
-        return Err(Pipeline2Error::NoOverlap);
+        return Err(Pipeline2Error::Heights(format!(
+            "{}: [matching.mgcm] reference = \"{}\" overlaps no other photo at {:.0} m: name another",
+            p.path.display(),
+            p.photos[r].id,
+            0.5 * (heights[0] + heights[1])
+        )));
     }
     // Memory: every pyramid (image and two gradients, 4/3 of level 0's pixels).
     let bytes: u64 = std::iter::once(r)
@@ -637,6 +682,7 @@ pub fn run(
     let coarse = cfg.coarse();
     let tests = cfg.tests();
     let mut level_reports = Vec::new();
+    let mut warnings = Vec::new();
     let mut previous: Option<LevelGrid> = None;
     for level in (1..=levels).rev() {
         let refs: Vec<AtLevel> = std::iter::once(r)
@@ -665,7 +711,7 @@ pub fn run(
         let scale = (1u64 << level) as f64;
         let step = 0.5 * m_per_px * scale;
         progress.begin(&format!("level {level}"), 1);
-        let matched = match_level(
+        let outcome = match_level(
             reference,
             &searches,
             &mut grid,
@@ -675,6 +721,19 @@ pub fn run(
             &coarse,
             &tests,
         );
+        let matched = outcome.matched;
+        for (n, which, h) in [
+            (outcome.at_bounds[0], "lowest", heights[0]),
+            (outcome.at_bounds[1], "highest", heights[1]),
+        ] {
+            let share = 100.0 * n as f64 / outcome.swept.max(1) as f64;
+            if share > PILE_WARNING_PERCENT {
+                warnings.push(format!(
+                    "{share:.0} % of the top level's sweep heights lie within a step of the {which} height tried ({h:.1} m): the terrain may reach beyond {:.1} … {:.1} m; widen [dem] heights",
+                    heights[0], heights[1]
+                ));
+            }
+        }
         let blunders = grid.remove_blunders(2.0 * m_per_px * scale);
         progress.advance(1);
         progress.end();
@@ -715,25 +774,9 @@ pub fn run(
         &directions,
         &cfg.interest(grey_range(&reference.image.image)),
     );
-    // The orientation's pointing error: the project's, and each resected photo's own.
-    // Each resected photo's σ₀ × √(6/n) in its own pixels; their RMS for every ray (the
-    // adjustment takes one value per point).
-    let mut fine = cfg.fine();
-    let owns: Vec<f64> = resected
-        .iter()
-        .filter_map(|(id, res)| {
-            let k = p.photos.iter().position(|ph| &ph.id == id)?;
-            let a = sensors[k].frame.photo(PixelXY::new(0.0, 0.0));
-            let b = sensors[k].frame.photo(PixelXY::new(1.0, 0.0));
-            let px_mm = (a.x - b.x).hypot(a.y - b.y);
-            let n = res.residuals_mm.len().max(7) as f64;
-            Some(res.sigma0_mm / px_mm * (6.0 / n).sqrt())
-        })
-        .collect();
-    if !owns.is_empty() {
-        let rms = (owns.iter().map(|v| v * v).sum::<f64>() / owns.len() as f64).sqrt();
-        fine.orientation_px = fine.orientation_px.hypot(rms);
-    }
+    // The orientation's pointing error: the project's between photos given as exact, and
+    // each resected photo's own through its sensor (the resection's covariance).
+    let fine = cfg.fine();
     progress.begin("points", selected.len() as u64);
     let fine_started = std::time::Instant::now();
     let mut points: Vec<FinePoint> = selected
@@ -765,6 +808,28 @@ pub fn run(
     }
     neighbourhood_tests(&mut points, 2.5 * cfg.cell as f64, m_per_px);
     let kept: Vec<&FinePoint> = points.iter().filter(|p| p.refusal.is_none()).collect();
+    // Points beyond the heights tried by more than a pixel of parallax: the pyramid's
+    // approximations led the matching there and its tests passed them, but the top level's
+    // sweep never looked there; where the terrain reaches beyond, some of it may be missed.
+    let (below, above) = kept
+        .iter()
+        .filter_map(|p| p.result.solution.as_ref().ok())
+        .fold((0usize, 0usize), |(b, a), s| {
+            (
+                b + usize::from(s.ground.z < heights[0] - m_per_px),
+                a + usize::from(s.ground.z > heights[1] + m_per_px),
+            )
+        });
+    if (below + above) * 100 > kept.len() && below + above >= 3 {
+        warnings.push(format!(
+            "{} of the {} points kept lie {} the heights tried ({:.1} … {:.1} m) by more than a pixel of parallax: the terrain reaches beyond them; widen [dem] heights",
+            below + above,
+            kept.len(),
+            if above >= below { "above" } else { "below" },
+            heights[0],
+            heights[1]
+        ));
+    }
     level_reports.push(LevelReport {
         level: 0,
         size: [rw, rh],
@@ -870,6 +935,7 @@ pub fn run(
         accuracy,
         check_points,
         sigma_vs_reference: sigma_vs_ref,
+        warnings,
     };
     let write = |source| PipelineError::Write {
         dir: out.to_path_buf(),

@@ -26,6 +26,7 @@ fn vertical(x0: f64, y0: f64) -> FrameSensor {
             exterior: Exterior::from_degrees(0.0, 0.0, 0.0, GroundM::new(x0, y0, Z0)),
         },
         frame: centred_grid(SIDE, SIDE, PIX_MM).into(),
+        exterior_cov: None,
     }
 }
 
@@ -293,4 +294,74 @@ fn an_occluded_ray_is_rejected() {
     assert!((s.ground.z - PLANE).abs() < 0.05 * m_per_px(100.0), "{s:?}");
     let alone = match_point(b.view(0), q0, &[b.view(3)], PLANE + 3.0, &p, &t);
     assert!(alone.solution.is_err(), "{alone:?}");
+}
+
+/// The orientation's uncertainty, propagated, against the point actually moved by a wrong
+/// orientation: each photo's exterior perturbed by Δ (the model off, the images not), the
+/// point solved again; the σ's orientation part, with a rank-one covariance Δ·Δᵀ for that
+/// photo, must be |the coordinate's change| (a linear propagation of a known error is exact
+/// to first order), for the reference (whose error moves the ray sideways and every patch
+/// at once; within 2 %) and for a search photo (within 10 %), in X, Y and Z.
+#[test]
+fn a_wrong_orientation_moves_the_point_as_its_propagated_covariance_says() {
+    let b = Block::new(&[(100.0, 0.0), (60.0, 45.0)], 0.0);
+    let p = AdjustParams::default();
+    let q0 = (285, 312);
+    let solve_with = |s: &[FrameSensor]| {
+        let v: Vec<View> = (0..3)
+            .map(|k| View {
+                image: &b.images[k],
+                sensor: &s[k],
+            })
+            .collect();
+        solve(v[0], q0, &v[1..], PLANE + 2.0, &p).unwrap()
+    };
+    let exact = solve_with(&b.sensors);
+    let cases: [(usize, [f64; 6]); 5] = [
+        (0, [0.0, 3e-4, 0.0, 0.0, 0.0, 0.0]),
+        (0, [2e-4, -1e-4, 4e-4, 0.2, -0.1, 0.3]),
+        (2, [0.0, 3e-4, 0.0, 0.0, 0.0, 0.0]),
+        (2, [3e-4, 0.0, 0.0, 0.0, 0.0, 0.0]),
+        (1, [1e-4, 2e-4, -3e-4, -0.2, 0.1, 0.4]),
+    ];
+    for (k, d) in cases {
+        let mut wrong = b.sensors.clone();
+        let e = &mut wrong[k].camera.exterior;
+        e.omega += d[0];
+        e.phi += d[1];
+        e.kappa += d[2];
+        e.centre = GroundM::new(e.centre.x + d[3], e.centre.y + d[4], e.centre.z + d[5]);
+        let moved = solve_with(&wrong);
+        let mut uncertain = b.sensors.clone();
+        uncertain[k].exterior_cov = Some(std::array::from_fn(|i| {
+            std::array::from_fn(|j| d[i] * d[j])
+        }));
+        let propagated = solve_with(&uncertain);
+        let change = [
+            moved.ground.x - exact.ground.x,
+            moved.ground.y - exact.ground.y,
+            moved.ground.z - exact.ground.z,
+        ];
+        for a in 0..3 {
+            let part = (propagated.sigma[a].powi(2) - exact.sigma[a].powi(2))
+                .max(0.0)
+                .sqrt();
+            // The reference's error moves every patch at once, along the geometry; a search
+            // photo's alone is weighed against the others' by the patches' Sobel slopes,
+            // which damp the shortest waves (7 px) unequally along each photo's epipolar
+            // direction: a few per cent.
+            let tol = if k == 0 { 0.02 } else { 0.1 };
+            assert!(
+                (part - change[a].abs()).abs() < tol * change[a].abs() + 0.003,
+                "photo {k}, Δ {d:?}, axis {a}: propagated {part:.4} m, moved {:.4} m",
+                change[a]
+            );
+        }
+        // Not a trivial case: the wrong orientation moved the height by a tenth of a pixel
+        // of parallax or more.
+        assert!(
+            change[2].abs() > 0.1 * m_per_px(100.0),
+            "photo {k}: {change:?}"
+        );
+    }
 }
