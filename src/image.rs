@@ -53,6 +53,25 @@ impl ImageF32 {
         Some(a + fy * (b - a))
     }
 
+    /// The bilinear value and its exact derivatives ∂/∂x, ∂/∂y at (x, y) (those of the
+    /// interpolating surface itself, so that a least-squares model sampled with
+    /// [`ImageF32::bilinear`] has its true Jacobian); `None` where `bilinear` is.
+    pub fn bilinear_with_gradient(&self, x: f64, y: f64) -> Option<[f64; 3]> {
+        let v = self.bilinear(x, y)? as f64;
+        let (u, w) = (x - 0.5, y - 0.5);
+        let i = (u as usize).min(self.width - 2);
+        let j = (w as usize).min(self.height - 2);
+        let (fx, fy) = (u - i as f64, w - j as f64);
+        let p = &self.data[j * self.width + i..];
+        let q = &self.data[(j + 1) * self.width + i..];
+        let (p0, p1, q0, q1) = (p[0] as f64, p[1] as f64, q[0] as f64, q[1] as f64);
+        Some([
+            v,
+            (1.0 - fy) * (p1 - p0) + fy * (q1 - q0),
+            (1.0 - fx) * (q0 - p0) + fx * (q1 - p1),
+        ])
+    }
+
     pub fn at(&self, col: usize, row: usize) -> f32 {
         self.data[row * self.width + col]
     }

@@ -59,8 +59,8 @@ impl Model {
     }
     fn comparison(&self) -> Option<&rig::matching::grid::Comparison> {
         match self {
-            Model::Sweep(r) => r.comparison.as_ref(),
-            Model::Mgcm(r) => r.comparison.as_ref(),
+            Model::Sweep(r) => r.model.comparison.as_ref(),
+            Model::Mgcm(r) => r.model.comparison.as_ref(),
         }
     }
     fn crs(&self) -> rig::geometry::Crs {
@@ -370,7 +370,7 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<i32> {
         );
     }
     if let Model::Sweep(dtm) = &dtm {
-        if let Some(sv) = &dtm.sigma_vs_reference {
+        if let Some(sv) = &dtm.model.sigma_vs_reference {
             println!(
             "  its standard deviations (quality.tif, × {:.2} from the pairs' disagreement): RMS {:.2} m; the true errors are {:.1} × them, {:.0} % within 2σ",
             dtm.variance_factor.map_or(1.0, |f| f.s0),

@@ -183,6 +183,15 @@ fn run_format2(
 }
 
 /// The report of an MGCM run.
+/// A run's exit code: `DOUBTFUL` when it warned and `--strict` asks scripts to stop there.
+fn exit_code(doubtful: bool, strict: bool) -> i32 {
+    if strict && doubtful {
+        rig::exit::DOUBTFUL
+    } else {
+        rig::exit::OK
+    }
+}
+
 fn print_mgcm(
     r: &rig::matching::mgcm::run::MgcmReport,
     out: &std::path::Path,
@@ -204,11 +213,7 @@ fn print_mgcm(
         }
     }
     let doubtful = few || !r.warnings.is_empty();
-    let code = if strict && doubtful {
-        rig::exit::DOUBTFUL
-    } else {
-        rig::exit::OK
-    };
+    let code = exit_code(doubtful, strict);
     if json {
         println!("{}", serde_json::to_string(r)?);
         return Ok(code);
@@ -396,11 +401,7 @@ fn print_format2(
             warned = true;
         }
     }
-    let code = if strict && warned {
-        rig::exit::DOUBTFUL
-    } else {
-        rig::exit::OK
-    };
+    let code = exit_code(warned, strict);
     if json {
         println!("{}", serde_json::to_string(r)?);
         return Ok(code);
@@ -421,9 +422,9 @@ fn print_format2(
     }
     println!(
         "elevation model: {} × {} nodes of {} m, {} with a height",
-        r.grid.cols, r.grid.rows, p.cell_m, r.grid_filled
+        r.model.grid.cols, r.model.grid.rows, p.cell_m, r.model.grid_filled
     );
-    if let Some(c) = &r.comparison {
+    if let Some(c) = &r.model.comparison {
         println!("against the reference: {}", c.summary());
     }
     match &r.variance_factor {
@@ -436,8 +437,8 @@ fn print_format2(
         ),
     }
     for (what, c) in [
-        ("check points", &r.check_points),
-        ("the reference", &r.sigma_vs_reference),
+        ("check points", &r.model.check_points),
+        ("the reference", &r.model.sigma_vs_reference),
     ] {
         if let Some(c) = c {
             let verdict = if c.ratio > 1.5 {
@@ -457,7 +458,7 @@ fn print_format2(
     println!(
         "written to {}: dem.tif, quality.tif (σ, correlation), ortho.tif, points.ply, points.las, hillshade.png, quality.png{}, report.json, report.html",
         out.display(),
-        if r.comparison.is_some() { ", error.png" } else { "" }
+        if r.model.comparison.is_some() { ", error.png" } else { "" }
     );
     Ok(code)
 }

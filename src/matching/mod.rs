@@ -13,6 +13,7 @@ pub mod html;
 pub mod maps;
 pub mod mgcm;
 pub mod ortho;
+pub mod oslsm;
 pub mod output;
 pub mod pair_match;
 pub mod pair_output;

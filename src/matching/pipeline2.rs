@@ -87,16 +87,11 @@ pub struct Report2 {
     pub extent: [f64; 4],
     pub pairs: Vec<PairReport>,
     pub points: usize,
-    pub grid: ElevationGrid,
-    pub grid_filled: usize,
     /// The scale applied to the matching's standard deviations (from the pairs' redundancy);
     /// `None` where no node was seen by two pairs often enough to estimate it.
     pub variance_factor: Option<VarianceFactor>,
-    pub comparison: Option<Comparison>,
-    /// The model's heights at the check points against theirs, with quality.tif's σ there.
-    pub check_points: Option<SigmaCheck>,
-    /// quality.tif's σ against the reference model's differences, node by node.
-    pub sigma_vs_reference: Option<SigmaCheck>,
+    #[serde(flatten)]
+    pub model: ModelFigures,
 }
 
 impl Report2 {
@@ -129,16 +124,6 @@ impl Report2 {
             }
         }
         v.push((
-            "grid".into(),
-            format!(
-                "{} × {} nodes, {} with a height",
-                self.grid.cols, self.grid.rows, self.grid_filled
-            ),
-        ));
-        if let Some(c) = &self.comparison {
-            v.push(("against the reference".into(), c.summary()));
-        }
-        v.push((
             "standard deviations".into(),
             match &self.variance_factor {
                 Some(f) => format!(
@@ -150,6 +135,82 @@ impl Report2 {
                 }
             },
         ));
+        v.extend(self.model.lines());
+        v
+    }
+}
+
+/// A format-2 model, whichever matcher made it, and its checks (in report.json at the top
+/// level).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ModelFigures {
+    pub grid: ElevationGrid,
+    pub grid_filled: usize,
+    /// The model against the project's reference DEM, node by node (seed 000 Table 5).
+    pub comparison: Option<Comparison>,
+    /// The model's heights at the check points against theirs, with quality.tif's σ there
+    /// (each check point once, however many photos observe it).
+    pub check_points: Option<SigmaCheck>,
+    /// quality.tif's σ against the reference model's differences, node by node.
+    pub sigma_vs_reference: Option<SigmaCheck>,
+}
+
+impl ModelFigures {
+    /// The model `grid` with its σ's `sigma_m` (per node) against project `p`'s reference
+    /// DEM (returned, read) and check points `obs`.
+    pub fn check(
+        p: &Project2,
+        obs: &[Observation],
+        grid: ElevationGrid,
+        sigma_m: &[f32],
+    ) -> Result<(ModelFigures, Option<ElevationGrid>), Pipeline2Error> {
+        let reference = match &p.reference {
+            Some(r) => Some(read_geotiff(r).map_err(|source| PipelineError::Reference {
+                path: r.clone(),
+                cause: source,
+            })?),
+            None => None,
+        };
+        let comparison = reference
+            .as_ref()
+            .map(|g| grid.compare(|x, y| g.interpolate(x, y)));
+        let sigma_vs_reference = reference
+            .as_ref()
+            .and_then(|g| sigma_vs_reference(&grid, sigma_m, g));
+        let mut seen = std::collections::HashSet::new();
+        let cps = obs
+            .iter()
+            .filter(|o| o.kind == Kind::Cp && seen.insert(o.id.as_str()));
+        let check_points = check_sigma(cps.filter_map(|o| {
+            let g = o.ground?;
+            let s = grid
+                .node_index(g.x, g.y)
+                .map_or(f64::NAN, |i| sigma_m[i] as f64);
+            Some((grid.interpolate(g.x, g.y) - g.z, s))
+        }));
+        let figures = ModelFigures {
+            grid_filled: grid.filled(),
+            grid,
+            comparison,
+            check_points,
+            sigma_vs_reference,
+        };
+        Ok((figures, reference))
+    }
+
+    /// The summary lines: the grid, the comparison, σ against the check points and the
+    /// reference.
+    pub fn lines(&self) -> Vec<(String, String)> {
+        let mut v = vec![(
+            "grid".to_string(),
+            format!(
+                "{} × {} nodes, {} with a height",
+                self.grid.cols, self.grid.rows, self.grid_filled
+            ),
+        )];
+        if let Some(c) = &self.comparison {
+            v.push(("against the reference".into(), c.summary()));
+        }
         for (what, c) in [
             ("check points", &self.check_points),
             ("the reference", &self.sigma_vs_reference),
@@ -657,32 +718,8 @@ pub fn finish(
     let all: Vec<MatchedPoint> = per_pair.into_iter().flatten().collect();
     let pts: Vec<GroundM> = all.iter().map(|p| p.ground).collect();
     grid.fill_median(&pts);
-    let reference = match &p.reference {
-        Some(r) => Some(read_geotiff(r).map_err(|source| PipelineError::Reference {
-            path: r.clone(),
-            cause: source,
-        })?),
-        None => None,
-    };
-    let comparison = reference
-        .as_ref()
-        .map(|g| grid.compare(|x, y| g.interpolate(x, y)));
     let quality = grid.quality_scaled(&all, s0);
-    let sigma_vs_reference = reference
-        .as_ref()
-        .and_then(|g| sigma_vs_reference(&grid, &quality.sigma_m, g));
-    // One line per observation: each check point once.
-    let mut seen = std::collections::HashSet::new();
-    let cps = obs
-        .iter()
-        .filter(|o| o.kind == Kind::Cp && seen.insert(o.id.as_str()));
-    let check_points = check_sigma(cps.filter_map(|o| {
-        let g = o.ground?;
-        let s = grid
-            .node_index(g.x, g.y)
-            .map_or(f64::NAN, |i| quality.sigma_m[i] as f64);
-        Some((grid.interpolate(g.x, g.y) - g.z, s))
-    }));
+    let (model, reference) = ModelFigures::check(p, &obs, grid, &quality.sigma_m)?;
     let write = |source| PipelineError::Write {
         dir: out.to_path_buf(),
         cause: source,
@@ -695,13 +732,40 @@ pub fn finish(
         extent,
         pairs: reports,
         points: all.len(),
-        grid_filled: grid.filled(),
         variance_factor: factor,
-        check_points,
-        sigma_vs_reference,
-        grid,
-        comparison,
+        model,
     };
+    write_model(
+        out,
+        &report.model.grid,
+        &all,
+        &quality,
+        photos,
+        &sensors,
+        reference.as_ref().zip(report.model.comparison.as_ref()),
+        p.crs,
+        &report,
+        &report.summary(),
+    )
+    .map_err(write)?;
+    Ok(report)
+}
+
+/// A format-2 run's model files ([`super::pipeline::write_outputs`]), the orthophoto from
+/// `photos` through their `sensors`.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn write_model(
+    out: &Path,
+    grid: &ElevationGrid,
+    points: &[MatchedPoint],
+    quality: &super::grid::NodeQuality,
+    photos: &[Photo],
+    sensors: &[FrameSensor],
+    reference: Option<(&ElevationGrid, &Comparison)>,
+    crs: Crs,
+    report: &impl Serialize,
+    summary: &[(String, String)],
+) -> std::io::Result<()> {
     let projections: Vec<_> = sensors
         .iter()
         .map(|s| move |g: GroundM| s.ground_to_image(g))
@@ -715,18 +779,8 @@ pub fn finish(
         })
         .collect();
     super::pipeline::write_outputs(
-        out,
-        &report.grid,
-        &all,
-        &quality,
-        &views,
-        reference.as_ref().zip(report.comparison.as_ref()),
-        p.crs,
-        &report,
-        &report.summary(),
+        out, grid, points, quality, &views, reference, crs, report, summary,
     )
-    .map_err(write)?;
-    Ok(report)
 }
 
 #[cfg(test)]

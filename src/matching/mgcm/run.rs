@@ -14,17 +14,14 @@ use super::config::MgcmConfig;
 use super::interest::{epipolar_direction, select};
 use super::point::{match_point, PointResult, RayTests};
 use super::pyramid::{levels_for, pyramid, AtLevel, Textured};
-use crate::coords::{GroundM, PixelXY};
+use crate::coords::PixelXY;
 use crate::geometry::{Crs, Resection, Sensor};
 use crate::matching::accuracy::{analyse, Accuracy};
-use crate::matching::grid::{Comparison, ElevationGrid};
-use crate::matching::ortho::View as OrthoView;
-use crate::matching::output::read_geotiff;
+use crate::matching::grid::ElevationGrid;
 use crate::matching::pipeline::{Photo, PipelineError};
-use crate::matching::pipeline2::{orient, Oriented, Pipeline2Error};
-use crate::matching::precision::{check_sigma, sigma_vs_reference, SigmaCheck};
+use crate::matching::pipeline2::{orient, ModelFigures, Oriented, Pipeline2Error};
 use crate::matching::progress::Progress;
-use crate::matching::project2::{Kind, Project2};
+use crate::matching::project2::Project2;
 use crate::matching::MatchedPoint;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -100,13 +97,10 @@ pub struct MgcmReport {
     pub m_per_px: f64,
     pub seconds: f64,
     pub points_per_second: f64,
-    pub grid: ElevationGrid,
-    pub grid_filled: usize,
-    pub comparison: Option<Comparison>,
+    #[serde(flatten)]
+    pub model: ModelFigures,
     /// Seed 002's accuracy analysis of the points against the reference model.
     pub accuracy: Option<Accuracy>,
-    pub check_points: Option<SigmaCheck>,
-    pub sigma_vs_reference: Option<SigmaCheck>,
     /// What makes the run doubtful (the heights tried missing the terrain, …).
     #[serde(default)]
     pub warnings: Vec<String>,
@@ -144,16 +138,7 @@ impl MgcmReport {
                 self.selected, self.kept, self.points_per_second
             ),
         ));
-        v.push((
-            "grid".into(),
-            format!(
-                "{} × {} nodes, {} with a height",
-                self.grid.cols, self.grid.rows, self.grid_filled
-            ),
-        ));
-        if let Some(c) = &self.comparison {
-            v.push(("against the reference".into(), c.summary()));
-        }
+        v.extend(self.model.lines());
         for w in &self.warnings {
             v.push(("warning".into(), w.clone()));
         }
@@ -860,19 +845,8 @@ pub fn run(
         a.zip(b).map_or(1.0, |(a, b)| (a.x - b.x).hypot(a.y - b.y))
     };
     let quality = grid.fill_scattered(&matched, 1.6 * cfg.cell as f64 * gsd);
-    let reference_dem = match &p.reference {
-        Some(f) => Some(read_geotiff(f).map_err(|source| PipelineError::Reference {
-            path: f.clone(),
-            cause: source,
-        })?),
-        None => None,
-    };
-    let comparison = reference_dem
-        .as_ref()
-        .map(|g| grid.compare(|x, y| g.interpolate(x, y)));
-    let sigma_vs_ref = reference_dem
-        .as_ref()
-        .and_then(|g| sigma_vs_reference(&grid, &quality.sigma_m, g));
+    let obs = p.observations()?;
+    let (model, reference_dem) = ModelFigures::check(p, &obs, grid, &quality.sigma_m)?;
     let hg = flying_height(&sensors[r], centre0, mid).unwrap_or(f64::NAN);
     // Blunders the matcher detected: points its tests refused (not those it could not try:
     // a flat template, one at the edge, a ray that cannot reach the height).
@@ -898,19 +872,6 @@ pub fn run(
         // A blunder is a wrong match: half a pixel of parallax at least.
         analyse(&d, refused, hg, 0.5 * m_per_px)
     });
-    let obs = p.observations()?;
-    let mut seen = std::collections::HashSet::new();
-    let check_points = check_sigma(
-        obs.iter()
-            .filter(|o| o.kind == Kind::Cp && seen.insert(o.id.as_str()))
-            .filter_map(|o| {
-                let g = o.ground?;
-                let s = grid
-                    .node_index(g.x, g.y)
-                    .map_or(f64::NAN, |i| quality.sigma_m[i] as f64);
-                Some((grid.interpolate(g.x, g.y) - g.z, s))
-            }),
-    );
     let seconds = started.elapsed().as_secs_f64();
     let report = MgcmReport {
         project: p.path.clone(),
@@ -929,37 +890,22 @@ pub fn run(
         m_per_px,
         seconds,
         points_per_second: points.len() as f64 / fine_seconds.max(1e-9),
-        grid_filled: grid.filled(),
-        grid,
-        comparison,
+        model,
         accuracy,
-        check_points,
-        sigma_vs_reference: sigma_vs_ref,
         warnings,
     };
     let write = |source| PipelineError::Write {
         dir: out.to_path_buf(),
         cause: source,
     };
-    let projections: Vec<_> = sensors
-        .iter()
-        .map(|s| move |g: GroundM| s.ground_to_image(g))
-        .collect();
-    let views: Vec<OrthoView> = photos
-        .iter()
-        .zip(&projections)
-        .map(|(ph, f)| OrthoView {
-            image: &ph.image,
-            project: f,
-        })
-        .collect();
-    crate::matching::pipeline::write_outputs(
+    crate::matching::pipeline2::write_model(
         out,
-        &report.grid,
+        &report.model.grid,
         &matched,
         &quality,
-        &views,
-        reference_dem.as_ref().zip(report.comparison.as_ref()),
+        photos,
+        &sensors,
+        reference_dem.as_ref().zip(report.model.comparison.as_ref()),
         p.crs,
         &report,
         &report.summary(),

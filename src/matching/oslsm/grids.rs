@@ -1,0 +1,129 @@
+//! The two object-space grids of seed 001's object-space least-squares matching: the terrain
+//! heights Z on posts (bilinear between them) and the terrain reflectance D on groundels, a
+//! whole number of groundels to a post cell so that every groundel lies in one cell.
+//!
+//! Axes: X east, Y north; post (i, j) at (x0 + i·post_m, y0 + j·post_m) (j grows northward);
+//! groundel (u, v) centred at (x0 + (u + ½)·g, y0 + (v + ½)·g), g = post_m / per_cell.
+
+/// Heights on posts and the groundel layout over them.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Grids {
+    pub x0: f64,
+    pub y0: f64,
+    pub post_m: f64,
+    /// Posts across (X) and along (Y).
+    pub cols: usize,
+    pub rows: usize,
+    /// Height of post (i, j) at `z[j * cols + i]`, m.
+    pub z: Vec<f64>,
+    /// Groundels per post cell along each axis.
+    pub per_cell: usize,
+}
+
+/// A groundel's place: its centre, and the four posts (indices) around it with their
+/// bilinear weights.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Groundel {
+    pub x: f64,
+    pub y: f64,
+    pub posts: [usize; 4],
+    pub weights: [f64; 4],
+}
+
+impl Grids {
+    /// Groundels across and along.
+    pub fn groundels(&self) -> (usize, usize) {
+        (
+            (self.cols.saturating_sub(1)) * self.per_cell,
+            (self.rows.saturating_sub(1)) * self.per_cell,
+        )
+    }
+
+    /// The groundel size, m.
+    pub fn groundel_m(&self) -> f64 {
+        self.post_m / self.per_cell as f64
+    }
+
+    pub fn groundel(&self, u: usize, v: usize) -> Groundel {
+        let m = self.per_cell;
+        let (i, j) = (u / m, v / m);
+        let fx = ((u % m) as f64 + 0.5) / m as f64;
+        let fy = ((v % m) as f64 + 0.5) / m as f64;
+        let g = self.groundel_m();
+        let p = j * self.cols + i;
+        Groundel {
+            x: self.x0 + (u as f64 + 0.5) * g,
+            y: self.y0 + (v as f64 + 0.5) * g,
+            posts: [p, p + 1, p + self.cols, p + self.cols + 1],
+            weights: [
+                (1.0 - fx) * (1.0 - fy),
+                fx * (1.0 - fy),
+                (1.0 - fx) * fy,
+                fx * fy,
+            ],
+        }
+    }
+
+    /// Height at a groundel.
+    pub fn z_at(&self, g: &Groundel) -> f64 {
+        g.posts
+            .iter()
+            .zip(&g.weights)
+            .map(|(&p, w)| w * self.z[p])
+            .sum()
+    }
+
+    /// Height anywhere inside the posts' hull (bilinear); `None` outside.
+    pub fn z_xy(&self, x: f64, y: f64) -> Option<f64> {
+        let u = (x - self.x0) / self.post_m;
+        let v = (y - self.y0) / self.post_m;
+        let (w1, h1) = (self.cols as f64 - 1.0, self.rows as f64 - 1.0);
+        if u.is_nan() || v.is_nan() || u < 0.0 || v < 0.0 || u > w1 || v > h1 {
+            return None;
+        }
+        let i = (u as usize).min(self.cols.saturating_sub(2));
+        let j = (v as usize).min(self.rows.saturating_sub(2));
+        let (fx, fy) = (u - i as f64, v - j as f64);
+        let p = j * self.cols + i;
+        let z = &self.z;
+        Some(
+            (1.0 - fy) * ((1.0 - fx) * z[p] + fx * z[p + 1])
+                + fy * ((1.0 - fx) * z[p + self.cols] + fx * z[p + self.cols + 1]),
+        )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A plane z = 2 + 0.5·x − 0.25·y on the posts is reproduced exactly at every groundel
+    /// (bilinear interpolation is exact on planes), and the weights sum to 1.
+    #[test]
+    fn groundels_interpolate_a_plane_exactly() {
+        let (cols, rows, s) = (4, 3, 10.0);
+        let plane = |x: f64, y: f64| 2.0 + 0.5 * x - 0.25 * y;
+        let z = (0..rows)
+            .flat_map(|j| (0..cols).map(move |i| plane(i as f64 * s, j as f64 * s)))
+            .collect();
+        let g = Grids {
+            x0: 0.0,
+            y0: 0.0,
+            post_m: s,
+            cols,
+            rows,
+            z,
+            per_cell: 5,
+        };
+        assert_eq!(g.groundels(), (15, 10));
+        for v in 0..10 {
+            for u in 0..15 {
+                let gr = g.groundel(u, v);
+                assert!((gr.weights.iter().sum::<f64>() - 1.0).abs() < 1e-12);
+                assert!((g.z_at(&gr) - plane(gr.x, gr.y)).abs() < 1e-9);
+                assert!((g.z_xy(gr.x, gr.y).unwrap() - plane(gr.x, gr.y)).abs() < 1e-9);
+            }
+        }
+        assert!(g.z_xy(-0.1, 5.0).is_none() && g.z_xy(5.0, 20.1).is_none());
+    }
+}

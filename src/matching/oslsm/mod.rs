@@ -1,0 +1,14 @@
+//! Object-space least-squares matching (seed 001, Lo and Mulder): terrain heights and terrain
+//! reflectance solved together in object space from any number of photos, each seen through
+//! its [`crate::geometry::Sensor`] only (frame, pushbroom or RPC alike).
+
+pub mod grids;
+pub mod solve;
+pub mod visibility;
+
+pub use grids::{Grids, Groundel};
+pub use solve::{refine, sight, Iteration, OslsmError, OslsmParams, Refinement};
+pub use visibility::visible;
+
+#[cfg(test)]
+mod tests;

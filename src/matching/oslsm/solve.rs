@@ -1,0 +1,485 @@
+//! Seed 001's object-space least-squares matching on one patch: the heights Z on posts, the
+//! reflectance D on groundels and an offset and gain per photo, from every photo at once.
+//!
+//! Observation per groundel n and photo k that sees it (seed 001 eq. 9, with the reflectance
+//! model of eq. 5, "perfect ambient reflection": the grey value is a linear function of D):
+//!
+//!   gₖ(Fₖ(Xₙ, Yₙ, Z(Xₙ, Yₙ))) = aₖ + bₖ·Dₙ + v,
+//!
+//! Fₖ the photo's sensor (ground → image), Z bilinear between the posts. Linearised (eq. 13):
+//! ∂gₖ/∂Z = ∇gₖ·∂Fₖ/∂Z (eq. 11: the image gradient times the projection's movement with
+//! height), spread over the groundel's four posts by their bilinear weights. Photo 0's offset
+//! and gain are the datum (0 and 1: D is in its grey values). D enters each groundel's
+//! observations only, so it is eliminated groundel by groundel before the normal equations
+//! are assembled ("Reduced Normal Equation", seed 001 3.3.2 c), leaving the posts and the
+//! radiometry, and recovered after each solution by back-substitution.
+//!
+//! Where the texture does not fix Z, the terrain's curvature (second differences of the
+//! posts along X and along Y) is observed as zero (seed 001, concluding remarks:
+//! "regularization ... to minimize the surface curvature"), with a weight by rule, not tuned
+//! per scene: [`OslsmParams::smoothness`] times the mean information a post receives from the
+//! grey values, so it steers where the grey values are silent and yields where they speak.
+
+use super::grids::{Grids, Groundel};
+use super::visibility::visible;
+use crate::coords::GroundM;
+use crate::matching::mgcm::View;
+use nalgebra::{DMatrix, DVector};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+/// Parameters of the adjustment.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct OslsmParams {
+    pub max_iterations: usize,
+    /// Converged when no post moves by more than this, m.
+    pub converged_m: f64,
+    /// Weight of the curvature observations relative to a post's mean information from the
+    /// grey values.
+    pub smoothness: f64,
+    /// Divergence: σ₀ above this many times its lowest so far.
+    pub diverging_ratio: f64,
+}
+
+impl Default for OslsmParams {
+    fn default() -> Self {
+        OslsmParams {
+            max_iterations: 20,
+            converged_m: 0.005,
+            smoothness: 0.01,
+            diverging_ratio: 2.0,
+        }
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, thiserror::Error, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum OslsmError {
+    #[error("{0} photos: the object-space matching needs at least 2")]
+    TooFewPhotos(usize),
+    #[error("the grids are too small: {cols} × {rows} posts (at least 2 × 2)")]
+    TooSmall { cols: usize, rows: usize },
+    #[error("no groundel is seen by two photos")]
+    NoObservations,
+    #[error("the normal equations are singular at iteration {iteration}")]
+    Singular { iteration: usize },
+    #[error("diverging at iteration {iteration}: σ₀ {sigma0:.3} against {best:.3} before")]
+    Diverged {
+        iteration: usize,
+        sigma0: f64,
+        best: f64,
+    },
+    #[error("no convergence in {iterations} iterations (last move {last_move_m:.4} m)")]
+    NoConvergence { iterations: usize, last_move_m: f64 },
+}
+
+/// One iteration's figures, for the convergence plot.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Iteration {
+    /// σ₀ of the grey values before this iteration's update, grey values.
+    pub sigma0: f64,
+    /// The largest and the RMS movement of a post, m.
+    pub max_move_m: f64,
+    pub rms_move_m: f64,
+}
+
+/// The refined patch.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Refinement {
+    /// The posts' heights, m (same layout as the input's).
+    pub z: Vec<f64>,
+    /// Their standard deviations σ₀·√Q from the reduced normal matrix, m.
+    pub sigma_z: Vec<f64>,
+    /// Reflectance per groundel (row v, column u at `v * cols + u`), photo 0's grey values;
+    /// NaN where fewer than two photos see it.
+    pub d: Vec<f64>,
+    /// Photos seeing each groundel.
+    pub seen_by: Vec<u8>,
+    /// Offset and gain per photo (photo 0's 0 and 1, the datum).
+    pub radiometry: Vec<[f64; 2]>,
+    /// Their standard deviations.
+    pub sigma_radiometry: Vec<[f64; 2]>,
+    pub sigma0: f64,
+    pub iterations: Vec<Iteration>,
+}
+
+/// One photo's observation of one groundel at the current linearisation point.
+#[derive(Clone, Copy)]
+struct Obs {
+    photo: usize,
+    /// Grey value observed and ∂g/∂Z.
+    g: f64,
+    dg_dz: f64,
+}
+
+/// Samples every photo that sees groundel `gr` at height `z`.
+fn observe(photos: &[View<'_>], sees: &[bool], gr: &Groundel, z: f64, out: &mut Vec<Obs>) {
+    out.clear();
+    let p = GroundM::new(gr.x, gr.y, z);
+    for (k, v) in photos.iter().enumerate() {
+        if !sees[k] {
+            continue;
+        }
+        let Some(q) = v.sensor.ground_to_image(p) else {
+            continue;
+        };
+        // The exact slope of what is sampled (not Sobel's smoothed one, which damps the
+        // finest texture and so lengthens every Gauss–Newton step).
+        let Some([g, gx, gy]) = v.image.image.bilinear_with_gradient(q.col, q.row) else {
+            continue;
+        };
+        let Some(d) = v.sensor.partials(p) else {
+            continue;
+        };
+        out.push(Obs {
+            photo: k,
+            g,
+            dg_dz: gx * d[0][2] + gy * d[1][2],
+        });
+    }
+}
+
+/// Refines `grids`' heights (the coarse DEM) from `photos` (photo 0 the radiometric datum).
+pub fn refine(
+    photos: &[View<'_>],
+    grids: &Grids,
+    p: &OslsmParams,
+) -> Result<Refinement, OslsmError> {
+    let kp = photos.len();
+    if kp < 2 {
+        return Err(OslsmError::TooFewPhotos(kp));
+    }
+    if grids.cols < 2 || grids.rows < 2 {
+        return Err(OslsmError::TooSmall {
+            cols: grids.cols,
+            rows: grids.rows,
+        });
+    }
+    let mut g = grids.clone();
+    let (gu, gv) = g.groundels();
+    let n_posts = g.cols * g.rows;
+    // Unknowns: the posts, then offset and gain of photos 1..K.
+    let nu = n_posts + 2 * (kp - 1);
+    let rad = |k: usize| n_posts + 2 * (k - 1);
+    let mut radiometry = vec![[0.0, 1.0]; kp];
+    let groundels: Vec<_> = (0..gv)
+        .flat_map(|v| (0..gu).map(move |u| (u, v)))
+        .map(|(u, v)| g.groundel(u, v))
+        .collect();
+    let mut sees = sight(photos, &g, &groundels);
+    // Initial radiometry: each photo's grey values against photo 0's over the groundels
+    // both see, matched in mean and spread.
+    {
+        let mut pairs: Vec<Vec<(f64, f64)>> = vec![Vec::new(); kp];
+        let mut obs = Vec::new();
+        for (gr, s) in groundels.iter().zip(&sees) {
+            observe(photos, s, gr, g.z_at(gr), &mut obs);
+            if let Some(o0) = obs.iter().find(|o| o.photo == 0) {
+                for o in obs.iter().filter(|o| o.photo != 0) {
+                    pairs[o.photo].push((o0.g, o.g));
+                }
+            }
+        }
+        for k in 1..kp {
+            let v = &pairs[k];
+            if v.len() < 2 {
+                continue;
+            }
+            let n = v.len() as f64;
+            let (m0, mk) = v
+                .iter()
+                .fold((0.0, 0.0), |a, (x, y)| (a.0 + x / n, a.1 + y / n));
+            let (s0, sk) = v.iter().fold((0.0, 0.0), |a, (x, y)| {
+                (a.0 + (x - m0).powi(2), a.1 + (y - mk).powi(2))
+            });
+            let gain = if s0 > 0.0 { (sk / s0).sqrt() } else { 1.0 };
+            radiometry[k] = [mk - gain * m0, gain];
+        }
+    }
+    let mut d = vec![f64::NAN; groundels.len()];
+    let mut seen_by = vec![0u8; groundels.len()];
+    let mut iterations = Vec::new();
+    let mut best_sigma0 = f64::INFINITY;
+    let mut last_move = f64::INFINITY;
+    for iteration in 1..=p.max_iterations {
+        // Indirect back-mapping (seed 001 3.3.3 e): each groundel's reflectance, the mean
+        // of what the photos seeing it show, in photo 0's grey values, weighted by the
+        // ray's steepness.
+        let per: Vec<(f64, u8, Vec<Obs>)> = groundels
+            .par_iter()
+            .zip(&sees)
+            .map(|(gr, s)| {
+                let mut obs = Vec::new();
+                observe(photos, s, gr, g.z_at(gr), &mut obs);
+                if obs.len() < 2 {
+                    return (f64::NAN, obs.len() as u8, Vec::new());
+                }
+                let (mut sw, mut sd) = (0.0, 0.0);
+                for o in &obs {
+                    let [a, b] = radiometry[o.photo];
+                    let w = steepness(photos[o.photo].sensor, gr, g.z_at(gr));
+                    sw += w;
+                    sd += w * (o.g - a) / b;
+                }
+                (sd / sw, obs.len() as u8, obs)
+            })
+            .collect();
+        for (n, (dn, c, _)) in per.iter().enumerate() {
+            // Keep the adjusted D from the last iteration where there is one.
+            if iteration == 1 || !d[n].is_finite() {
+                d[n] = *dn;
+            }
+            seen_by[n] = *c;
+        }
+        // Normal equations with D eliminated groundel by groundel.
+        let local = 4 + 2 * (kp - 1);
+        // (Few accumulators: each is a dense nu × nu matrix.)
+        let assembled = per
+            .par_iter()
+            .enumerate()
+            .with_min_len(
+                per.len()
+                    .div_ceil(rayon::current_num_threads().max(1))
+                    .max(1),
+            )
+            .fold(
+                || {
+                    (
+                        DMatrix::<f64>::zeros(nu, nu),
+                        DVector::<f64>::zeros(nu),
+                        0.0,
+                        0usize,
+                    )
+                },
+                |(mut n_mat, mut rhs, mut vv, mut nobs), (n, (_, _, obs))| {
+                    if obs.len() < 2 || !d[n].is_finite() {
+                        return (n_mat, rhs, vv, nobs);
+                    }
+                    let gr = &groundels[n];
+                    let idx: Vec<usize> = gr
+                        .posts
+                        .iter()
+                        .copied()
+                        .chain((1..kp).flat_map(|k| [rad(k), rad(k) + 1]))
+                        .collect();
+                    // Local normals over [posts(4), radiometry(2(K−1)), D].
+                    let mut nl = DMatrix::<f64>::zeros(local + 1, local + 1);
+                    let mut bl = DVector::<f64>::zeros(local + 1);
+                    let mut row = DVector::<f64>::zeros(local + 1);
+                    for o in obs {
+                        let [a, b] = radiometry[o.photo];
+                        let l = o.g - a - b * d[n];
+                        vv += l * l;
+                        nobs += 1;
+                        row.fill(0.0);
+                        // g(Z + dZ) − (a + da) − (b + db)(D + dD) = 0:
+                        // ∂g/∂Z·dZ − da − D·db − b·dD = −l.
+                        for (c, w) in gr.weights.iter().enumerate() {
+                            row[c] = o.dg_dz * w;
+                        }
+                        if o.photo > 0 {
+                            let c = 4 + 2 * (o.photo - 1);
+                            row[c] = -1.0;
+                            row[c + 1] = -d[n];
+                        }
+                        row[local] = -b;
+                        nl += &row * row.transpose();
+                        bl += &row * (-l);
+                    }
+                    // Eliminate D: N − n·nᵀ/n_dd.
+                    let ndd = nl[(local, local)];
+                    if ndd <= 0.0 {
+                        return (n_mat, rhs, vv, nobs);
+                    }
+                    for i in 0..local {
+                        let ni = nl[(i, local)];
+                        rhs[idx[i]] += bl[i] - ni * bl[local] / ndd;
+                        for j in 0..local {
+                            n_mat[(idx[i], idx[j])] += nl[(i, j)] - ni * nl[(j, local)] / ndd;
+                        }
+                    }
+                    (n_mat, rhs, vv, nobs)
+                },
+            )
+            .reduce(
+                || {
+                    (
+                        DMatrix::<f64>::zeros(nu, nu),
+                        DVector::<f64>::zeros(nu),
+                        0.0,
+                        0usize,
+                    )
+                },
+                |a, b| (a.0 + b.0, a.1 + b.1, a.2 + b.2, a.3 + b.3),
+            );
+        let (mut n_mat, mut rhs, vv, nobs) = assembled;
+        let observed = per.iter().filter(|x| x.2.len() >= 2).count();
+        if observed == 0 {
+            return Err(OslsmError::NoObservations);
+        }
+        // Unknowns: posts, radiometry, and one D per observed groundel.
+        let dof = (nobs as f64 - (nu + observed) as f64).max(1.0);
+        let sigma0 = (vv / dof).sqrt();
+        // Curvature observations, weighted by rule.
+        let mean_info = (0..n_posts).map(|i| n_mat[(i, i)]).sum::<f64>() / n_posts as f64;
+        let w = p.smoothness * mean_info.max(1e-12);
+        let mut curve = |a: usize, b: usize, c: usize, z: &[f64]| {
+            let l = -(z[a] - 2.0 * z[b] + z[c]);
+            let r = [(a, 1.0), (b, -2.0), (c, 1.0)];
+            for &(i, ci) in &r {
+                rhs[i] += w * ci * l;
+                for &(j, cj) in &r {
+                    n_mat[(i, j)] += w * ci * cj;
+                }
+            }
+        };
+        for j in 0..g.rows {
+            for i in 1..g.cols.saturating_sub(1) {
+                let k = j * g.cols + i;
+                curve(k - 1, k, k + 1, &g.z);
+            }
+        }
+        for j in 1..g.rows.saturating_sub(1) {
+            for i in 0..g.cols {
+                let k = j * g.cols + i;
+                curve(k - g.cols, k, k + g.cols, &g.z);
+            }
+        }
+        if sigma0 > p.diverging_ratio * best_sigma0 {
+            return Err(OslsmError::Diverged {
+                iteration,
+                sigma0,
+                best: best_sigma0,
+            });
+        }
+        best_sigma0 = best_sigma0.min(sigma0);
+        let chol = n_mat
+            .clone()
+            .cholesky()
+            .ok_or(OslsmError::Singular { iteration })?;
+        let dx = chol.solve(&rhs);
+        // Back-substitution of each groundel's dD, then the updates.
+        let dd: Vec<f64> = per
+            .par_iter()
+            .enumerate()
+            .map(|(n, (_, _, obs))| {
+                if obs.len() < 2 || !d[n].is_finite() {
+                    return 0.0;
+                }
+                let gr = &groundels[n];
+                let (mut ndd, mut bd) = (0.0, 0.0);
+                for o in obs {
+                    let [a, b] = radiometry[o.photo];
+                    let l = o.g - a - b * d[n];
+                    let mut rest = 0.0;
+                    for (c, wt) in gr.weights.iter().enumerate() {
+                        rest += o.dg_dz * wt * dx[gr.posts[c]];
+                    }
+                    if o.photo > 0 {
+                        rest += -dx[rad(o.photo)] - d[n] * dx[rad(o.photo) + 1];
+                    }
+                    // −b·dD = −l − rest  ⇒ least squares over the photos.
+                    ndd += b * b;
+                    bd += -b * (-l - rest);
+                }
+                bd / ndd
+            })
+            .collect();
+        for (dn, ddn) in d.iter_mut().zip(&dd) {
+            if dn.is_finite() {
+                *dn += ddn;
+            }
+        }
+        for k in 1..kp {
+            radiometry[k][0] += dx[rad(k)];
+            radiometry[k][1] += dx[rad(k) + 1];
+        }
+        let (mut max_move, mut ss) = (0.0f64, 0.0);
+        for (z, dz) in g.z.iter_mut().zip(dx.iter()) {
+            *z += dz;
+            max_move = max_move.max(dz.abs());
+            ss += dz * dz;
+        }
+        iterations.push(Iteration {
+            sigma0,
+            max_move_m: max_move,
+            rms_move_m: (ss / n_posts as f64).sqrt(),
+        });
+        last_move = max_move;
+        if !max_move.is_finite() {
+            return Err(OslsmError::Singular { iteration });
+        }
+        if max_move < p.converged_m {
+            // The precision from the normal matrix of the last linearisation.
+            let inv = chol.inverse();
+            let sigma_z = (0..n_posts)
+                .map(|i| sigma0 * inv[(i, i)].max(0.0).sqrt())
+                .collect();
+            let sigma_radiometry = (0..kp)
+                .map(|k| {
+                    if k == 0 {
+                        [0.0, 0.0]
+                    } else {
+                        [
+                            sigma0 * inv[(rad(k), rad(k))].max(0.0).sqrt(),
+                            sigma0 * inv[(rad(k) + 1, rad(k) + 1)].max(0.0).sqrt(),
+                        ]
+                    }
+                })
+                .collect();
+            for (dn, c) in d.iter_mut().zip(&seen_by) {
+                if *c < 2 {
+                    *dn = f64::NAN;
+                }
+            }
+            return Ok(Refinement {
+                z: g.z,
+                sigma_z,
+                d,
+                seen_by,
+                radiometry,
+                sigma_radiometry,
+                sigma0,
+                iterations,
+            });
+        }
+        // The terrain moved: who sees what may have changed.
+        sees = sight(photos, &g, &groundels);
+    }
+    Err(OslsmError::NoConvergence {
+        iterations: p.max_iterations,
+        last_move_m: last_move,
+    })
+}
+
+/// Which photos see each groundel on the terrain of `g`: only these observe it.
+pub fn sight(photos: &[View<'_>], g: &Grids, groundels: &[Groundel]) -> Vec<Vec<bool>> {
+    let top = g.z.iter().copied().fold(f64::MIN, f64::max);
+    groundels
+        .par_iter()
+        .map(|gr| {
+            let pt = GroundM::new(gr.x, gr.y, g.z_at(gr));
+            photos
+                .iter()
+                .map(|v| visible(v.sensor, pt, g, top))
+                .collect()
+        })
+        .collect()
+}
+
+/// The weight of a photo's grey value in a groundel's back-mapped reflectance: the cosine²
+/// of its ray's angle from the vertical (seed 001 3.3.3 e: "the weight is assigned according
+/// to the slope of ray").
+fn steepness(sensor: &(dyn crate::geometry::Sensor + Sync), gr: &Groundel, z: f64) -> f64 {
+    let p = GroundM::new(gr.x, gr.y, z);
+    let Some(q) = sensor.ground_to_image(p) else {
+        return 0.0;
+    };
+    match (
+        sensor.image_to_ground(q, z),
+        sensor.image_to_ground(q, z + 1.0),
+    ) {
+        (Some(a), Some(b)) => 1.0 / (1.0 + (b.x - a.x).powi(2) + (b.y - a.y).powi(2)),
+        _ => 0.0,
+    }
+}
