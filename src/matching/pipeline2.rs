@@ -229,6 +229,22 @@ impl ModelFigures {
     }
 }
 
+/// A vertical photo (ω = φ = κ = 0, principal point at the centre) from `centre`, a square
+/// image of `side` pixels of `pixel_mm`: the closed-form case of the matchers' tests.
+pub fn vertical_sensor(centre: GroundM, focal_mm: f64, side: usize, pixel_mm: f64) -> FrameSensor {
+    FrameSensor {
+        camera: FrameCamera {
+            interior: Interior {
+                focal_mm,
+                principal_point: crate::coords::PhotoMm::new(0.0, 0.0),
+            },
+            exterior: crate::geometry::Exterior::from_degrees(0.0, 0.0, 0.0, centre),
+        },
+        frame: centred_grid(side, side, pixel_mm).into(),
+        exterior_cov: None,
+    }
+}
+
 /// The grid of a plain image with square pixels of `pixel_mm`, its centre on the photo
 /// coordinates' origin: x = (col − (W−1)/2)·p, y = ((H−1)/2 − row)·p at pixel centres.
 pub fn centred_grid(width: usize, height: usize, pixel_mm: f64) -> PhotoGrid {
@@ -786,21 +802,9 @@ pub(crate) fn write_model(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::coords::PhotoMm;
-    use crate::geometry::Exterior;
 
     fn vertical(x0: f64, z0: f64) -> FrameSensor {
-        FrameSensor {
-            camera: FrameCamera {
-                interior: Interior {
-                    focal_mm: 153.0,
-                    principal_point: PhotoMm::new(0.0, 0.0),
-                },
-                exterior: Exterior::from_degrees(0.0, 0.0, 0.0, GroundM::new(x0, 0.0, z0)),
-            },
-            frame: centred_grid(2000, 2000, 0.1).into(),
-            exterior_cov: None,
-        }
+        vertical_sensor(GroundM::new(x0, 0.0, z0), 153.0, 2000, 0.1)
     }
 
     /// Two vertical photos with base B at height Z₀: x-parallax p = f·B/(Z₀ − h) (in pixels of

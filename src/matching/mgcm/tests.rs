@@ -5,10 +5,10 @@
 use super::adjust::{solve, AdjustParams, Constraint, View};
 use super::point::{match_point, RayRejection, RayTests};
 use super::pyramid::Textured;
-use crate::coords::{GroundM, PhotoMm, PixelXY};
-use crate::geometry::{Exterior, FrameCamera, FrameSensor, Interior, Sensor};
+use crate::coords::{GroundM, PixelXY};
+use crate::geometry::{FrameSensor, Sensor};
 use crate::image::ImageF32;
-use crate::matching::pipeline2::centred_grid;
+use crate::matching::pipeline2::vertical_sensor;
 
 const F_MM: f64 = 153.0;
 const PIX_MM: f64 = 0.1;
@@ -17,17 +17,7 @@ const PLANE: f64 = 50.0;
 const SIDE: usize = 600;
 
 fn vertical(x0: f64, y0: f64) -> FrameSensor {
-    FrameSensor {
-        camera: FrameCamera {
-            interior: Interior {
-                focal_mm: F_MM,
-                principal_point: PhotoMm::new(0.0, 0.0),
-            },
-            exterior: Exterior::from_degrees(0.0, 0.0, 0.0, GroundM::new(x0, y0, Z0)),
-        },
-        frame: centred_grid(SIDE, SIDE, PIX_MM).into(),
-        exterior_cov: None,
-    }
+    vertical_sensor(GroundM::new(x0, y0, Z0), F_MM, SIDE, PIX_MM)
 }
 
 /// A texture on the ground: sinusoids of 4.4-30 m wavelength (7-48 px) in several

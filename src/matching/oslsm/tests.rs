@@ -3,12 +3,12 @@
 //! (independently of the matcher's back-mapping), each pixel the mean of 3 × 3 rays.
 
 use super::*;
-use crate::coords::{GroundM, PhotoMm, PixelXY};
-use crate::geometry::{Exterior, FrameCamera, FrameSensor, Interior, Sensor};
+use crate::coords::{GroundM, PixelXY};
+use crate::geometry::{FrameSensor, Sensor};
 use crate::image::ImageF32;
 use crate::matching::mgcm::pyramid::Textured;
 use crate::matching::mgcm::View;
-use crate::matching::pipeline2::centred_grid;
+use crate::matching::pipeline2::vertical_sensor;
 
 const F_MM: f64 = 153.0;
 const PIX_MM: f64 = 0.1;
@@ -16,17 +16,7 @@ const Z0: f64 = 1000.0;
 const SIDE: usize = 400;
 
 fn camera(x0: f64, y0: f64) -> FrameSensor {
-    FrameSensor {
-        camera: FrameCamera {
-            interior: Interior {
-                focal_mm: F_MM,
-                principal_point: PhotoMm::new(0.0, 0.0),
-            },
-            exterior: Exterior::from_degrees(0.0, 0.0, 0.0, GroundM::new(x0, y0, Z0)),
-        },
-        frame: centred_grid(SIDE, SIDE, PIX_MM).into(),
-        exterior_cov: None,
-    }
+    vertical_sensor(GroundM::new(x0, y0, Z0), F_MM, SIDE, PIX_MM)
 }
 
 /// Reflectance: waves of 3-12 m (5-20 px at 0.6 m on the ground) in several directions.
