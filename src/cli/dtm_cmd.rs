@@ -182,7 +182,6 @@ fn run_format2(
     print_format2(&p, &r, out, json, strict)
 }
 
-/// The report of an MGCM run.
 /// A run's exit code: `DOUBTFUL` when it warned and `--strict` asks scripts to stop there.
 fn exit_code(doubtful: bool, strict: bool) -> i32 {
     if strict && doubtful {
@@ -192,6 +191,7 @@ fn exit_code(doubtful: bool, strict: bool) -> i32 {
     }
 }
 
+/// The report of an MGCM run.
 fn print_mgcm(
     r: &rig::matching::mgcm::run::MgcmReport,
     out: &std::path::Path,

@@ -149,6 +149,10 @@ pub struct Solution {
     pub sigma: [f64; 3],
     /// The formal ones: σ₀·√Q from the normal matrix, m.
     pub sigma_formal: [f64; 3],
+    /// The orientations' part of `sigma`, m: an error common to neighbouring points (tests
+    /// that compare a point with its neighbours leave it out).
+    #[serde(default)]
+    pub sigma_orientation: [f64; 3],
     /// σ₀ of the grey values (unit weight).
     pub sigma0: f64,
     pub iterations: usize,
@@ -525,8 +529,9 @@ fn centre_rates(
 }
 
 /// vᵀ·C·v for a 2-vector and a 2 × 2 covariance.
+/// (Never below 0: a covariance a little short of semi-definite must not cut a variance.)
 fn quadratic(v: [f64; 2], c: [[f64; 2]; 2]) -> f64 {
-    v[0] * (c[0][0] * v[0] + c[0][1] * v[1]) + v[1] * (c[1][0] * v[0] + c[1][1] * v[1])
+    (v[0] * (c[0][0] * v[0] + c[0][1] * v[1]) + v[1] * (c[1][0] * v[0] + c[1][1] * v[1])).max(0.0)
 }
 
 /// Adds observation `row` (non-zero only at the point's unknowns and at patch `base`'s) with
@@ -700,13 +705,37 @@ fn finish(
     // What the orientations' own uncertainty needs: the reference's pointing covariance,
     // each search photo's pixels per reference pixel at the point's height (Tₖ), and the
     // reference ray's sideways ground displacement per pixel (L).
-    let reference_pointing = reference.sensor.pointing_covariance(point);
-    let transfers: Vec<[[f64; 2]; 2]> = searches
+    let reference_pointing = reference
+        .sensor
+        .pointing_covariance(point)
+        .filter(|c| c.iter().flatten().all(|v| v.is_finite()));
+    // Each search photo's pointing covariance, the project's pointing error between photos
+    // added (px²).
+    let pointing: Vec<[[f64; 2]; 2]> = searches
         .iter()
-        .map(|s| local_shape(reference.sensor, s.sensor, qc, point.z))
-        .collect::<Option<_>>()
-        .ok_or(PointFailure::NoRay)?;
-    let lateral = {
+        .map(|s| {
+            let mut c = s
+                .sensor
+                .pointing_covariance(point)
+                .filter(|c| c.iter().flatten().all(|v| v.is_finite()))
+                .unwrap_or([[0.0; 2]; 2]);
+            c[0][0] += p.orientation_px.powi(2);
+            c[1][1] += p.orientation_px.powi(2);
+            c
+        })
+        .collect();
+    let transfers: Vec<[[f64; 2]; 2]> = if reference_pointing.is_some() {
+        searches
+            .iter()
+            .map(|s| local_shape(reference.sensor, s.sensor, qc, point.z))
+            .collect::<Option<_>>()
+            .ok_or(PointFailure::NoRay)?
+    } else {
+        vec![[[0.0; 2]; 2]; searches.len()]
+    };
+    let lateral = if reference_pointing.is_none() {
+        [[0.0; 2]; 2]
+    } else {
         let at = |dc: f64, dr: f64| {
             reference
                 .sensor
@@ -721,6 +750,7 @@ fn finish(
     };
     let mut sigma_formal = [0.0; 3];
     let mut sigma = [0.0; 3];
+    let mut sigma_orientation = [0.0; 3];
     let lag = (h / 2).max(1);
     let inside = vec![true; side * side];
     for axis in 0..3 {
@@ -770,14 +800,7 @@ fn finish(
             let s = these.iter().zip(hv).fold([0.0; 2], |acc, ((_, _, d), hi)| {
                 [acc[0] - hi * d[0], acc[1] - hi * d[1]]
             });
-            let mut c = searches[k]
-                .sensor
-                .pointing_covariance(point)
-                .unwrap_or([[0.0; 2]; 2]);
-            // The project's pointing error, between each search photo and the reference.
-            c[0][0] += p.orientation_px.powi(2);
-            c[1][1] += p.orientation_px.powi(2);
-            orientation += quadratic(s, c);
+            orientation += quadratic(s, pointing[k]);
             let t = &transfers[k];
             through_reference[0] += s[0] * t[0][0] + s[1] * t[1][0];
             through_reference[1] += s[0] * t[0][1] + s[1] * t[1][1];
@@ -795,6 +818,7 @@ fn finish(
             orientation += quadratic(w, c);
         }
         let orientation_var = orientation;
+        sigma_orientation[axis] = orientation_var.sqrt();
         // The residuals' correlation (within a patch, and between photos through the
         // template) scales the model's variance by what it adds to white residuals' (never
         // below a quarter: a window too small to estimate it may read near zero).
@@ -813,6 +837,7 @@ fn finish(
         ground: point,
         sigma,
         sigma_formal,
+        sigma_orientation,
         sigma0: sigma0_sq.sqrt(),
         iterations,
         rays,

@@ -490,7 +490,12 @@ fn neighbourhood_tests(points: &mut [FinePoint], radius_px: f64, m_per_px: f64) 
         .filter_map(|(k, p)| {
             let s = p.result.solution.as_ref().ok()?;
             let (c, r) = p.result.pixel;
-            Some((k, (c as f64, r as f64), s.ground.z, s.sigma0, s.sigma[2]))
+            // σ_Z without the orientations' part: neighbours share it, their plane absorbs
+            // it, and counting it would loosen the test in resected blocks.
+            let local = (s.sigma[2].powi(2) - s.sigma_orientation[2].powi(2))
+                .max(0.0)
+                .sqrt();
+            Some((k, (c as f64, r as f64), s.ground.z, s.sigma0, local))
         })
         .collect();
     let mut buckets: std::collections::HashMap<(i64, i64), Vec<usize>> = Default::default();

@@ -291,12 +291,31 @@ fn an_occluded_ray_is_rejected() {
 /// point solved again; the σ's orientation part, with a rank-one covariance Δ·Δᵀ for that
 /// photo, must be |the coordinate's change| (a linear propagation of a known error is exact
 /// to first order), for the reference (whose error moves the ray sideways and every patch
-/// at once; within 2 %) and for a search photo (within 10 %), in X, Y and Z.
+/// at once) and for a search photo, in X, Y and Z, with hard constraints (shape from the
+/// geometry) and with soft ones (affine patches): within 3 %, a search photo's with hard
+/// constraints within 15 %.
 #[test]
 fn a_wrong_orientation_moves_the_point_as_its_propagated_covariance_says() {
-    let b = Block::new(&[(100.0, 0.0), (60.0, 45.0)], 0.0);
-    let p = AdjustParams::default();
-    let q0 = (285, 312);
+    // Photo 2 higher and turned by 30° (Tₖ then is no identity; a transposed Tₖ or L
+    // would show), a template 1.5 mm off the reference's nadir (the ray leans).
+    let mut b = Block::new(&[(100.0, 0.0), (60.0, 45.0)], 0.0);
+    b.sensors[2] = vertical_sensor(GroundM::new(60.0, 45.0, Z0 + 150.0), F_MM, SIDE, PIX_MM);
+    b.sensors[2].camera.exterior.kappa = 30f64.to_radians();
+    b.images[2] = render(&b.sensors[2], &texture, 0.0, 3);
+    let q0 = (230, 345);
+    for p in [
+        AdjustParams::default(),
+        AdjustParams {
+            constraint: Constraint::Soft { sigma_px: 0.02 },
+            affine: true,
+            ..Default::default()
+        },
+    ] {
+        orientation_cases(&b, q0, &p);
+    }
+}
+
+fn orientation_cases(b: &Block, q0: (usize, usize), p: &AdjustParams) {
     let solve_with = |s: &[FrameSensor]| {
         let v: Vec<View> = (0..3)
             .map(|k| View {
@@ -304,7 +323,7 @@ fn a_wrong_orientation_moves_the_point_as_its_propagated_covariance_says() {
                 sensor: &s[k],
             })
             .collect();
-        solve(v[0], q0, &v[1..], PLANE + 2.0, &p).unwrap()
+        solve(v[0], q0, &v[1..], PLANE + 2.0, p).unwrap()
     };
     let exact = solve_with(&b.sensors);
     let cases: [(usize, [f64; 6]); 5] = [
@@ -336,22 +355,26 @@ fn a_wrong_orientation_moves_the_point_as_its_propagated_covariance_says() {
             let part = (propagated.sigma[a].powi(2) - exact.sigma[a].powi(2))
                 .max(0.0)
                 .sqrt();
-            // The reference's error moves every patch at once, along the geometry; a search
-            // photo's alone is weighed against the others' by the patches' Sobel slopes,
-            // which damp the shortest waves (7 px) unequally along each photo's epipolar
-            // direction: a few per cent.
-            let tol = if k == 0 { 0.02 } else { 0.1 };
+            // A photo is weighed against the others by the patches' Sobel slopes, which damp
+            // the shortest waves (7 px) unequally along each photo's epipolar direction (a
+            // few per cent); with hard constraints and the shape from the geometry, the
+            // model sensor's shape moves too, which the propagation leaves out (up to 11 %
+            // for a search photo here).
+            let tol = match (k, p.constraint) {
+                (1.., Constraint::Hard) => 0.15,
+                _ => 0.03,
+            };
             assert!(
                 (part - change[a].abs()).abs() < tol * change[a].abs() + 0.003,
-                "photo {k}, Δ {d:?}, axis {a}: propagated {part:.4} m, moved {:.4} m",
+                "{:?}: photo {k}, Δ {d:?}, axis {a}: propagated {part:.4} m, moved {:.4} m",
+                p.constraint,
                 change[a]
             );
         }
-        // Not a trivial case: the wrong orientation moved the height by a tenth of a pixel
-        // of parallax or more.
-        assert!(
-            change[2].abs() > 0.1 * m_per_px(100.0),
-            "photo {k}: {change:?}"
-        );
+        // Not a trivial case: the wrong orientation moved the point by 5 cm or more (with
+        // soft constraints and affine patches a search photo's error mostly moves its patch
+        // off the epipolar line, not the point).
+        let moved = (change[0].powi(2) + change[1].powi(2) + change[2].powi(2)).sqrt();
+        assert!(moved > 0.05, "photo {k}: {change:?}");
     }
 }

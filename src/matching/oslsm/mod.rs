@@ -3,10 +3,12 @@
 //! its [`crate::geometry::Sensor`] only (frame, pushbroom or RPC alike).
 
 pub mod grids;
+pub mod patches;
 pub mod solve;
 pub mod visibility;
 
 pub use grids::{Grids, Groundel};
+pub use patches::{refine_block, Merged, PatchLayout, PatchReport};
 pub use solve::{refine, sight, Iteration, OslsmError, OslsmParams, Refinement};
 pub use visibility::visible;
 

@@ -1,0 +1,240 @@
+//! The object-space matching of a whole block, patch by patch (seed 001 3.3.3 j: "the grid
+//! DEM is separately generated patch by patch ... the aggregation of the whole DEM"):
+//! overlapping patches of posts, each refined on its own (its own offsets and gains: the
+//! seed's local radiometric correction), merged with weights that fall linearly to zero
+//! across the overlap, so that no seam shows where one patch hands over to the next.
+
+use super::grids::Grids;
+use super::solve::{refine, OslsmError, OslsmParams, Refinement};
+use crate::matching::mgcm::View;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+/// How the block is cut.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct PatchLayout {
+    /// Posts along each side of a patch.
+    pub posts: usize,
+    /// Posts shared by neighbouring patches.
+    pub overlap: usize,
+}
+
+impl Default for PatchLayout {
+    fn default() -> Self {
+        PatchLayout {
+            posts: 24,
+            overlap: 4,
+        }
+    }
+}
+
+/// One patch's outcome.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PatchReport {
+    /// First post (column, row) and size in posts.
+    pub first: [usize; 2],
+    pub size: [usize; 2],
+    /// Its offsets and gains per photo, σ₀ and iterations; or why it failed (its posts keep
+    /// the coarse heights, with no σ).
+    pub radiometry: Option<Vec<[f64; 2]>>,
+    pub sigma0: Option<f64>,
+    pub iterations: usize,
+    pub failure: Option<OslsmError>,
+}
+
+/// The block, merged.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Merged {
+    pub z: Vec<f64>,
+    /// NaN where no patch refined the post.
+    pub sigma_z: Vec<f64>,
+    /// Reflectance per groundel (NaN where none).
+    pub d: Vec<f64>,
+    pub patches: Vec<PatchReport>,
+}
+
+/// A patch's first post (column, row), its size (columns, rows) and its refinement.
+type PatchOutcome = (usize, usize, usize, usize, Result<Refinement, OslsmError>);
+
+/// Starts of the patches along one axis of `n` posts.
+fn starts(n: usize, size: usize, overlap: usize) -> Vec<usize> {
+    if n <= size {
+        return vec![0];
+    }
+    let step = size - overlap;
+    let mut v: Vec<usize> = (0..)
+        .map(|k| k * step)
+        .take_while(|&s| s + size < n)
+        .collect();
+    v.push(n - size);
+    v.dedup();
+    v
+}
+
+/// A post's weight in its patch: 1 inside, falling linearly to near zero over the
+/// `overlap` posts at each edge that another patch shares.
+fn ramp(i: usize, n: usize, overlap: usize, open_low: bool, open_high: bool) -> f64 {
+    let o = overlap.max(1) as f64;
+    let mut w: f64 = 1.0;
+    if open_low {
+        w = w.min((i as f64 + 1.0) / (o + 1.0));
+    }
+    if open_high {
+        w = w.min((n - i) as f64 / (o + 1.0));
+    }
+    w
+}
+
+/// Refines the whole of `coarse` patch by patch and merges the patches.
+pub fn refine_block(
+    photos: &[View<'_>],
+    coarse: &Grids,
+    layout: PatchLayout,
+    p: &OslsmParams,
+) -> Merged {
+    let size = layout.posts.max(2);
+    let overlap = layout.overlap.min(size - 1);
+    let cs = starts(coarse.cols, size, overlap);
+    let rs = starts(coarse.rows, size, overlap);
+    let jobs: Vec<(usize, usize)> = rs
+        .iter()
+        .flat_map(|&r| cs.iter().map(move |&c| (c, r)))
+        .collect();
+    let results: Vec<PatchOutcome> = jobs
+        .par_iter()
+        .map(|&(c0, r0)| {
+            let w = size.min(coarse.cols - c0);
+            let h = size.min(coarse.rows - r0);
+            let sub = Grids {
+                x0: coarse.x0 + c0 as f64 * coarse.post_m,
+                y0: coarse.y0 + r0 as f64 * coarse.post_m,
+                post_m: coarse.post_m,
+                cols: w,
+                rows: h,
+                z: (0..h)
+                    .flat_map(|j| (0..w).map(move |i| (r0 + j) * coarse.cols + c0 + i))
+                    .map(|k| coarse.z[k])
+                    .collect(),
+                per_cell: coarse.per_cell,
+            };
+            (c0, r0, w, h, refine(photos, &sub, p))
+        })
+        .collect();
+    let n = coarse.z.len();
+    let (gu, gv) = coarse.groundels();
+    let m = coarse.per_cell;
+    let (mut zs, mut ss, mut ws) = (vec![0.0; n], vec![0.0; n], vec![0.0; n]);
+    let (mut ds, mut dw) = (vec![0.0; gu * gv], vec![0.0; gu * gv]);
+    let mut patches = Vec::with_capacity(results.len());
+    for (c0, r0, w, h, res) in results {
+        let open = [c0 > 0, c0 + w < coarse.cols, r0 > 0, r0 + h < coarse.rows];
+        match res {
+            Ok(r) => {
+                for j in 0..h {
+                    for i in 0..w {
+                        let wt = ramp(i, w, overlap, open[0], open[1])
+                            * ramp(j, h, overlap, open[2], open[3]);
+                        let k = (r0 + j) * coarse.cols + c0 + i;
+                        let l = j * w + i;
+                        zs[k] += wt * r.z[l];
+                        ss[k] += wt * r.sigma_z[l];
+                        ws[k] += wt;
+                    }
+                }
+                // Groundels: the weight of the post cell they lie in, by their place in it.
+                let (pu, pv) = ((w - 1) * m, (h - 1) * m);
+                for v in 0..pv {
+                    for u in 0..pu {
+                        let d = r.d[v * pu + u];
+                        if !d.is_finite() {
+                            continue;
+                        }
+                        let fi = (u as f64 + 0.5) / m as f64;
+                        let fj = (v as f64 + 0.5) / m as f64;
+                        let wt = cont_ramp(fi, w, overlap, open[0], open[1])
+                            * cont_ramp(fj, h, overlap, open[2], open[3]);
+                        let k = (r0 * m + v) * gu + c0 * m + u;
+                        ds[k] += wt * d;
+                        dw[k] += wt;
+                    }
+                }
+                patches.push(PatchReport {
+                    first: [c0, r0],
+                    size: [w, h],
+                    radiometry: Some(r.radiometry.clone()),
+                    sigma0: Some(r.sigma0),
+                    iterations: r.iterations.len(),
+                    failure: None,
+                });
+            }
+            Err(e) => patches.push(PatchReport {
+                first: [c0, r0],
+                size: [w, h],
+                radiometry: None,
+                sigma0: None,
+                iterations: 0,
+                failure: Some(e),
+            }),
+        }
+    }
+    let z = (0..n)
+        .map(|k| {
+            if ws[k] > 0.0 {
+                zs[k] / ws[k]
+            } else {
+                coarse.z[k]
+            }
+        })
+        .collect();
+    let sigma_z = (0..n)
+        .map(|k| if ws[k] > 0.0 { ss[k] / ws[k] } else { f64::NAN })
+        .collect();
+    let d = ds
+        .iter()
+        .zip(&dw)
+        .map(|(s, w)| if *w > 0.0 { s / w } else { f64::NAN })
+        .collect();
+    Merged {
+        z,
+        sigma_z,
+        d,
+        patches,
+    }
+}
+
+/// [`ramp`] at a continuous post coordinate `f` (0 at the first post).
+fn cont_ramp(f: f64, n: usize, overlap: usize, open_low: bool, open_high: bool) -> f64 {
+    let o = overlap.max(1) as f64;
+    let mut w: f64 = 1.0;
+    if open_low {
+        w = w.min((f + 1.0) / (o + 1.0));
+    }
+    if open_high {
+        w = w.min((n as f64 - 1.0 - f + 1.0) / (o + 1.0));
+    }
+    w
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn patches_cover_every_post_and_overlap_as_asked() {
+        assert_eq!(starts(10, 24, 4), vec![0]);
+        assert_eq!(starts(24, 24, 4), vec![0]);
+        assert_eq!(starts(25, 24, 4), vec![0, 1]);
+        assert_eq!(starts(60, 24, 4), vec![0, 20, 36]);
+        for n in [25, 44, 60, 101] {
+            let s = starts(n, 24, 4);
+            assert_eq!(*s.last().unwrap() + 24, n);
+            for w in s.windows(2) {
+                assert!(w[1] > w[0] && w[1] <= w[0] + 20, "{s:?}");
+            }
+        }
+        // Weights: 1 inside, positive everywhere, lower at a shared edge.
+        assert_eq!(ramp(0, 24, 4, false, true), 1.0);
+        assert!(ramp(23, 24, 4, false, true) > 0.0 && ramp(23, 24, 4, false, true) < 0.25);
+        assert_eq!(ramp(10, 24, 4, true, true), 1.0);
+    }
+}
