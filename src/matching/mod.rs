@@ -8,6 +8,7 @@ pub use pmf_set::{PmfSet, StereoPoint};
 pub use point::MatchedPoint;
 pub mod accuracy;
 pub mod block_match;
+pub mod edge_strings;
 pub mod grid;
 pub mod html;
 pub mod maps;
