@@ -911,6 +911,7 @@ impl Controller for GrblController {
         }
         let deadline = Instant::now() + timeout;
         let mut idle_with_inflight: Option<Instant> = None;
+        let mut stale_since: Option<Instant> = None;
         let mut error_reply = None;
         loop {
             // Replies: the dwell's `ok` is the fast path; an error is remembered.
@@ -927,10 +928,20 @@ impl Controller for GrblController {
                 return Err(StageError::MotionTimeout { after: timeout });
             }
             if self.stale_reports && !self.inflight.is_empty() {
-                // A question went unanswered: no report is believed until the next reply.
+                // A question went unanswered: no report is believed until the next reply. If
+                // the line in flight lost its answer on the wire too, none would ever come
+                // (GRBL answers a line when it takes it, not when the motion ends): so after
+                // a while without one, ask for one, with an empty line (answered `ok` in turn;
+                // the answer lost before it is then taken as lost once the board idles).
+                let since = *stale_since.get_or_insert_with(Instant::now);
+                if since.elapsed() > REPLY_TIMEOUT * 2 {
+                    self.send_line("")?;
+                    stale_since = Some(Instant::now());
+                }
                 self.pump(deadline.min(Instant::now() + POLL * 4))?;
                 continue;
             }
+            stale_since = None;
             // GRBL answers `?` at once, ahead of lines still waiting in its buffer: only a
             // report requested after the last answer arrived speaks for those lines.
             let all_answered = self.inflight.is_empty();
