@@ -85,13 +85,24 @@ fn ramp(i: usize, n: usize, overlap: usize, open_low: bool, open_high: bool) -> 
     w
 }
 
-/// Refines the whole of `coarse` patch by patch and merges the patches.
+/// Refines the whole of `coarse` patch by patch and merges the patches (a patch that fails
+/// keeps the coarse heights and says why in its report).
 pub fn refine_block(
     photos: &[View<'_>],
     coarse: &Grids,
     layout: PatchLayout,
     p: &OslsmParams,
-) -> Merged {
+) -> Result<Merged, OslsmError> {
+    let posts = coarse.cols.saturating_mul(coarse.rows);
+    if coarse.z.len() != posts {
+        return Err(OslsmError::Inconsistent {
+            posts,
+            heights: coarse.z.len(),
+        });
+    }
+    if !(1..=64).contains(&coarse.per_cell) {
+        return Err(OslsmError::Groundels(coarse.per_cell));
+    }
     let size = layout.posts.max(2);
     let overlap = layout.overlap.min(size - 1);
     let cs = starts(coarse.cols, size, overlap);
@@ -194,12 +205,12 @@ pub fn refine_block(
         .zip(&dw)
         .map(|(s, w)| if *w > 0.0 { s / w } else { f64::NAN })
         .collect();
-    Merged {
+    Ok(Merged {
         z,
         sigma_z,
         d,
         patches,
-    }
+    })
 }
 
 /// [`ramp`] at a continuous post coordinate `f` (0 at the first post).

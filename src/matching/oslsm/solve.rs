@@ -34,6 +34,10 @@ use nalgebra::{DMatrix, DVector};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
+/// Unknowns of one patch at the most: its dense normal matrix is then 200 MB (a block is cut
+/// into patches by [`super::refine_block`]).
+pub const MAX_UNKNOWNS: usize = 5000;
+
 /// Parameters of the adjustment.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct OslsmParams {
@@ -65,6 +69,16 @@ pub enum OslsmError {
     TooFewPhotos(usize),
     #[error("the grids are too small: {cols} × {rows} posts (at least 2 × 2)")]
     TooSmall { cols: usize, rows: usize },
+    #[error("{unknowns} unknowns in one patch: the dense normal matrix would take {mib} MiB (at most {max} unknowns: cut the block into smaller patches)")]
+    TooBig {
+        unknowns: usize,
+        max: usize,
+        mib: u64,
+    },
+    #[error("{heights} heights for {posts} posts")]
+    Inconsistent { posts: usize, heights: usize },
+    #[error("the groundels: {0} to a post cell (1 to 64)")]
+    Groundels(usize),
     #[error("no groundel is seen by two photos")]
     NoObservations,
     #[error("the normal equations are singular at iteration {iteration}")]
@@ -161,11 +175,28 @@ pub fn refine(
             rows: grids.rows,
         });
     }
+    // Unknowns: the posts, then offset and gain of photos 1..K; refused before anything is
+    // allocated when the dense normal matrix (and one per worker) would be large.
+    let n_posts = grids.cols.saturating_mul(grids.rows);
+    let nu = n_posts.saturating_add(2 * (kp - 1));
+    if nu > MAX_UNKNOWNS {
+        return Err(OslsmError::TooBig {
+            unknowns: nu,
+            max: MAX_UNKNOWNS,
+            mib: ((nu as u64).saturating_mul(nu as u64) * 8) >> 20,
+        });
+    }
+    if grids.z.len() != n_posts {
+        return Err(OslsmError::Inconsistent {
+            posts: n_posts,
+            heights: grids.z.len(),
+        });
+    }
+    if !(1..=64).contains(&grids.per_cell) {
+        return Err(OslsmError::Groundels(grids.per_cell));
+    }
     let mut g = grids.clone();
     let (gu, gv) = g.groundels();
-    let n_posts = g.cols * g.rows;
-    // Unknowns: the posts, then offset and gain of photos 1..K.
-    let nu = n_posts + 2 * (kp - 1);
     let rad = |k: usize| n_posts + 2 * (k - 1);
     let mut radiometry = vec![[0.0, 1.0]; kp];
     let groundels: Vec<_> = (0..gv)

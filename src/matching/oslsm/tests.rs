@@ -2,6 +2,7 @@
 //! known: vertical photos rendered here by intersecting each pixel's rays with the terrain
 //! (independently of the matcher's back-mapping), each pixel the mean of 3 × 3 rays.
 
+use super::solve::MAX_UNKNOWNS;
 use super::*;
 use crate::coords::{GroundM, PixelXY};
 use crate::geometry::{FrameSensor, Sensor};
@@ -295,7 +296,8 @@ fn patches_merge_without_a_seam() {
         &g,
         layout,
         &OslsmParams::default(),
-    );
+    )
+    .unwrap();
     assert_eq!(m.patches.len(), 4, "{:?}", m.patches);
     for pr in &m.patches {
         assert!(pr.failure.is_none(), "{pr:?}");
@@ -326,4 +328,25 @@ fn patches_merge_without_a_seam() {
         "RMSE {rmse:.3} m, max {max:.3} m"
     );
     assert!(m.sigma_z.iter().all(|s| s.is_finite() && *s > 0.0));
+}
+
+/// A patch too large for a dense normal matrix is refused before anything is allocated.
+#[test]
+fn a_patch_too_large_is_refused_up_front() {
+    let sensors = [camera(0.0, 0.0), camera(120.0, 0.0)];
+    let blank = Textured::new(ImageF32::new(8, 8));
+    let images = [blank.clone(), blank];
+    let g = Grids {
+        x0: 0.0,
+        y0: 0.0,
+        post_m: 1.0,
+        cols: 100_000,
+        rows: 100_000,
+        z: Vec::new(),
+        per_cell: 1,
+    };
+    match refine(&views(&sensors, &images), &g, &OslsmParams::default()) {
+        Err(OslsmError::TooBig { unknowns, .. }) => assert!(unknowns > MAX_UNKNOWNS),
+        other => panic!("{other:?}"),
+    }
 }
