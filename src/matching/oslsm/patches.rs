@@ -71,16 +71,17 @@ fn starts(n: usize, size: usize, overlap: usize) -> Vec<usize> {
     v
 }
 
-/// A post's weight in its patch: 1 inside, falling linearly to near zero over the
-/// `overlap` posts at each edge that another patch shares.
-fn ramp(i: usize, n: usize, overlap: usize, open_low: bool, open_high: bool) -> f64 {
+/// A weight in a patch at post coordinate `f` (0 at its first post; groundels fall
+/// between posts): 1 inside, falling linearly to near zero over the `overlap` posts at each
+/// edge that another patch shares.
+fn ramp(f: f64, n: usize, overlap: usize, open_low: bool, open_high: bool) -> f64 {
     let o = overlap.max(1) as f64;
     let mut w: f64 = 1.0;
     if open_low {
-        w = w.min((i as f64 + 1.0) / (o + 1.0));
+        w = w.min((f + 1.0) / (o + 1.0));
     }
     if open_high {
-        w = w.min((n - i) as f64 / (o + 1.0));
+        w = w.min((n as f64 - f) / (o + 1.0));
     }
     w
 }
@@ -143,8 +144,8 @@ pub fn refine_block(
             Ok(r) => {
                 for j in 0..h {
                     for i in 0..w {
-                        let wt = ramp(i, w, overlap, open[0], open[1])
-                            * ramp(j, h, overlap, open[2], open[3]);
+                        let wt = ramp(i as f64, w, overlap, open[0], open[1])
+                            * ramp(j as f64, h, overlap, open[2], open[3]);
                         let k = (r0 + j) * coarse.cols + c0 + i;
                         let l = j * w + i;
                         zs[k] += wt * r.z[l];
@@ -162,8 +163,8 @@ pub fn refine_block(
                         }
                         let fi = (u as f64 + 0.5) / m as f64;
                         let fj = (v as f64 + 0.5) / m as f64;
-                        let wt = cont_ramp(fi, w, overlap, open[0], open[1])
-                            * cont_ramp(fj, h, overlap, open[2], open[3]);
+                        let wt = ramp(fi, w, overlap, open[0], open[1])
+                            * ramp(fj, h, overlap, open[2], open[3]);
                         let k = (r0 * m + v) * gu + c0 * m + u;
                         ds[k] += wt * d;
                         dw[k] += wt;
@@ -213,19 +214,6 @@ pub fn refine_block(
     })
 }
 
-/// [`ramp`] at a continuous post coordinate `f` (0 at the first post).
-fn cont_ramp(f: f64, n: usize, overlap: usize, open_low: bool, open_high: bool) -> f64 {
-    let o = overlap.max(1) as f64;
-    let mut w: f64 = 1.0;
-    if open_low {
-        w = w.min((f + 1.0) / (o + 1.0));
-    }
-    if open_high {
-        w = w.min((n as f64 - 1.0 - f + 1.0) / (o + 1.0));
-    }
-    w
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -244,8 +232,8 @@ mod tests {
             }
         }
         // Weights: 1 inside, positive everywhere, lower at a shared edge.
-        assert_eq!(ramp(0, 24, 4, false, true), 1.0);
-        assert!(ramp(23, 24, 4, false, true) > 0.0 && ramp(23, 24, 4, false, true) < 0.25);
-        assert_eq!(ramp(10, 24, 4, true, true), 1.0);
+        assert_eq!(ramp(0.0, 24, 4, false, true), 1.0);
+        assert!(ramp(23.0, 24, 4, false, true) > 0.0 && ramp(23.0, 24, 4, false, true) < 0.25);
+        assert_eq!(ramp(10.0, 24, 4, true, true), 1.0);
     }
 }

@@ -239,32 +239,40 @@ pub fn refine(
     let mut best_sigma0 = f64::INFINITY;
     let mut last_move = f64::INFINITY;
     for iteration in 1..=p.max_iterations {
-        // Indirect back-mapping (seed 001 3.3.3 e): each groundel's reflectance, the mean
-        // of what the photos seeing it show, in photo 0's grey values, weighted by the
-        // ray's steepness.
-        let per: Vec<(f64, u8, Vec<Obs>)> = groundels
+        // Each groundel's observations at the current heights; where it has no adjusted D
+        // yet (the first iteration, or newly seen), its indirect back-mapping (seed 001
+        // 3.3.3 e): the mean of what the photos seeing it show, in photo 0's grey values,
+        // weighted by the ray's steepness.
+        let per: Vec<(Option<f64>, u8, Vec<Obs>)> = groundels
             .par_iter()
             .zip(&sees)
-            .map(|(gr, s)| {
+            .zip(&d)
+            .map(|((gr, s), dn)| {
                 let mut obs = Vec::new();
-                observe(photos, s, gr, g.z_at(gr), &mut obs);
+                let z = g.z_at(gr);
+                observe(photos, s, gr, z, &mut obs);
+                // The adjusted D from the last iteration is kept where there is one.
+                let keep = iteration > 1 && dn.is_finite();
                 if obs.len() < 2 {
-                    return (f64::NAN, obs.len() as u8, Vec::new());
+                    let back = (!keep).then_some(f64::NAN);
+                    return (back, obs.len() as u8, Vec::new());
+                }
+                if keep {
+                    return (None, obs.len() as u8, obs);
                 }
                 let (mut sw, mut sd) = (0.0, 0.0);
                 for o in &obs {
                     let [a, b] = radiometry[o.photo];
-                    let w = steepness(photos[o.photo].sensor, gr, g.z_at(gr));
+                    let w = steepness(photos[o.photo].sensor, gr, z);
                     sw += w;
                     sd += w * (o.g - a) / b;
                 }
-                (sd / sw, obs.len() as u8, obs)
+                (Some(sd / sw), obs.len() as u8, obs)
             })
             .collect();
-        for (n, (dn, c, _)) in per.iter().enumerate() {
-            // Keep the adjusted D from the last iteration where there is one.
-            if iteration == 1 || !d[n].is_finite() {
-                d[n] = *dn;
+        for (n, (back, c, _)) in per.iter().enumerate() {
+            if let Some(v) = back {
+                d[n] = *v;
             }
             seen_by[n] = *c;
         }

@@ -163,6 +163,25 @@ fn a_flat_terrain_converges_in_one_step_to_the_truth() {
     );
 }
 
+/// A hill 8 m high on a plane at 50 m.
+fn hill(x: f64, y: f64) -> f64 {
+    50.0 + 8.0 * (-((x - 55.0).powi(2) + (y - 45.0).powi(2)) / 600.0).exp()
+}
+
+/// Offset and gain of each photo of [`hill_block`].
+const PLANTED: [[f64; 2]; 3] = [[0.0, 1.0], [10.0, 1.25], [-8.0, 0.8]];
+
+/// The hill from three places, each photo with its planted radiometry.
+fn hill_block() -> ([FrameSensor; 3], Vec<Textured>) {
+    let sensors = [camera(0.0, 0.0), camera(120.0, 0.0), camera(0.0, 120.0)];
+    let images = sensors
+        .iter()
+        .zip(PLANTED)
+        .map(|(s, rad)| render(s, &hill, rad))
+        .collect();
+    (sensors, images)
+}
+
 /// Photos with different radiometry (gains 1.25 and 0.8, offsets +10 and −8 grey values on a
 /// range of about 150) over a hill, from a coarse DEM three pixels of parallax off in the
 /// mean and tilted: the gains come back within 1 %, the offsets within 1 % of the range, the
@@ -170,15 +189,8 @@ fn a_flat_terrain_converges_in_one_step_to_the_truth() {
 /// at 0.98 or more.
 #[test]
 fn planted_gains_and_a_hill_are_recovered() {
-    let hill =
-        |x: f64, y: f64| 50.0 + 8.0 * (-((x - 55.0).powi(2) + (y - 45.0).powi(2)) / 600.0).exp();
-    let truth = [[0.0, 1.0], [10.0, 1.25], [-8.0, 0.8]];
-    let sensors = [camera(0.0, 0.0), camera(120.0, 0.0), camera(0.0, 120.0)];
-    let images: Vec<Textured> = sensors
-        .iter()
-        .zip(truth)
-        .map(|(s, rad)| render(s, &hill, rad))
-        .collect();
+    let truth = PLANTED;
+    let (sensors, images) = hill_block();
     let mpp = m_per_px(120.0, 50.0);
     let mut g = grids(30.0, 20.0, 11, 5.0, &|x, _| {
         50.0 + 3.0 * mpp + 0.05 * (x - 55.0)
@@ -273,15 +285,8 @@ fn an_occluded_groundel_takes_no_observation() {
 /// (within a tenth of a pixel of parallax, no step where the patches meet).
 #[test]
 fn patches_merge_without_a_seam() {
-    let hill =
-        |x: f64, y: f64| 50.0 + 8.0 * (-((x - 55.0).powi(2) + (y - 45.0).powi(2)) / 600.0).exp();
-    let truth = [[0.0, 1.0], [10.0, 1.25], [-8.0, 0.8]];
-    let sensors = [camera(0.0, 0.0), camera(120.0, 0.0), camera(0.0, 120.0)];
-    let images: Vec<Textured> = sensors
-        .iter()
-        .zip(truth)
-        .map(|(s, rad)| render(s, &hill, rad))
-        .collect();
+    let truth = PLANTED;
+    let (sensors, images) = hill_block();
     let mpp = m_per_px(120.0, 50.0);
     let mut g = grids(30.0, 20.0, 12, 5.0, &|x, _| {
         50.0 + 2.0 * mpp + 0.05 * (x - 55.0)
