@@ -12,5 +12,13 @@ pub use patches::{refine_block, Merged, PatchLayout, PatchReport};
 pub use solve::{refine, sight, Iteration, OslsmError, OslsmParams, Refinement};
 pub use visibility::visible;
 
+/// A photo as the object-space matching sees it: its grey values and its sensor (the slopes
+/// are the bilinear surface's own, taken where it is sampled).
+#[derive(Clone, Copy)]
+pub struct PhotoView<'a> {
+    pub image: &'a crate::image::ImageF32,
+    pub sensor: &'a (dyn crate::geometry::Sensor + Sync),
+}
+
 #[cfg(test)]
 mod tests;

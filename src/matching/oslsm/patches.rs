@@ -6,7 +6,7 @@
 
 use super::grids::Grids;
 use super::solve::{refine, OslsmError, OslsmParams, Refinement};
-use crate::matching::mgcm::View;
+use super::PhotoView;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -89,7 +89,7 @@ fn ramp(f: f64, n: usize, overlap: usize, open_low: bool, open_high: bool) -> f6
 /// Refines the whole of `coarse` patch by patch and merges the patches (a patch that fails
 /// keeps the coarse heights and says why in its report).
 pub fn refine_block(
-    photos: &[View<'_>],
+    photos: &[PhotoView<'_>],
     coarse: &Grids,
     layout: PatchLayout,
     p: &OslsmParams,

@@ -28,8 +28,8 @@
 
 use super::grids::{Grids, Groundel};
 use super::visibility::visible;
+use super::PhotoView;
 use crate::coords::GroundM;
-use crate::matching::mgcm::View;
 use nalgebra::{DMatrix, DVector};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -133,7 +133,7 @@ struct Obs {
 }
 
 /// Samples every photo that sees groundel `gr` at height `z`.
-fn observe(photos: &[View<'_>], sees: &[bool], gr: &Groundel, z: f64, out: &mut Vec<Obs>) {
+fn observe(photos: &[PhotoView<'_>], sees: &[bool], gr: &Groundel, z: f64, out: &mut Vec<Obs>) {
     out.clear();
     let p = GroundM::new(gr.x, gr.y, z);
     for (k, v) in photos.iter().enumerate() {
@@ -145,7 +145,7 @@ fn observe(photos: &[View<'_>], sees: &[bool], gr: &Groundel, z: f64, out: &mut 
         };
         // The exact slope of what is sampled (not Sobel's smoothed one, which damps the
         // finest texture and so lengthens every Gauss–Newton step).
-        let Some([g, gx, gy]) = v.image.image.bilinear_with_gradient(q.col, q.row) else {
+        let Some([g, gx, gy]) = v.image.bilinear_with_gradient(q.col, q.row) else {
             continue;
         };
         let Some(d) = v.sensor.partials(p) else {
@@ -161,7 +161,7 @@ fn observe(photos: &[View<'_>], sees: &[bool], gr: &Groundel, z: f64, out: &mut 
 
 /// Refines `grids`' heights (the coarse DEM) from `photos` (photo 0 the radiometric datum).
 pub fn refine(
-    photos: &[View<'_>],
+    photos: &[PhotoView<'_>],
     grids: &Grids,
     p: &OslsmParams,
 ) -> Result<Refinement, OslsmError> {
@@ -498,7 +498,7 @@ pub fn refine(
 }
 
 /// Which photos see each groundel on the terrain of `g`: only these observe it.
-pub fn sight(photos: &[View<'_>], g: &Grids, groundels: &[Groundel]) -> Vec<Vec<bool>> {
+pub fn sight(photos: &[PhotoView<'_>], g: &Grids, groundels: &[Groundel]) -> Vec<Vec<bool>> {
     let top = g.z.iter().copied().fold(f64::MIN, f64::max);
     groundels
         .par_iter()

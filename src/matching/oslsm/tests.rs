@@ -7,8 +7,6 @@ use super::*;
 use crate::coords::{GroundM, PixelXY};
 use crate::geometry::{FrameSensor, Sensor};
 use crate::image::ImageF32;
-use crate::matching::mgcm::pyramid::Textured;
-use crate::matching::mgcm::View;
 use crate::matching::pipeline2::vertical_sensor;
 
 const F_MM: f64 = 153.0;
@@ -37,7 +35,7 @@ fn reflectance(x: f64, y: f64) -> f64 {
 }
 
 /// A photo of terrain `t` with reflectance `r`, grey = offset + gain·r.
-fn render(s: &FrameSensor, t: &dyn Fn(f64, f64) -> f64, radiometry: [f64; 2]) -> Textured {
+fn render(s: &FrameSensor, t: &dyn Fn(f64, f64) -> f64, radiometry: [f64; 2]) -> ImageF32 {
     let mut img = ImageF32::new(SIDE, SIDE);
     let k = 3;
     for row in 0..SIDE {
@@ -68,7 +66,7 @@ fn render(s: &FrameSensor, t: &dyn Fn(f64, f64) -> f64, radiometry: [f64; 2]) ->
                 (radiometry[0] + radiometry[1] * v / (k * k) as f64) as f32;
         }
     }
-    Textured::new(img)
+    img
 }
 
 /// Posts every `post_m` over [x0, x0 + (cols−1)·post_m] × [y0, …] at heights `z(x, y)`.
@@ -93,10 +91,10 @@ fn m_per_px(b: f64, z: f64) -> f64 {
     (Z0 - z).powi(2) * PIX_MM / (F_MM * b)
 }
 
-fn views<'a>(s: &'a [FrameSensor], t: &'a [Textured]) -> Vec<View<'a>> {
+fn views<'a>(s: &'a [FrameSensor], t: &'a [ImageF32]) -> Vec<PhotoView<'a>> {
     s.iter()
         .zip(t)
-        .map(|(s, t)| View {
+        .map(|(s, t)| PhotoView {
             image: t,
             sensor: s,
         })
@@ -111,7 +109,7 @@ fn views<'a>(s: &'a [FrameSensor], t: &'a [Textured]) -> Vec<View<'a>> {
 fn a_flat_terrain_converges_in_one_step_to_the_truth() {
     let flat = |_: f64, _: f64| 50.0;
     let sensors = [camera(0.0, 0.0), camera(120.0, 0.0), camera(0.0, 120.0)];
-    let images: Vec<Textured> = sensors
+    let images: Vec<ImageF32> = sensors
         .iter()
         .map(|s| render(s, &flat, [0.0, 1.0]))
         .collect();
@@ -172,7 +170,7 @@ fn hill(x: f64, y: f64) -> f64 {
 const PLANTED: [[f64; 2]; 3] = [[0.0, 1.0], [10.0, 1.25], [-8.0, 0.8]];
 
 /// The hill from three places, each photo with its planted radiometry.
-fn hill_block() -> ([FrameSensor; 3], Vec<Textured>) {
+fn hill_block() -> ([FrameSensor; 3], Vec<ImageF32>) {
     let sensors = [camera(0.0, 0.0), camera(120.0, 0.0), camera(0.0, 120.0)];
     let images = sensors
         .iter()
@@ -267,7 +265,7 @@ fn an_occluded_groundel_takes_no_observation() {
     assert!(visible(&east, GroundM::new(70.0, 30.0, 50.0), &g, top));
     // What the adjustment takes its observations from: groundel (u, v) = (100, 40) is
     // centred at (55.125, 30.125), behind the wall from the east; (160, 40) in front.
-    let blank = Textured::new(ImageF32::new(SIDE, SIDE));
+    let blank = ImageF32::new(SIDE, SIDE);
     let sensors = [above, east];
     let images = [blank.clone(), blank];
     let gr = g.groundel(100, 40);
@@ -339,7 +337,7 @@ fn patches_merge_without_a_seam() {
 #[test]
 fn a_patch_too_large_is_refused_up_front() {
     let sensors = [camera(0.0, 0.0), camera(120.0, 0.0)];
-    let blank = Textured::new(ImageF32::new(8, 8));
+    let blank = ImageF32::new(8, 8);
     let images = [blank.clone(), blank];
     let g = Grids {
         x0: 0.0,
