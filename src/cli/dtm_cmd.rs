@@ -178,6 +178,10 @@ fn run_format2(
         let r = rig::matching::mgcm::run::run(&p, &photos, out, max_memory, &bar)?;
         return print_mgcm(&r, out, json, strict);
     }
+    if p.matching.method == "oslsm" {
+        let r = rig::matching::oslsm::run::run(&p, &photos, out, max_memory, &bar)?;
+        return print_oslsm(&r, out, json, strict);
+    }
     let r = pipeline2::run(&p, &photos, out, max_memory, &bar)?;
     print_format2(&p, &r, out, json, strict)
 }
@@ -228,6 +232,36 @@ fn print_mgcm(
         "outputs in {}: dem.tif, quality.tif (σ m, correlation), points.csv (every point, kept or refused, and why), points.ply, points.las, ortho.tif, hillshade.png, quality.png{}, report.json, report.html",
         out.display(),
         if r.accuracy.is_some() { ", error.png, accuracy.txt, accuracy.json" } else { "" }
+    );
+    Ok(code)
+}
+
+/// The report of an object-space run.
+fn print_oslsm(
+    r: &rig::matching::oslsm::run::OslsmReport,
+    out: &std::path::Path,
+    json: bool,
+    strict: bool,
+) -> anyhow::Result<i32> {
+    // (Without --json the summary below carries them.)
+    if json {
+        for w in &r.warnings {
+            eprintln!("rig dtm: warning: {w}");
+        }
+    }
+    let code = exit_code(!r.warnings.is_empty(), strict);
+    if json {
+        println!("{}", serde_json::to_string(r)?);
+        return Ok(code);
+    }
+    for (k, v) in r.summary() {
+        println!("{k}: {v}");
+    }
+    println!(
+        "outputs in {}: dem.tif (posts refined from the grey values), quality.tif (σ m), reflectance.tif (the terrain's reflectance in photo {}'s grey values), convergence.png, points.ply, points.las, ortho.tif, hillshade.png, quality.png{}, report.json, report.html; the sweep's coarse model in coarse/",
+        out.display(),
+        r.reference,
+        if r.model.comparison.is_some() { ", error.png" } else { "" }
     );
     Ok(code)
 }

@@ -52,6 +52,48 @@ pub struct SceneArgs {
     /// its 74 × 92 m facets more closely where a cell straddles their edges).
     #[arg(long, default_value_t = 10.0)]
     pub truth_cell_m: f64,
+    /// Each photo's radiometric gain, in photo order (e.g. 1,1.2,0.85): its grey values are
+    /// gain × 60 000 × transmittance + offset, as film developed and scanned differently
+    /// (seed 001's linear radiometric model). Default 1 for every photo.
+    #[arg(long, value_name = "G,G,…")]
+    pub gains: Option<String>,
+    /// Each photo's radiometric offset, grey values, in photo order (e.g. 0,-3000,4000).
+    /// Default 0 for every photo.
+    #[arg(long, value_name = "DN,DN,…")]
+    pub offsets: Option<String>,
+}
+
+/// A per-photo list of `photos` numbers from flag `name`, each within `range` (the default
+/// `fill` for every photo when the flag is not given).
+fn per_photo(
+    list: Option<&str>,
+    name: &str,
+    photos: u32,
+    range: std::ops::RangeInclusive<f64>,
+    fill: f64,
+) -> anyhow::Result<Vec<f64>> {
+    let Some(s) = list else {
+        return Ok(vec![fill; photos as usize]);
+    };
+    let v: Vec<f64> = s
+        .split(',')
+        .map(|x| x.trim().parse::<f64>())
+        .collect::<Result<_, _>>()
+        .with_context(|| format!("--{name} `{s}`: numbers separated by commas"))?;
+    if v.len() != photos as usize {
+        anyhow::bail!(
+            "--{name} `{s}`: {} values for {photos} photos (one per photo, in photo order)",
+            v.len()
+        );
+    }
+    if let Some(bad) = v.iter().find(|x| !range.contains(x)) {
+        anyhow::bail!(
+            "--{name} `{s}`: {bad} is outside {} … {}",
+            range.start(),
+            range.end()
+        );
+    }
+    Ok(v)
 }
 
 fn parse_area(s: &str) -> anyhow::Result<[f64; 4]> {
@@ -68,16 +110,23 @@ fn parse_area(s: &str) -> anyhow::Result<[f64; 4]> {
     Ok([v[0], v[1], v[2], v[3]])
 }
 
-/// The rendered photo as a scanned-photo sidecar and TIFF (grey = transmittance × 60 000).
+/// Grey values per unit of transmittance at gain 1.
+const GREY_PER_TRANSMITTANCE: f64 = 60_000.0;
+
+/// The rendered photo as a scanned-photo sidecar and TIFF (grey = `radiometry` offset + gain
+/// × transmittance × 60 000, plus `noise_dn` of white noise); refused if more than 0.1 % of
+/// its pixels would clip at 1 or 65 535.
 fn write_photo(
     dir: &Path,
     name: &str,
     photo: &AerialPhoto,
     grid: &PhotoGrid,
     noise_dn: f64,
+    [offset, gain]: [f64; 2],
 ) -> anyhow::Result<PathBuf> {
     let img = photo.render(grid.corner_mm, grid.step_mm, grid.width, grid.height, 3);
     let mut rng = rig_sim::rng::Rng::new(0x9015E ^ photo.number as u64 ^ photo.texture_seed);
+    let mut clipped = 0usize;
     let px: Vec<u16> = img
         .iter()
         .map(|v| {
@@ -86,9 +135,20 @@ fn write_photo(
             } else {
                 0.0
             };
-            (*v as f64 * 60_000.0 + n).round().clamp(1.0, 65535.0) as u16
+            let g = (offset + gain * *v as f64 * GREY_PER_TRANSMITTANCE + n).round();
+            clipped += usize::from(!(1.0..=65535.0).contains(&g));
+            g.clamp(1.0, 65535.0) as u16
         })
         .collect();
+    if clipped * 1000 > px.len() {
+        anyhow::bail!(
+            "photo {}: {clipped} of {} pixels clip at 1 or 65535 with gain {gain} and offset {offset} (its grey values span about {:.0} … {:.0}): lower the gain or move the offset",
+            photo.number,
+            px.len(),
+            offset + gain * photo.t_min * GREY_PER_TRANSMITTANCE,
+            offset + gain * photo.t_max * GREY_PER_TRANSMITTANCE
+        );
+    }
     let tiff = dir.join(format!("{name}.tiff"));
     rig::digitise::output::write_tiff16(&tiff, grid.width, grid.height, &px)?;
     let side = ScannedPhoto {
@@ -264,6 +324,38 @@ pub fn truth_grid(
     Ok(rig::sim_scene::grid_to_crs(grid))
 }
 
+/// Cell of truth-reflectance.tif, m (finer than a ground pixel, about 1 m).
+const REFLECTANCE_CELL_M: f64 = 0.5;
+
+/// The terrain's true reflectance (0 … 1, as the simulator shades it: what every photo's
+/// grey values are a linear function of) on a grid of `cell_m` over `dem`'s extent, in the
+/// world's CRS; refused above the default memory limit.
+pub fn truth_reflectance(
+    a: &AerialPhoto,
+    dem: &ElevationGrid,
+    cell_m: f64,
+) -> Result<ElevationGrid, rig::matching::grid::GridError> {
+    let [ox, oy] = rig::sim_scene::ORIGIN_M;
+    let half = 0.5 * dem.cell_m;
+    let extent = [
+        dem.x0 - half - ox,
+        dem.y0 - (dem.rows as f64 - 0.5) * dem.cell_m - oy,
+        dem.x0 + (dem.cols as f64 - 0.5) * dem.cell_m - ox,
+        dem.y0 + half - oy,
+    ];
+    let mut grid =
+        ElevationGrid::covering(extent, cell_m, rig::matching::project::default_memory_mb())?;
+    let cols = grid.cols;
+    let nodes: Vec<[f64; 2]> = (0..grid.z.len())
+        .map(|k| grid.node(k % cols, k / cols))
+        .collect();
+    use rayon::prelude::*;
+    grid.z.par_iter_mut().zip(&nodes).for_each(|(z, [x, y])| {
+        *z = rig_sim::scene::reflectance(a.texture_seed, &a.dem, *x, *y) as f32;
+    });
+    Ok(rig::sim_scene::grid_to_crs(grid))
+}
+
 /// A format-2 project of the rendered photos with their true orientations (the simulator's
 /// truth, in the world's CRS), the heights of the terrain ± 30 m and the true DEM as the
 /// reference: for the matchers alone, with no orientation error.
@@ -349,6 +441,15 @@ pub fn run(a: &SceneArgs) -> anyhow::Result<i32> {
     if !(a.truth_cell_m.is_finite() && (0.5..=100.0).contains(&a.truth_cell_m)) {
         anyhow::bail!("--truth-cell-m {}: 0.5 to 100 m", a.truth_cell_m);
     }
+    let gains = per_photo(a.gains.as_deref(), "gains", a.photos, 0.2..=5.0, 1.0)?;
+    let offsets = per_photo(
+        a.offsets.as_deref(),
+        "offsets",
+        a.photos,
+        -30_000.0..=30_000.0,
+        0.0,
+    )?;
+    let radiometry: Vec<[f64; 2]> = offsets.iter().zip(&gains).map(|(&o, &g)| [o, g]).collect();
     if a.out.exists() && std::fs::read_dir(&a.out)?.next().is_some() {
         anyhow::bail!("{} is not empty: give a new directory", a.out.display());
     }
@@ -369,8 +470,8 @@ pub fn run(a: &SceneArgs) -> anyhow::Result<i32> {
         "rendering photo 1 ({}×{} px) and photo 2 ({}×{} px)…",
         g1.width, g1.height, g2.width, g2.height
     );
-    let s1 = write_photo(&a.out, "photo-1", &p1, &g1, a.noise_dn)?;
-    let s2 = write_photo(&a.out, "photo-2", &p2, &g2, a.noise_dn)?;
+    let s1 = write_photo(&a.out, "photo-1", &p1, &g1, a.noise_dn, radiometry[0])?;
+    let s2 = write_photo(&a.out, "photo-2", &p2, &g2, a.noise_dn, radiometry[1])?;
     // Photos 3 and 4 of the block, over where they see photo 1's area.
     let mut more = Vec::new();
     for n in 3..=a.photos {
@@ -384,7 +485,14 @@ pub fn run(a: &SceneArgs) -> anyhow::Result<i32> {
         }
         let gn = PhotoGrid::covering(an, step);
         eprintln!("rendering photo {n} ({}×{} px)…", gn.width, gn.height);
-        write_photo(&a.out, &format!("photo-{n}"), &pn, &gn, a.noise_dn)?;
+        write_photo(
+            &a.out,
+            &format!("photo-{n}"),
+            &pn,
+            &gn,
+            a.noise_dn,
+            radiometry[n as usize - 1],
+        )?;
         more.push((pn, an));
     }
     let mut rng = rig_sim::rng::Rng::new(a.seed ^ 0x6C9);
@@ -401,6 +509,13 @@ pub fn run(a: &SceneArgs) -> anyhow::Result<i32> {
         &truth,
         rig::sim_scene::CRS,
     )?;
+    let reflectance = truth_reflectance(&p1, &truth, REFLECTANCE_CELL_M)?;
+    rig::matching::output::write_ortho(
+        &a.out.join("truth-reflectance.tif"),
+        &reflectance,
+        rig::sim_scene::CRS,
+        &reflectance.z,
+    )?;
     rig::digitise::output::write_json(
         &a.out.join("truth.json"),
         &json!({"seed": a.seed,
@@ -409,7 +524,11 @@ pub fn run(a: &SceneArgs) -> anyhow::Result<i32> {
                 "terrain_m": hs,
                 "dem": format!("tests/data/jacksboro_fault_dem.asc (bilinear, {} m grid in truth-dem.tif)", a.truth_cell_m),
                 "photo_noise_um": a.photo_noise_um, "ground_noise_m": a.ground_noise_m,
-                "noise_dn": a.noise_dn}),
+                "noise_dn": a.noise_dn,
+                "radiometry": {"gains": gains, "offsets_dn": offsets,
+                    "grey": "offset + gain × 60000 × (t_min + (t_max − t_min) × reflectance) + noise",
+                    "t_min": p1.t_min, "t_max": p1.t_max,
+                    "reflectance": format!("truth-reflectance.tif: the terrain's reflectance (0 … 1, shaded), {REFLECTANCE_CELL_M} m cells")}}),
     )?;
     let all: Vec<&AerialPhoto> = std::iter::once(&p1)
         .chain([&p2])

@@ -7,6 +7,7 @@ pub mod pmf_set;
 pub use pmf_set::{PmfSet, StereoPoint};
 pub use point::MatchedPoint;
 pub mod accuracy;
+pub mod block_geometry;
 pub mod block_match;
 pub mod edge_strings;
 pub mod grid;

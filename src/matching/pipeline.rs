@@ -134,7 +134,7 @@ impl RunReport {
 }
 
 /// The files a run writes into its directory (and their temporary `.part` names meanwhile).
-pub const OUTPUTS: [&str; 11] = [
+pub const OUTPUTS: [&str; 17] = [
     "dem.tif",
     "report.html",
     "quality.tif",
@@ -146,6 +146,14 @@ pub const OUTPUTS: [&str; 11] = [
     "error.png",
     "report.json",
     "pmfs.json",
+    // The MGCM's.
+    "points.csv",
+    "accuracy.txt",
+    "accuracy.json",
+    // The object-space matching's (its coarse model from the sweep in `coarse/`).
+    "coarse",
+    "reflectance.tif",
+    "convergence.png",
 ];
 
 /// An output directory must be new, empty, or hold only an earlier run's outputs (a run that

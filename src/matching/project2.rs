@@ -122,6 +122,9 @@ pub struct Matching2 {
     /// `[matching.mgcm]`: the multiphoto matching's parameters (method = "mgcm").
     #[serde(default)]
     pub mgcm: super::mgcm::config::MgcmConfig,
+    /// `[matching.oslsm]`: the object-space matching's parameters (method = "oslsm").
+    #[serde(default)]
+    pub oslsm: super::oslsm::config::OslsmConfig,
 }
 
 #[derive(Debug, Deserialize)]
@@ -405,13 +408,14 @@ impl Project2 {
         let m = raw
             .matching
             .unwrap_or_else(|| toml::from_str("").expect("every [matching] key has a default"));
-        if m.method != "sweep" && m.method != "mgcm" {
+        if !["sweep", "mgcm", "oslsm"].contains(&m.method.as_str()) {
             return Err(bad(format!(
-                "[matching] method `{}`: \"sweep\" (seed 000's height sweep) or \"mgcm\" (seed 002's multiphoto geometrically constrained matching)",
+                "[matching] method `{}`: \"sweep\" (seed 000's height sweep), \"mgcm\" (seed 002's multiphoto geometrically constrained matching) or \"oslsm\" (seed 001's object-space least-squares matching)",
                 m.method
             )));
         }
         m.mgcm.check().map_err(bad)?;
+        m.oslsm.check().map_err(bad)?;
         if let Some(s) = m.h_step {
             if !(s.is_finite() && (0.001..=1000.0).contains(&s)) {
                 return Err(bad(format!("[matching] h_step {s}: 0.001 to 1000 m")));

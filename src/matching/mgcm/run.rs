@@ -17,6 +17,9 @@ use super::pyramid::{levels_for, pyramid, AtLevel, Textured};
 use crate::coords::PixelXY;
 use crate::geometry::{Crs, Resection, Sensor};
 use crate::matching::accuracy::{analyse, Accuracy};
+use crate::matching::block_geometry::{
+    choose_reference, flying_height, ground_pixel_m, parallax_per_m,
+};
 use crate::matching::grid::ElevationGrid;
 use crate::matching::pipeline::{Photo, PipelineError};
 use crate::matching::pipeline2::{orient, ModelFigures, Oriented, Pipeline2Error};
@@ -352,39 +355,6 @@ fn sweep_height(
     best.filter(|b| b.1 > 0.3).map(|b| b.0)
 }
 
-/// The largest movement of any search patch per metre of height at reference pixel `q`,
-/// px/m.
-fn parallax_per_m(reference: &dyn Sensor, searches: &[&dyn Sensor], q: PixelXY, z: f64) -> f64 {
-    let (Some(a), Some(b)) = (
-        reference.image_to_ground(q, z + 1.0),
-        reference.image_to_ground(q, z - 1.0),
-    ) else {
-        return f64::NAN;
-    };
-    searches
-        .iter()
-        .filter_map(|s| {
-            let (p, m) = (s.ground_to_image(a)?, s.ground_to_image(b)?);
-            Some(0.5 * (p.col - m.col).hypot(p.row - m.row))
-        })
-        .fold(0.0, f64::max)
-}
-
-/// The height of the sensor above the ground at reference pixel `q` and height `z`, m, from
-/// how the ground footprint of a pixel grows with the distance: for a frame camera
-/// d = (Z₀ − z) and a pixel covers p·d/f, so d = gsd(z)·Δz / (gsd(z) − gsd(z + Δz)).
-fn flying_height(s: &dyn Sensor, q: PixelXY, z: f64) -> Option<f64> {
-    let gsd = |z: f64| -> Option<f64> {
-        let a = s.image_to_ground(q, z)?;
-        let b = s.image_to_ground(PixelXY::new(q.col + 1.0, q.row), z)?;
-        Some((a.x - b.x).hypot(a.y - b.y))
-    };
-    let dz = 50.0;
-    let (g0, g1) = (gsd(z)?, gsd(z + dz)?);
-    let d = g0 * dz / (g0 - g1);
-    (d.is_finite() && d > 0.0).then_some(d)
-}
-
 /// The grey range (1st to 99th percentile) of an image, from a sample of its pixels.
 fn grey_range(img: &crate::image::ImageF32) -> f64 {
     let step = (img.data.len() / 100_000).max(1);
@@ -588,42 +558,14 @@ pub fn run(
         extent,
         overlapping,
     } = orient(p, &geometry)?;
-    // The reference: named, or the photo overlapping most others.
-    let partners = |k: usize| -> Vec<usize> {
-        overlapping
-            .iter()
-            .filter_map(|&(i, j)| {
-                if i == k {
-                    Some(j)
-                } else if j == k {
-                    Some(i)
-                } else {
-                    None
-                }
-            })
-            .collect()
-    };
-    let r = match &cfg.reference {
-        Some(id) => p.photos.iter().position(|ph| &ph.id == id).ok_or_else(|| {
-            Pipeline2Error::Heights(format!(
-                "{}: [matching.mgcm] reference = \"{id}\": no photo of that id in the project (its photos: {})",
-                p.path.display(),
-                p.photos.iter().map(|ph| ph.id.as_str()).collect::<Vec<_>>().join(", ")
-            ))
-        })?,
-        None => (0..photos.len())
-            .max_by_key(|&k| (partners(k).len(), std::cmp::Reverse(k)))
-            .unwrap_or(0),
-    };
-    let others = partners(r);
-    if others.is_empty() {
-        return Err(Pipeline2Error::Heights(format!(
-            "{}: [matching.mgcm] reference = \"{}\" overlaps no other photo at {:.0} m: name another",
-            p.path.display(),
-            p.photos[r].id,
-            0.5 * (heights[0] + heights[1])
-        )));
-    }
+    let mid = 0.5 * (heights[0] + heights[1]);
+    let (r, others) = choose_reference(
+        p,
+        &overlapping,
+        cfg.reference.as_deref(),
+        "matching.mgcm",
+        mid,
+    )?;
     // Memory: every pyramid (image and two gradients, 4/3 of level 0's pixels).
     let bytes: u64 = std::iter::once(r)
         .chain(others.iter().copied())
@@ -656,7 +598,6 @@ pub fn run(
         inner: &sensors[k],
         level,
     };
-    let mid = 0.5 * (heights[0] + heights[1]);
     let centre0 = PixelXY::new(0.5 * rw as f64, 0.5 * rh as f64);
     let search_sensors: Vec<&dyn Sensor> =
         others.iter().map(|&k| &sensors[k] as &dyn Sensor).collect();
@@ -844,11 +785,7 @@ pub fn run(
     let budget = max_memory_mb.unwrap_or(p.limits.max_memory_mb);
     let mut grid = ElevationGrid::covering(extent, p.cell_m, budget)
         .map_err(|e| Pipeline2Error::Grid(e.to_string()))?;
-    let gsd = {
-        let a = sensors[r].image_to_ground(centre0, mid);
-        let b = sensors[r].image_to_ground(PixelXY::new(centre0.col + 1.0, centre0.row), mid);
-        a.zip(b).map_or(1.0, |(a, b)| (a.x - b.x).hypot(a.y - b.y))
-    };
+    let gsd = ground_pixel_m(&sensors[r], centre0, mid).unwrap_or(1.0);
     let quality = grid.fill_scattered(&matched, 1.6 * cfg.cell as f64 * gsd);
     let obs = p.observations()?;
     let (model, reference_dem) = ModelFigures::check(p, &obs, grid, &quality.sigma_m)?;

@@ -2,8 +2,11 @@
 //! reflectance solved together in object space from any number of photos, each seen through
 //! its [`crate::geometry::Sensor`] only (frame, pushbroom or RPC alike).
 
+pub mod config;
 pub mod grids;
 pub mod patches;
+pub mod plot;
+pub mod run;
 pub mod solve;
 pub mod visibility;
 

@@ -5,8 +5,9 @@
 //! across the overlap, so that no seam shows where one patch hands over to the next.
 
 use super::grids::Grids;
-use super::solve::{refine, OslsmError, OslsmParams, Refinement};
+use super::solve::{refine, Iteration, OslsmError, OslsmParams, Refinement};
 use super::PhotoView;
+use crate::matching::progress::Progress;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -34,11 +35,18 @@ pub struct PatchReport {
     /// First post (column, row) and size in posts.
     pub first: [usize; 2],
     pub size: [usize; 2],
-    /// Its offsets and gains per photo, σ₀ and iterations; or why it failed (its posts keep
-    /// the coarse heights, with no σ).
-    pub radiometry: Option<Vec<[f64; 2]>>,
+    /// Its offsets and gains per photo (`None` for a photo that sees none of it), σ₀ and
+    /// iterations; or why it failed (its posts keep the coarse heights, with no σ).
+    pub radiometry: Option<Vec<Option<[f64; 2]>>>,
     pub sigma0: Option<f64>,
+    /// The adjustment ended with σ₀ stalled and posts swinging by less than
+    /// [`OslsmParams::stall_m`] rather than with every post settled.
+    pub stalled: bool,
+    /// The factor by which the residuals' correlation widened σ.
+    pub inflation: Option<f64>,
     pub iterations: usize,
+    /// Each iteration's σ₀ and moves (the convergence plot).
+    pub history: Vec<Iteration>,
     pub failure: Option<OslsmError>,
 }
 
@@ -46,7 +54,7 @@ pub struct PatchReport {
 #[derive(Debug, Clone, PartialEq)]
 pub struct Merged {
     pub z: Vec<f64>,
-    /// NaN where no patch refined the post.
+    /// NaN where no patch refined the post (a failed patch, or no grey values there).
     pub sigma_z: Vec<f64>,
     /// Reflectance per groundel (NaN where none).
     pub d: Vec<f64>,
@@ -93,6 +101,7 @@ pub fn refine_block(
     coarse: &Grids,
     layout: PatchLayout,
     p: &OslsmParams,
+    progress: &dyn Progress,
 ) -> Result<Merged, OslsmError> {
     let posts = coarse.cols.saturating_mul(coarse.rows);
     if coarse.z.len() != posts {
@@ -112,6 +121,7 @@ pub fn refine_block(
         .iter()
         .flat_map(|&r| cs.iter().map(move |&c| (c, r)))
         .collect();
+    progress.begin("patches", jobs.len() as u64);
     let results: Vec<PatchOutcome> = jobs
         .par_iter()
         .map(|&(c0, r0)| {
@@ -129,9 +139,12 @@ pub fn refine_block(
                     .collect(),
                 per_cell: coarse.per_cell,
             };
-            (c0, r0, w, h, refine(photos, &sub, p))
+            let r = refine(photos, &sub, p);
+            progress.advance(1);
+            (c0, r0, w, h, r)
         })
         .collect();
+    progress.end();
     let n = coarse.z.len();
     let (gu, gv) = coarse.groundels();
     let m = coarse.per_cell;
@@ -144,10 +157,13 @@ pub fn refine_block(
             Ok(r) => {
                 for j in 0..h {
                     for i in 0..w {
+                        let l = j * w + i;
+                        if !r.informed[l] {
+                            continue;
+                        }
                         let wt = ramp(i as f64, w, overlap, open[0], open[1])
                             * ramp(j as f64, h, overlap, open[2], open[3]);
                         let k = (r0 + j) * coarse.cols + c0 + i;
-                        let l = j * w + i;
                         zs[k] += wt * r.z[l];
                         ss[k] += wt * r.sigma_z[l];
                         ws[k] += wt;
@@ -173,9 +189,18 @@ pub fn refine_block(
                 patches.push(PatchReport {
                     first: [c0, r0],
                     size: [w, h],
-                    radiometry: Some(r.radiometry.clone()),
+                    radiometry: Some(
+                        r.radiometry
+                            .iter()
+                            .zip(&r.photo_seen)
+                            .map(|(v, &seen)| seen.then_some(*v))
+                            .collect(),
+                    ),
                     sigma0: Some(r.sigma0),
+                    stalled: r.stalled,
+                    inflation: Some(r.inflation),
                     iterations: r.iterations.len(),
+                    history: r.iterations.clone(),
                     failure: None,
                 });
             }
@@ -184,7 +209,10 @@ pub fn refine_block(
                 size: [w, h],
                 radiometry: None,
                 sigma0: None,
+                stalled: false,
+                inflation: None,
                 iterations: 0,
+                history: Vec::new(),
                 failure: Some(e),
             }),
         }

@@ -42,13 +42,20 @@ pub const MAX_UNKNOWNS: usize = 5000;
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct OslsmParams {
     pub max_iterations: usize,
-    /// Converged when no post moves by more than this, m.
+    /// Converged when no post moves by more than this (m) or than a fifth of its σ.
     pub converged_m: f64,
     /// Weight of the curvature observations relative to a post's mean information from the
     /// grey values.
     pub smoothness: f64,
     /// Divergence: σ₀ above this many times its lowest so far.
     pub diverging_ratio: f64,
+    /// Visibility is re-tested after an iteration only if a post moved more than this, m.
+    pub retest_sight_m: f64,
+    /// Stalled (and ended, as converged) when σ₀ no longer falls (by 0.01 %) and no post moves
+    /// more than this, m: bilinear sampling's slopes jump where a sample crosses a pixel
+    /// centre, and a post whose minimum lies on such a kink swings about it by a few
+    /// hundredths of a pixel for ever.
+    pub stall_m: f64,
 }
 
 impl Default for OslsmParams {
@@ -58,6 +65,8 @@ impl Default for OslsmParams {
             converged_m: 0.005,
             smoothness: 0.01,
             diverging_ratio: 2.0,
+            retest_sight_m: 0.25,
+            stall_m: 0.05,
         }
     }
 }
@@ -81,6 +90,8 @@ pub enum OslsmError {
     Groundels(usize),
     #[error("no groundel is seen by two photos")]
     NoObservations,
+    #[error("the datum photo (the first) sees no groundel of the patch")]
+    NoDatum,
     #[error("the normal equations are singular at iteration {iteration}")]
     Singular { iteration: usize },
     #[error("diverging at iteration {iteration}: σ₀ {sigma0:.3} against {best:.3} before")]
@@ -115,11 +126,23 @@ pub struct Refinement {
     pub d: Vec<f64>,
     /// Photos seeing each groundel.
     pub seen_by: Vec<u8>,
-    /// Offset and gain per photo (photo 0's 0 and 1, the datum).
+    /// Offset and gain per photo (photo 0's 0 and 1, the datum); a photo that sees none of
+    /// the patch keeps its initial ones (see `photo_seen`).
     pub radiometry: Vec<[f64; 2]>,
+    /// Whether each photo observed a groundel of the patch.
+    pub photo_seen: Vec<bool>,
+    /// Whether each post took information from the grey values (a groundel seen by two
+    /// photos around it); the others only follow the curvature observations.
+    pub informed: Vec<bool>,
     /// Their standard deviations.
     pub sigma_radiometry: Vec<[f64; 2]>,
     pub sigma0: f64,
+    /// Ended because σ₀ stalled with the posts swinging by less than
+    /// [`OslsmParams::stall_m`], not because every post settled.
+    pub stalled: bool,
+    /// The factor by which the residuals' correlation between neighbouring groundels widens
+    /// `sigma_z` beyond σ₀·√Q ([`correlation_inflation`]).
+    pub inflation: f64,
     pub iterations: Vec<Iteration>,
 }
 
@@ -203,7 +226,17 @@ pub fn refine(
         .flat_map(|v| (0..gu).map(move |u| (u, v)))
         .map(|(u, v)| g.groundel(u, v))
         .collect();
-    let mut sees = sight(photos, &g, &groundels);
+    // Which photos frame each groundel is fixed at the start (with a margin for the posts'
+    // moves): a groundel whose projection slipped in and out of a photo's edge from one
+    // iteration to the next would change the observations and keep the posts from settling.
+    let framed = framed(photos, &g, &groundels, FRAME_MARGIN_PX);
+    let and = |a: Vec<Vec<bool>>| -> Vec<Vec<bool>> {
+        a.into_iter()
+            .zip(&framed)
+            .map(|(v, f)| v.iter().zip(f).map(|(x, y)| *x && *y).collect())
+            .collect()
+    };
+    let mut sees = and(sight(photos, &g, &groundels));
     // Initial radiometry: each photo's grey values against photo 0's over the groundels
     // both see, matched in mean and spread.
     {
@@ -362,12 +395,32 @@ pub fn refine(
         if observed == 0 {
             return Err(OslsmError::NoObservations);
         }
+        if !per.iter().any(|x| x.2.iter().any(|o| o.photo == 0)) {
+            return Err(OslsmError::NoDatum);
+        }
+        // A photo that sees none of the patch: its offset and gain stay (nothing observes
+        // them). A post no observed groundel touches: held where it is by a tiny weight,
+        // beside what the curvature gives it (it is not reported as informed).
+        let mut photo_seen = vec![true; kp];
+        for k in 1..kp {
+            if n_mat[(rad(k), rad(k))] <= 0.0 {
+                photo_seen[k] = false;
+                n_mat[(rad(k), rad(k))] = 1.0;
+                n_mat[(rad(k) + 1, rad(k) + 1)] = 1.0;
+            }
+        }
+        let informed: Vec<bool> = (0..n_posts).map(|i| n_mat[(i, i)] > 0.0).collect();
         // Unknowns: posts, radiometry, and one D per observed groundel.
         let dof = (nobs as f64 - (nu + observed) as f64).max(1.0);
         let sigma0 = (vv / dof).sqrt();
         // Curvature observations, weighted by rule.
         let mean_info = (0..n_posts).map(|i| n_mat[(i, i)]).sum::<f64>() / n_posts as f64;
         let w = p.smoothness * mean_info.max(1e-12);
+        for (i, inf) in informed.iter().enumerate() {
+            if !inf {
+                n_mat[(i, i)] += 1e-6 * mean_info.max(1e-12);
+            }
+        }
         let mut curve = |a: usize, b: usize, c: usize, z: &[f64]| {
             let l = -(z[a] - 2.0 * z[b] + z[c]);
             let r = [(a, 1.0), (b, -2.0), (c, 1.0)];
@@ -439,26 +492,42 @@ pub fn refine(
             radiometry[k][0] += dx[rad(k)];
             radiometry[k][1] += dx[rad(k) + 1];
         }
-        let (mut max_move, mut ss) = (0.0f64, 0.0);
-        for (z, dz) in g.z.iter_mut().zip(dx.iter()) {
+        // Convergence is judged on the posts the grey values inform (the others follow the
+        // curvature and settle with them): each moved less than `converged_m`, or less than
+        // a fifth of its own σ (noise keeps a Gauss–Newton step on resampled grey values
+        // jittering at that level; σ₀/√Nᵢᵢ, a lower bound of σ, keeps the test strict).
+        let (mut max_move, mut ss, mut settled) = (0.0f64, 0.0, true);
+        for (i, ((z, dz), inf)) in g.z.iter_mut().zip(dx.iter()).zip(&informed).enumerate() {
             *z += dz;
-            max_move = max_move.max(dz.abs());
-            ss += dz * dz;
+            if *inf {
+                max_move = max_move.max(dz.abs());
+                ss += dz * dz;
+                let tol = p
+                    .converged_m
+                    .max(CONVERGED_SIGMA * sigma0 / n_mat[(i, i)].max(1e-300).sqrt());
+                settled &= dz.abs() < tol;
+            }
         }
         iterations.push(Iteration {
             sigma0,
             max_move_m: max_move,
-            rms_move_m: (ss / n_posts as f64).sqrt(),
+            rms_move_m: (ss / informed.iter().filter(|i| **i).count().max(1) as f64).sqrt(),
         });
         last_move = max_move;
         if !max_move.is_finite() {
             return Err(OslsmError::Singular { iteration });
         }
-        if max_move < p.converged_m {
-            // The precision from the normal matrix of the last linearisation.
+        let stalled = iterations.len() >= 2
+            && max_move < p.stall_m
+            && sigma0 > (1.0 - 1e-4) * iterations[iterations.len() - 2].sigma0;
+        if settled || stalled {
+            // The precision from the normal matrix of the last linearisation, widened by the
+            // residuals' correlation between neighbouring groundels (the normal matrix takes
+            // them as independent).
             let inv = chol.inverse();
+            let inflation = correlation_inflation(photos, &sees, &groundels, &g, &d, &radiometry);
             let sigma_z = (0..n_posts)
-                .map(|i| sigma0 * inv[(i, i)].max(0.0).sqrt())
+                .map(|i| inflation * sigma0 * inv[(i, i)].max(0.0).sqrt())
                 .collect();
             let sigma_radiometry = (0..kp)
                 .map(|k| {
@@ -483,18 +552,143 @@ pub fn refine(
                 d,
                 seen_by,
                 radiometry,
+                photo_seen,
+                informed,
                 sigma_radiometry,
                 sigma0,
+                stalled: !settled,
+                inflation,
                 iterations,
             });
         }
-        // The terrain moved: who sees what may have changed.
-        sees = sight(photos, &g, &groundels);
+        // The terrain moved: who sees what may have changed. Not re-tested once the posts
+        // move less than `retest_sight_m`: a groundel at a ridge's edge can be hidden at one
+        // height and seen at the next, and the posts then swing between the two for ever.
+        if max_move > p.retest_sight_m {
+            sees = and(sight(photos, &g, &groundels));
+        }
     }
     Err(OslsmError::NoConvergence {
         iterations: p.max_iterations,
         last_move_m: last_move,
     })
+}
+
+/// How much the grey-value residuals' correlation between neighbouring groundels widens a
+/// post's σ. A post's estimate moves with the sum of its observations' scores sₙ = ∂g/∂Z·vₙ
+/// (the design row times the residual); the normal matrix takes them as independent, so its
+/// variance holds Σ sₙ² only. Their correlation adds Σₙ Σₘ sₙ sₘ over neighbouring
+/// groundels: the factor is Σ_lags w·Σₙ sₙ sₙ₊ₗₐ₉ / Σ sₙ² over the patch (each photo's
+/// scores with its own, lags up to [`HAC_LAG`] groundels in each direction, Bartlett weights
+/// w, as Newey and West's estimator), its square root widening σ. Resampling and a groundel a
+/// little unlike a pixel leave residuals correlated even where the noise is white.
+fn correlation_inflation(
+    photos: &[PhotoView<'_>],
+    sees: &[Vec<bool>],
+    groundels: &[Groundel],
+    g: &Grids,
+    d: &[f64],
+    radiometry: &[[f64; 2]],
+) -> f64 {
+    let (gu, gv) = g.groundels();
+    let kp = photos.len();
+    // Score per groundel and photo (0 where not observed).
+    let score: Vec<f64> = groundels
+        .par_iter()
+        .enumerate()
+        .flat_map_iter(|(n, gr)| {
+            let mut obs = Vec::new();
+            if d[n].is_finite() {
+                observe(photos, &sees[n], gr, g.z_at(gr), &mut obs);
+            }
+            let mut v = vec![0.0; kp];
+            if obs.len() >= 2 {
+                for o in &obs {
+                    let [a, b] = radiometry[o.photo];
+                    v[o.photo] = o.dg_dz * (o.g - a - b * d[n]);
+                }
+            }
+            v
+        })
+        .collect();
+    let l = HAC_LAG as i64;
+    let (gu_i, gv_i) = (gu as i64, gv as i64);
+    let mut total = 0.0;
+    let mut zero = 0.0;
+    for dv in -l..=l {
+        for du in -l..=l {
+            let mut c = 0.0;
+            for v in 0.max(-dv)..gv_i.min(gv_i - dv) {
+                for u in 0.max(-du)..gu_i.min(gu_i - du) {
+                    let n = (v * gu_i + u) as usize * kp;
+                    let m = ((v + dv) * gu_i + u + du) as usize * kp;
+                    for k in 0..kp {
+                        c += score[n + k] * score[m + k];
+                    }
+                }
+            }
+            let w =
+                (1.0 - du.abs() as f64 / (l + 1) as f64) * (1.0 - dv.abs() as f64 / (l + 1) as f64);
+            total += w * c;
+            if du == 0 && dv == 0 {
+                zero = c;
+            }
+        }
+    }
+    if zero > 0.0 {
+        (total / zero).max(1.0).sqrt()
+    } else {
+        1.0
+    }
+}
+
+/// Groundels of lag in the correlation of the scores ([`correlation_inflation`]): two
+/// groundels of about a pixel each cover the reach of bilinear resampling and of a pixel's
+/// footprint.
+const HAC_LAG: usize = 2;
+
+/// A post has settled when it moves less than this fraction of its σ (or than
+/// [`OslsmParams::converged_m`]).
+const CONVERGED_SIGMA: f64 = 0.2;
+
+/// Pixels a groundel's projection must lie inside a photo's edge at the start to be observed
+/// in it (a post may move a few pixels of parallax).
+const FRAME_MARGIN_PX: f64 = 4.0;
+
+/// Whether each photo's image holds each groundel of `g` at least `margin` px inside its
+/// edge; none where the datum photo (0) does not: the model is the datum photo's footprint,
+/// so that its grey values hold the reflectance's scale everywhere (where only the other
+/// photos looked, their gains, from elsewhere, would carry it, and the coarse model is
+/// mostly filled in from the neighbours there).
+fn framed(
+    photos: &[PhotoView<'_>],
+    g: &Grids,
+    groundels: &[Groundel],
+    margin: f64,
+) -> Vec<Vec<bool>> {
+    groundels
+        .par_iter()
+        .map(|gr| {
+            let pt = GroundM::new(gr.x, gr.y, g.z_at(gr));
+            let v: Vec<bool> = photos
+                .iter()
+                .map(|v| {
+                    let (w, h) = (v.image.width as f64, v.image.height as f64);
+                    v.sensor.ground_to_image(pt).is_some_and(|q| {
+                        q.col >= margin
+                            && q.row >= margin
+                            && q.col <= w - margin
+                            && q.row <= h - margin
+                    })
+                })
+                .collect();
+            if v.first() == Some(&true) {
+                v
+            } else {
+                vec![false; v.len()]
+            }
+        })
+        .collect()
 }
 
 /// Which photos see each groundel on the terrain of `g`: only these observe it.

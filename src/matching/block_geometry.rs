@@ -1,0 +1,118 @@
+//! What a multiphoto matcher needs to know about a block before it matches: which photo is
+//! the reference (its pixels or its datum) and which overlap it, how many pixels of parallax
+//! a metre of height makes, how large a ground pixel is and how high the sensor flies. Used by
+//! the MGCM and the object-space matching alike; through [`Sensor`] only.
+
+use super::pipeline2::Pipeline2Error;
+use super::project2::Project2;
+use crate::coords::PixelXY;
+use crate::geometry::Sensor;
+
+/// The reference photo and the photos overlapping it. `named` (a photo id from `section` of
+/// project `p`) if given, else the photo overlapping most others (the first of those);
+/// `overlapping` are the pairs whose footprints overlap, `z` the height they were found at.
+pub fn choose_reference(
+    p: &Project2,
+    overlapping: &[(usize, usize)],
+    named: Option<&str>,
+    section: &str,
+    z: f64,
+) -> Result<(usize, Vec<usize>), Pipeline2Error> {
+    let partners = |k: usize| -> Vec<usize> {
+        overlapping
+            .iter()
+            .filter_map(|&(i, j)| {
+                if i == k {
+                    Some(j)
+                } else if j == k {
+                    Some(i)
+                } else {
+                    None
+                }
+            })
+            .collect()
+    };
+    let r = match named {
+        Some(id) => p.photos.iter().position(|ph| ph.id == id).ok_or_else(|| {
+            Pipeline2Error::Heights(format!(
+                "{}: [{section}] reference = \"{id}\": no photo of that id in the project (its photos: {})",
+                p.path.display(),
+                p.photos.iter().map(|ph| ph.id.as_str()).collect::<Vec<_>>().join(", ")
+            ))
+        })?,
+        None => (0..p.photos.len())
+            .max_by_key(|&k| (partners(k).len(), std::cmp::Reverse(k)))
+            .unwrap_or(0),
+    };
+    let others = partners(r);
+    if others.is_empty() {
+        return Err(Pipeline2Error::Heights(format!(
+            "{}: [{section}] reference = \"{}\" overlaps no other photo at {z:.0} m: name another",
+            p.path.display(),
+            p.photos[r].id,
+        )));
+    }
+    Ok((r, others))
+}
+
+/// Pixels of parallax per metre of height at reference pixel `q` and height `z`: the largest
+/// over the search photos of how far their image of the reference's ray moves per metre
+/// (NaN where the ray does not reach `z`).
+pub fn parallax_per_m(reference: &dyn Sensor, searches: &[&dyn Sensor], q: PixelXY, z: f64) -> f64 {
+    let (Some(a), Some(b)) = (
+        reference.image_to_ground(q, z + 1.0),
+        reference.image_to_ground(q, z - 1.0),
+    ) else {
+        return f64::NAN;
+    };
+    searches
+        .iter()
+        .filter_map(|s| {
+            let (p, m) = (s.ground_to_image(a)?, s.ground_to_image(b)?);
+            Some(0.5 * (p.col - m.col).hypot(p.row - m.row))
+        })
+        .fold(0.0, f64::max)
+}
+
+/// The ground distance one pixel step along the rows covers at pixel `q` and height `z`, m.
+pub fn ground_pixel_m(s: &dyn Sensor, q: PixelXY, z: f64) -> Option<f64> {
+    let a = s.image_to_ground(q, z)?;
+    let b = s.image_to_ground(PixelXY::new(q.col + 1.0, q.row), z)?;
+    let d = (a.x - b.x).hypot(a.y - b.y);
+    (d.is_finite() && d > 0.0).then_some(d)
+}
+
+/// The height of the sensor above the ground at pixel `q` and height `z`, m, from how the
+/// ground footprint of a pixel grows with the distance: for a frame camera d = (Z₀ − z) and a
+/// pixel covers p·d/f, so d = gsd(z)·Δz / (gsd(z) − gsd(z + Δz)).
+pub fn flying_height(s: &dyn Sensor, q: PixelXY, z: f64) -> Option<f64> {
+    let dz = 50.0;
+    let (g0, g1) = (ground_pixel_m(s, q, z)?, ground_pixel_m(s, q, z + dz)?);
+    let d = g0 * dz / (g0 - g1);
+    (d.is_finite() && d > 0.0).then_some(d)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::coords::GroundM;
+    use crate::matching::pipeline2::vertical_sensor;
+
+    /// Vertical photos, f = 153 mm, 0.1 mm pixels, 1000 m above a datum, base 120 m: at
+    /// height h a pixel covers 0.1·(1000 − h)/153 m, the parallax is f·B/((Z₀ − h)·s) px and
+    /// changes by f·B/((Z₀ − h)²·s) px per metre, the flying height is Z₀ − h.
+    #[test]
+    fn closed_forms_of_vertical_photos() {
+        let a = vertical_sensor(GroundM::new(0.0, 0.0, 1000.0), 153.0, 400, 0.1);
+        let b = vertical_sensor(GroundM::new(120.0, 0.0, 1000.0), 153.0, 400, 0.1);
+        let q = PixelXY::new(200.0, 200.0);
+        let h = 50.0;
+        let gsd = ground_pixel_m(&a, q, h).unwrap();
+        assert!((gsd - 0.1 * 950.0 / 153.0).abs() < 1e-9, "{gsd}");
+        let pp = parallax_per_m(&a, &[&b], q, h);
+        let want = 153.0 * 120.0 / (950.0f64.powi(2) * 0.1);
+        assert!((pp - want).abs() < 1e-4 * want, "{pp} vs {want}");
+        let d = flying_height(&a, q, h).unwrap();
+        assert!((d - 950.0).abs() < 1e-6, "{d}");
+    }
+}

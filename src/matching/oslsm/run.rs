@@ -1,0 +1,490 @@
+//! The object-space matching over a format-2 project (seed 001): the sweep gives the coarse
+//! DEM (kept in `coarse/`), its nodes become the posts, the reference photo's footprint is
+//! cut into groundels of about a ground pixel, and the heights, the reflectance and each
+//! photo's offset and gain are adjusted patch by patch from every photo overlapping the
+//! reference. Written as the sweep's outputs are (dem.tif with the posts refined from the grey
+//! values, quality.tif with their σ), with the reflectance as an orthophoto
+//! (reflectance.tif, the reference photo's grey values) and the convergence plot.
+
+use super::config::OslsmConfig;
+use super::grids::Grids;
+use super::patches::{refine_block, PatchReport};
+use super::plot::convergence_plot;
+use super::PhotoView;
+use crate::coords::PixelXY;
+use crate::geometry::{Crs, Resection, Sensor};
+use crate::matching::block_geometry::{choose_reference, ground_pixel_m, parallax_per_m};
+use crate::matching::grid::{Comparison, ElevationGrid, NodeQuality};
+use crate::matching::pipeline::{Photo, PipelineError};
+use crate::matching::pipeline2::{orient, ModelFigures, Oriented, Pipeline2Error};
+use crate::matching::progress::Progress;
+use crate::matching::project2::Project2;
+use crate::matching::MatchedPoint;
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+/// A photo's offset and gain over the patches that see it (each patch has its own: seed
+/// 001's local radiometric correction), against the reference photo's grey values.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PhotoRadiometry {
+    pub id: String,
+    pub patches: usize,
+    pub offset_median: f64,
+    pub gain_median: f64,
+    pub gain_min: f64,
+    pub gain_max: f64,
+}
+
+/// `report.json` of an object-space run.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct OslsmReport {
+    pub project: PathBuf,
+    pub method: String,
+    pub crs: Crs,
+    pub resected: Vec<(String, Resection)>,
+    /// The radiometric datum and the photo whose footprint is modelled.
+    pub reference: String,
+    /// The photos adjusted with it.
+    pub others: Vec<String>,
+    pub heights_m: [f64; 2],
+    pub extent: [f64; 4],
+    pub config: OslsmConfig,
+    /// Posts (the DEM's nodes) and groundels, m; groundels along a post cell's side.
+    pub post_m: f64,
+    pub groundel_m: f64,
+    pub groundels_per_cell: usize,
+    pub groundels: usize,
+    /// Height per pixel of parallax at the reference's centre, m.
+    pub m_per_px: f64,
+    /// The coarse model from the sweep (in `coarse/`) against the reference DEM, and the
+    /// nodes it had no height for (filled from their neighbours before the adjustment).
+    pub coarse_comparison: Option<Comparison>,
+    pub coarse_holes_filled: usize,
+    pub radiometry: Vec<PhotoRadiometry>,
+    pub patches: Vec<PatchReport>,
+    /// Posts refined from the grey values (the DEM's other nodes are nodata).
+    pub refined_posts: usize,
+    /// Memory estimated before the adjustment, MiB.
+    pub memory_estimate_mib: u64,
+    pub seconds: f64,
+    /// Groundels adjusted per second (the adjustment alone).
+    pub groundels_per_second: f64,
+    #[serde(flatten)]
+    pub model: ModelFigures,
+    #[serde(default)]
+    pub warnings: Vec<String>,
+}
+
+impl OslsmReport {
+    pub fn summary(&self) -> Vec<(String, String)> {
+        let mut v = vec![
+            (
+                "method".to_string(),
+                format!(
+                    "object-space least-squares matching: photo {} (the radiometric datum) with {}",
+                    self.reference,
+                    self.others.join(", ")
+                ),
+            ),
+            (
+                "heights tried".into(),
+                format!("{:.1} … {:.1} m", self.heights_m[0], self.heights_m[1]),
+            ),
+            (
+                "grids".into(),
+                format!(
+                    "posts every {:.2} m, {} groundels of {:.3} m ({} to a cell side), {:.3} m per px of parallax",
+                    self.post_m, self.groundels, self.groundel_m, self.groundels_per_cell, self.m_per_px
+                ),
+            ),
+        ];
+        if let Some(c) = &self.coarse_comparison {
+            v.push(("coarse model (the sweep)".into(), c.summary()));
+        }
+        let failed = self.patches.iter().filter(|p| p.failure.is_some()).count();
+        let iters: Vec<usize> = self
+            .patches
+            .iter()
+            .filter(|p| p.failure.is_none())
+            .map(|p| p.iterations)
+            .collect();
+        v.push((
+            "patches".into(),
+            format!(
+                "{} adjusted ({} … {} iterations), {failed} failed; {} posts refined; {:.0} groundels/s",
+                iters.len(),
+                iters.iter().min().unwrap_or(&0),
+                iters.iter().max().unwrap_or(&0),
+                self.refined_posts,
+                self.groundels_per_second
+            ),
+        ));
+        for r in &self.radiometry {
+            v.push((
+                format!("photo {}", r.id),
+                format!(
+                    "gain {:.4} (patches {:.4} … {:.4}), offset {:.1} against photo {}, over {} patches",
+                    r.gain_median, r.gain_min, r.gain_max, r.offset_median, self.reference, r.patches
+                ),
+            ));
+        }
+        v.extend(self.model.lines());
+        for w in &self.warnings {
+            v.push(("warning".into(), w.clone()));
+        }
+        v
+    }
+}
+
+/// Fills a grid's NaN nodes from their filled neighbours, ring by ring inward (the mean of
+/// the filled ones among the 8); the number filled, or `None` when no node has a height.
+fn fill_holes(z: &mut [f64], cols: usize, rows: usize) -> Option<usize> {
+    let holes = z.iter().filter(|v| !v.is_finite()).count();
+    if holes == z.len() {
+        return None;
+    }
+    loop {
+        let before: Vec<f64> = z.to_vec();
+        let mut changed = false;
+        for r in 0..rows {
+            for c in 0..cols {
+                if before[r * cols + c].is_finite() {
+                    continue;
+                }
+                let (mut s, mut n) = (0.0, 0);
+                for dr in -1i64..=1 {
+                    for dc in -1i64..=1 {
+                        let (rr, cc) = (r as i64 + dr, c as i64 + dc);
+                        if rr < 0 || cc < 0 || rr >= rows as i64 || cc >= cols as i64 {
+                            continue;
+                        }
+                        let v = before[rr as usize * cols + cc as usize];
+                        if v.is_finite() {
+                            s += v;
+                            n += 1;
+                        }
+                    }
+                }
+                if n > 0 {
+                    z[r * cols + c] = s / n as f64;
+                    changed = true;
+                }
+            }
+        }
+        if !changed {
+            return Some(holes);
+        }
+    }
+}
+
+/// Bytes the adjustment holds at once for `groundels` in the block, `posts` per patch
+/// (patch_posts²), `kp` photos and `threads` patches in flight: per groundel of the block its
+/// merged reflectance and weights and its patches' reflectance (with the overlap, twice);
+/// per patch in flight its dense normal matrices (one per worker accumulating, the sum, the
+/// factor and the inverse: threads + 3) and its groundels' observations and sight lines.
+pub fn memory_bytes(
+    groundels: u64,
+    posts: u64,
+    per_patch_groundels: u64,
+    kp: u64,
+    threads: u64,
+) -> u64 {
+    let nu = posts + 2 * kp;
+    let block = groundels * (3 * 8 + 2 * 9);
+    let normals = nu * nu * 8 * (threads + 3);
+    let per_groundel = kp * (24 + 1) + 64;
+    block + threads * (normals + per_patch_groundels * per_groundel)
+}
+
+/// Runs the object-space matching of project `p` on its loaded photos into `out`.
+pub fn run(
+    p: &Project2,
+    photos: &[Photo],
+    out: &Path,
+    max_memory_mb: Option<u64>,
+    progress: &dyn Progress,
+) -> Result<OslsmReport, Pipeline2Error> {
+    crate::matching::pipeline::check_out_dir(out)?;
+    let started = std::time::Instant::now();
+    let cfg = p.matching.oslsm.clone();
+    let geometry: Vec<_> = photos.iter().map(Photo::geometry).collect();
+    let Oriented {
+        sensors,
+        resected,
+        heights,
+        extent,
+        overlapping,
+    } = orient(p, &geometry)?;
+    let mid = 0.5 * (heights[0] + heights[1]);
+    let (r, others) = choose_reference(
+        p,
+        &overlapping,
+        cfg.reference.as_deref(),
+        "matching.oslsm",
+        mid,
+    )?;
+    let (rw, rh) = (photos[r].image.width, photos[r].image.height);
+    let centre = PixelXY::new(0.5 * rw as f64, 0.5 * rh as f64);
+    let searches: Vec<&dyn Sensor> = others.iter().map(|&k| &sensors[k] as &dyn Sensor).collect();
+    let px_per_m = parallax_per_m(&sensors[r], &searches, centre, mid);
+    if px_per_m.is_nan() || px_per_m <= 1e-9 {
+        return Err(Pipeline2Error::Grid(
+            "the photos show no parallax with height (no base between them): nothing to match"
+                .into(),
+        ));
+    }
+    let m_per_px = 1.0 / px_per_m;
+    let gsd = ground_pixel_m(&sensors[r], centre, mid).ok_or_else(|| {
+        Pipeline2Error::Grid(format!(
+            "photo {}: its centre's ray does not reach {mid:.0} m",
+            p.photos[r].id
+        ))
+    })?;
+    let post_m = p.cell_m;
+    let per_cell = (post_m / (cfg.groundel_px * gsd)).round().max(1.0);
+    if per_cell > 64.0 {
+        return Err(Pipeline2Error::Grid(format!(
+            "{}: [dem] cell_m = {post_m} m holds {per_cell:.0} groundels of {:.2} m along a side (at most 64): use a smaller cell_m or a larger [matching.oslsm] groundel_px",
+            p.path.display(),
+            cfg.groundel_px * gsd
+        )));
+    }
+    let per_cell = per_cell as usize;
+    let groundel_m = post_m / per_cell as f64;
+    // The posts: the model's nodes. Memory before anything large is made.
+    let budget = max_memory_mb.unwrap_or(p.limits.max_memory_mb);
+    let mut grid = ElevationGrid::covering(extent, post_m, budget)
+        .map_err(|e| Pipeline2Error::Grid(e.to_string()))?;
+    let (cols, rows) = (grid.cols, grid.rows);
+    let groundels = (cols.saturating_sub(1) as u64)
+        * (rows.saturating_sub(1) as u64)
+        * (per_cell as u64).pow(2);
+    let side = cfg.patch_posts.min(cols.max(rows)) as u64;
+    let threads = rayon::current_num_threads().max(1) as u64;
+    let bytes = memory_bytes(
+        groundels,
+        side * side,
+        (side.saturating_sub(1) * per_cell as u64).pow(2),
+        (others.len() + 1) as u64,
+        threads,
+    );
+    let limit = budget << 20;
+    if bytes > limit {
+        return Err(Pipeline2Error::Grid(format!(
+            "the object-space adjustment of {groundels} groundels of {groundel_m:.2} m needs about {} MiB; the limit is {} MiB ([limits] max_memory_mb or --max-memory-mb; or a larger [matching.oslsm] groundel_px)",
+            bytes >> 20,
+            budget
+        )));
+    }
+    // The coarse model: the sweep, with all its outputs, in coarse/.
+    let coarse =
+        crate::matching::pipeline2::run(p, photos, &out.join("coarse"), max_memory_mb, progress)?;
+    let cg = &coarse.model.grid;
+    let mut zc: Vec<f64> = (0..cols * rows)
+        .map(|k| {
+            let [x, y] = grid.node(k % cols, k / cols);
+            cg.interpolate(x, y)
+        })
+        .collect();
+    let holes = fill_holes(&mut zc, cols, rows).ok_or_else(|| {
+        Pipeline2Error::Grid(
+            "the sweep found no height at all: nothing to refine (see coarse/report.html)".into(),
+        )
+    })?;
+    // Posts with Y north (grids.rs) from the grid's rows from the north.
+    let grids = Grids {
+        x0: grid.x0,
+        y0: grid.y0 - (rows - 1) as f64 * post_m,
+        post_m,
+        cols,
+        rows,
+        z: (0..rows)
+            .flat_map(|j| (0..cols).map(move |i| (rows - 1 - j) * cols + i))
+            .map(|k| zc[k])
+            .collect(),
+        per_cell,
+    };
+    let order: Vec<usize> = std::iter::once(r).chain(others.iter().copied()).collect();
+    let views: Vec<PhotoView> = order
+        .iter()
+        .map(|&k| PhotoView {
+            image: &photos[k].image,
+            sensor: &sensors[k],
+        })
+        .collect();
+    let adjust_started = std::time::Instant::now();
+    let merged = refine_block(
+        &views,
+        &grids,
+        cfg.layout(),
+        &cfg.params(m_per_px),
+        progress,
+    )
+    .map_err(|e| Pipeline2Error::Grid(format!("the object-space adjustment: {e}")))?;
+    let adjust_seconds = adjust_started.elapsed().as_secs_f64();
+    // The model: posts refined from the grey values, with their σ: the adjustment's and
+    // the terrain's bending between posts that the bilinear surface cannot follow.
+    let bend = super::grids::representation_sigma(&merged.z, cols, rows);
+    let mut sigma = vec![f32::NAN; cols * rows];
+    let mut points = Vec::new();
+    for j in 0..rows {
+        for i in 0..cols {
+            let k = (rows - 1 - j) * cols + i;
+            let l = j * cols + i;
+            let s = merged.sigma_z[l].hypot(bend[l]);
+            if s.is_finite() {
+                grid.z[k] = merged.z[l] as f32;
+                sigma[k] = s as f32;
+                let [x, y] = grid.node(i, rows - 1 - j);
+                points.push(MatchedPoint {
+                    ground: crate::coords::GroundM::new(x, y, merged.z[l]),
+                    corr: f32::NAN,
+                    sigma_m: s as f32,
+                });
+            } else {
+                grid.z[k] = f32::NAN;
+            }
+        }
+    }
+    let quality = NodeQuality {
+        sigma_m: sigma,
+        corr: vec![f32::NAN; cols * rows],
+    };
+    let refined_posts = points.len();
+    // The reflectance as an orthophoto of groundel cells, rows from the north.
+    let (gu, gv) = grids.groundels();
+    let reflectance = ElevationGrid {
+        x0: grids.x0 + 0.5 * groundel_m,
+        y0: grids.y0 + (gv as f64 - 0.5) * groundel_m,
+        cell_m: groundel_m,
+        cols: gu,
+        rows: gv,
+        z: (0..gv)
+            .flat_map(|rr| (0..gu).map(move |u| (gv - 1 - rr) * gu + u))
+            .map(|k| merged.d[k] as f32)
+            .collect(),
+    };
+    let radiometry: Vec<PhotoRadiometry> = (1..order.len())
+        .map(|n| {
+            let v: Vec<[f64; 2]> = merged
+                .patches
+                .iter()
+                .filter_map(|pr| pr.radiometry.as_ref()?.get(n).copied().flatten())
+                .collect();
+            let median = |mut x: Vec<f64>| {
+                x.sort_by(f64::total_cmp);
+                x.get(x.len() / 2).copied().unwrap_or(f64::NAN)
+            };
+            let gains: Vec<f64> = v.iter().map(|a| a[1]).collect();
+            PhotoRadiometry {
+                id: p.photos[order[n]].id.clone(),
+                patches: v.len(),
+                offset_median: median(v.iter().map(|a| a[0]).collect()),
+                gain_median: median(gains.clone()),
+                gain_min: gains.iter().copied().fold(f64::NAN, f64::min),
+                gain_max: gains.iter().copied().fold(f64::NAN, f64::max),
+            }
+        })
+        .collect();
+    let mut warnings = Vec::new();
+    let failed: Vec<&PatchReport> = merged
+        .patches
+        .iter()
+        .filter(|pr| pr.failure.is_some())
+        .collect();
+    if !failed.is_empty() {
+        warnings.push(format!(
+            "{} of {} patches failed (their posts are nodata; the sweep's heights are in coarse/dem.tif): first {}",
+            failed.len(),
+            merged.patches.len(),
+            failed[0]
+                .failure
+                .as_ref()
+                .map(|e| e.to_string())
+                .unwrap_or_default()
+        ));
+    }
+    if holes * 4 > cols * rows {
+        warnings.push(format!(
+            "the sweep left {holes} of {} nodes without a height (filled from their neighbours before the adjustment): the coarse model may be far off there",
+            cols * rows
+        ));
+    }
+    let obs = p.observations()?;
+    let (model, reference_dem) = ModelFigures::check(p, &obs, grid, &quality.sigma_m)?;
+    let report = OslsmReport {
+        project: p.path.clone(),
+        method: "oslsm".into(),
+        crs: p.crs,
+        resected,
+        reference: p.photos[r].id.clone(),
+        others: others.iter().map(|&k| p.photos[k].id.clone()).collect(),
+        heights_m: heights,
+        extent,
+        config: cfg.clone(),
+        post_m,
+        groundel_m,
+        groundels_per_cell: per_cell,
+        groundels: gu * gv,
+        m_per_px,
+        coarse_comparison: coarse.model.comparison.clone(),
+        coarse_holes_filled: holes,
+        radiometry,
+        patches: merged.patches.clone(),
+        refined_posts,
+        memory_estimate_mib: bytes >> 20,
+        seconds: started.elapsed().as_secs_f64(),
+        groundels_per_second: (gu * gv) as f64 / adjust_seconds.max(1e-9),
+        model,
+        warnings,
+    };
+    let write = |source| PipelineError::Write {
+        dir: out.to_path_buf(),
+        cause: source,
+    };
+    crate::matching::pipeline2::write_model(
+        out,
+        &report.model.grid,
+        &points,
+        &quality,
+        photos,
+        &sensors,
+        reference_dem.as_ref().zip(report.model.comparison.as_ref()),
+        p.crs,
+        &report,
+        &report.summary(),
+    )
+    .map_err(write)?;
+    crate::matching::output::write_ortho(
+        &out.join("reflectance.tif"),
+        &reflectance,
+        p.crs,
+        &reflectance.z,
+    )
+    .map_err(write)?;
+    convergence_plot(
+        &report.patches,
+        m_per_px,
+        cfg.converged_px,
+        &out.join("convergence.png"),
+    )
+    .map_err(write)?;
+    Ok(report)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Holes are filled from their neighbours, a ring at a time; a grid with no height at
+    /// all is refused.
+    #[test]
+    fn holes_fill_from_the_neighbours() {
+        let n = f64::NAN;
+        let mut z = vec![1.0, n, n, 1.0, n, n, 1.0, 1.0, n];
+        assert_eq!(fill_holes(&mut z, 3, 3), Some(5));
+        assert!(z.iter().all(|v| (v - 1.0).abs() < 1e-12), "{z:?}");
+        let mut none = vec![n; 4];
+        assert_eq!(fill_holes(&mut none, 2, 2), None);
+    }
+}
