@@ -258,10 +258,11 @@ fn print_oslsm(
         println!("{k}: {v}");
     }
     println!(
-        "outputs in {}: dem.tif (posts refined from the grey values), quality.tif (σ m), reflectance.tif (the terrain's reflectance in photo {}'s grey values), convergence.png, points.ply, points.las, ortho.tif, hillshade.png, quality.png{}, report.json, report.html; the sweep's coarse model in coarse/",
+        "outputs in {}: dem.tif (posts refined from the grey values), quality.tif (σ m), reflectance.tif (the terrain's reflectance in photo {}'s grey values), convergence.png, points.ply, points.las, ortho.tif, hillshade.png, quality.png{}, report.json, report.html{}",
         out.display(),
         r.reference,
-        if r.model.comparison.is_some() { ", error.png" } else { "" }
+        if r.model.comparison.is_some() { ", error.png" } else { "" },
+        if r.config.coarse.is_none() { "; the sweep's coarse model in coarse/" } else { "" }
     );
     Ok(code)
 }

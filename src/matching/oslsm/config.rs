@@ -26,6 +26,10 @@ pub struct OslsmConfig {
     /// The radiometric datum (its offset 0, gain 1) and the photo whose footprint is
     /// modelled; default: the one overlapping most others.
     pub reference: Option<String>,
+    /// The coarse model: a GeoTIFF DEM in the project's CRS (relative to the project file),
+    /// e.g. a national DEM; default: the sweep's, run first into `coarse/`. It must be within
+    /// a pixel or two of parallax of the terrain: least squares pulls in no further.
+    pub coarse: Option<std::path::PathBuf>,
 }
 
 impl Default for OslsmConfig {
@@ -38,6 +42,7 @@ impl Default for OslsmConfig {
             converged_px: 0.005,
             smoothness: OslsmParams::default().smoothness,
             reference: None,
+            coarse: None,
         }
     }
 }

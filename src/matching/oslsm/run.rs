@@ -59,6 +59,8 @@ pub struct OslsmReport {
     /// The coarse model from the sweep (in `coarse/`) against the reference DEM, and the
     /// nodes it had no height for (filled from their neighbours before the adjustment).
     pub coarse_comparison: Option<Comparison>,
+    /// Where the coarse model came from: "sweep" (its outputs in coarse/) or the file.
+    pub coarse_source: String,
     pub coarse_holes_filled: usize,
     pub radiometry: Vec<PhotoRadiometry>,
     pub patches: Vec<PatchReport>,
@@ -99,7 +101,10 @@ impl OslsmReport {
             ),
         ];
         if let Some(c) = &self.coarse_comparison {
-            v.push(("coarse model (the sweep)".into(), c.summary()));
+            v.push((
+                format!("coarse model ({})", self.coarse_source),
+                c.summary(),
+            ));
         }
         let failed = self.patches.iter().filter(|p| p.failure.is_some()).count();
         let iters: Vec<usize> = self
@@ -276,10 +281,41 @@ pub fn run(
             budget
         )));
     }
-    // The coarse model: the sweep, with all its outputs, in coarse/.
-    let coarse =
-        crate::matching::pipeline2::run(p, photos, &out.join("coarse"), max_memory_mb, progress)?;
-    let cg = &coarse.model.grid;
+    // The coarse model: the project's file, or the sweep with all its outputs in coarse/.
+    let (cg, coarse_comparison) = match &cfg.coarse {
+        Some(f) => {
+            let path = p.path.parent().unwrap_or(Path::new(".")).join(f);
+            let g = crate::matching::output::read_geotiff(&path).map_err(|e| {
+                Pipeline2Error::Grid(format!(
+                    "{}: [matching.oslsm] coarse = \"{}\": {e}",
+                    p.path.display(),
+                    f.display()
+                ))
+            })?;
+            let reference = match &p.reference {
+                Some(r) => Some(crate::matching::output::read_geotiff(r).map_err(|source| {
+                    PipelineError::Reference {
+                        path: r.clone(),
+                        cause: source,
+                    }
+                })?),
+                None => None,
+            };
+            let c = reference.map(|r| g.compare(|x, y| r.interpolate(x, y)));
+            (g, c)
+        }
+        None => {
+            let r = crate::matching::pipeline2::run(
+                p,
+                photos,
+                &out.join("coarse"),
+                max_memory_mb,
+                progress,
+            )?;
+            let c = r.model.comparison.clone();
+            (r.model.grid, c)
+        }
+    };
     let mut zc: Vec<f64> = (0..cols * rows)
         .map(|k| {
             let [x, y] = grid.node(k % cols, k / cols);
@@ -288,7 +324,7 @@ pub fn run(
         .collect();
     let holes = fill_holes(&mut zc, cols, rows).ok_or_else(|| {
         Pipeline2Error::Grid(
-            "the sweep found no height at all: nothing to refine (see coarse/report.html)".into(),
+            "the coarse model has no height over the photos: nothing to refine (the sweep's: see coarse/report.html; a [matching.oslsm] coarse file: is it in the project's CRS?)".into(),
         )
     })?;
     // Posts with Y north (grids.rs) from the grid's rows from the north.
@@ -394,7 +430,7 @@ pub fn run(
         .collect();
     if !failed.is_empty() {
         warnings.push(format!(
-            "{} of {} patches failed (their posts are nodata; the sweep's heights are in coarse/dem.tif): first {}",
+            "{} of {} patches failed (their posts are nodata in dem.tif; see the patches in report.json): first {}",
             failed.len(),
             merged.patches.len(),
             failed[0]
@@ -406,7 +442,7 @@ pub fn run(
     }
     if holes * 4 > cols * rows {
         warnings.push(format!(
-            "the sweep left {holes} of {} nodes without a height (filled from their neighbours before the adjustment): the coarse model may be far off there",
+            "the coarse model has no height at {holes} of {} nodes (filled from their neighbours before the adjustment): it may be far off there",
             cols * rows
         ));
     }
@@ -427,7 +463,11 @@ pub fn run(
         groundels_per_cell: per_cell,
         groundels: gu * gv,
         m_per_px,
-        coarse_comparison: coarse.model.comparison.clone(),
+        coarse_comparison,
+        coarse_source: match &cfg.coarse {
+            Some(f) => f.display().to_string(),
+            None => "the sweep, in coarse/".into(),
+        },
         coarse_holes_filled: holes,
         radiometry,
         patches: merged.patches.clone(),
