@@ -3,18 +3,8 @@
 
 mod common;
 
-use common::rig;
+use common::{rig, run_ok};
 use serde_json::Value;
-
-fn run_ok(cmd: &mut std::process::Command) -> std::process::Output {
-    let out = cmd.output().unwrap();
-    assert!(
-        out.status.success(),
-        "{cmd:?}: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    out
-}
 
 /// `rig sim scene` of seed 3 over a small area, in `dir`/scene.
 fn rendered_scene(dir: &std::path::Path) -> std::path::PathBuf {

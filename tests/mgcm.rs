@@ -6,19 +6,9 @@
 
 mod common;
 
-use common::rig;
+use common::{rig, run_ok};
 use serde_json::Value;
 use std::path::Path;
-
-fn run_ok(cmd: &mut std::process::Command) -> std::process::Output {
-    let out = cmd.output().unwrap();
-    assert!(
-        out.status.success(),
-        "{cmd:?}: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    out
-}
 
 /// block.toml with only `photos`, method "mgcm" and `extra` in [matching.mgcm].
 fn project(scene: &Path, name: &str, photos: &[u32], extra: &str) -> std::path::PathBuf {

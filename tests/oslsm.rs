@@ -7,23 +7,13 @@
 
 mod common;
 
-use common::rig;
+use common::{rig, run_ok};
 use rig::matching::output::{read_geotiff, write_geotiff};
 use serde_json::Value;
 use std::path::{Path, PathBuf};
 
 const GAINS: [f64; 3] = [1.0, 1.2, 0.85];
 const OFFSETS: [f64; 3] = [0.0, -3000.0, 4000.0];
-
-fn run_ok(cmd: &mut std::process::Command) -> std::process::Output {
-    let out = cmd.output().unwrap();
-    assert!(
-        out.status.success(),
-        "{cmd:?}: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    out
-}
 
 /// block.toml with method "oslsm", photo 1 the reference, and `extra` in [matching.oslsm].
 fn project(scene: &Path, name: &str, extra: &str) -> PathBuf {

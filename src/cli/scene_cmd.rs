@@ -379,7 +379,7 @@ fn block_toml(seed: u64, photos: &[&AerialPhoto], hs: [f64; 2]) -> String {
         );
     }
     t += &format!(
-        "\n[dem]\ncell_m = 10.0\nheights = [{:.0}, {:.0}]\n\n[matching]\nmethod = \"sweep\"   # or \"mgcm\" (seed 002's multiphoto matching; see [matching.mgcm] in the README)\n\n[check]\nreference = \"truth-dem.tif\"\n",
+        "\n[dem]\ncell_m = 10.0\nheights = [{:.0}, {:.0}]\n\n[matching]\nmethod = \"sweep\"   # or \"mgcm\" (seed 002's multiphoto matching) or \"oslsm\" (seed 001's object-space matching); see the README\n\n[check]\nreference = \"truth-dem.tif\"\n",
         hs[0] - 30.0,
         hs[1] + 30.0
     );
@@ -546,7 +546,7 @@ pub fn run(a: &SceneArgs) -> anyhow::Result<i32> {
     );
     std::fs::write(a.out.join("project.toml"), project)?;
     println!(
-        "scene in {}: {} and {}{}, {} control and {} check points, truth-dem.tif, project.toml (format 1, photos 1 and 2), block.toml (format 2, all {} photos with their true orientations)",
+        "scene in {}: {} and {}{}, {} control and {} check points, truth-dem.tif, truth-reflectance.tif, project.toml (format 1, photos 1 and 2), block.toml (format 2, all {} photos with their true orientations)",
         a.out.display(),
         s1.display(),
         s2.display(),

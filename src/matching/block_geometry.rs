@@ -3,7 +3,8 @@
 //! a metre of height makes, how large a ground pixel is and how high the sensor flies. Used by
 //! the MGCM and the object-space matching alike; through [`Sensor`] only.
 
-use super::pipeline2::Pipeline2Error;
+use super::pipeline::Photo;
+use super::pipeline2::{orient, Oriented, Pipeline2Error};
 use super::project2::Project2;
 use crate::coords::PixelXY;
 use crate::geometry::Sensor;
@@ -53,6 +54,35 @@ pub fn choose_reference(
         )));
     }
     Ok((r, others))
+}
+
+/// A block as a multiphoto matcher starts it: the photos oriented, the heights, extent and
+/// overlaps ([`orient`]), the middle height, and the reference photo with the photos
+/// overlapping it ([`choose_reference`]).
+pub struct Block {
+    pub oriented: Oriented,
+    pub mid: f64,
+    pub reference: usize,
+    pub others: Vec<usize>,
+}
+
+/// [`Block`] of project `p` for `photos`, the reference `named` in `[section]` (or chosen).
+pub fn block(
+    p: &Project2,
+    photos: &[Photo],
+    named: Option<&str>,
+    section: &str,
+) -> Result<Block, Pipeline2Error> {
+    let geometry: Vec<_> = photos.iter().map(Photo::geometry).collect();
+    let oriented = orient(p, &geometry)?;
+    let mid = 0.5 * (oriented.heights[0] + oriented.heights[1]);
+    let (reference, others) = choose_reference(p, &oriented.overlapping, named, section, mid)?;
+    Ok(Block {
+        oriented,
+        mid,
+        reference,
+        others,
+    })
 }
 
 /// Pixels of parallax per metre of height at reference pixel `q` and height `z`: the largest

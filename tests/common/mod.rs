@@ -12,6 +12,17 @@ pub fn rig() -> Command {
     Command::new(env!("CARGO_BIN_EXE_rig"))
 }
 
+/// Runs `cmd`, asserting it succeeds (its standard error in the message if not).
+pub fn run_ok(cmd: &mut Command) -> Output {
+    let out = cmd.output().unwrap();
+    assert!(
+        out.status.success(),
+        "{cmd:?}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    out
+}
+
 /// A `rig sim` child process, stopped with SIGTERM on drop.
 pub struct SimProcess {
     pub child: Child,

@@ -18,11 +18,11 @@ use crate::coords::PixelXY;
 use crate::geometry::{Crs, Resection, Sensor};
 use crate::matching::accuracy::{analyse, Accuracy};
 use crate::matching::block_geometry::{
-    choose_reference, flying_height, ground_pixel_m, parallax_per_m,
+    block, flying_height, ground_pixel_m, parallax_per_m, Block,
 };
 use crate::matching::grid::ElevationGrid;
 use crate::matching::pipeline::{Photo, PipelineError};
-use crate::matching::pipeline2::{orient, ModelFigures, Oriented, Pipeline2Error};
+use crate::matching::pipeline2::{ModelFigures, Oriented, Pipeline2Error};
 use crate::matching::progress::Progress;
 use crate::matching::project2::Project2;
 use crate::matching::MatchedPoint;
@@ -550,22 +550,19 @@ pub fn run(
     crate::matching::pipeline::check_out_dir(out)?;
     let started = std::time::Instant::now();
     let cfg = p.matching.mgcm.clone();
-    let geometry: Vec<_> = photos.iter().map(Photo::geometry).collect();
-    let Oriented {
-        sensors,
-        resected,
-        heights,
-        extent,
-        overlapping,
-    } = orient(p, &geometry)?;
-    let mid = 0.5 * (heights[0] + heights[1]);
-    let (r, others) = choose_reference(
-        p,
-        &overlapping,
-        cfg.reference.as_deref(),
-        "matching.mgcm",
+    let Block {
+        oriented:
+            Oriented {
+                sensors,
+                resected,
+                heights,
+                extent,
+                ..
+            },
         mid,
-    )?;
+        reference: r,
+        others,
+    } = block(p, photos, cfg.reference.as_deref(), "matching.mgcm")?;
     // Memory: every pyramid (image and two gradients, 4/3 of level 0's pixels).
     let bytes: u64 = std::iter::once(r)
         .chain(others.iter().copied())

@@ -38,7 +38,7 @@ impl Default for OslsmConfig {
             groundel_px: 1.15,
             patch_posts: 24,
             overlap_posts: 4,
-            max_iterations: 20,
+            max_iterations: 30,
             converged_px: 0.005,
             smoothness: OslsmParams::default().smoothness,
             reference: None,
@@ -102,5 +102,80 @@ impl OslsmConfig {
             stall_m: 0.05 * m_per_px,
             ..OslsmParams::default()
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The defaults pass; each value out of its range is refused with its key and range.
+    #[test]
+    fn values_out_of_range_are_refused_by_name() {
+        assert_eq!(OslsmConfig::default().check(), Ok(()));
+        let bad: [(&str, OslsmConfig); 7] = [
+            (
+                "groundel_px",
+                OslsmConfig {
+                    groundel_px: f64::NAN,
+                    ..Default::default()
+                },
+            ),
+            (
+                "groundel_px",
+                OslsmConfig {
+                    groundel_px: 0.1,
+                    ..Default::default()
+                },
+            ),
+            (
+                "converged_px",
+                OslsmConfig {
+                    converged_px: 0.0,
+                    ..Default::default()
+                },
+            ),
+            (
+                "smoothness",
+                OslsmConfig {
+                    smoothness: -1.0,
+                    ..Default::default()
+                },
+            ),
+            (
+                "patch_posts",
+                OslsmConfig {
+                    patch_posts: 80,
+                    ..Default::default()
+                },
+            ),
+            (
+                "overlap_posts",
+                OslsmConfig {
+                    overlap_posts: 0,
+                    ..Default::default()
+                },
+            ),
+            (
+                "max_iterations",
+                OslsmConfig {
+                    max_iterations: 0,
+                    ..Default::default()
+                },
+            ),
+        ];
+        for (key, c) in bad {
+            let e = c.check().unwrap_err();
+            assert!(e.contains(&format!("[matching.oslsm] {key}")), "{e}");
+        }
+        // The largest patch allowed stays within the solver's dense limit.
+        let c = OslsmConfig {
+            patch_posts: 69,
+            overlap_posts: 4,
+            ..Default::default()
+        };
+        assert_eq!(c.check(), Ok(()));
+        // (with up to 8 photos' radiometry)
+        assert!(c.patch_posts.pow(2) + 2 * 8 <= MAX_UNKNOWNS);
     }
 }

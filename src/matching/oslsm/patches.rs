@@ -5,7 +5,7 @@
 //! across the overlap, so that no seam shows where one patch hands over to the next.
 
 use super::grids::Grids;
-use super::solve::{refine, Iteration, OslsmError, OslsmParams, Refinement};
+use super::solve::{refine, Iteration, OslsmError, OslsmParams};
 use super::PhotoView;
 use crate::matching::progress::Progress;
 use rayon::prelude::*;
@@ -56,13 +56,10 @@ pub struct Merged {
     pub z: Vec<f64>,
     /// NaN where no patch refined the post (a failed patch, or no grey values there).
     pub sigma_z: Vec<f64>,
-    /// Reflectance per groundel (NaN where none).
-    pub d: Vec<f64>,
+    /// Reflectance per groundel (NaN where none), in f32 to keep a large block small.
+    pub d: Vec<f32>,
     pub patches: Vec<PatchReport>,
 }
-
-/// A patch's first post (column, row), its size (columns, rows) and its refinement.
-type PatchOutcome = (usize, usize, usize, usize, Result<Refinement, OslsmError>);
 
 /// Starts of the patches along one axis of `n` posts.
 fn starts(n: usize, size: usize, overlap: usize) -> Vec<usize> {
@@ -122,37 +119,46 @@ pub fn refine_block(
         .flat_map(|&r| cs.iter().map(move |&c| (c, r)))
         .collect();
     progress.begin("patches", jobs.len() as u64);
-    let results: Vec<PatchOutcome> = jobs
-        .par_iter()
-        .map(|&(c0, r0)| {
-            let w = size.min(coarse.cols - c0);
-            let h = size.min(coarse.rows - r0);
-            let sub = Grids {
-                x0: coarse.x0 + c0 as f64 * coarse.post_m,
-                y0: coarse.y0 + r0 as f64 * coarse.post_m,
-                post_m: coarse.post_m,
-                cols: w,
-                rows: h,
-                z: (0..h)
-                    .flat_map(|j| (0..w).map(move |i| (r0 + j) * coarse.cols + c0 + i))
-                    .map(|k| coarse.z[k])
-                    .collect(),
-                per_cell: coarse.per_cell,
-            };
-            let r = refine(photos, &sub, p);
-            progress.advance(1);
-            (c0, r0, w, h, r)
-        })
-        .collect();
-    progress.end();
+    // Each patch is merged as soon as it is done (no patch's groundels are kept beyond its
+    // merge): the block holds only the sums, in f32 (a grey value to 7 digits).
     let n = coarse.z.len();
     let (gu, gv) = coarse.groundels();
     let m = coarse.per_cell;
-    let (mut zs, mut ss, mut ws) = (vec![0.0; n], vec![0.0; n], vec![0.0; n]);
-    let (mut ds, mut dw) = (vec![0.0; gu * gv], vec![0.0; gu * gv]);
-    let mut patches = Vec::with_capacity(results.len());
-    for (c0, r0, w, h, res) in results {
+    struct Sums {
+        zs: Vec<f64>,
+        ss: Vec<f64>,
+        ws: Vec<f64>,
+        ds: Vec<f32>,
+        dw: Vec<f32>,
+        patches: Vec<PatchReport>,
+    }
+    let sums = std::sync::Mutex::new(Sums {
+        zs: vec![0.0; n],
+        ss: vec![0.0; n],
+        ws: vec![0.0; n],
+        ds: vec![0.0; gu * gv],
+        dw: vec![0.0; gu * gv],
+        patches: Vec::with_capacity(jobs.len()),
+    });
+    jobs.par_iter().for_each(|&(c0, r0)| {
+        let w = size.min(coarse.cols - c0);
+        let h = size.min(coarse.rows - r0);
+        let sub = Grids {
+            x0: coarse.x0 + c0 as f64 * coarse.post_m,
+            y0: coarse.y0 + r0 as f64 * coarse.post_m,
+            post_m: coarse.post_m,
+            cols: w,
+            rows: h,
+            z: (0..h)
+                .flat_map(|j| (0..w).map(move |i| (r0 + j) * coarse.cols + c0 + i))
+                .map(|k| coarse.z[k])
+                .collect(),
+            per_cell: coarse.per_cell,
+        };
+        let res = refine(photos, &sub, p);
         let open = [c0 > 0, c0 + w < coarse.cols, r0 > 0, r0 + h < coarse.rows];
+        let mut guard = sums.lock().unwrap_or_else(|e| e.into_inner());
+        let s = &mut *guard;
         match res {
             Ok(r) => {
                 for j in 0..h {
@@ -164,9 +170,9 @@ pub fn refine_block(
                         let wt = ramp(i as f64, w, overlap, open[0], open[1])
                             * ramp(j as f64, h, overlap, open[2], open[3]);
                         let k = (r0 + j) * coarse.cols + c0 + i;
-                        zs[k] += wt * r.z[l];
-                        ss[k] += wt * r.sigma_z[l];
-                        ws[k] += wt;
+                        s.zs[k] += wt * r.z[l];
+                        s.ss[k] += wt * r.sigma_z[l];
+                        s.ws[k] += wt;
                     }
                 }
                 // Groundels: the weight of the post cell they lie in, by their place in it.
@@ -182,11 +188,11 @@ pub fn refine_block(
                         let wt = ramp(fi, w, overlap, open[0], open[1])
                             * ramp(fj, h, overlap, open[2], open[3]);
                         let k = (r0 * m + v) * gu + c0 * m + u;
-                        ds[k] += wt * d;
-                        dw[k] += wt;
+                        s.ds[k] += (wt * d) as f32;
+                        s.dw[k] += wt as f32;
                     }
                 }
-                patches.push(PatchReport {
+                s.patches.push(PatchReport {
                     first: [c0, r0],
                     size: [w, h],
                     radiometry: Some(
@@ -200,11 +206,11 @@ pub fn refine_block(
                     stalled: r.stalled,
                     inflation: Some(r.inflation),
                     iterations: r.iterations.len(),
-                    history: r.iterations.clone(),
+                    history: r.iterations,
                     failure: None,
                 });
             }
-            Err(e) => patches.push(PatchReport {
+            Err(e) => s.patches.push(PatchReport {
                 first: [c0, r0],
                 size: [w, h],
                 radiometry: None,
@@ -216,7 +222,20 @@ pub fn refine_block(
                 failure: Some(e),
             }),
         }
-    }
+        drop(guard);
+        progress.advance(1);
+    });
+    progress.end();
+    let Sums {
+        zs,
+        ss,
+        ws,
+        mut ds,
+        dw,
+        mut patches,
+    } = sums.into_inner().unwrap_or_else(|e| e.into_inner());
+    // In the block's order, whichever finished first.
+    patches.sort_by_key(|pr| (pr.first[1], pr.first[0]));
     let z = (0..n)
         .map(|k| {
             if ws[k] > 0.0 {
@@ -229,11 +248,10 @@ pub fn refine_block(
     let sigma_z = (0..n)
         .map(|k| if ws[k] > 0.0 { ss[k] / ws[k] } else { f64::NAN })
         .collect();
-    let d = ds
-        .iter()
-        .zip(&dw)
-        .map(|(s, w)| if *w > 0.0 { s / w } else { f64::NAN })
-        .collect();
+    for (d, w) in ds.iter_mut().zip(&dw) {
+        *d = if *w > 0.0 { *d / w } else { f32::NAN };
+    }
+    let d = ds;
     Ok(Merged {
         z,
         sigma_z,

@@ -13,10 +13,10 @@ use super::plot::convergence_plot;
 use super::PhotoView;
 use crate::coords::PixelXY;
 use crate::geometry::{Crs, Resection, Sensor};
-use crate::matching::block_geometry::{choose_reference, ground_pixel_m, parallax_per_m};
+use crate::matching::block_geometry::{block, ground_pixel_m, parallax_per_m, Block};
 use crate::matching::grid::{Comparison, ElevationGrid, NodeQuality};
 use crate::matching::pipeline::{Photo, PipelineError};
-use crate::matching::pipeline2::{orient, ModelFigures, Oriented, Pipeline2Error};
+use crate::matching::pipeline2::{ModelFigures, Oriented, Pipeline2Error};
 use crate::matching::progress::Progress;
 use crate::matching::project2::Project2;
 use crate::matching::MatchedPoint;
@@ -184,9 +184,10 @@ fn fill_holes(z: &mut [f64], cols: usize, rows: usize) -> Option<usize> {
 
 /// Bytes the adjustment holds at once for `groundels` in the block, `posts` per patch
 /// (patch_posts²), `kp` photos and `threads` patches in flight: per groundel of the block its
-/// merged reflectance and weights and its patches' reflectance (with the overlap, twice);
-/// per patch in flight its dense normal matrices (one per worker accumulating, the sum, the
-/// factor and the inverse: threads + 3) and its groundels' observations and sight lines.
+/// merged reflectance and weight (f32 each, patches merged as they finish) and the
+/// orthophoto's copy (f32); per patch in flight its dense normal matrices (one per worker
+/// accumulating, the sum, the factor and the inverse: threads + 3) and its groundels'
+/// observations, sight lines and reflectance. The photos are in memory already.
 pub fn memory_bytes(
     groundels: u64,
     posts: u64,
@@ -195,10 +196,10 @@ pub fn memory_bytes(
     threads: u64,
 ) -> u64 {
     let nu = posts + 2 * kp;
-    let block = groundels * (3 * 8 + 2 * 9);
+    let block = groundels.saturating_mul(3 * 4);
     let normals = nu * nu * 8 * (threads + 3);
-    let per_groundel = kp * (24 + 1) + 64;
-    block + threads * (normals + per_patch_groundels * per_groundel)
+    let per_groundel = kp * (24 + 2) + 64;
+    block.saturating_add(threads * (normals + per_patch_groundels * per_groundel))
 }
 
 /// Runs the object-space matching of project `p` on its loaded photos into `out`.
@@ -212,22 +213,19 @@ pub fn run(
     crate::matching::pipeline::check_out_dir(out)?;
     let started = std::time::Instant::now();
     let cfg = p.matching.oslsm.clone();
-    let geometry: Vec<_> = photos.iter().map(Photo::geometry).collect();
-    let Oriented {
-        sensors,
-        resected,
-        heights,
-        extent,
-        overlapping,
-    } = orient(p, &geometry)?;
-    let mid = 0.5 * (heights[0] + heights[1]);
-    let (r, others) = choose_reference(
-        p,
-        &overlapping,
-        cfg.reference.as_deref(),
-        "matching.oslsm",
+    let Block {
+        oriented:
+            Oriented {
+                sensors,
+                resected,
+                heights,
+                extent,
+                ..
+            },
         mid,
-    )?;
+        reference: r,
+        others,
+    } = block(p, photos, cfg.reference.as_deref(), "matching.oslsm")?;
     let (rw, rh) = (photos[r].image.width, photos[r].image.height);
     let centre = PixelXY::new(0.5 * rw as f64, 0.5 * rh as f64);
     let searches: Vec<&dyn Sensor> = others.iter().map(|&k| &sensors[k] as &dyn Sensor).collect();
@@ -397,7 +395,7 @@ pub fn run(
         rows: gv,
         z: (0..gv)
             .flat_map(|rr| (0..gu).map(move |u| (gv - 1 - rr) * gu + u))
-            .map(|k| merged.d[k] as f32)
+            .map(|k| merged.d[k])
             .collect(),
     };
     let radiometry: Vec<PhotoRadiometry> = (1..order.len())

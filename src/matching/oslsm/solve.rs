@@ -61,7 +61,7 @@ pub struct OslsmParams {
 impl Default for OslsmParams {
     fn default() -> Self {
         OslsmParams {
-            max_iterations: 20,
+            max_iterations: 30,
             converged_m: 0.005,
             smoothness: 0.01,
             diverging_ratio: 2.0,
