@@ -173,10 +173,18 @@ pub enum Command {
     ///
     /// A format-2 project (`format = 2`; see the README) names any number of photos as plain
     /// grey images with their cameras and orientations (or resected from control points, or
-    /// the rig's scans), the ground CRS, points and the DEM: every overlapping pair is swept
-    /// and the heights merged. A format-1 project (a scanned pair: `rig sim scene` writes one)
-    /// runs seed 000's method. Outputs in DIR, each written whole or not at all (a killed run
-    /// can be run again):
+    /// the rig's scans), the ground CRS, points and the DEM, and the matcher, `[matching]
+    /// method`:
+    ///   "sweep"  every overlapping pair swept along its epipolar lines, the heights merged
+    ///            (seed 000)
+    ///   "mgcm"   one reference photo's points matched into all the others at once, every
+    ///            ray tested (seed 002); points.csv with every refused point and why
+    ///   "oslsm"  heights, the terrain's reflectance and each photo's gain and offset in one
+    ///            object-space adjustment (seed 001), from the sweep's model in coarse/ or
+    ///            a DEM file; reflectance.tif, convergence.png
+    /// A format-1 project (a scanned pair: `rig sim scene` writes one) runs seed 000's
+    /// method. Outputs in DIR, each written whole or not at all (a killed run can be run
+    /// again):
     ///   dem.tif      heights, Deflate float32 GeoTIFF in the project's CRS, nodata −9999
     ///   quality.tif  band 1 each height's standard deviation (m), band 2 its correlation
     ///   ortho.tif    orthophoto on the DEM grid (grey values of the most nadir photo)
