@@ -13,6 +13,7 @@ pub mod edge_strings;
 pub mod grid;
 pub mod html;
 pub mod maps;
+pub mod matcher_config;
 pub mod mgcm;
 pub mod ortho;
 pub mod oslsm;

@@ -121,10 +121,10 @@ pub struct Matching2 {
     pub population_threshold: usize,
     /// `[matching.mgcm]`: the multiphoto matching's parameters (method = "mgcm").
     #[serde(default)]
-    pub mgcm: super::mgcm::config::MgcmConfig,
+    pub mgcm: super::matcher_config::MgcmConfig,
     /// `[matching.oslsm]`: the object-space matching's parameters (method = "oslsm").
     #[serde(default)]
-    pub oslsm: super::oslsm::config::OslsmConfig,
+    pub oslsm: super::matcher_config::OslsmConfig,
 }
 
 #[derive(Debug, Deserialize)]

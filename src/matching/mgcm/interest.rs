@@ -10,15 +10,7 @@ use crate::geometry::Sensor;
 use crate::image::ImageF32;
 use serde::{Deserialize, Serialize};
 
-/// How the points of the finest level are chosen.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Selection {
-    /// The interest operator: the best point of each cell above the threshold.
-    Operator,
-    /// Every cell's centre, texture or not.
-    Grid,
-}
+pub use crate::matching::matcher_config::Selection;
 
 /// Parameters of the selection.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]

@@ -36,7 +36,7 @@ use serde::{Deserialize, Serialize};
 
 /// Unknowns of one patch at the most: its dense normal matrix is then 200 MB (a block is cut
 /// into patches by [`super::refine_block`]).
-pub const MAX_UNKNOWNS: usize = 5000;
+pub use crate::matching::matcher_config::OSLSM_MAX_UNKNOWNS as MAX_UNKNOWNS;
 
 /// Parameters of the adjustment.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -63,7 +63,7 @@ impl Default for OslsmParams {
         OslsmParams {
             max_iterations: 30,
             converged_m: 0.005,
-            smoothness: 0.01,
+            smoothness: crate::matching::matcher_config::OSLSM_SMOOTHNESS,
             diverging_ratio: 2.0,
             retest_sight_m: 0.25,
             stall_m: 0.05,
