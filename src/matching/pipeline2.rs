@@ -58,6 +58,8 @@ pub enum Pipeline2Error {
     },
     #[error("the DEM grid: {0}")]
     Grid(String),
+    #[error("the object-space matching: {0}")]
+    Oslsm(String),
     /// The output directory, the reference model and the files written: as for format 1.
     #[error(transparent)]
     Output(#[from] PipelineError),

@@ -571,7 +571,7 @@ pub fn run(
     let limit = max_memory_mb.unwrap_or(p.limits.max_memory_mb) << 20;
     if bytes > limit {
         return Err(Pipeline2Error::Grid(format!(
-            "the pyramids of {} photos need {} MiB; the limit is {} MiB ([limits] max_memory_mb or --max-memory-mb)",
+            "the pyramids of {} photos need {} MiB; the limit is {} MiB ([limits] max_memory_mb or --max-memory)",
             others.len() + 1,
             bytes >> 20,
             limit >> 20

@@ -231,14 +231,14 @@ pub fn run(
     let searches: Vec<&dyn Sensor> = others.iter().map(|&k| &sensors[k] as &dyn Sensor).collect();
     let px_per_m = parallax_per_m(&sensors[r], &searches, centre, mid);
     if px_per_m.is_nan() || px_per_m <= 1e-9 {
-        return Err(Pipeline2Error::Grid(
+        return Err(Pipeline2Error::Oslsm(
             "the photos show no parallax with height (no base between them): nothing to match"
                 .into(),
         ));
     }
     let m_per_px = 1.0 / px_per_m;
     let gsd = ground_pixel_m(&sensors[r], centre, mid).ok_or_else(|| {
-        Pipeline2Error::Grid(format!(
+        Pipeline2Error::Oslsm(format!(
             "photo {}: its centre's ray does not reach {mid:.0} m",
             p.photos[r].id
         ))
@@ -246,7 +246,7 @@ pub fn run(
     let post_m = p.cell_m;
     let per_cell = (post_m / (cfg.groundel_px * gsd)).round().max(1.0);
     if per_cell > 64.0 {
-        return Err(Pipeline2Error::Grid(format!(
+        return Err(Pipeline2Error::Oslsm(format!(
             "{}: [dem] cell_m = {post_m} m holds {per_cell:.0} groundels of {:.2} m along a side (at most 64): use a smaller cell_m or a larger [matching.oslsm] groundel_px",
             p.path.display(),
             cfg.groundel_px * gsd
@@ -273,18 +273,19 @@ pub fn run(
     );
     let limit = budget << 20;
     if bytes > limit {
-        return Err(Pipeline2Error::Grid(format!(
-            "the object-space adjustment of {groundels} groundels of {groundel_m:.2} m needs about {} MiB; the limit is {} MiB ([limits] max_memory_mb or --max-memory-mb; or a larger [matching.oslsm] groundel_px)",
+        return Err(Pipeline2Error::Oslsm(format!(
+            "{groundels} groundels of {groundel_m:.2} m need about {} MiB; the limit is {} MiB ([limits] max_memory_mb or --max-memory; or a larger [matching.oslsm] groundel_px)",
             bytes >> 20,
             budget
         )));
     }
     // The coarse model: the project's file, or the sweep with all its outputs in coarse/.
+    let mut warnings = Vec::new();
     let (cg, coarse_comparison) = match &cfg.coarse {
         Some(f) => {
             let path = p.path.parent().unwrap_or(Path::new(".")).join(f);
             let g = crate::matching::output::read_geotiff(&path).map_err(|e| {
-                Pipeline2Error::Grid(format!(
+                Pipeline2Error::Oslsm(format!(
                     "{}: [matching.oslsm] coarse = \"{}\": {e}",
                     p.path.display(),
                     f.display()
@@ -310,6 +311,14 @@ pub fn run(
                 max_memory_mb,
                 progress,
             )?;
+            for pr in &r.pairs {
+                for w in pr.dtm.warnings() {
+                    warnings.push(format!(
+                        "the sweep's coarse model, photos {} × {}: {w}",
+                        pr.left, pr.right
+                    ));
+                }
+            }
             let c = r.model.comparison.clone();
             (r.model.grid, c)
         }
@@ -321,7 +330,7 @@ pub fn run(
         })
         .collect();
     let holes = fill_holes(&mut zc, cols, rows).ok_or_else(|| {
-        Pipeline2Error::Grid(
+        Pipeline2Error::Oslsm(
             "the coarse model has no height over the photos: nothing to refine (the sweep's: see coarse/report.html; a [matching.oslsm] coarse file: is it in the project's CRS?)".into(),
         )
     })?;
@@ -354,7 +363,7 @@ pub fn run(
         &cfg.params(m_per_px),
         progress,
     )
-    .map_err(|e| Pipeline2Error::Grid(format!("the object-space adjustment: {e}")))?;
+    .map_err(|e| Pipeline2Error::Oslsm(e.to_string()))?;
     let adjust_seconds = adjust_started.elapsed().as_secs_f64();
     // The model: posts refined from the grey values, with their σ: the adjustment's and
     // the terrain's bending between posts that the bilinear surface cannot follow.
@@ -385,6 +394,22 @@ pub fn run(
         corr: vec![f32::NAN; cols * rows],
     };
     let refined_posts = points.len();
+    if refined_posts == 0 {
+        return Err(Pipeline2Error::Oslsm(format!(
+            "it refined no post: all {} patches failed (first: {}){}; is the coarse model within a pixel or two of parallax of the terrain, and do [dem] heights bracket it?",
+            merged.patches.len(),
+            merged
+                .patches
+                .iter()
+                .find_map(|pr| pr.failure.as_ref())
+                .map(|e| e.to_string())
+                .unwrap_or_default(),
+            warnings
+                .iter()
+                .map(|w| format!("; {w}"))
+                .collect::<String>()
+        )));
+    }
     // The reflectance as an orthophoto of groundel cells, rows from the north.
     let (gu, gv) = grids.groundels();
     let reflectance = ElevationGrid {
@@ -420,7 +445,6 @@ pub fn run(
             }
         })
         .collect();
-    let mut warnings = Vec::new();
     let failed: Vec<&PatchReport> = merged
         .patches
         .iter()
