@@ -77,6 +77,47 @@ pub enum GridError {
 /// differences from a reference (8).
 pub const BYTES_PER_NODE: f64 = 4.0 + 12.0 + 24.0 + 8.0 + 24.0 + 8.0;
 
+/// Fills a row-major grid's NaN nodes from their filled neighbours, ring by ring inward (the mean of
+/// the filled ones among the 8); the number filled, or `None` when no node has a height.
+pub fn fill_holes(z: &mut [f64], cols: usize, rows: usize) -> Option<usize> {
+    let holes = z.iter().filter(|v| !v.is_finite()).count();
+    if holes == z.len() {
+        return None;
+    }
+    loop {
+        let before: Vec<f64> = z.to_vec();
+        let mut changed = false;
+        for r in 0..rows {
+            for c in 0..cols {
+                if before[r * cols + c].is_finite() {
+                    continue;
+                }
+                let (mut s, mut n) = (0.0, 0);
+                for dr in -1i64..=1 {
+                    for dc in -1i64..=1 {
+                        let (rr, cc) = (r as i64 + dr, c as i64 + dc);
+                        if rr < 0 || cc < 0 || rr >= rows as i64 || cc >= cols as i64 {
+                            continue;
+                        }
+                        let v = before[rr as usize * cols + cc as usize];
+                        if v.is_finite() {
+                            s += v;
+                            n += 1;
+                        }
+                    }
+                }
+                if n > 0 {
+                    z[r * cols + c] = s / n as f64;
+                    changed = true;
+                }
+            }
+        }
+        if !changed {
+            return Some(holes);
+        }
+    }
+}
+
 impl ElevationGrid {
     /// An empty grid covering `[x_min, y_min, x_max, y_max]` with nodes on multiples of
     /// `cell_m`, refused (before anything is allocated) if it would take more than
@@ -458,6 +499,22 @@ fn node_height(v: &[[f64; 3]], cell: f64, median: bool) -> f32 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Holes are filled from their neighbours, a ring at a time; a grid with no height at
+    /// all is refused.
+    #[test]
+    fn holes_fill_from_the_neighbours() {
+        let n = f64::NAN;
+        let mut z = vec![1.0, n, n, 1.0, n, n, 1.0, 1.0, n];
+        assert_eq!(fill_holes(&mut z, 3, 3), Some(5));
+        assert!(z.iter().all(|v| (v - 1.0).abs() < 1e-12), "{z:?}");
+        // A ramp's hole in the middle takes its eight neighbours' mean.
+        let mut r = vec![0.0, 1.0, 2.0, 0.0, n, 2.0, 0.0, 1.0, 2.0];
+        assert_eq!(fill_holes(&mut r, 3, 3), Some(1));
+        assert!((r[4] - 1.0).abs() < 1e-12);
+        let mut none = vec![n; 4];
+        assert_eq!(fill_holes(&mut none, 2, 2), None);
+    }
 
     /// Points on the plane z = 100 + 0.2·x − 0.1·y with σ 0.5 m, on a 3 m lattice: every
     /// node inside gets the plane's height exactly, and a σ below the points' (several

@@ -158,21 +158,26 @@ pub struct ModelFigures {
 }
 
 impl ModelFigures {
-    /// The model `grid` with its σ's `sigma_m` (per node) against project `p`'s reference
-    /// DEM (returned, read) and check points `obs`.
-    pub fn check(
-        p: &Project2,
-        obs: &[Observation],
-        grid: ElevationGrid,
-        sigma_m: &[f32],
-    ) -> Result<(ModelFigures, Option<ElevationGrid>), Pipeline2Error> {
-        let reference = match &p.reference {
+    /// Project `p`'s reference DEM, read once before the matching (so a bad path fails
+    /// before the long work, not after it).
+    pub fn read_reference(p: &Project2) -> Result<Option<ElevationGrid>, Pipeline2Error> {
+        Ok(match &p.reference {
             Some(r) => Some(read_geotiff(r).map_err(|source| PipelineError::Reference {
                 path: r.clone(),
                 cause: source,
             })?),
             None => None,
-        };
+        })
+    }
+
+    /// The model `grid` with its σ's `sigma_m` (per node) against the project's reference
+    /// DEM (from [`ModelFigures::read_reference`], handed back) and check points `obs`.
+    pub fn check(
+        reference: Option<ElevationGrid>,
+        obs: &[Observation],
+        grid: ElevationGrid,
+        sigma_m: &[f32],
+    ) -> (ModelFigures, Option<ElevationGrid>) {
         let comparison = reference
             .as_ref()
             .map(|g| grid.compare(|x, y| g.interpolate(x, y)));
@@ -197,7 +202,7 @@ impl ModelFigures {
             check_points,
             sigma_vs_reference,
         };
-        Ok((figures, reference))
+        (figures, reference)
     }
 
     /// The summary lines: the grid, the comparison, σ against the check points and the
@@ -673,6 +678,7 @@ pub fn finish(
 ) -> Result<Report2, Pipeline2Error> {
     super::pipeline::check_out_dir(out)?;
     let obs = p.observations()?;
+    let reference_dem = ModelFigures::read_reference(p)?;
     let Plan {
         sensors,
         resected,
@@ -737,7 +743,7 @@ pub fn finish(
     let pts: Vec<GroundM> = all.iter().map(|p| p.ground).collect();
     grid.fill_median(&pts);
     let quality = grid.quality_scaled(&all, s0);
-    let (model, reference) = ModelFigures::check(p, &obs, grid, &quality.sigma_m)?;
+    let (model, reference) = ModelFigures::check(reference_dem, &obs, grid, &quality.sigma_m);
     let write = |source| PipelineError::Write {
         dir: out.to_path_buf(),
         cause: source,

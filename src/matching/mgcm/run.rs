@@ -268,25 +268,7 @@ impl LevelGrid {
     /// Holes filled with the mean of their neighbours, ring by ring; false when the grid has
     /// no height at all.
     fn fill_holes(&mut self) -> bool {
-        if !self.z.iter().any(|v| v.is_finite()) {
-            return false;
-        }
-        while self.z.iter().any(|v| !v.is_finite()) {
-            let mut next = self.z.clone();
-            for j in 0..self.rows {
-                for i in 0..self.cols {
-                    if !self.z[j * self.cols + i].is_finite() {
-                        let n = self.neighbours(i, j);
-                        if !n.is_empty() {
-                            let k = n.len() as f64;
-                            next[j * self.cols + i] = n.iter().map(|v| v / k).sum::<f64>();
-                        }
-                    }
-                }
-            }
-            self.z = next;
-        }
-        true
+        crate::matching::grid::fill_holes(&mut self.z, self.cols, self.rows).is_some()
     }
 }
 
@@ -548,6 +530,7 @@ pub fn run(
     progress: &dyn Progress,
 ) -> Result<MgcmReport, Pipeline2Error> {
     crate::matching::pipeline::check_out_dir(out)?;
+    let reference_dem = ModelFigures::read_reference(p)?;
     let started = std::time::Instant::now();
     let cfg = p.matching.mgcm.clone();
     let Block {
@@ -785,7 +768,7 @@ pub fn run(
     let gsd = ground_pixel_m(&sensors[r], centre0, mid).unwrap_or(1.0);
     let quality = grid.fill_scattered(&matched, 1.6 * cfg.cell as f64 * gsd);
     let obs = p.observations()?;
-    let (model, reference_dem) = ModelFigures::check(p, &obs, grid, &quality.sigma_m)?;
+    let (model, reference_dem) = ModelFigures::check(reference_dem, &obs, grid, &quality.sigma_m);
     let hg = flying_height(&sensors[r], centre0, mid).unwrap_or(f64::NAN);
     // Blunders the matcher detected: points its tests refused (not those it could not try:
     // a flat template, one at the edge, a ray that cannot reach the height).

@@ -141,47 +141,6 @@ impl OslsmReport {
     }
 }
 
-/// Fills a grid's NaN nodes from their filled neighbours, ring by ring inward (the mean of
-/// the filled ones among the 8); the number filled, or `None` when no node has a height.
-fn fill_holes(z: &mut [f64], cols: usize, rows: usize) -> Option<usize> {
-    let holes = z.iter().filter(|v| !v.is_finite()).count();
-    if holes == z.len() {
-        return None;
-    }
-    loop {
-        let before: Vec<f64> = z.to_vec();
-        let mut changed = false;
-        for r in 0..rows {
-            for c in 0..cols {
-                if before[r * cols + c].is_finite() {
-                    continue;
-                }
-                let (mut s, mut n) = (0.0, 0);
-                for dr in -1i64..=1 {
-                    for dc in -1i64..=1 {
-                        let (rr, cc) = (r as i64 + dr, c as i64 + dc);
-                        if rr < 0 || cc < 0 || rr >= rows as i64 || cc >= cols as i64 {
-                            continue;
-                        }
-                        let v = before[rr as usize * cols + cc as usize];
-                        if v.is_finite() {
-                            s += v;
-                            n += 1;
-                        }
-                    }
-                }
-                if n > 0 {
-                    z[r * cols + c] = s / n as f64;
-                    changed = true;
-                }
-            }
-        }
-        if !changed {
-            return Some(holes);
-        }
-    }
-}
-
 /// Bytes the adjustment holds at once for `groundels` in the block, `posts` per patch
 /// (patch_posts²), `kp` photos and `threads` patches in flight: per groundel of the block its
 /// merged reflectance and weight (f32 each, patches merged as they finish) and the
@@ -211,6 +170,7 @@ pub fn run(
     progress: &dyn Progress,
 ) -> Result<OslsmReport, Pipeline2Error> {
     crate::matching::pipeline::check_out_dir(out)?;
+    let reference = ModelFigures::read_reference(p)?;
     let started = std::time::Instant::now();
     let cfg = p.matching.oslsm.clone();
     let Block {
@@ -291,16 +251,9 @@ pub fn run(
                     f.display()
                 ))
             })?;
-            let reference = match &p.reference {
-                Some(r) => Some(crate::matching::output::read_geotiff(r).map_err(|source| {
-                    PipelineError::Reference {
-                        path: r.clone(),
-                        cause: source,
-                    }
-                })?),
-                None => None,
-            };
-            let c = reference.map(|r| g.compare(|x, y| r.interpolate(x, y)));
+            let c = reference
+                .as_ref()
+                .map(|r| g.compare(|x, y| r.interpolate(x, y)));
             (g, c)
         }
         None => {
@@ -329,7 +282,7 @@ pub fn run(
             cg.interpolate(x, y)
         })
         .collect();
-    let holes = fill_holes(&mut zc, cols, rows).ok_or_else(|| {
+    let holes = crate::matching::grid::fill_holes(&mut zc, cols, rows).ok_or_else(|| {
         Pipeline2Error::Oslsm(
             "the coarse model has no height over the photos: nothing to refine (the sweep's: see coarse/report.html; a [matching.oslsm] coarse file: is it in the project's CRS?)".into(),
         )
@@ -469,7 +422,7 @@ pub fn run(
         ));
     }
     let obs = p.observations()?;
-    let (model, reference_dem) = ModelFigures::check(p, &obs, grid, &quality.sigma_m)?;
+    let (model, reference_dem) = ModelFigures::check(reference, &obs, grid, &quality.sigma_m);
     let report = OslsmReport {
         project: p.path.clone(),
         method: "oslsm".into(),
@@ -532,21 +485,4 @@ pub fn run(
     )
     .map_err(write)?;
     Ok(report)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// Holes are filled from their neighbours, a ring at a time; a grid with no height at
-    /// all is refused.
-    #[test]
-    fn holes_fill_from_the_neighbours() {
-        let n = f64::NAN;
-        let mut z = vec![1.0, n, n, 1.0, n, n, 1.0, 1.0, n];
-        assert_eq!(fill_holes(&mut z, 3, 3), Some(5));
-        assert!(z.iter().all(|v| (v - 1.0).abs() < 1e-12), "{z:?}");
-        let mut none = vec![n; 4];
-        assert_eq!(fill_holes(&mut none, 2, 2), None);
-    }
 }
