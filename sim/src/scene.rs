@@ -167,12 +167,38 @@ pub fn reflectance(seed: u64, dem: &Dem, x: f64, y: f64) -> f64 {
         + 0.14 * (value_noise(seed ^ 0x11, x / 70.0, y / 70.0) - 0.5)
         + 0.16 * (value_noise(seed ^ 0x22, x / 14.0, y / 14.0) - 0.5)
         + 0.12 * (value_noise(seed ^ 0x33, x / 4.0, y / 4.0) - 0.5);
+    (r * shade(dem, x, y)).clamp(0.03, 0.97)
+}
+
+/// The terrain's shading at (x, y): Lambert, sun from azimuth 315°, elevation 45°, with a
+/// tenth of ambient light.
+fn shade(dem: &Dem, x: f64, y: f64) -> f64 {
     let [gx, gy] = dem.gradient(x, y);
-    // Lambert: sun from azimuth 315°, elevation 45°.
     let n = [-gx, -gy, 1.0];
     let s = [-0.5, 0.5, std::f64::consts::FRAC_1_SQRT_2];
-    let shade = (n[0] * s[0] + n[1] * s[1] + n[2] * s[2]) / (gx * gx + gy * gy + 1.0).sqrt();
-    (r * (0.1 + 1.1 * shade)).clamp(0.03, 0.97)
+    let lambert = (n[0] * s[0] + n[1] * s[1] + n[2] * s[2]) / (gx * gx + gy * gy + 1.0).sqrt();
+    0.1 + 1.1 * lambert
+}
+
+/// What the ground looks like.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Texture {
+    /// Land cover with detail at 70, 14 and 4 m ([`reflectance`]).
+    #[default]
+    Natural,
+    /// Fields with sharp borders and almost no texture inside ([`fields_reflectance`]): the
+    /// weak texture where windows of grey values correlate little but noise.
+    Fields,
+}
+
+/// Fields about 50-150 m across with sharp borders (smooth noise on a 150 m lattice cut into
+/// 7 levels of reflectance 0.07 apart), a faint texture inside them (±0.005 at 4 m), shaded
+/// as [`reflectance`].
+pub fn fields_reflectance(seed: u64, dem: &Dem, x: f64, y: f64) -> f64 {
+    let level = (value_noise(seed ^ 0x44, x / 150.0, y / 150.0) * 7.0).floor();
+    let r = 0.2 + 0.07 * level + 0.01 * (value_noise(seed ^ 0x33, x / 4.0, y / 4.0) - 0.5);
+    (r * shade(dem, x, y)).clamp(0.03, 0.97)
 }
 
 /// Exterior orientation: angles in degrees (R = Rω·Rφ·Rκ), projection centre in ground metres.
@@ -204,11 +230,12 @@ impl Exterior {
 /// over the terrain. Photo coordinates in mm, x along the flight, y to its left.
 #[derive(Debug, Clone, Serialize)]
 pub struct AerialPhoto {
-    /// Position in the block: 1, 2 along the first strip, 3, 4 along the second.
+    /// Position in the block: 1, 2, 5 along the first strip, 3, 4, 6 along the second.
     pub number: u32,
     pub focal_mm: f64,
     pub exterior: Exterior,
     pub texture_seed: u64,
+    pub texture: Texture,
     /// Transmittance of the darkest and clearest picture areas (a diapositive).
     pub t_min: f64,
     pub t_max: f64,
@@ -233,7 +260,7 @@ pub const FORMAT_MM: f64 = 230.0;
 pub const FOCAL_MM: f64 = 153.0;
 pub const FLYING_HEIGHT_M: f64 = 6_500.0;
 
-/// The exterior orientation of photo `number` (1–4) of the block over `dem`: the nominal
+/// The exterior orientation of photo `number` (1–6) of the block over `dem`: the nominal
 /// layout plus small random attitude and position errors drawn from `seed`.
 pub fn block_exterior(dem: &Dem, seed: u64, number: u32) -> Exterior {
     let mut rng = Rng::new(seed ^ 0xB10C_u64 ^ (number as u64).wrapping_mul(0x9E37_79B9));
@@ -241,8 +268,15 @@ pub fn block_exterior(dem: &Dem, seed: u64, number: u32) -> Exterior {
     let side = FORMAT_MM / 1000.0 * scale;
     let (base, spacing) = (0.4 * side, 0.7 * side);
     let [ex, ey] = dem.extent_m();
-    let k = number.clamp(1, 4) - 1;
-    let (along, across) = ((k % 2) as f64 - 0.5, 0.5 - (k / 2) as f64);
+    // Strip 1: photos 1, 2, 5 along the flight; strip 2: 3, 4, 6 beside them.
+    let (along, across) = match number.clamp(1, 6) {
+        1 => (-0.5, 0.5),
+        2 => (0.5, 0.5),
+        3 => (-0.5, -0.5),
+        4 => (0.5, -0.5),
+        5 => (1.5, 0.5),
+        _ => (1.5, -0.5),
+    };
     let mut u = || 2.0 * rng.uniform() - 1.0;
     Exterior {
         omega_deg: 1.5 * u(),
@@ -264,6 +298,7 @@ impl AerialPhoto {
             focal_mm: FOCAL_MM,
             exterior,
             texture_seed: seed ^ 0x7E47_u64,
+            texture: Texture::Natural,
             t_min: 0.05,
             t_max: 0.88,
             dem,
@@ -442,8 +477,15 @@ impl AerialPhoto {
     }
 
     fn transmittance_at(&self, x: f64, y: f64) -> f64 {
-        let r = reflectance(self.texture_seed, &self.dem, x, y);
-        self.t_min + (self.t_max - self.t_min) * r
+        self.t_min + (self.t_max - self.t_min) * self.reflectance_at(x, y)
+    }
+
+    /// The ground's reflectance at (x, y) in this photo's texture.
+    pub fn reflectance_at(&self, x: f64, y: f64) -> f64 {
+        match self.texture {
+            Texture::Natural => reflectance(self.texture_seed, &self.dem, x, y),
+            Texture::Fields => fields_reflectance(self.texture_seed, &self.dem, x, y),
+        }
     }
 }
 
@@ -544,5 +586,33 @@ mod tests {
         let g = a.ground_point([0.0, 0.0]);
         let q = b.project(g);
         assert!((q[0] + 92.0).abs() < 12.0 && q[1].abs() < 12.0, "{q:?}");
+    }
+
+    /// Photos 5 and 6 continue the strips: photo 5 lies a base beyond photo 2 and photo 6
+    /// beside it in strip 2 (the 30 % side lap), so photo 1's ground near x = 80 mm, y = −62 mm
+    /// is in all six.
+    #[test]
+    fn photos_five_and_six_continue_the_strips() {
+        let d = jacksboro();
+        let p: Vec<AerialPhoto> = (1..=6)
+            .map(|n| AerialPhoto::new(d.clone(), 3, n, 1.0))
+            .collect();
+        let g = p[0].ground_point([0.0, 0.0]);
+        let q5 = p[4].project(g);
+        assert!((q5[0] + 184.0).abs() < 14.0 && q5[1].abs() < 14.0, "{q5:?}");
+        let q6 = p[5].project(g);
+        assert!(
+            (q6[0] + 184.0).abs() < 14.0 && (q6[1] - 161.0).abs() < 14.0,
+            "{q6:?}"
+        );
+        let inside = p[0].ground_point([84.0, -62.0]);
+        for ph in &p {
+            let q = ph.project(inside);
+            assert!(
+                q[0].abs() < 110.0 && q[1].abs() < 110.0,
+                "photo {}: {q:?}",
+                ph.number
+            );
+        }
     }
 }

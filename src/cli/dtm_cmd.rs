@@ -262,7 +262,11 @@ fn print_oslsm(
         out.display(),
         r.reference,
         if r.model.comparison.is_some() { ", error.png" } else { "" },
-        if r.config.coarse.is_none() { "; the sweep's coarse model in coarse/" } else { "" }
+        match r.config.coarse {
+            rig::matching::matcher_config::CoarseSource::Sweep => "; the sweep's coarse model in coarse/",
+            rig::matching::matcher_config::CoarseSource::Features => "; the feature route's coarse model in coarse/dem.tif",
+            rig::matching::matcher_config::CoarseSource::File(_) => "",
+        }
     );
     Ok(code)
 }

@@ -40,9 +40,11 @@ pub struct SceneArgs {
     #[arg(long, default_value_t = 0.5)]
     pub ground_noise_m: f64,
     /// Photos of the block to render over the area: 2 (photos 1 and 2 of the strip), 3 (and
-    /// photo 3 of the next strip) or 4. Photos 3 and 4 see only the part of photo 1 below
-    /// y ≈ −46 mm (30 % side lap): give an --area there, e.g. 38,-70,50,-58.
-    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(2..=4))]
+    /// photo 3 of the next strip), 4, 5 (photo 5 a base beyond photo 2 in strip 1) or 6 (and
+    /// photo 6 beside it in strip 2). Photos 3 and 4 see only the part of photo 1 below
+    /// y ≈ −46 mm (30 % side lap): give an --area there, e.g. 38,-70,50,-58; photos 5 and 6
+    /// only beyond x ≈ 70 mm (the strip's triple overlap), e.g. 78,-68,88,-58.
+    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(2..=6))]
     pub photos: u32,
     /// White noise added to every pixel, grey values (σ; the photos span about 3 000 to
     /// 53 000).
@@ -57,10 +59,30 @@ pub struct SceneArgs {
     /// (seed 001's linear radiometric model). Default 1 for every photo.
     #[arg(long, value_name = "G,G,…")]
     pub gains: Option<String>,
+    /// What the ground looks like: "natural" (land cover with detail at 70, 14 and 4 m) or
+    /// "fields" (fields of 50-150 m with sharp borders and a faint texture inside them: weak
+    /// texture, where correlation windows see little but noise and edges carry the match).
+    #[arg(long, value_enum, default_value_t = TextureArg::Natural)]
+    pub texture: TextureArg,
     /// Each photo's radiometric offset, grey values, in photo order (e.g. 0,-3000,4000).
     /// Default 0 for every photo.
     #[arg(long, value_name = "DN,DN,…")]
     pub offsets: Option<String>,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum TextureArg {
+    Natural,
+    Fields,
+}
+
+impl From<TextureArg> for rig_sim::scene::Texture {
+    fn from(t: TextureArg) -> Self {
+        match t {
+            TextureArg::Natural => rig_sim::scene::Texture::Natural,
+            TextureArg::Fields => rig_sim::scene::Texture::Fields,
+        }
+    }
 }
 
 /// A per-photo list of `photos` numbers from flag `name`, each within `range` (the default
@@ -351,7 +373,7 @@ pub fn truth_reflectance(
         .collect();
     use rayon::prelude::*;
     grid.z.par_iter_mut().zip(&nodes).for_each(|(z, [x, y])| {
-        *z = rig_sim::scene::reflectance(a.texture_seed, &a.dem, *x, *y) as f32;
+        *z = a.reflectance_at(*x, *y) as f32;
     });
     Ok(rig::sim_scene::grid_to_crs(grid))
 }
@@ -455,10 +477,12 @@ pub fn run(a: &SceneArgs) -> anyhow::Result<i32> {
     }
     std::fs::create_dir_all(&a.out)?;
     let dem = jacksboro();
-    let (p1, p2) = (
-        AerialPhoto::new(dem.clone(), a.seed, 1, 110.0),
-        AerialPhoto::new(dem.clone(), a.seed, 2, 110.0),
-    );
+    let photo = |n: u32| {
+        let mut p = AerialPhoto::new(dem.clone(), a.seed, n, 110.0);
+        p.texture = a.texture.into();
+        p
+    };
+    let (p1, p2) = (photo(1), photo(2));
     let hs = terrain_range(&p1, area);
     let area2 = matching_area(&p1, &p2, area, [hs[0] - 30.0, hs[1] + 30.0]);
     let step = a.resolution_um / 1000.0;
@@ -472,14 +496,14 @@ pub fn run(a: &SceneArgs) -> anyhow::Result<i32> {
     );
     let s1 = write_photo(&a.out, "photo-1", &p1, &g1, a.noise_dn, radiometry[0])?;
     let s2 = write_photo(&a.out, "photo-2", &p2, &g2, a.noise_dn, radiometry[1])?;
-    // Photos 3 and 4 of the block, over where they see photo 1's area.
+    // Photos 3 to 6 of the block, over where they see photo 1's area.
     let mut more = Vec::new();
     for n in 3..=a.photos {
-        let pn = AerialPhoto::new(dem.clone(), a.seed, n, 110.0);
+        let pn = photo(n);
         let an = matching_area(&p1, &pn, area, [hs[0] - 30.0, hs[1] + 30.0]);
         if an.iter().any(|v| v.abs() > 114.0) {
             anyhow::bail!(
-                "--area {:?}: photo {n} does not see all of it (it needs photo {n}'s {:.0},{:.0} … {:.0},{:.0} mm, beyond the 230 mm format); photos 3 and 4 see photo 1 below y ≈ −46 mm, e.g. --area 38,-70,50,-58",
+                "--area {:?}: photo {n} does not see all of it (it needs photo {n}'s {:.0},{:.0} … {:.0},{:.0} mm, beyond the 230 mm format); photos 3 and 4 see photo 1 below y ≈ −46 mm, e.g. --area 38,-70,50,-58, and all six photos see it beyond x ≈ 70 mm, e.g. --area 78,-68,88,-58",
                 area, an[0], an[1], an[2], an[3]
             );
         }
@@ -550,7 +574,7 @@ pub fn run(a: &SceneArgs) -> anyhow::Result<i32> {
         a.out.display(),
         s1.display(),
         s2.display(),
-        if more.is_empty() { String::new() } else { format!(" and photos 3{}", if more.len() > 1 { "-4" } else { "" }) },
+        match more.len() { 0 => String::new(), 1 => " and photo 3".into(), n => format!(" and photos 3-{}", n + 2) },
         gcps.len(),
         cps.len(),
         all.len()

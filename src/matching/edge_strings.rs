@@ -135,11 +135,19 @@ pub struct Pair {
     pub cost: f64,
 }
 
+/// Where a left edge's partner may lie: `right.at − left.at` within `range`, and the
+/// disparity expected there (from a coarser level or the heights' middle), px.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Window {
+    pub range: [f64; 2],
+    pub expected: f64,
+}
+
 /// The cost of taking right edge `r` for left edge `l`: infinite across polarities or
-/// outside the disparities allowed (`right.at − left.at` in `disparity`).
-pub fn cost(l: &Edge, r: &Edge, disparity: [f64; 2], expected: f64, w: &CostWeights) -> f64 {
+/// outside the window.
+pub fn cost(l: &Edge, r: &Edge, window: &Window, w: &CostWeights) -> f64 {
     let d = r.at - l.at;
-    if l.polarity != r.polarity || d < disparity[0] || d > disparity[1] {
+    if l.polarity != r.polarity || d < window.range[0] || d > window.range[1] {
         return f64::INFINITY;
     }
     // Differences of logs: relative, so a feature twice as strong costs the same at any
@@ -148,86 +156,93 @@ pub fn cost(l: &Edge, r: &Edge, disparity: [f64; 2], expected: f64, w: &CostWeig
     w.amplitude * lr(l.amplitude, r.amplitude)
         + w.contrast * lr(l.contrast, r.contrast)
         + w.width * lr(l.width, r.width)
-        + w.disparity * (d - expected).abs()
+        + w.disparity * (d - window.expected).abs()
 }
 
-/// Seed 001's mutual string matching of the edges of one line pair: every left edge's
-/// cheapest right edge and every right edge's cheapest left edge; a pair is kept when each
-/// is the other's choice (3.2 f), and then only pairs in order along the line (the
-/// costlier of two crossing pairs goes). The right edges' amplitudes and contrasts are first
-/// scaled by the median ratio over all candidate pairs (a gain between the photos).
+/// Seed 001's mutual string matching of the edges of one line pair (each list in order
+/// along the line): every left edge's cheapest right edge within its `window` (of its
+/// position) and every right edge's cheapest left edge; a pair is kept when each is the
+/// other's choice (3.2 f), and then only pairs in order along the line (the costlier of two
+/// crossing pairs goes). The right edges' amplitudes and contrasts are first scaled by the
+/// median ratio over all candidate pairs (a gain between the photos). The candidates are
+/// found by bisection, so the work grows with the candidates, not with the product of the
+/// lists.
 pub fn match_strings(
     left: &[Edge],
     right: &[Edge],
-    disparity: [f64; 2],
-    expected: f64,
+    window: &dyn Fn(f64) -> Window,
     w: &CostWeights,
 ) -> Vec<Pair> {
+    // Candidate pairs: each left edge's window over the right edges (sorted by position).
+    let mut candidates: Vec<(usize, usize, Window)> = Vec::new();
+    for (i, l) in left.iter().enumerate() {
+        let win = window(l.at);
+        if !(win.range[0].is_finite() && win.range[1].is_finite()) {
+            continue;
+        }
+        let lo = right.partition_point(|r| r.at < l.at + win.range[0]);
+        let hi = right.partition_point(|r| r.at <= l.at + win.range[1]);
+        for (j, r) in right.iter().enumerate().take(hi).skip(lo) {
+            if r.polarity == l.polarity {
+                candidates.push((i, j, win));
+            }
+        }
+    }
     // The photos' relative gain: the median contrast ratio over the candidates.
-    let mut ratios: Vec<f64> = left
+    let mut ratios: Vec<f64> = candidates
         .iter()
-        .flat_map(|l| {
-            right.iter().filter_map(move |r| {
-                let d = r.at - l.at;
-                (l.polarity == r.polarity && d >= disparity[0] && d <= disparity[1])
-                    .then(|| (r.contrast.max(1e-9) / l.contrast.max(1e-9)).ln())
-            })
-        })
+        .map(|&(i, j, _)| (right[j].contrast.max(1e-9) / left[i].contrast.max(1e-9)).ln())
         .collect();
     let gain = if ratios.is_empty() {
-        1.0
+        return Vec::new();
     } else {
         let mid = ratios.len() / 2;
         ratios.select_nth_unstable_by(mid, f64::total_cmp).1.exp()
     };
-    let scaled: Vec<Edge> = right
-        .iter()
-        .map(|r| Edge {
-            amplitude: r.amplitude / gain,
-            contrast: r.contrast / gain,
-            ..*r
-        })
-        .collect();
-    let c = |i: usize, j: usize| cost(&left[i], &scaled[j], disparity, expected, w);
-    let best_right: Vec<Option<usize>> = (0..left.len())
-        .map(|i| {
-            (0..scaled.len())
-                .filter(|&j| c(i, j).is_finite())
-                .min_by(|&a, &b| c(i, a).total_cmp(&c(i, b)))
-        })
-        .collect();
-    let best_left: Vec<Option<usize>> = (0..scaled.len())
-        .map(|j| {
-            (0..left.len())
-                .filter(|&i| c(i, j).is_finite())
-                .min_by(|&a, &b| c(a, j).total_cmp(&c(b, j)))
-        })
-        .collect();
+    let scaled = |r: &Edge| Edge {
+        amplitude: r.amplitude / gain,
+        contrast: r.contrast / gain,
+        ..*r
+    };
+    let mut best_right: Vec<Option<(usize, f64)>> = vec![None; left.len()];
+    let mut best_left: Vec<Option<(usize, f64)>> = vec![None; right.len()];
+    for &(i, j, win) in &candidates {
+        let c = cost(&left[i], &scaled(&right[j]), &win, w);
+        if !c.is_finite() {
+            continue;
+        }
+        if best_right[i].is_none_or(|(_, b)| c < b) {
+            best_right[i] = Some((j, c));
+        }
+        if best_left[j].is_none_or(|(_, b)| c < b) {
+            best_left[j] = Some((i, c));
+        }
+    }
     let mut pairs: Vec<Pair> = best_right
         .iter()
         .enumerate()
-        .filter_map(|(i, j)| {
-            let j = (*j)?;
-            (best_left[j] == Some(i)).then(|| Pair {
+        .filter_map(|(i, b)| {
+            let (j, c) = (*b)?;
+            (best_left[j].map(|(k, _)| k) == Some(i)).then_some(Pair {
                 left: i,
                 right: j,
-                cost: c(i, j),
+                cost: c,
             })
         })
         .collect();
     // Order along the line: drop the costlier of any two crossing pairs, cheapest first.
+    // The kept pairs are in order, so a new one crosses one of them exactly when it is out
+    // of order with its neighbours along the left line.
     pairs.sort_by(|a, b| a.cost.total_cmp(&b.cost));
-    let mut kept: Vec<Pair> = Vec::with_capacity(pairs.len());
+    let mut kept: std::collections::BTreeMap<usize, Pair> = Default::default();
     for p in pairs {
-        let crosses = kept
-            .iter()
-            .any(|k| (k.left < p.left) != (k.right < p.right) || k.right == p.right);
-        if !crosses {
-            kept.push(p);
+        let before = kept.range(..p.left).next_back().map(|(_, k)| k.right);
+        let after = kept.range(p.left + 1..).next().map(|(_, k)| k.right);
+        if before.is_none_or(|r| r < p.right) && after.is_none_or(|r| r > p.right) {
+            kept.insert(p.left, p);
         }
     }
-    kept.sort_by_key(|p| p.left);
-    kept
+    kept.into_values().collect()
 }
 
 #[cfg(test)]
@@ -291,7 +306,11 @@ mod tests {
             le.len(),
             steps.len()
         );
-        let pairs = match_strings(&le, &re, [0.0, 10.0], 5.0, &CostWeights::default());
+        let window = |_: f64| Window {
+            range: [0.0, 10.0],
+            expected: 5.0,
+        };
+        let pairs = match_strings(&le, &re, &window, &CostWeights::default());
         let mut worst: f64 = 0.0;
         for w in pairs.windows(2) {
             assert!(w[0].left < w[1].left && w[0].right < w[1].right);

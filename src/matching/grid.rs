@@ -77,6 +77,42 @@ pub enum GridError {
 /// differences from a reference (8).
 pub const BYTES_PER_NODE: f64 = 4.0 + 12.0 + 24.0 + 8.0 + 24.0 + 8.0;
 
+/// Removes (sets NaN) every node of a row-major grid further than `limit` from the median of
+/// its finite neighbours among the 8 (when it has at least 3); the number removed. All nodes
+/// are judged against the grid as it was, so a blunder does not shield its neighbour.
+pub fn remove_blunders(z: &mut [f64], cols: usize, rows: usize, limit: f64) -> usize {
+    let mut out = Vec::new();
+    for j in 0..rows {
+        for i in 0..cols {
+            let v = z[j * cols + i];
+            if !v.is_finite() {
+                continue;
+            }
+            let mut n = Vec::with_capacity(8);
+            for b in j.saturating_sub(1)..(j + 2).min(rows) {
+                for a in i.saturating_sub(1)..(i + 2).min(cols) {
+                    let w = z[b * cols + a];
+                    if (a, b) != (i, j) && w.is_finite() {
+                        n.push(w);
+                    }
+                }
+            }
+            if n.len() < 3 {
+                continue;
+            }
+            let mid = n.len() / 2;
+            let med = *n.select_nth_unstable_by(mid, f64::total_cmp).1;
+            if (v - med).abs() > limit {
+                out.push(j * cols + i);
+            }
+        }
+    }
+    for &k in &out {
+        z[k] = f64::NAN;
+    }
+    out.len()
+}
+
 /// Fills a row-major grid's NaN nodes from their filled neighbours, ring by ring inward (the mean of
 /// the filled ones among the 8); the number filled, or `None` when no node has a height.
 pub fn fill_holes(z: &mut [f64], cols: usize, rows: usize) -> Option<usize> {
@@ -514,6 +550,28 @@ mod tests {
         assert!((r[4] - 1.0).abs() < 1e-12);
         let mut none = vec![n; 4];
         assert_eq!(fill_holes(&mut none, 2, 2), None);
+    }
+
+    /// A spike on a plane is removed and nothing else; nodes with fewer than 3 neighbours
+    /// are not judged.
+    #[test]
+    fn a_spike_is_a_blunder() {
+        let (cols, rows) = (5, 4);
+        let mut z: Vec<f64> = (0..cols * rows)
+            .map(|k| 100.0 + 0.5 * (k % cols) as f64 - 0.3 * (k / cols) as f64)
+            .collect();
+        z[2 * cols + 2] += 9.0;
+        let plane = z.clone();
+        assert_eq!(remove_blunders(&mut z, cols, rows, 2.0), 1);
+        for k in 0..z.len() {
+            if k == 2 * cols + 2 {
+                assert!(z[k].is_nan());
+            } else {
+                assert_eq!(z[k], plane[k]);
+            }
+        }
+        let mut pair = vec![0.0, 50.0];
+        assert_eq!(remove_blunders(&mut pair, 2, 1, 1.0), 0);
     }
 
     /// Points on the plane z = 100 + 0.2·x − 0.1·y with σ 0.5 m, on a 3 m lattice: every

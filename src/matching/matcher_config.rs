@@ -150,10 +150,42 @@ pub struct OslsmConfig {
     /// The radiometric datum (its offset 0, gain 1) and the photo whose footprint is
     /// modelled; default: the one overlapping most others.
     pub reference: Option<String>,
-    /// The coarse model: a GeoTIFF DEM in the project's CRS (relative to the project file),
-    /// e.g. a national DEM; default: the sweep's, run first into `coarse/`. It must be within
-    /// a pixel or two of parallax of the terrain: least squares pulls in no further.
-    pub coarse: Option<std::path::PathBuf>,
+    /// The coarse model: "sweep" (the default: the sweep's, run first into `coarse/`),
+    /// "features" (seed 001's route: edges matched as strings along epipolar line pairs,
+    /// for weak texture or a long base where correlation fails), or a GeoTIFF DEM in the
+    /// project's CRS (a path relative to the project file, e.g. a national DEM). It must be
+    /// within a pixel or two of parallax of the terrain: least squares pulls in no further.
+    pub coarse: CoarseSource,
+}
+
+/// Where the object-space matching's coarse model comes from (`[matching.oslsm] coarse`).
+#[derive(Debug, Clone, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(from = "String", into = "String")]
+pub enum CoarseSource {
+    #[default]
+    Sweep,
+    Features,
+    File(std::path::PathBuf),
+}
+
+impl From<String> for CoarseSource {
+    fn from(s: String) -> Self {
+        match s.as_str() {
+            "sweep" => CoarseSource::Sweep,
+            "features" => CoarseSource::Features,
+            _ => CoarseSource::File(s.into()),
+        }
+    }
+}
+
+impl From<CoarseSource> for String {
+    fn from(c: CoarseSource) -> String {
+        match c {
+            CoarseSource::Sweep => "sweep".into(),
+            CoarseSource::Features => "features".into(),
+            CoarseSource::File(f) => f.display().to_string(),
+        }
+    }
 }
 
 impl Default for OslsmConfig {
@@ -166,7 +198,7 @@ impl Default for OslsmConfig {
             converged_px: 0.005,
             smoothness: OSLSM_SMOOTHNESS,
             reference: None,
-            coarse: None,
+            coarse: CoarseSource::Sweep,
         }
     }
 }

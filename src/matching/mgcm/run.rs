@@ -226,43 +226,9 @@ impl LevelGrid {
     }
 
     /// Blunders: a node further than `limit` from the median of its (at least 3) neighbours
-    /// with a height. Returns how many were removed.
+    /// is removed; the number removed.
     fn remove_blunders(&mut self, limit: f64) -> usize {
-        let mut out = Vec::new();
-        for j in 0..self.rows {
-            for i in 0..self.cols {
-                let z = self.z[j * self.cols + i];
-                if !z.is_finite() {
-                    continue;
-                }
-                let mut n = self.neighbours(i, j);
-                if n.len() < 3 {
-                    continue;
-                }
-                let mid = n.len() / 2;
-                let med = *n.select_nth_unstable_by(mid, f64::total_cmp).1;
-                if (z - med).abs() > limit {
-                    out.push(j * self.cols + i);
-                }
-            }
-        }
-        for &k in &out {
-            self.z[k] = f64::NAN;
-        }
-        out.len()
-    }
-
-    fn neighbours(&self, i: usize, j: usize) -> Vec<f64> {
-        let mut n = Vec::with_capacity(8);
-        for b in j.saturating_sub(1)..(j + 2).min(self.rows) {
-            for a in i.saturating_sub(1)..(i + 2).min(self.cols) {
-                let v = self.z[b * self.cols + a];
-                if (a, b) != (i, j) && v.is_finite() {
-                    n.push(v);
-                }
-            }
-        }
-        n
+        crate::matching::grid::remove_blunders(&mut self.z, self.cols, self.rows, limit)
     }
 
     /// Holes filled with the mean of their neighbours, ring by ring; false when the grid has

@@ -6,6 +6,7 @@
 //! values, quality.tif with their σ), with the reflectance as an orthophoto
 //! (reflectance.tif, the reference photo's grey values) and the convergence plot.
 
+use super::coarse_features::{feature_grid, FeatureReport, LINE_SPACING_PX};
 use super::config::OslsmConfig;
 use super::grids::Grids;
 use super::patches::{refine_block, PatchReport};
@@ -15,6 +16,7 @@ use crate::coords::PixelXY;
 use crate::geometry::{Crs, Resection, Sensor};
 use crate::matching::block_geometry::{block, ground_pixel_m, parallax_per_m, Block};
 use crate::matching::grid::{Comparison, ElevationGrid, NodeQuality};
+use crate::matching::matcher_config::CoarseSource;
 use crate::matching::pipeline::{Photo, PipelineError};
 use crate::matching::pipeline2::{ModelFigures, Oriented, Pipeline2Error};
 use crate::matching::progress::Progress;
@@ -62,6 +64,10 @@ pub struct OslsmReport {
     /// Where the coarse model came from: "sweep" (its outputs in coarse/) or the file.
     pub coarse_source: String,
     pub coarse_holes_filled: usize,
+    /// The feature route's line pairs, edges, matches and points, when it made the coarse
+    /// model.
+    #[serde(default)]
+    pub coarse_features: Option<FeatureReport>,
     pub radiometry: Vec<PhotoRadiometry>,
     pub patches: Vec<PatchReport>,
     /// Posts refined from the grey values (the DEM's other nodes are nodata).
@@ -104,6 +110,30 @@ impl OslsmReport {
             v.push((
                 format!("coarse model ({})", self.coarse_source),
                 c.summary(),
+            ));
+        }
+        if let Some(f) = &self.coarse_features {
+            let per: Vec<String> = f
+                .pairs
+                .iter()
+                .map(|x| {
+                    format!(
+                        "photo {}: {} line pairs, {} + {} edges, {} matched, {} heights",
+                        x.photo, x.lines, x.edges_reference, x.edges_other, x.matched, x.points
+                    )
+                })
+                .collect();
+            v.push((
+                "feature route".into(),
+                format!(
+                    "{}; {} heights dropped as off those around them; a grid of {:.1} m: {} nodes with a height, {} dropped as off their neighbours, {} holes filled",
+                    per.join("; "),
+                    f.rejected,
+                    f.cell_m,
+                    f.nodes,
+                    f.blunders,
+                    f.holes_filled
+                ),
             ));
         }
         let failed = self.patches.iter().filter(|p| p.failure.is_some()).count();
@@ -239,10 +269,20 @@ pub fn run(
             budget
         )));
     }
-    // The coarse model: the project's file, or the sweep with all its outputs in coarse/.
+    let order: Vec<usize> = std::iter::once(r).chain(others.iter().copied()).collect();
+    let views: Vec<PhotoView> = order
+        .iter()
+        .map(|&k| PhotoView {
+            image: &photos[k].image,
+            sensor: &sensors[k],
+        })
+        .collect();
+    // The coarse model: the sweep's (all its outputs in coarse/), the feature route's (its
+    // grid in coarse/dem.tif) or the project's file.
+    let mut coarse_features = None;
     let mut warnings = Vec::new();
     let (cg, coarse_comparison) = match &cfg.coarse {
-        Some(f) => {
+        CoarseSource::File(f) => {
             let path = p.path.parent().unwrap_or(Path::new(".")).join(f);
             let g = crate::matching::output::read_geotiff(&path).map_err(|e| {
                 Pipeline2Error::Oslsm(format!(
@@ -256,7 +296,69 @@ pub fn run(
                 .map(|r| g.compare(|x, y| r.interpolate(x, y)));
             (g, c)
         }
-        None => {
+        CoarseSource::Features => {
+            let others_v: Vec<(PhotoView, String)> = (1..order.len())
+                .map(|n| (views[n], p.photos[order[n]].id.clone()))
+                .collect();
+            // Nodes a few lines apart on the ground, so that most hold several points.
+            let cell = post_m.max(4.0 * LINE_SPACING_PX * gsd);
+            let mut g = ElevationGrid::covering(extent, cell, budget)
+                .map_err(|e| Pipeline2Error::Grid(e.to_string()))?;
+            let rep = feature_grid(
+                views[0],
+                &others_v,
+                heights,
+                &mut g,
+                3.0 * m_per_px,
+                progress,
+            );
+            if rep.nodes == 0 {
+                return Err(Pipeline2Error::Oslsm(format!(
+                    "the feature route matched no edges into heights within [dem] heights {:.0} … {:.0} m ({} points, {} line pairs): do the heights bracket the terrain, and do the photos show edges?",
+                    heights[0],
+                    heights[1],
+                    rep.points,
+                    rep.pairs.iter().map(|x| x.lines).sum::<usize>()
+                )));
+            }
+            let dir = out.join("coarse");
+            std::fs::create_dir_all(&dir)
+                .and_then(|_| {
+                    crate::matching::output::write_geotiff(&dir.join("dem.tif"), &g, p.crs)
+                })
+                .map_err(|source| PipelineError::Write {
+                    dir: dir.clone(),
+                    cause: source,
+                })?;
+            // Compared where the edges gave heights; then filled for the posts.
+            let c = reference
+                .as_ref()
+                .map(|r| g.compare(|x, y| r.interpolate(x, y)));
+            let mut z: Vec<f64> = g.z.iter().map(|&v| v as f64).collect();
+            let mut rep = rep;
+            rep.holes_filled =
+                crate::matching::grid::fill_holes(&mut z, g.cols, g.rows).unwrap_or(0);
+            for (d, v) in g.z.iter_mut().zip(&z) {
+                *d = *v as f32;
+            }
+            // The route's own record beside its grid (kept even if the refinement fails).
+            crate::atomic::write_json(
+                &dir.join("report.json"),
+                &serde_json::json!({
+                    "route": "features",
+                    "features": rep,
+                    "m_per_px": m_per_px,
+                    "comparison": c,
+                }),
+            )
+            .map_err(|source| PipelineError::Write {
+                dir: dir.clone(),
+                cause: source,
+            })?;
+            coarse_features = Some(rep);
+            (g, c)
+        }
+        CoarseSource::Sweep => {
             let r = crate::matching::pipeline2::run(
                 p,
                 photos,
@@ -300,14 +402,6 @@ pub fn run(
             .collect(),
         per_cell,
     };
-    let order: Vec<usize> = std::iter::once(r).chain(others.iter().copied()).collect();
-    let views: Vec<PhotoView> = order
-        .iter()
-        .map(|&k| PhotoView {
-            image: &photos[k].image,
-            sensor: &sensors[k],
-        })
-        .collect();
     let adjust_started = std::time::Instant::now();
     let merged = refine_block(
         &views,
@@ -349,7 +443,7 @@ pub fn run(
     let refined_posts = points.len();
     if refined_posts == 0 {
         return Err(Pipeline2Error::Oslsm(format!(
-            "it refined no post: all {} patches failed (first: {}){}; is the coarse model within a pixel or two of parallax of the terrain, and do [dem] heights bracket it?",
+            "it refined no post: all {} patches failed (first: {}){}{}; is the coarse model within a pixel or two of parallax of the terrain, and do [dem] heights bracket it?",
             merged.patches.len(),
             merged
                 .patches
@@ -360,7 +454,11 @@ pub fn run(
             warnings
                 .iter()
                 .map(|w| format!("; {w}"))
-                .collect::<String>()
+                .collect::<String>(),
+            coarse_comparison
+                .as_ref()
+                .map(|c| format!("; the coarse model against the reference: {}", c.summary()))
+                .unwrap_or_default()
         )));
     }
     // The reflectance as an orthophoto of groundel cells, rows from the north.
@@ -440,10 +538,12 @@ pub fn run(
         m_per_px,
         coarse_comparison,
         coarse_source: match &cfg.coarse {
-            Some(f) => f.display().to_string(),
-            None => "the sweep, in coarse/".into(),
+            CoarseSource::File(f) => f.display().to_string(),
+            CoarseSource::Sweep => "the sweep, in coarse/".into(),
+            CoarseSource::Features => "the feature route".into(),
         },
         coarse_holes_filled: holes,
+        coarse_features,
         radiometry,
         patches: merged.patches.clone(),
         refined_posts,

@@ -36,6 +36,16 @@ fn reflectance(x: f64, y: f64) -> f64 {
 
 /// A photo of terrain `t` with reflectance `r`, grey = offset + gain·r.
 fn render(s: &FrameSensor, t: &dyn Fn(f64, f64) -> f64, radiometry: [f64; 2]) -> ImageF32 {
+    render_with(s, t, &reflectance, radiometry)
+}
+
+/// A photo of terrain `t` with reflectance `refl`, grey = offset + gain·refl.
+fn render_with(
+    s: &FrameSensor,
+    t: &dyn Fn(f64, f64) -> f64,
+    refl: &dyn Fn(f64, f64) -> f64,
+    radiometry: [f64; 2],
+) -> ImageF32 {
     let mut img = ImageF32::new(SIDE, SIDE);
     let k = 3;
     for row in 0..SIDE {
@@ -59,7 +69,7 @@ fn render(s: &FrameSensor, t: &dyn Fn(f64, f64) -> f64, radiometry: [f64; 2]) ->
                             break;
                         }
                     }
-                    v += reflectance(g.x, g.y);
+                    v += refl(g.x, g.y);
                 }
             }
             img.data[row * SIDE + col] =
@@ -359,4 +369,149 @@ fn a_patch_too_large_is_refused_up_front() {
         Err(OslsmError::TooBig { unknowns, .. }) => assert!(unknowns > MAX_UNKNOWNS),
         other => panic!("{other:?}"),
     }
+}
+
+/// Fields: reflectance steps of 25 along curved borders 20-60 m apart, nothing inside them
+/// (weak texture: only the borders carry a match).
+fn fields(x: f64, y: f64) -> f64 {
+    let v = (x / 23.0).sin()
+        + 1.3 * (y / 31.0 + 0.3 * (x / 17.0).sin()).sin()
+        + 0.5 * ((x + y) / 41.0).cos();
+    100.0 + 25.0 * (2.0 * v).floor()
+}
+
+/// The feature route's line pairs over a diagonal base: the epipolar lines run along the
+/// base's image (the closed form for two vertical photos at one height), and a ground point
+/// at any height on a reference sample's ray projects onto the conjugate line (within
+/// 0.001 px), where `intersect` finds its height again (within 1 mm).
+#[test]
+fn line_pairs_are_conjugate_at_every_height() {
+    use super::coarse_features::{intersect, line_pairs};
+    let (a, b) = (camera(0.0, 0.0), camera(120.0, 60.0));
+    let img = ImageF32::new(SIDE, SIDE);
+    let (va, vb) = (
+        PhotoView {
+            image: &img,
+            sensor: &a,
+        },
+        PhotoView {
+            image: &img,
+            sensor: &b,
+        },
+    );
+    let h = [-20.0, 60.0];
+    let lines = line_pairs(va, vb, h, 10.0);
+    assert!(lines.len() > 20, "{} lines", lines.len());
+    // The base (120, 60) m appears in the image as (120, −60) px-wise (rows run south).
+    let base = [120.0f64, -60.0];
+    let nb = base[0].hypot(base[1]);
+    let mut worst: [f64; 3] = [0.0; 3];
+    for lp in &lines {
+        let n = lp.reference.len();
+        let (q0, q1) = (lp.reference[0], lp.reference[n - 1]);
+        let d = [q1.col - q0.col, q1.row - q0.row];
+        let cross = (d[0] * base[1] - d[1] * base[0]) / (d[0].hypot(d[1]) * nb);
+        worst[0] = worst[0].max(cross.abs());
+        // Away from the ends, where a point at another height falls beyond the run.
+        for i in (40..n.saturating_sub(40)).step_by(37) {
+            for z in [-15.0, 5.0, 33.0, 55.0] {
+                let g = a.image_to_ground(lp.reference[i], z).unwrap();
+                let p = b.ground_to_image(g).unwrap();
+                // Distance from the conjugate polyline's segment nearest p.
+                let off = lp
+                    .other
+                    .windows(2)
+                    .map(|w| {
+                        let (u, v) = (w[0], w[1]);
+                        let (dx, dy) = (v.col - u.col, v.row - u.row);
+                        let t = (((p.col - u.col) * dx + (p.row - u.row) * dy)
+                            / (dx * dx + dy * dy))
+                            .clamp(0.0, 1.0);
+                        (p.col - u.col - t * dx).hypot(p.row - u.row - t * dy)
+                    })
+                    .fold(f64::INFINITY, f64::min);
+                worst[1] = worst[1].max(off);
+                let (u, v) = (lp.other[i], lp.other[i + 1]);
+                let l = (v.col - u.col).hypot(v.row - u.row);
+                let dir = [(v.col - u.col) / l, (v.row - u.row) / l];
+                let zz = intersect(va, vb, lp.reference[i], p, dir, 20.0).unwrap();
+                worst[2] = worst[2].max((zz - z).abs());
+            }
+        }
+    }
+    eprintln!(
+        "direction {:.2e}, off the line {:.2e} px, height {:.2e} m",
+        worst[0], worst[1], worst[2]
+    );
+    assert!(
+        worst[0] < 1e-6,
+        "lines off the base's direction by {:.2e}",
+        worst[0]
+    );
+    assert!(
+        worst[1] < 1e-3,
+        "a point {:.2e} px off its conjugate line",
+        worst[1]
+    );
+    assert!(worst[2] < 1e-3, "a height {:.2e} m off", worst[2]);
+}
+
+/// The feature route on weak texture (fields with nothing inside them) over a hill on a
+/// slope, photos with a gain and offset between them: the borders' edges, matched as
+/// strings, give the terrain within half a pixel of parallax RMS (the closed form
+/// f·B/(H²·pixel) for two vertical photos) at most nodes of an 8 m grid over the photos' overlap.
+#[test]
+fn the_feature_route_finds_the_terrain_from_field_borders() {
+    use super::coarse_features::feature_grid;
+    use crate::matching::grid::ElevationGrid;
+    let terrain = |x: f64, y: f64| 20.0 + 0.05 * x + 12.0 * (-(x * x + y * y) / 6400.0).exp();
+    let (a, b) = (camera(0.0, 0.0), camera(120.0, 60.0));
+    let (ia, ib) = (
+        render_with(&a, &terrain, &fields, [0.0, 1.0]),
+        render_with(&b, &terrain, &fields, [10.0, 1.2]),
+    );
+    let (va, vb) = (
+        PhotoView {
+            image: &ia,
+            sensor: &a,
+        },
+        PhotoView {
+            image: &ib,
+            sensor: &b,
+        },
+    );
+    let px_per_m = F_MM * 1e-3 * 120f64.hypot(60.0) / ((Z0 - 25.0).powi(2) * PIX_MM * 1e-3);
+    let m_per_px = 1.0 / px_per_m;
+    let mut g = ElevationGrid::covering([0.0, -60.0, 120.0, 120.0], 8.0, 64).unwrap();
+    let rep = feature_grid(
+        va,
+        &[(vb, "2".to_string())],
+        [-20.0, 60.0],
+        &mut g,
+        3.0 * m_per_px,
+        &crate::matching::progress::Silent,
+    );
+    let c = g.compare(terrain);
+    eprintln!(
+        "{} points, {} rejected, {} nodes of {}: RMSE {:.2} m = {:.3} px, max {:+.2} / {:+.2} m",
+        rep.points,
+        rep.rejected,
+        rep.nodes,
+        g.z.len(),
+        c.rmse_m,
+        c.rmse_m / m_per_px,
+        c.max_positive_m,
+        c.max_negative_m
+    );
+    assert!(
+        rep.nodes * 2 >= g.z.len(),
+        "only {} of {} nodes",
+        rep.nodes,
+        g.z.len()
+    );
+    assert!(
+        c.rmse_m / m_per_px <= 0.5,
+        "RMSE {:.3} px",
+        c.rmse_m / m_per_px
+    );
 }
