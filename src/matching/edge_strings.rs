@@ -334,4 +334,98 @@ mod tests {
             le.len()
         );
     }
+
+    /// The ordering step against a brute force: on random edge lists with wide windows
+    /// (many candidates, many crossings), the kept pairs are those the plain rule keeps
+    /// (cheapest first, a pair dropped if it crosses or shares a right edge with any kept one
+    /// in any order), and they are in order along both lines.
+    #[test]
+    fn the_ordering_step_keeps_what_the_brute_force_keeps() {
+        let mut state = 0x9E37_79B9_7F4A_7C15u64;
+        let mut rnd = || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        for _ in 0..50 {
+            let mut mk = |n: usize| -> Vec<Edge> {
+                let mut at = 0.0;
+                (0..n)
+                    .map(|_| {
+                        at += 1.0 + 6.0 * rnd();
+                        Edge {
+                            at,
+                            polarity: if rnd() < 0.5 { 1 } else { -1 },
+                            amplitude: 5.0 + 20.0 * rnd(),
+                            contrast: 10.0 + 40.0 * rnd(),
+                            width: 1.0 + 3.0 * rnd(),
+                        }
+                    })
+                    .collect()
+            };
+            let (l, r) = (mk(40), mk(40));
+            let window = |_: f64| Window {
+                range: [-30.0, 30.0],
+                expected: 0.0,
+            };
+            let w = CostWeights::default();
+            let got = match_strings(&l, &r, &window, &w);
+            for p in got.windows(2) {
+                assert!(p[0].left < p[1].left && p[0].right < p[1].right);
+            }
+            // Brute force over the same mutual pairs: rebuild them from the costs.
+            let gain = {
+                let mut v: Vec<f64> = Vec::new();
+                for a in &l {
+                    for b in &r {
+                        let d = b.at - a.at;
+                        if a.polarity == b.polarity && (-30.0..=30.0).contains(&d) {
+                            v.push((b.contrast / a.contrast).ln());
+                        }
+                    }
+                }
+                let m = v.len() / 2;
+                v.select_nth_unstable_by(m, f64::total_cmp).1.exp()
+            };
+            let c = |i: usize, j: usize| {
+                let s = Edge {
+                    amplitude: r[j].amplitude / gain,
+                    contrast: r[j].contrast / gain,
+                    ..r[j]
+                };
+                cost(&l[i], &s, &window(0.0), &w)
+            };
+            let best =
+                |n: usize, m: usize, f: &dyn Fn(usize, usize) -> f64| -> Vec<Option<usize>> {
+                    (0..n)
+                        .map(|i| {
+                            (0..m)
+                                .filter(|&j| f(i, j).is_finite())
+                                .min_by(|&a, &b| f(i, a).total_cmp(&f(i, b)))
+                        })
+                        .collect()
+                };
+            let br = best(l.len(), r.len(), &|i, j| c(i, j));
+            let bl = best(r.len(), l.len(), &|j, i| c(i, j));
+            let mut mutual: Vec<(usize, usize, f64)> = br
+                .iter()
+                .enumerate()
+                .filter_map(|(i, j)| {
+                    let j = (*j)?;
+                    (bl[j] == Some(i)).then(|| (i, j, c(i, j)))
+                })
+                .collect();
+            mutual.sort_by(|a, b| a.2.total_cmp(&b.2));
+            let mut kept: Vec<(usize, usize)> = Vec::new();
+            for (i, j, _) in mutual {
+                if !kept.iter().any(|&(a, b)| (a < i) != (b < j) || b == j) {
+                    kept.push((i, j));
+                }
+            }
+            kept.sort();
+            let got: Vec<(usize, usize)> = got.iter().map(|p| (p.left, p.right)).collect();
+            assert_eq!(got, kept);
+        }
+    }
 }

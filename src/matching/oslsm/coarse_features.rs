@@ -12,12 +12,20 @@
 //! the reference line's ground points at the middle height seen in the other photo, so that
 //! a point at another height appears shifted along it by its parallax.
 //!
-//! Matching runs coarse to fine along each line (smoothing σ 8, 4 and 2 px): the coarse
-//! level's few strong edges are matched over the whole height range; each finer level looks
-//! only near the disparity the coarser pairs give there (interpolated along the line, after
-//! pairs that disagree with their neighbours are dropped). The heights are then gridded by
-//! the median at each node, nodes off their neighbours' median by more than two pixels of
-//! parallax are dropped, and the holes are filled (by the caller).
+//! Matching runs coarse to fine (smoothing σ 8, 4 and 2 px). The coarsest level's few
+//! strong edges are matched over the whole height range, line by line; their disparities are
+//! binned by reference pixel (cells of 3σ) and the median over the 3 × 3 cells around an edge
+//! (the lines beside each other vote) guides the next level there; each finer level looks
+//! only near the disparity the coarser pairs give (interpolated along the line, after pairs
+//! that disagree with their neighbours are dropped). The heights are then checked against
+//! those around them, gridded by the median at each node, nodes off their neighbours'
+//! median by more than the caller's limit (three pixels of parallax) are dropped, and the
+//! holes are filled (by the caller).
+//!
+//! Known limit: the coarsest level gives about one mutual match a line; on a long base over
+//! a steep slope (one profile compressed by a third against the other, so that the edges'
+//! amplitudes and widths no longer agree) a third of them are wrong there, and the finer
+//! levels follow them. The sweep is then the better start.
 
 use super::PhotoView;
 use crate::coords::{GroundM, PixelXY};
