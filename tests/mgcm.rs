@@ -6,7 +6,7 @@
 
 mod common;
 
-use common::{rig, run_ok};
+use common::{dtm_json, rig, sim_scene};
 use serde_json::Value;
 use std::path::Path;
 
@@ -48,38 +48,28 @@ fn project(scene: &Path, name: &str, photos: &[u32], extra: &str) -> std::path::
     p
 }
 
-fn dtm(p: &Path, out: &Path) -> Value {
-    let o = run_ok(rig().arg("dtm").arg(p).arg("--json").arg("--out").arg(out));
-    serde_json::from_slice(&o.stdout).unwrap()
-}
-
 #[test]
 fn three_photos_meet_the_goals_and_four_rays_beat_two() {
     let d = tempfile::tempdir().unwrap();
-    let scene = d.path().join("scene");
-    run_ok(
-        rig()
-            .args([
-                "sim",
-                "scene",
-                "--seed",
-                "11",
-                "--area",
-                "40,-72,51,-61",
-                "--photos",
-                "4",
-                "--noise-dn",
-                "150",
-                "--truth-cell-m",
-                "2",
-                "--out",
-            ])
-            .arg(&scene),
+    let scene = sim_scene(
+        d.path(),
+        &[
+            "--seed",
+            "11",
+            "--area",
+            "40,-72,51,-61",
+            "--photos",
+            "4",
+            "--noise-dn",
+            "150",
+            "--truth-cell-m",
+            "2",
+        ],
     );
     // Three photos, the interest operator's points.
     let p3 = project(&scene, "three", &[1, 2, 3], "");
     let out = d.path().join("three");
-    let v = dtm(&p3, &out);
+    let v = dtm_json(&p3, &out);
     let a = &v["accuracy"];
     let m_per_px = v["m_per_px"].as_f64().unwrap();
     let hg = a["flying_height_m"].as_f64().unwrap();
@@ -139,7 +129,7 @@ fn three_photos_meet_the_goals_and_four_rays_beat_two() {
     let mut rmse = Vec::new();
     for (name, photos) in [("two", &[1u32, 2][..]), ("four", &[1, 2, 3, 4][..])] {
         let p = project(&scene, name, photos, "points = \"grid\"");
-        let v = dtm(&p, &d.path().join(name));
+        let v = dtm_json(&p, &d.path().join(name));
         let r = v["accuracy"]["versions"][1]["rms_m"].as_f64().unwrap();
         let u = v["accuracy"]["undetected"].as_u64().unwrap();
         eprintln!("{name} photos: RMS {r:.3} m with the blunders, {u} undetected");

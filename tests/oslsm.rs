@@ -7,7 +7,7 @@
 
 mod common;
 
-use common::{rig, run_ok};
+use common::{dtm_json, rig, sim_scene};
 use rig::matching::output::{read_geotiff, write_geotiff};
 use serde_json::Value;
 use std::path::{Path, PathBuf};
@@ -29,11 +29,6 @@ fn project(scene: &Path, name: &str, extra: &str) -> PathBuf {
     let p = scene.join(format!("{name}.toml"));
     std::fs::write(&p, out).unwrap();
     p
-}
-
-fn dtm(p: &Path, out: &Path) -> Value {
-    let o = run_ok(rig().arg("dtm").arg(p).arg("--json").arg("--out").arg(out));
-    serde_json::from_slice(&o.stdout).unwrap()
 }
 
 /// Pearson's correlation of two series.
@@ -124,40 +119,36 @@ fn check_goals(what: &str, v: &Value, out: &Path, scene: &Path) -> f64 {
 #[test]
 fn three_photos_with_planted_radiometry_meet_the_goals() {
     let d = tempfile::tempdir().unwrap();
-    let scene = d.path().join("scene");
     let list = |v: &[f64]| {
         v.iter()
             .map(|x| x.to_string())
             .collect::<Vec<_>>()
             .join(",")
     };
-    run_ok(
-        rig()
-            .args([
-                "sim",
-                "scene",
-                "--seed",
-                "3",
-                "--area",
-                "38,-70,50,-58",
-                "--photos",
-                "3",
-                "--noise-dn",
-                "150",
-                "--truth-cell-m",
-                "2",
-                "--gains",
-                &list(&GAINS),
-                "--offsets",
-                &list(&OFFSETS),
-                "--out",
-            ])
-            .arg(&scene),
+    let (gains, offsets) = (list(&GAINS), list(&OFFSETS));
+    let scene = sim_scene(
+        d.path(),
+        &[
+            "--seed",
+            "3",
+            "--area",
+            "38,-70,50,-58",
+            "--photos",
+            "3",
+            "--noise-dn",
+            "150",
+            "--truth-cell-m",
+            "2",
+            "--gains",
+            &gains,
+            "--offsets",
+            &offsets,
+        ],
     );
     // From the sweep's coarse model.
     let p = project(&scene, "oslsm", "");
     let out = d.path().join("sweep");
-    let v = dtm(&p, &out);
+    let v = dtm_json(&p, &out);
     let m_per_px = check_goals("from the sweep", &v, &out, &scene);
     for f in [
         "dem.tif",
@@ -185,7 +176,7 @@ fn three_photos_with_planted_radiometry_meet_the_goals() {
     write_geotiff(&scene.join("off.tif"), &off, "EPSG:32616".parse().unwrap()).unwrap();
     let p = project(&scene, "off", "coarse = \"off.tif\"");
     let out = d.path().join("off");
-    let v = dtm(&p, &out);
+    let v = dtm_json(&p, &out);
     let c = &v["coarse_comparison"];
     let worst = c["max_positive_m"]
         .as_f64()
@@ -227,30 +218,25 @@ fn three_photos_with_planted_radiometry_meet_the_goals() {
 #[test]
 fn on_weak_texture_the_feature_route_finds_the_terrain_where_the_sweep_fails() {
     let d = tempfile::tempdir().unwrap();
-    let scene = d.path().join("scene");
-    run_ok(
-        rig()
-            .args([
-                "sim",
-                "scene",
-                "--seed",
-                "3",
-                "--area",
-                "78,-68,88,-58",
-                "--texture",
-                "fields",
-                "--noise-dn",
-                "300",
-                "--truth-cell-m",
-                "2",
-                "--out",
-            ])
-            .arg(&scene),
+    let scene = sim_scene(
+        d.path(),
+        &[
+            "--seed",
+            "3",
+            "--area",
+            "78,-68,88,-58",
+            "--texture",
+            "fields",
+            "--noise-dn",
+            "300",
+            "--truth-cell-m",
+            "2",
+        ],
     );
     let text = std::fs::read_to_string(scene.join("block.toml")).unwrap();
     let sweep = scene.join("sweep.toml");
     std::fs::write(&sweep, &text).unwrap();
-    let s = dtm(&sweep, &d.path().join("sweep"));
+    let s = dtm_json(&sweep, &d.path().join("sweep"));
     // The feature route's model, refined or not (the refinement may fail in the fields):
     // its grid and record in coarse/.
     let p = project(&scene, "features", "coarse = \"features\"");

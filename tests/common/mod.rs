@@ -23,6 +23,32 @@ pub fn run_ok(cmd: &mut Command) -> Output {
     out
 }
 
+/// `rig sim scene ARGS --out DIR/scene`, asserted to succeed; the scene's directory.
+pub fn sim_scene(dir: &Path, args: &[&str]) -> PathBuf {
+    let scene = dir.join("scene");
+    run_ok(
+        rig()
+            .args(["sim", "scene"])
+            .args(args)
+            .arg("--out")
+            .arg(&scene),
+    );
+    scene
+}
+
+/// `rig dtm PROJECT --json --out OUT`, asserted to succeed; its report.
+pub fn dtm_json(project: &Path, out: &Path) -> Value {
+    let o = run_ok(
+        rig()
+            .arg("dtm")
+            .arg(project)
+            .arg("--json")
+            .arg("--out")
+            .arg(out),
+    );
+    serde_json::from_slice(&o.stdout).unwrap()
+}
+
 /// A `rig sim` child process, stopped with SIGTERM on drop.
 pub struct SimProcess {
     pub child: Child,
