@@ -475,7 +475,6 @@ pub fn run(a: &SceneArgs) -> anyhow::Result<i32> {
     if a.out.exists() && std::fs::read_dir(&a.out)?.next().is_some() {
         anyhow::bail!("{} is not empty: give a new directory", a.out.display());
     }
-    std::fs::create_dir_all(&a.out)?;
     let dem = jacksboro();
     let photo = |n: u32| {
         let mut p = AerialPhoto::new(dem.clone(), a.seed, n, 110.0);
@@ -490,13 +489,8 @@ pub fn run(a: &SceneArgs) -> anyhow::Result<i32> {
         PhotoGrid::covering(area, step),
         PhotoGrid::covering(area2, step),
     );
-    eprintln!(
-        "rendering photo 1 ({}×{} px) and photo 2 ({}×{} px)…",
-        g1.width, g1.height, g2.width, g2.height
-    );
-    let s1 = write_photo(&a.out, "photo-1", &p1, &g1, a.noise_dn, radiometry[0])?;
-    let s2 = write_photo(&a.out, "photo-2", &p2, &g2, a.noise_dn, radiometry[1])?;
-    // Photos 3 to 6 of the block, over where they see photo 1's area.
+    // Photos 3 to 6 of the block, over where they see photo 1's area: each checked before
+    // anything is written.
     let mut more = Vec::new();
     for n in 3..=a.photos {
         let pn = photo(n);
@@ -507,17 +501,27 @@ pub fn run(a: &SceneArgs) -> anyhow::Result<i32> {
                 area, an[0], an[1], an[2], an[3]
             );
         }
-        let gn = PhotoGrid::covering(an, step);
+        more.push((pn, an));
+    }
+    std::fs::create_dir_all(&a.out)?;
+    eprintln!(
+        "rendering photo 1 ({}×{} px) and photo 2 ({}×{} px)…",
+        g1.width, g1.height, g2.width, g2.height
+    );
+    let s1 = write_photo(&a.out, "photo-1", &p1, &g1, a.noise_dn, radiometry[0])?;
+    let s2 = write_photo(&a.out, "photo-2", &p2, &g2, a.noise_dn, radiometry[1])?;
+    for (pn, an) in &more {
+        let n = pn.number;
+        let gn = PhotoGrid::covering(*an, step);
         eprintln!("rendering photo {n} ({}×{} px)…", gn.width, gn.height);
         write_photo(
             &a.out,
             &format!("photo-{n}"),
-            &pn,
+            pn,
             &gn,
             a.noise_dn,
             radiometry[n as usize - 1],
         )?;
-        more.push((pn, an));
     }
     let mut rng = rig_sim::rng::Rng::new(a.seed ^ 0x6C9);
     let noise = (a.photo_noise_um / 1000.0, a.ground_noise_m);
