@@ -108,24 +108,51 @@ fn inside(img: &crate::image::ImageF32, q: PixelXY) -> bool {
 /// The conjugate line pairs of reference `r` and photo `k` over heights `h` (lo, hi), lines
 /// `spacing` px apart: each the contiguous run of samples both photos frame.
 pub fn line_pairs(r: PhotoView, k: PhotoView, h: [f64; 2], spacing: f64) -> Vec<LinePair> {
-    let (w, ht) = (r.image.width as f64, r.image.height as f64);
-    let centre = PixelXY::new(0.5 * w, 0.5 * ht);
-    let Some(e) = epipolar_direction(r, k, centre, h) else {
+    let Some(plan) = LinePlan::new(r, k, h, spacing) else {
         return Vec::new();
     };
-    let mid = 0.5 * (h[0] + h[1]);
-    let n = [-e[1], e[0]];
-    // The starts: along the perpendicular through the centre, far enough for every corner.
-    let reach = 0.5 * w.hypot(ht);
-    let starts = (2.0 * reach / spacing).ceil() as usize + 1;
-    (0..starts)
+    (0..plan.starts)
         .into_par_iter()
-        .flat_map_iter(|s| {
-            let off = -reach + s as f64 * spacing;
-            let start = PixelXY::new(centre.col + off * n[0], centre.row + off * n[1]);
-            trace(r, k, start, e, h, mid, reach)
-        })
+        .flat_map_iter(|s| plan.runs(r, k, s))
         .collect()
+}
+
+/// Where the lines start: along the perpendicular through the reference's centre, far
+/// enough for every corner. A line's runs are traced when needed and let go, so that a large
+/// photo's line pairs are never all in memory at once.
+struct LinePlan {
+    centre: PixelXY,
+    e: [f64; 2],
+    reach: f64,
+    spacing: f64,
+    starts: usize,
+    h: [f64; 2],
+}
+
+impl LinePlan {
+    fn new(r: PhotoView, k: PhotoView, h: [f64; 2], spacing: f64) -> Option<LinePlan> {
+        let (w, ht) = (r.image.width as f64, r.image.height as f64);
+        let centre = PixelXY::new(0.5 * w, 0.5 * ht);
+        let e = epipolar_direction(r, k, centre, h)?;
+        let reach = 0.5 * w.hypot(ht);
+        Some(LinePlan {
+            centre,
+            e,
+            reach,
+            spacing,
+            starts: (2.0 * reach / spacing).ceil() as usize + 1,
+            h,
+        })
+    }
+
+    /// The runs of line `s`.
+    fn runs(&self, r: PhotoView, k: PhotoView, s: usize) -> Vec<LinePair> {
+        let n = [-self.e[1], self.e[0]];
+        let off = -self.reach + s as f64 * self.spacing;
+        let start = PixelXY::new(self.centre.col + off * n[0], self.centre.row + off * n[1]);
+        let mid = 0.5 * (self.h[0] + self.h[1]);
+        trace(r, k, start, self.e, self.h, mid, self.reach)
+    }
 }
 
 /// The samples of one line through `start` (both ways, `reach` px each), split into the runs
@@ -465,6 +492,27 @@ fn disparity_of(r: PhotoView, k: PhotoView, lp: &LinePair, i: usize, h: f64) -> 
     (uu > 1e-12).then(|| ((f.col - p.col) * u[0] + (f.row - p.row) * u[1]) / uu)
 }
 
+/// The coarsest level's pairs of line pair `lp` over the whole height range `h`: each as
+/// its reference pixel and disparity.
+fn coarse_pairs(r: PhotoView, k: PhotoView, lp: &LinePair, h: [f64; 2]) -> Vec<(PixelXY, f64)> {
+    let m = lp.reference.len() / 2;
+    let ends = [h[0], h[1]].map(|z| disparity_of(r, k, lp, m, z));
+    let (Some(a), Some(b)) = (ends[0], ends[1]) else {
+        return Vec::new();
+    };
+    let pad = 2.0 * LEVELS_SIGMA_PX[0];
+    let range = [a.min(b) - pad, a.max(b) + pad];
+    let full = |_: f64| Window {
+        range,
+        expected: 0.5 * (range[0] + range[1]),
+    };
+    let (pairs, _, _) = match_levels(lp, &LEVELS_SIGMA_PX[..1], &full);
+    pairs
+        .iter()
+        .filter_map(|x| Some((along(&lp.reference, x.left)?, x.right - x.left)))
+        .collect()
+}
+
 /// The feature route's ground points from reference `r` and photo `k` over heights `h`:
 /// every line pair's finest matches intersected; heights outside the range (widened by a
 /// tenth) are dropped.
@@ -475,40 +523,50 @@ pub fn pair_points(
     id: &str,
     progress: &dyn Progress,
 ) -> (Vec<GroundM>, FeaturePairReport) {
-    let lines = line_pairs(r, k, h, LINE_SPACING_PX);
+    let Some(plan) = LinePlan::new(r, k, h, LINE_SPACING_PX) else {
+        return (
+            Vec::new(),
+            FeaturePairReport {
+                photo: id.to_string(),
+                ..Default::default()
+            },
+        );
+    };
+    // Two passes over the lines, each traced afresh (its samples let go after).
     progress.begin(
         &format!("edges along the epipolar lines with photo {id}"),
-        lines.len() as u64,
+        2 * plan.starts as u64,
     );
     let mid = 0.5 * (h[0] + h[1]);
     let margin = 0.1 * (h[1] - h[0]).abs();
     // Pass 1: the coarsest level over the whole height range, line by line.
-    let coarse: Vec<Vec<(PixelXY, f64)>> = lines
-        .par_iter()
-        .map(|lp| {
-            let m = lp.reference.len() / 2;
-            let ends = [h[0], h[1]].map(|z| disparity_of(r, k, lp, m, z));
-            let (Some(a), Some(b)) = (ends[0], ends[1]) else {
-                return Vec::new();
-            };
-            let pad = 2.0 * LEVELS_SIGMA_PX[0];
-            let range = [a.min(b) - pad, a.max(b) + pad];
-            let full = |_: f64| Window {
-                range,
-                expected: 0.5 * (range[0] + range[1]),
-            };
-            let (m, _, _) = match_levels(lp, &LEVELS_SIGMA_PX[..1], &full);
-            m.iter()
-                .filter_map(|x| Some((along(&lp.reference, x.left)?, x.right - x.left)))
-                .collect()
+    let coarse: Vec<(usize, Vec<(PixelXY, f64)>)> = (0..plan.starts)
+        .into_par_iter()
+        .map(|s| {
+            let runs = plan.runs(r, k, s);
+            let m: Vec<(PixelXY, f64)> = runs
+                .iter()
+                .flat_map(|lp| coarse_pairs(r, k, lp, h))
+                .collect();
+            progress.advance(1);
+            (runs.len(), m)
         })
         .collect();
+    let lines: usize = coarse.iter().map(|c| c.0).sum();
     // The lines beside each other vote on the coarse disparity.
-    let guide = Guide::new(3.0 * LEVELS_SIGMA_PX[0], coarse.into_iter().flatten());
+    let guide = Guide::new(
+        3.0 * LEVELS_SIGMA_PX[0],
+        coarse.into_iter().flat_map(|c| c.1),
+    );
     // Pass 2: the finer levels near the guide.
-    let per: Vec<(Vec<GroundM>, usize, usize, usize)> = lines
-        .par_iter()
+    let per: Vec<(Vec<GroundM>, usize, usize, usize)> = (0..plan.starts)
+        .into_par_iter()
+        .flat_map_iter(|s| {
+            progress.advance(1);
+            plan.runs(r, k, s)
+        })
         .map(|lp| {
+            let lp = &lp;
             let slack = 1.5 * LEVELS_SIGMA_PX[0];
             let near = |at: f64| match along(&lp.reference, at).and_then(|q| guide.at(q)) {
                 Some(d) => Window {
@@ -538,14 +596,13 @@ pub fn pair_points(
                 })
                 .collect();
             let n = matches.len();
-            progress.advance(1);
             (pts, nl, nr, n)
         })
         .collect();
     progress.end();
     let mut rep = FeaturePairReport {
         photo: id.to_string(),
-        lines: lines.len(),
+        lines,
         ..Default::default()
     };
     let mut pts = Vec::new();
