@@ -1,5 +1,6 @@
-//! The object-space matching over a format-2 project (seed 001): the sweep gives the coarse
-//! DEM (kept in `coarse/`), its nodes become the posts, the reference photo's footprint is
+//! The object-space matching over a format-2 project (seed 001): the sweep, the feature route
+//! or a file gives the coarse DEM (the first two kept in `coarse/`), the DEM's nodes become
+//! the posts, the reference photo's footprint is
 //! cut into groundels of about a ground pixel, and the heights, the reflectance and each
 //! photo's offset and gain are adjusted patch by patch from every photo overlapping the
 //! reference. Written as the sweep's outputs are (dem.tif with the posts refined from the grey
@@ -61,7 +62,8 @@ pub struct OslsmReport {
     /// The coarse model from the sweep (in `coarse/`) against the reference DEM, and the
     /// nodes it had no height for (filled from their neighbours before the adjustment).
     pub coarse_comparison: Option<Comparison>,
-    /// Where the coarse model came from: "sweep" (its outputs in coarse/) or the file.
+    /// Where the coarse model came from: the sweep (its outputs in coarse/), the feature
+    /// route (its grid and record in coarse/) or the file.
     pub coarse_source: String,
     pub coarse_holes_filled: usize,
     /// The feature route's line pairs, edges, matches and points, when it made the coarse
