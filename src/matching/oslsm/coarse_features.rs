@@ -76,7 +76,7 @@ pub struct FeaturePairReport {
 
 /// One conjugate line pair: reference samples in unit steps and their conjugates in the other
 /// photo (the reference's ground points at the middle height), with both grey profiles.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, Default)]
 pub struct LinePair {
     pub reference: Vec<PixelXY>,
     pub other: Vec<PixelXY>,
@@ -193,28 +193,11 @@ fn trace(
     let fwd = walk(start, 1.0, steps / 2);
     let all = back.into_iter().chain(std::iter::once(start)).chain(fwd);
     let mut out = Vec::new();
-    let mut cur = LinePair {
-        reference: Vec::new(),
-        other: Vec::new(),
-        left: Vec::new(),
-        right: Vec::new(),
-    };
+    let mut cur = LinePair::default();
     let mut flush = |cur: &mut LinePair| {
-        if cur.reference.len() >= MIN_PROFILE {
-            out.push(std::mem::replace(
-                cur,
-                LinePair {
-                    reference: Vec::new(),
-                    other: Vec::new(),
-                    left: Vec::new(),
-                    right: Vec::new(),
-                },
-            ));
-        } else {
-            cur.reference.clear();
-            cur.other.clear();
-            cur.left.clear();
-            cur.right.clear();
+        let run = std::mem::take(cur);
+        if run.reference.len() >= MIN_PROFILE {
+            out.push(run);
         }
     };
     for q in all {
@@ -566,7 +549,7 @@ pub fn pair_points(
             plan.runs(r, k, s)
         })
         .map(|lp| {
-            let lp = &lp;
+            let lp = &lp; // (owned by this closure: the run was traced for it)
             let slack = 1.5 * LEVELS_SIGMA_PX[0];
             let near = |at: f64| match along(&lp.reference, at).and_then(|q| guide.at(q)) {
                 Some(d) => Window {
