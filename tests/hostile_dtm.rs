@@ -319,3 +319,37 @@ fn the_mapping_order_can_be_left_to_the_check_points() {
     assert_ne!(code, Some(0));
     assert!(said.contains("order") && said.contains("auto"), "{said}");
 }
+
+#[test]
+fn scene_lists_that_start_with_a_minus_reach_their_range_checks() {
+    let d = tempfile::tempdir().unwrap();
+    // A negative first number is a value, not a flag: the area is read, and the offsets' own
+    // range check is what refuses them (before anything is rendered).
+    let out = common::rig()
+        .args([
+            "sim",
+            "scene",
+            "--area",
+            "-4,-2,48,2",
+            "--offsets",
+            "-30001,0",
+            "--out",
+        ])
+        .arg(d.path().join("s"))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("--offsets `-30001,0`: -30001 is outside"),
+        "{err}"
+    );
+    let out = common::rig()
+        .args(["sim", "scene", "--area", "-101,-2,48,2", "--out"])
+        .arg(d.path().join("s"))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("inside ±100 mm"), "{err}");
+    assert!(!d.path().join("s").exists(), "nothing written");
+}

@@ -94,6 +94,11 @@ fn targets_outside_the_soft_limits_are_refused_before_sending() {
         // An operator's tighter limits are honoured too.
         let (code, _, _) = sim.stage(d, &["--limits", "10,20,10,20", "move", "25", "15"]);
         assert_eq!(code, 3);
+        // Limits written with a leading minus (GRBL's machine space is negative after
+        // homing) are read as numbers, not taken for a flag.
+        let (code, j, err) = sim.stage(d, &["--limits", "-5,20,-5,20", "move", "25", "15"]);
+        assert_eq!(code, 3, "{d}: {err}");
+        assert_eq!(j["error"]["kind"], "out_of_limits", "{d}: {err}");
         let truth = sim.stop();
         assert_eq!(
             truth["accepted_targets_um"].as_array().unwrap().len(),

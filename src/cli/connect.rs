@@ -22,7 +22,13 @@ pub struct StagePort {
     pub dialect: Option<Dialect>,
     /// Tighter soft limits, mm: XMIN,XMAX,YMIN,YMAX (intersected with the controller's; a scan
     /// is planned within them too).
-    #[arg(long, value_name = "MM,MM,MM,MM", value_parser = parse_limits, global = true)]
+    #[arg(
+        long,
+        value_name = "MM,MM,MM,MM",
+        value_parser = parse_limits,
+        global = true,
+        allow_hyphen_values = true
+    )]
     pub limits: Option<SoftLimits>,
 }
 

@@ -23,7 +23,12 @@ pub struct SceneArgs {
     pub seed: u64,
     /// The area of photo 1 to render, photo mm: XMIN,YMIN,XMAX,YMAX (inside the overlap with
     /// photo 2, which lies about 92 mm along x).
-    #[arg(long, value_name = "MM,MM,MM,MM", default_value = "36,-8,56,8")]
+    #[arg(
+        long,
+        value_name = "MM,MM,MM,MM",
+        default_value = "36,-8,56,8",
+        allow_hyphen_values = true
+    )]
     pub area: String,
     /// Pixel size on the film, µm.
     #[arg(long, default_value_t = 25.0)]
@@ -66,7 +71,7 @@ pub struct SceneArgs {
     pub texture: TextureArg,
     /// Each photo's radiometric offset, grey values, in photo order (e.g. 0,-3000,4000).
     /// Default 0 for every photo.
-    #[arg(long, value_name = "DN,DN,…")]
+    #[arg(long, value_name = "DN,DN,…", allow_hyphen_values = true)]
     pub offsets: Option<String>,
 }
 
@@ -346,17 +351,20 @@ pub fn truth_grid(
     Ok(rig::sim_scene::grid_to_crs(grid))
 }
 
-/// Cell of truth-reflectance.tif, m (finer than a ground pixel, about 1 m).
+/// Cell of truth-reflectance.tif, m (finer than a ground pixel, about 1 m), doubled for
+/// large areas until the grid is at most [`REFLECTANCE_MAX_NODES`].
 const REFLECTANCE_CELL_M: f64 = 0.5;
 
+/// Nodes of truth-reflectance.tif at the most (25 million: 4 km × 5 km at 1 m).
+const REFLECTANCE_MAX_NODES: f64 = 25e6;
+
 /// The terrain's true reflectance (0 … 1, as the simulator shades it: what every photo's
-/// grey values are a linear function of) on a grid of `cell_m` over `dem`'s extent, in the
-/// world's CRS; refused above the default memory limit.
+/// grey values are a linear function of) over `dem`'s extent, in the world's CRS, and its
+/// cell ([`REFLECTANCE_CELL_M`] or coarser).
 pub fn truth_reflectance(
     a: &AerialPhoto,
     dem: &ElevationGrid,
-    cell_m: f64,
-) -> Result<ElevationGrid, rig::matching::grid::GridError> {
+) -> Result<(ElevationGrid, f64), rig::matching::grid::GridError> {
     let [ox, oy] = rig::sim_scene::ORIGIN_M;
     let half = 0.5 * dem.cell_m;
     let extent = [
@@ -365,6 +373,11 @@ pub fn truth_reflectance(
         dem.x0 + (dem.cols as f64 - 0.5) * dem.cell_m - ox,
         dem.y0 + half - oy,
     ];
+    let area_m2 = (extent[2] - extent[0]) * (extent[3] - extent[1]);
+    let mut cell_m = REFLECTANCE_CELL_M;
+    while area_m2 / (cell_m * cell_m) > REFLECTANCE_MAX_NODES && cell_m < 1e4 {
+        cell_m *= 2.0;
+    }
     let mut grid =
         ElevationGrid::covering(extent, cell_m, rig::matching::project::default_memory_mb())?;
     let cols = grid.cols;
@@ -375,7 +388,7 @@ pub fn truth_reflectance(
     grid.z.par_iter_mut().zip(&nodes).for_each(|(z, [x, y])| {
         *z = a.reflectance_at(*x, *y) as f32;
     });
-    Ok(rig::sim_scene::grid_to_crs(grid))
+    Ok((rig::sim_scene::grid_to_crs(grid), cell_m))
 }
 
 /// A format-2 project of the rendered photos with their true orientations (the simulator's
@@ -503,6 +516,10 @@ pub fn run(a: &SceneArgs) -> anyhow::Result<i32> {
         }
         more.push((pn, an));
     }
+    // The truth grids before the photos: a large area is refused (or its reflectance
+    // coarsened) at once, not after the rendering.
+    let truth = truth_grid(&p1, area, a.truth_cell_m)?;
+    let (reflectance, reflectance_cell_m) = truth_reflectance(&p1, &truth)?;
     std::fs::create_dir_all(&a.out)?;
     eprintln!(
         "rendering photo 1 ({}×{} px) and photo 2 ({}×{} px)…",
@@ -531,13 +548,11 @@ pub fn run(a: &SceneArgs) -> anyhow::Result<i32> {
         &a.out.join("points.json"),
         &json!({"gcps": gcps, "cps": cps}),
     )?;
-    let truth = truth_grid(&p1, area, a.truth_cell_m)?;
     rig::matching::output::write_geotiff(
         &a.out.join("truth-dem.tif"),
         &truth,
         rig::sim_scene::CRS,
     )?;
-    let reflectance = truth_reflectance(&p1, &truth, REFLECTANCE_CELL_M)?;
     rig::matching::output::write_ortho(
         &a.out.join("truth-reflectance.tif"),
         &reflectance,
@@ -556,7 +571,7 @@ pub fn run(a: &SceneArgs) -> anyhow::Result<i32> {
                 "radiometry": {"gains": gains, "offsets_dn": offsets,
                     "grey": "offset + gain × 60000 × (t_min + (t_max − t_min) × reflectance) + noise",
                     "t_min": p1.t_min, "t_max": p1.t_max,
-                    "reflectance": format!("truth-reflectance.tif: the terrain's reflectance (0 … 1, shaded), {REFLECTANCE_CELL_M} m cells")}}),
+                    "reflectance": format!("truth-reflectance.tif: the terrain's reflectance (0 … 1, shaded), {reflectance_cell_m} m cells")}}),
     )?;
     let all: Vec<&AerialPhoto> = std::iter::once(&p1)
         .chain([&p2])
