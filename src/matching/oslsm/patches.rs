@@ -44,6 +44,14 @@ pub struct PatchReport {
     pub stalled: bool,
     /// The factor by which the residuals' correlation widened σ.
     pub inflation: Option<f64>,
+    /// The curvature's weight in σ against its weight in the solution (below 1: the terrain
+    /// bends more than the solution's rule takes it to).
+    #[serde(default)]
+    pub curvature_weight: Option<f64>,
+    /// The mean share of the posts' information from the grey values that is the
+    /// texture's, not the pixels' noise's.
+    #[serde(default)]
+    pub signal_share: Option<f64>,
     pub iterations: usize,
     /// Each iteration's σ₀ and moves (the convergence plot).
     pub history: Vec<Iteration>,
@@ -205,6 +213,8 @@ pub fn refine_block(
                     sigma0: Some(r.sigma0),
                     stalled: r.stalled,
                     inflation: Some(r.inflation),
+                    curvature_weight: Some(r.curvature_weight),
+                    signal_share: Some(r.signal_share),
                     iterations: r.iterations.len(),
                     history: r.iterations,
                     failure: None,
@@ -217,6 +227,8 @@ pub fn refine_block(
                 sigma0: None,
                 stalled: false,
                 inflation: None,
+                curvature_weight: None,
+                signal_share: None,
                 iterations: 0,
                 history: Vec::new(),
                 failure: Some(e),

@@ -143,6 +143,13 @@ pub struct Refinement {
     /// The factor by which the residuals' correlation between neighbouring groundels widens
     /// `sigma_z` beyond σ₀·√Q ([`correlation_inflation`]).
     pub inflation: f64,
+    /// The curvature's weight in `sigma_z` against its weight in the solution: from the
+    /// curvature's own variance component ([`honest_cofactors`]); below 1 where the terrain
+    /// is rougher than the solution's weight takes it to be.
+    pub curvature_weight: f64,
+    /// The mean share of the informed posts' information that is the texture's, not the
+    /// pixels' noise's ([`honest_cofactors`]).
+    pub signal_share: f64,
     pub iterations: Vec<Iteration>,
 }
 
@@ -153,6 +160,27 @@ struct Obs {
     /// Grey value observed and ∂g/∂Z.
     g: f64,
     dg_dz: f64,
+    /// What white pixel noise of unit variance gives the sampled value and ∂g/∂Z as
+    /// variance: bilinear interpolation averages the noise of four pixels, and its slopes
+    /// difference them ([`noise_gains`]).
+    noise_g: f64,
+    noise_dz: f64,
+}
+
+/// The variances that white noise of unit variance in the pixels gives a bilinear sample at
+/// (x, y) and the slope ∂g/∂Z = gx·∂col/∂Z + gy·∂row/∂Z (the `[dc, dr]` given) taken from
+/// it ([`crate::image::ImageF32::bilinear_with_gradient`]). With fx, fy the fractions within
+/// the pixel: the value ((1−fx)² + fx²)·((1−fy)² + fy²); gx = (1−fy)(p₁−p₀) + fy(q₁−q₀)
+/// has 2((1−fy)² + fy²), gy likewise in fx, and their covariance is (1−2fx)(1−2fy).
+pub(super) fn noise_gains(x: f64, y: f64, [dc, dr]: [f64; 2]) -> [f64; 2] {
+    let (u, v) = (x - 0.5, y - 0.5);
+    let (fx, fy) = (u - u.floor(), v - v.floor());
+    let (sx, sy) = ((1.0 - fx).powi(2) + fx * fx, (1.0 - fy).powi(2) + fy * fy);
+    let cov = (1.0 - 2.0 * fx) * (1.0 - 2.0 * fy);
+    [
+        sx * sy,
+        2.0 * sy * dc * dc + 2.0 * sx * dr * dr + 2.0 * cov * dc * dr,
+    ]
 }
 
 /// Samples every photo that sees groundel `gr` at height `z`.
@@ -174,10 +202,13 @@ fn observe(photos: &[PhotoView<'_>], sees: &[bool], gr: &Groundel, z: f64, out: 
         let Some(d) = v.sensor.partials(p) else {
             continue;
         };
+        let [noise_g, noise_dz] = noise_gains(q.col, q.row, [d[0][2], d[1][2]]);
         out.push(Obs {
             photo: k,
             g,
             dg_dz: gx * d[0][2] + gy * d[1][2],
+            noise_g,
+            noise_dz,
         });
     }
 }
@@ -321,18 +352,19 @@ pub fn refine(
                     .max(1),
             )
             .fold(
-                || {
-                    (
-                        DMatrix::<f64>::zeros(nu, nu),
-                        DVector::<f64>::zeros(nu),
-                        0.0,
-                        0usize,
-                    )
-                },
-                |(mut n_mat, mut rhs, mut vv, mut nobs), (n, (_, _, obs))| {
+                || Assembly::zeros(nu, n_posts, kp),
+                |mut acc, (n, (_, _, obs))| {
                     if obs.len() < 2 || !d[n].is_finite() {
-                        return (n_mat, rhs, vv, nobs);
+                        return acc;
                     }
+                    let Assembly {
+                        n_mat,
+                        rhs,
+                        vv,
+                        nobs,
+                        noise,
+                        noise_info,
+                    } = &mut acc;
                     let gr = &groundels[n];
                     let idx: Vec<usize> = gr
                         .posts
@@ -344,11 +376,21 @@ pub fn refine(
                     let mut nl = DMatrix::<f64>::zeros(local + 1, local + 1);
                     let mut bl = DVector::<f64>::zeros(local + 1);
                     let mut row = DVector::<f64>::zeros(local + 1);
+                    let bb: f64 = obs.iter().map(|o| radiometry[o.photo][1].powi(2)).sum();
                     for o in obs {
                         let [a, b] = radiometry[o.photo];
                         let l = o.g - a - b * d[n];
-                        vv += l * l;
-                        nobs += 1;
+                        *vv += l * l;
+                        *nobs += 1;
+                        // The share of the residual and of the posts' information that the
+                        // pixels' noise gives, D eliminated (its leverage b²/Σb²).
+                        let free = 1.0 - b * b / bb;
+                        noise[o.photo][0] += l * l;
+                        noise[o.photo][1] += o.noise_g * free;
+                        for (c, w) in gr.weights.iter().enumerate() {
+                            noise_info[o.photo * n_posts + gr.posts[c]] +=
+                                w * w * o.noise_dz * free;
+                        }
                         row.fill(0.0);
                         // g(Z + dZ) − (a + da) − (b + db)(D + dD) = 0:
                         // ∂g/∂Z·dZ − da − D·db − b·dD = −l.
@@ -367,7 +409,7 @@ pub fn refine(
                     // Eliminate D: N − n·nᵀ/n_dd.
                     let ndd = nl[(local, local)];
                     if ndd <= 0.0 {
-                        return (n_mat, rhs, vv, nobs);
+                        return acc;
                     }
                     for i in 0..local {
                         let ni = nl[(i, local)];
@@ -376,21 +418,18 @@ pub fn refine(
                             n_mat[(idx[i], idx[j])] += nl[(i, j)] - ni * nl[(j, local)] / ndd;
                         }
                     }
-                    (n_mat, rhs, vv, nobs)
+                    acc
                 },
             )
-            .reduce(
-                || {
-                    (
-                        DMatrix::<f64>::zeros(nu, nu),
-                        DVector::<f64>::zeros(nu),
-                        0.0,
-                        0usize,
-                    )
-                },
-                |a, b| (a.0 + b.0, a.1 + b.1, a.2 + b.2, a.3 + b.3),
-            );
-        let (mut n_mat, mut rhs, vv, nobs) = assembled;
+            .reduce(|| Assembly::zeros(nu, n_posts, kp), Assembly::add);
+        let Assembly {
+            mut n_mat,
+            mut rhs,
+            vv,
+            nobs,
+            noise,
+            noise_info,
+        } = assembled;
         let observed = per.iter().filter(|x| x.2.len() >= 2).count();
         if observed == 0 {
             return Err(OslsmError::NoObservations);
@@ -421,28 +460,14 @@ pub fn refine(
                 n_mat[(i, i)] += 1e-6 * mean_info.max(1e-12);
             }
         }
-        let mut curve = |a: usize, b: usize, c: usize, z: &[f64]| {
-            let l = -(z[a] - 2.0 * z[b] + z[c]);
+        for [a, b, c] in curvature_rows(g.cols, g.rows) {
+            let l = -(g.z[a] - 2.0 * g.z[b] + g.z[c]);
             let r = [(a, 1.0), (b, -2.0), (c, 1.0)];
             for &(i, ci) in &r {
                 rhs[i] += w * ci * l;
-                for &(j, cj) in &r {
-                    n_mat[(i, j)] += w * ci * cj;
-                }
-            }
-        };
-        for j in 0..g.rows {
-            for i in 1..g.cols.saturating_sub(1) {
-                let k = j * g.cols + i;
-                curve(k - 1, k, k + 1, &g.z);
             }
         }
-        for j in 1..g.rows.saturating_sub(1) {
-            for i in 0..g.cols {
-                let k = j * g.cols + i;
-                curve(k - g.cols, k, k + g.cols, &g.z);
-            }
-        }
+        add_curvature(&mut n_mat, g.cols, g.rows, w);
         if sigma0 > p.diverging_ratio * best_sigma0 {
             return Err(OslsmError::Diverged {
                 iteration,
@@ -524,7 +549,14 @@ pub fn refine(
             // The precision from the normal matrix of the last linearisation, widened by the
             // residuals' correlation between neighbouring groundels (the normal matrix takes
             // them as independent).
-            let inv = chol.inverse();
+            drop(chol);
+            let noise = noise_information(&noise, &noise_info, n_posts);
+            let Some((inv, curvature_weight, share)) =
+                honest_cofactors(n_mat, &noise, &informed, &g, w, sigma0)
+            else {
+                return Err(OslsmError::Singular { iteration });
+            };
+            let signal_share = mean_share(&share, &informed);
             let inflation = correlation_inflation(photos, &sees, &groundels, &g, &d, &radiometry);
             let sigma_z = (0..n_posts)
                 .map(|i| inflation * sigma0 * inv[(i, i)].max(0.0).sqrt())
@@ -558,6 +590,8 @@ pub fn refine(
                 sigma0,
                 stalled: !settled,
                 inflation,
+                curvature_weight: curvature_weight / w,
+                signal_share,
                 iterations,
             });
         }
@@ -572,6 +606,193 @@ pub fn refine(
         iterations: p.max_iterations,
         last_move_m: last_move,
     })
+}
+
+/// One worker's share of an iteration's normal equations (D eliminated), with what the
+/// pixels' noise gives them.
+struct Assembly {
+    n_mat: DMatrix<f64>,
+    rhs: DVector<f64>,
+    /// The grey values' squared residuals and their number.
+    vv: f64,
+    nobs: usize,
+    /// Per photo: Σ v² and Σ of what unit pixel noise gives v² ([`Obs::noise_g`] times
+    /// 1 − the leverage of D).
+    noise: Vec<[f64; 2]>,
+    /// Per photo and post (photo-major): the posts' information that unit pixel noise in
+    /// that photo gives their slopes ([`Obs::noise_dz`]).
+    noise_info: Vec<f64>,
+}
+
+impl Assembly {
+    fn zeros(nu: usize, n_posts: usize, kp: usize) -> Self {
+        Assembly {
+            n_mat: DMatrix::zeros(nu, nu),
+            rhs: DVector::zeros(nu),
+            vv: 0.0,
+            nobs: 0,
+            noise: vec![[0.0; 2]; kp],
+            noise_info: vec![0.0; n_posts * kp],
+        }
+    }
+
+    fn add(mut self, o: Self) -> Self {
+        self.n_mat += o.n_mat;
+        self.rhs += o.rhs;
+        self.vv += o.vv;
+        self.nobs += o.nobs;
+        for (a, b) in self.noise.iter_mut().zip(&o.noise) {
+            a[0] += b[0];
+            a[1] += b[1];
+        }
+        for (a, b) in self.noise_info.iter_mut().zip(&o.noise_info) {
+            *a += b;
+        }
+        self
+    }
+}
+
+/// What the pixels' noise alone gives each post's information from the grey values
+/// (D eliminated): Σₖ σₖ²·Eₖᵢ, with each photo's noise variance σₖ² from its own residuals
+/// (Σv² over what unit noise gives them; the model's misfit counts as noise, so this errs
+/// high and σ with it).
+fn noise_information(noise: &[[f64; 2]], noise_info: &[f64], n_posts: usize) -> Vec<f64> {
+    let var: Vec<f64> = noise
+        .iter()
+        .map(|[vv, c]| if *c > 0.0 { vv / c } else { 0.0 })
+        .collect();
+    (0..n_posts)
+        .map(|i| {
+            var.iter()
+                .enumerate()
+                .map(|(k, s2)| s2 * noise_info[k * n_posts + i])
+                .sum()
+        })
+        .collect()
+}
+
+/// The curvature observations of a `cols` × `rows` grid of posts: the second differences
+/// along rows and along columns, each as its three posts' indices.
+fn curvature_rows(cols: usize, rows: usize) -> impl Iterator<Item = [usize; 3]> {
+    let along = (0..rows).flat_map(move |j| {
+        (1..cols.saturating_sub(1)).map(move |i| {
+            let k = j * cols + i;
+            [k - 1, k, k + 1]
+        })
+    });
+    let across = (1..rows.saturating_sub(1)).flat_map(move |j| {
+        (0..cols).map(move |i| {
+            let k = j * cols + i;
+            [k - cols, k, k + cols]
+        })
+    });
+    along.chain(across)
+}
+
+/// Adds `w`·CᵀC, the curvature observations' normals with weight `w`, to `n`.
+fn add_curvature(n: &mut DMatrix<f64>, cols: usize, rows: usize, w: f64) {
+    for [a, b, c] in curvature_rows(cols, rows) {
+        let r = [(a, 1.0), (b, -2.0), (c, 1.0)];
+        for &(i, ci) in &r {
+            for &(j, cj) in &r {
+                n[(i, j)] += w * ci * cj;
+            }
+        }
+    }
+}
+
+/// Scales the grey values' normals `n_mat` (D eliminated, before the curvature) to the
+/// texture's information, and gives each post's share sᵢ = 1 − Eᵢ/Nᵢᵢ of it, with Eᵢ
+/// (`noise`) what the pixels' noise alone gives it. The slopes ∂g/∂Z are taken from noisy
+/// pixels: where the texture is faint they are mostly noise and Nᵢᵢ is large all the same,
+/// so that σ₀/√Nᵢᵢ says a post is fixed that the grey values hardly move (and Gauss–Newton's
+/// steps shrink by sᵢ there, an errors-in-variables model: the posts stall short of the
+/// terrain, near where they started). Scaling each post's rows and columns by √sᵢ makes the
+/// diagonal N − E, where E sits.
+fn texture_share(n_mat: &mut DMatrix<f64>, noise: &[f64], informed: &[bool]) -> Vec<f64> {
+    let mut share: Vec<f64> = (0..n_mat.nrows())
+        .map(|i| match (informed.get(i), noise.get(i)) {
+            (Some(true), Some(e)) => (1.0 - e / n_mat[(i, i)]).clamp(0.0, 1.0),
+            (Some(false), _) => 0.0,
+            _ => 1.0,
+        })
+        .collect();
+    let scale: Vec<f64> = share.iter().map(|s| s.sqrt()).collect();
+    for j in 0..n_mat.ncols() {
+        for i in 0..n_mat.nrows() {
+            n_mat[(i, j)] *= scale[i] * scale[j];
+        }
+    }
+    share.truncate(informed.len());
+    share
+}
+
+/// The mean of the informed posts' shares.
+fn mean_share(share: &[f64], informed: &[bool]) -> f64 {
+    let (sum, n) = share
+        .iter()
+        .zip(informed)
+        .filter(|(_, i)| **i)
+        .fold((0.0, 0usize), |a, (s, _)| (a.0 + s, a.1 + 1));
+    if n > 0 {
+        sum / n as f64
+    } else {
+        0.0
+    }
+}
+
+/// The cofactor matrix for the posts' σ, the curvature weight it holds and the posts'
+/// texture shares, from the solution's normals `n_mat` (curvature weight `w` included),
+/// made honest in two ways.
+///
+/// - The texture's information only ([`texture_share`], with `noise` what the pixels'
+///   noise gives each post).
+/// - The terrain's own curvature. The solution's curvature weight is a rule
+///   ([`OslsmParams::smoothness`]), not the terrain's: where the grey values leave a post to
+///   the curvature (inside a field of even tone), σ₀·√Q from that weight says how well the
+///   solution fits the rule, not how far the terrain may bend away from it. So the
+///   curvature observations get their own variance component (Förstner's estimate) s_c² =
+///   v_cᵀv_c / r_c, with v_c the refined posts' second differences and r_c = Σ (1 −
+///   w·(C Q Cᵀ)ᵢᵢ) their redundancy against the texture's normals: posts the texture fixes
+///   make the curvature redundant and show the terrain's real bending; posts left to the
+///   curvature add nothing to r_c. The σ then come from the normals with the curvature
+///   weighted σ₀² / s_c² (`w` when the curvature has under one observation of redundancy).
+///
+/// `None` when those normals are singular (no post with texture in the patch).
+fn honest_cofactors(
+    mut n_mat: DMatrix<f64>,
+    noise: &[f64],
+    informed: &[bool],
+    g: &Grids,
+    w: f64,
+    sigma0: f64,
+) -> Option<(DMatrix<f64>, f64, Vec<f64>)> {
+    add_curvature(&mut n_mat, g.cols, g.rows, -w);
+    let share = texture_share(&mut n_mat, noise, informed);
+    let mut m = n_mat.clone();
+    add_curvature(&mut m, g.cols, g.rows, w);
+    let q = m.cholesky()?.inverse();
+    let (mut vv, mut r) = (0.0, 0.0);
+    for [a, b, c] in curvature_rows(g.cols, g.rows) {
+        let v = g.z[a] - 2.0 * g.z[b] + g.z[c];
+        vv += v * v;
+        let idx = [(a, 1.0), (b, -2.0), (c, 1.0)];
+        let mut qq = 0.0;
+        for &(i, ci) in &idx {
+            for &(j, cj) in &idx {
+                qq += ci * cj * q[(i, j)];
+            }
+        }
+        r += 1.0 - w * qq;
+    }
+    drop(q);
+    let honest = if r >= 1.0 && vv > 0.0 && sigma0 > 0.0 {
+        (sigma0 * sigma0 * r / vv).clamp(w * 1e-6, w * 1e6)
+    } else {
+        w
+    };
+    add_curvature(&mut n_mat, g.cols, g.rows, honest);
+    n_mat.cholesky().map(|c| (c.inverse(), honest, share))
 }
 
 /// How much the grey-value residuals' correlation between neighbouring groundels widens a

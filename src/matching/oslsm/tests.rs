@@ -171,6 +171,113 @@ fn a_flat_terrain_converges_in_one_step_to_the_truth() {
     );
 }
 
+/// White noise of standard deviation `sigma` added to every pixel of `img` (xorshift and
+/// Box–Muller, seeded).
+fn add_noise(img: &mut ImageF32, sigma: f64, seed: u64) {
+    let mut s = seed | 1;
+    let mut uniform = || {
+        s ^= s << 13;
+        s ^= s >> 7;
+        s ^= s << 17;
+        (s >> 11) as f64 / (1u64 << 53) as f64
+    };
+    for v in img.data.iter_mut() {
+        let (a, b) = (uniform().max(1e-300), uniform());
+        *v += (sigma * (-2.0 * a.ln()).sqrt() * (std::f64::consts::TAU * b).cos()) as f32;
+    }
+}
+
+/// [`solve::noise_gains`] against Monte Carlo: bilinear samples and slopes of a white-noise
+/// image of unit variance, at fixed fractions within the pixel, on pixels far enough apart
+/// to be independent.
+#[test]
+fn noise_gains_match_sampled_noise() {
+    let n = 600;
+    let mut img = ImageF32::new(n, n);
+    add_noise(&mut img, 1.0, 0x9E37_79B9_7F4A_7C15);
+    for (fx, fy, dc, dr) in [
+        (0.0, 0.0, 1.0, 0.0),
+        (0.5, 0.5, 0.6, 0.8),
+        (0.2, 0.7, -0.3, 1.1),
+    ] {
+        let (mut g2, mut d2, mut count) = (0.0, 0.0, 0.0);
+        for j in (2..n - 3).step_by(3) {
+            for i in (2..n - 3).step_by(3) {
+                let (x, y) = (i as f64 + 0.5 + fx, j as f64 + 0.5 + fy);
+                let [g, gx, gy] = img.bilinear_with_gradient(x, y).unwrap();
+                g2 += g * g;
+                d2 += (gx * dc + gy * dr).powi(2);
+                count += 1.0;
+            }
+        }
+        let [want_g, want_dz] = solve::noise_gains(100.5 + fx, 100.5 + fy, [dc, dr]);
+        let (got_g, got_dz) = (g2 / count, d2 / count);
+        // About 39 000 samples: each variance within 3 % (four standard errors).
+        assert!(
+            (got_g / want_g - 1.0).abs() < 0.03,
+            "{fx},{fy}: value {got_g} for {want_g}"
+        );
+        assert!(
+            (got_dz / want_dz - 1.0).abs() < 0.03,
+            "{fx},{fy}: slope {got_dz} for {want_dz}"
+        );
+    }
+}
+
+/// The texture's share of the posts' information on flat ground seen by two photos with 2
+/// grey values of noise, for the test scene's texture (waves of 15) and for one 0.3 as
+/// strong: the noise's share of the slopes' power stays, the texture's falls with the
+/// amplitude squared, so the odds s/(1 − s) must fall by 0.3² = 0.09 (within a third: the
+/// noise's part is estimated from the residuals). The posts start on the truth; their σ is
+/// printed, not judged here (bilinear resampling leaves errors of a few hundredths of a
+/// pixel that do not fall with the noise).
+#[test]
+fn sigma_counts_the_texture_not_the_noise() {
+    let flat = |_: f64, _: f64| 50.0;
+    let sensors = [camera(0.0, 0.0), camera(120.0, 0.0)];
+    let mpp = m_per_px(120.0, 50.0);
+    let mut shares = Vec::new();
+    for (what, amplitude) in [("strong", 1.0), ("faint", 0.3)] {
+        let texture = |x: f64, y: f64| 100.0 + amplitude * (reflectance(x, y) - 100.0);
+        let mut ratio2 = 0.0;
+        let mut n = 0.0;
+        let mut share = 0.0;
+        let mut sigma2 = 0.0;
+        for seed in 1..=4u64 {
+            let images: Vec<ImageF32> = sensors
+                .iter()
+                .enumerate()
+                .map(|(k, s)| {
+                    let mut img = render_with(s, &flat, &texture, [0.0, 1.0]);
+                    add_noise(&mut img, 2.0, seed * 7919 + k as u64);
+                    img
+                })
+                .collect();
+            let g = grids(30.0, 20.0, 7, 5.0, &flat);
+            let r = refine(&views(&sensors, &images), &g, &OslsmParams::default()).unwrap();
+            share += r.signal_share / 4.0;
+            for (z, s) in r.z.iter().zip(&r.sigma_z) {
+                ratio2 += ((z - 50.0) / s).powi(2);
+                sigma2 += s * s;
+                n += 1.0;
+            }
+        }
+        let ratio = (ratio2 / n).sqrt();
+        eprintln!(
+            "{what} texture: share {share:.3}, RMS σ {:.4} px, RMS(error/σ) {ratio:.2}",
+            (sigma2 / n).sqrt() / mpp
+        );
+        shares.push(share);
+    }
+    assert!(shares[0] > 0.9, "strong texture: share {:.3}", shares[0]);
+    let odds = |s: f64| s / (1.0 - s);
+    let fall = odds(shares[1]) / odds(shares[0]);
+    assert!(
+        (0.06..0.12).contains(&fall),
+        "the odds fell by {fall:.3} for 0.09: shares {shares:?}"
+    );
+}
+
 /// A hill 8 m high on a plane at 50 m.
 fn hill(x: f64, y: f64) -> f64 {
     50.0 + 8.0 * (-((x - 55.0).powi(2) + (y - 45.0).powi(2)) / 600.0).exp()
