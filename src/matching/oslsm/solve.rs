@@ -460,9 +460,8 @@ pub fn refine(
                 n_mat[(i, i)] += 1e-6 * mean_info.max(1e-12);
             }
         }
-        for [a, b, c] in curvature_rows(g.cols, g.rows) {
-            let l = -(g.z[a] - 2.0 * g.z[b] + g.z[c]);
-            let r = [(a, 1.0), (b, -2.0), (c, 1.0)];
+        for r in curvature_rows(g.cols, g.rows) {
+            let l = -second_difference(&r, &g.z);
             for &(i, ci) in &r {
                 rhs[i] += w * ci * l;
             }
@@ -671,28 +670,36 @@ fn noise_information(noise: &[[f64; 2]], noise_info: &[f64], n_posts: usize) -> 
         .collect()
 }
 
+/// One curvature observation: its three posts with their coefficients 1, −2, 1.
+type CurvatureRow = [(usize, f64); 3];
+
 /// The curvature observations of a `cols` × `rows` grid of posts: the second differences
-/// along rows and along columns, each as its three posts' indices.
-fn curvature_rows(cols: usize, rows: usize) -> impl Iterator<Item = [usize; 3]> {
+/// along rows and along columns.
+fn curvature_rows(cols: usize, rows: usize) -> impl Iterator<Item = CurvatureRow> {
+    let row = |a, b, c| [(a, 1.0), (b, -2.0), (c, 1.0)];
     let along = (0..rows).flat_map(move |j| {
         (1..cols.saturating_sub(1)).map(move |i| {
             let k = j * cols + i;
-            [k - 1, k, k + 1]
+            row(k - 1, k, k + 1)
         })
     });
     let across = (1..rows.saturating_sub(1)).flat_map(move |j| {
         (0..cols).map(move |i| {
             let k = j * cols + i;
-            [k - cols, k, k + cols]
+            row(k - cols, k, k + cols)
         })
     });
     along.chain(across)
 }
 
+/// The second difference of heights `z` that curvature observation `r` takes.
+fn second_difference(r: &CurvatureRow, z: &[f64]) -> f64 {
+    r.iter().map(|&(i, c)| c * z[i]).sum()
+}
+
 /// Adds `w`·CᵀC, the curvature observations' normals with weight `w`, to `n`.
 fn add_curvature(n: &mut DMatrix<f64>, cols: usize, rows: usize, w: f64) {
-    for [a, b, c] in curvature_rows(cols, rows) {
-        let r = [(a, 1.0), (b, -2.0), (c, 1.0)];
+    for r in curvature_rows(cols, rows) {
         for &(i, ci) in &r {
             for &(j, cj) in &r {
                 n[(i, j)] += w * ci * cj;
@@ -772,22 +779,21 @@ fn honest_cofactors(
     let mut m = n_mat.clone();
     add_curvature(&mut m, g.cols, g.rows, w);
     let q = m.cholesky()?.inverse();
-    let (mut vv, mut r) = (0.0, 0.0);
-    for [a, b, c] in curvature_rows(g.cols, g.rows) {
-        let v = g.z[a] - 2.0 * g.z[b] + g.z[c];
+    let (mut vv, mut red) = (0.0, 0.0);
+    for r in curvature_rows(g.cols, g.rows) {
+        let v = second_difference(&r, &g.z);
         vv += v * v;
-        let idx = [(a, 1.0), (b, -2.0), (c, 1.0)];
         let mut qq = 0.0;
-        for &(i, ci) in &idx {
-            for &(j, cj) in &idx {
+        for &(i, ci) in &r {
+            for &(j, cj) in &r {
                 qq += ci * cj * q[(i, j)];
             }
         }
-        r += 1.0 - w * qq;
+        red += 1.0 - w * qq;
     }
     drop(q);
-    let honest = if r >= 1.0 && vv > 0.0 && sigma0 > 0.0 {
-        (sigma0 * sigma0 * r / vv).clamp(w * 1e-6, w * 1e6)
+    let honest = if red >= 1.0 && vv > 0.0 && sigma0 > 0.0 {
+        (sigma0 * sigma0 * red / vv).clamp(w * 1e-6, w * 1e6)
     } else {
         w
     };
