@@ -2,23 +2,13 @@
 //! when RIG_GDALINFO=1, as `.ci/run` sets after installing it; elsewhere the test says it
 //! skipped the GDAL half and checks the file with the rig's own reader only.
 
+mod common;
+
+use common::gdal_tools as gdal;
 use rig::geometry::Crs;
 use rig::matching::grid::ElevationGrid;
 use rig::matching::output::{read_geotiff, write_geotiff};
 use std::process::Command;
-
-/// Whether GDAL's tools are here; with RIG_GDALINFO=1 they must be.
-fn gdal() -> bool {
-    let required = std::env::var("RIG_GDALINFO").is_ok_and(|v| v == "1");
-    match Command::new("gdalinfo").arg("--version").output() {
-        Ok(o) if o.status.success() => true,
-        r => {
-            assert!(!required, "RIG_GDALINFO=1 but gdalinfo cannot run: {r:?}");
-            eprintln!("gdalinfo not installed: GDAL half skipped");
-            false
-        }
-    }
-}
 
 #[test]
 fn gdalinfo_reads_the_elevation_model() {

@@ -5,16 +5,22 @@
 pub mod affine;
 pub mod crs;
 pub mod frame;
+pub mod geographic;
 pub mod intersection;
 pub mod photo_grid;
 pub mod pixel_frame;
+pub mod pushbroom;
 pub mod resection;
+pub mod rpc;
 pub mod sensor;
 
 pub use crs::Crs;
 pub use frame::{Exterior, FrameCamera, Interior};
+pub use geographic::{Geographic, LonLatH};
 pub use intersection::{intersect, Intersection};
 pub use photo_grid::PhotoGrid;
 pub use pixel_frame::PixelToPhoto;
+pub use pushbroom::Pushbroom;
 pub use resection::{resect, Resection, ResectionError};
+pub use rpc::{Rpc, RpcSensor};
 pub use sensor::{FrameSensor, Sensor};

@@ -8,6 +8,20 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
+/// Whether GDAL's tools (Debian's gdal-bin) are here; with RIG_GDALINFO=1, as `.ci/run` sets
+/// after installing them, they must be (the test fails rather than skip its GDAL half).
+pub fn gdal_tools() -> bool {
+    let required = std::env::var("RIG_GDALINFO").is_ok_and(|v| v == "1");
+    match Command::new("gdalinfo").arg("--version").output() {
+        Ok(o) if o.status.success() => true,
+        r => {
+            assert!(!required, "RIG_GDALINFO=1 but gdalinfo cannot run: {r:?}");
+            eprintln!("gdalinfo not installed: GDAL half skipped");
+            false
+        }
+    }
+}
+
 pub fn rig() -> Command {
     Command::new(env!("CARGO_BIN_EXE_rig"))
 }
