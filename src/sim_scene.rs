@@ -45,3 +45,22 @@ pub fn grid_to_crs(
     g.y0 += ORIGIN_M[1];
     g
 }
+
+/// A simulated satellite view's line scanner in the core's terms, its orbit moved into
+/// [`CRS`] (the same model, written twice: the simulator's and the core's).
+pub fn pushbroom(v: &rig_sim::pushbroom::PushbroomView) -> crate::geometry::Pushbroom {
+    let mut position = v.position;
+    position[0][0] += ORIGIN_M[0];
+    position[1][0] += ORIGIN_M[1];
+    crate::geometry::Pushbroom {
+        columns: v.columns,
+        lines: v.lines,
+        line_period_s: v.line_period_s,
+        focal_px: v.focal_px,
+        principal_col: v.principal_col,
+        tilt_across: v.tilt_across_deg.to_radians(),
+        tilt_along: v.tilt_along_deg.to_radians(),
+        position,
+        attitude: v.attitude,
+    }
+}

@@ -7,7 +7,8 @@
 //! - [`faults`]: fault injection on the line and on moves;
 //! - [`pty`]: the real pseudo-terminal the host opens;
 //! - [`camera`], [`plate`], [`film`], [`scene`]: what the camera sees: the carriage plate, the
-//!   film and the aerial photo on it, rendered from a DEM;
+//!   film and the aerial photo on it, rendered from a DEM; [`pushbroom`]: satellite line
+//!   scanner views of the same terrain;
 //! - [`server`]: the loop that ties them together; [`truth`]: the truth file.
 
 pub mod camera;
@@ -24,6 +25,7 @@ pub mod native;
 pub mod plate;
 pub mod profile;
 pub mod pty;
+pub mod pushbroom;
 pub mod rng;
 pub mod scene;
 pub mod server;

@@ -136,6 +136,41 @@ impl Dem {
     }
 }
 
+/// Where a ray of direction `d` (pointing down), at ground `at(z)` when at height z, first
+/// meets the terrain: marched down from above the highest point in steps of a fifth of a
+/// cell's worth of the ray's slope, then bisected to a millimetre.
+pub fn first_hit(dem: &Dem, d: [f64; 3], at: impl Fn(f64) -> [f64; 2]) -> [f64; 3] {
+    // f(z) = z − h(ray at height z): positive above the terrain.
+    let f = |z: f64| {
+        let [x, y] = at(z);
+        z - dem.height(x, y)
+    };
+    let horiz = (d[0] * d[0] + d[1] * d[1]).sqrt() / d[2].abs();
+    let dz = (0.2 * dem.cell_m[0].min(dem.cell_m[1]) / horiz.max(1e-6)).clamp(0.5, 50.0);
+    let (mut hi, mut lo) = (dem.max_m + 1.0, dem.max_m + 1.0);
+    while lo > dem.min_m - 1.0 {
+        lo = hi - dz;
+        if f(lo) <= 0.0 {
+            break;
+        }
+        hi = lo;
+    }
+    for _ in 0..60 {
+        let mid = 0.5 * (hi + lo);
+        if f(mid) > 0.0 {
+            hi = mid;
+        } else {
+            lo = mid;
+        }
+        if hi - lo < 1e-3 {
+            break;
+        }
+    }
+    let z = 0.5 * (hi + lo);
+    let [x, y] = at(z);
+    [x, y, z]
+}
+
 /// Smooth value noise in [0, 1) on a unit lattice (C¹: smoothstep between lattice values).
 pub fn value_noise(seed: u64, x: f64, y: f64) -> f64 {
     let h = |i: i64, j: i64| -> f64 {
@@ -190,6 +225,16 @@ pub enum Texture {
     /// Fields with sharp borders and almost no texture inside ([`fields_reflectance`]): the
     /// weak texture where windows of grey values correlate little but noise.
     Fields,
+}
+
+impl Texture {
+    /// The ground's reflectance at (x, y) in this texture.
+    pub fn at(self, seed: u64, dem: &Dem, x: f64, y: f64) -> f64 {
+        match self {
+            Texture::Natural => reflectance(seed, dem, x, y),
+            Texture::Fields => fields_reflectance(seed, dem, x, y),
+        }
+    }
 }
 
 /// Fields about 50-150 m across with sharp borders (smooth noise on a 150 m lattice cut into
@@ -358,36 +403,7 @@ impl AerialPhoto {
     /// above the highest point in steps of a fifth of a cell, then bisected to a millimetre.
     pub fn ground_point(&self, p: [f64; 2]) -> [f64; 3] {
         let (d, at) = self.ray(p);
-        // f(z) = z − h(ray at height z): positive above the terrain.
-        let f = |z: f64| {
-            let [x, y] = at(z);
-            z - self.dem.height(x, y)
-        };
-        let horiz = (d[0] * d[0] + d[1] * d[1]).sqrt() / d[2].abs();
-        let dz =
-            (0.2 * self.dem.cell_m[0].min(self.dem.cell_m[1]) / horiz.max(1e-6)).clamp(0.5, 50.0);
-        let (mut hi, mut lo) = (self.dem.max_m + 1.0, self.dem.max_m + 1.0);
-        while lo > self.dem.min_m - 1.0 {
-            lo = hi - dz;
-            if f(lo) <= 0.0 {
-                break;
-            }
-            hi = lo;
-        }
-        for _ in 0..60 {
-            let mid = 0.5 * (hi + lo);
-            if f(mid) > 0.0 {
-                hi = mid;
-            } else {
-                lo = mid;
-            }
-            if hi - lo < 1e-3 {
-                break;
-            }
-        }
-        let z = 0.5 * (hi + lo);
-        let [x, y] = at(z);
-        [x, y, z]
+        first_hit(&self.dem, d, at)
     }
 
     /// Ground (x, y) under photo point `p` from the rendering grid (bilinear).
@@ -482,10 +498,7 @@ impl AerialPhoto {
 
     /// The ground's reflectance at (x, y) in this photo's texture.
     pub fn reflectance_at(&self, x: f64, y: f64) -> f64 {
-        match self.texture {
-            Texture::Natural => reflectance(self.texture_seed, &self.dem, x, y),
-            Texture::Fields => fields_reflectance(self.texture_seed, &self.dem, x, y),
-        }
+        self.texture.at(self.texture_seed, &self.dem, x, y)
     }
 }
 

@@ -12,6 +12,7 @@ pub use rig::exit;
 pub mod progress_bar;
 pub mod scan_cmd;
 pub mod scene_cmd;
+pub mod scene_pushbroom;
 pub mod stage_cmd;
 
 use clap::{Args, Parser, Subcommand};
@@ -28,9 +29,11 @@ pub struct SimCmd {
 
 #[derive(Debug, Subcommand)]
 pub enum SimAction {
-    /// Render a stereo pair of the simulator's terrain (photos 1 and 2 of its block) with
-    /// control and check points, the true elevation model and a matching project.
-    Scene(scene_cmd::SceneArgs),
+    /// Render a stereo pair of the simulator's terrain (photos 1 and 2 of its block, or up to
+    /// six) with control and check points, the true elevation model and a matching project;
+    /// or, with --sensor pushbroom, two or three SPOT-like satellite views with their
+    /// line-scanner models and RPCs.
+    Scene(Box<scene_cmd::SceneArgs>),
 }
 
 /// The version and the features this binary was built with.

@@ -73,6 +73,39 @@ pub struct SceneArgs {
     /// Default 0 for every photo.
     #[arg(long, value_name = "DN,DN,…", allow_hyphen_values = true)]
     pub offsets: Option<String>,
+    /// What takes the pictures: "frame" (the aerial block's photos) or "pushbroom" (SPOT-like
+    /// satellite views from 830 km: a line scanner whose every line has its own position and
+    /// attitude). The pushbroom scene writes each view's rigorous model (view-N.json), its
+    /// RPCs (view-N_RPC.TXT, as GDAL reads them) and the noise-free points
+    /// (truth_points.csv); --area, --resolution-um and --photos are the frame photos' only.
+    #[arg(long, value_enum, default_value_t = SensorArg::Frame)]
+    pub sensor: SensorArg,
+    /// Pushbroom: views in the set, 2 (tilted −20° and +20°) or 3 (−20°, 0°, +20°).
+    #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u32).range(2..=3))]
+    pub views: u32,
+    /// Pushbroom: "across" (the mirror tilted across the track on different passes, as SPOT
+    /// 1-4: parallax along the columns) or "along" (one pass looking back, down and forward,
+    /// as SPOT 5 HRS: parallax along the rows).
+    #[arg(long, value_enum, default_value_t = StereoArg::Across)]
+    pub stereo: StereoArg,
+    /// Pushbroom: the ground pixel at nadir, m.
+    #[arg(long, default_value_t = 5.0)]
+    pub gsd_m: f64,
+    /// Pushbroom: columns and lines of every view.
+    #[arg(long, default_value_t = 1200)]
+    pub size: usize,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum SensorArg {
+    Frame,
+    Pushbroom,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum StereoArg {
+    Across,
+    Along,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -92,7 +125,7 @@ impl From<TextureArg> for rig_sim::scene::Texture {
 
 /// A per-photo list of `photos` numbers from flag `name`, each within `range` (the default
 /// `fill` for every photo when the flag is not given).
-fn per_photo(
+pub(super) fn per_photo(
     list: Option<&str>,
     name: &str,
     photos: u32,
@@ -140,19 +173,18 @@ fn parse_area(s: &str) -> anyhow::Result<[f64; 4]> {
 /// Grey values per unit of transmittance at gain 1.
 const GREY_PER_TRANSMITTANCE: f64 = 60_000.0;
 
-/// The rendered photo as a scanned-photo sidecar and TIFF (grey = `radiometry` offset + gain
-/// × transmittance × 60 000, plus `noise_dn` of white noise); refused if more than 0.1 % of
-/// its pixels would clip at 1 or 65 535.
-fn write_photo(
-    dir: &Path,
-    name: &str,
-    photo: &AerialPhoto,
-    grid: &PhotoGrid,
+/// A rendered picture's grey values: offset + gain × 60 000 × signal, plus `noise_dn` of white
+/// noise (seeded), rounded to 16 bits; refused if more than 0.1 % of the pixels would clip at
+/// 1 or 65 535 (`span`: the signal's range, for the message).
+pub fn to_grey(
+    img: &[f32],
     noise_dn: f64,
     [offset, gain]: [f64; 2],
-) -> anyhow::Result<PathBuf> {
-    let img = photo.render(grid.corner_mm, grid.step_mm, grid.width, grid.height, 3);
-    let mut rng = rig_sim::rng::Rng::new(0x9015E ^ photo.number as u64 ^ photo.texture_seed);
+    seed: u64,
+    what: &str,
+    span: [f64; 2],
+) -> anyhow::Result<Vec<u16>> {
+    let mut rng = rig_sim::rng::Rng::new(seed);
     let mut clipped = 0usize;
     let px: Vec<u16> = img
         .iter()
@@ -169,13 +201,35 @@ fn write_photo(
         .collect();
     if clipped * 1000 > px.len() {
         anyhow::bail!(
-            "photo {}: {clipped} of {} pixels clip at 1 or 65535 with gain {gain} and offset {offset} (its grey values span about {:.0} … {:.0}): lower the gain or move the offset",
-            photo.number,
+            "{what}: {clipped} of {} pixels clip at 1 or 65535 with gain {gain} and offset {offset} (its grey values span about {:.0} … {:.0}): lower the gain or move the offset",
             px.len(),
-            offset + gain * photo.t_min * GREY_PER_TRANSMITTANCE,
-            offset + gain * photo.t_max * GREY_PER_TRANSMITTANCE
+            offset + gain * span[0] * GREY_PER_TRANSMITTANCE,
+            offset + gain * span[1] * GREY_PER_TRANSMITTANCE
         );
     }
+    Ok(px)
+}
+
+/// The rendered photo as a scanned-photo sidecar and TIFF (grey = `radiometry` offset + gain
+/// × transmittance × 60 000, plus `noise_dn` of white noise); refused if more than 0.1 % of
+/// its pixels would clip at 1 or 65 535.
+fn write_photo(
+    dir: &Path,
+    name: &str,
+    photo: &AerialPhoto,
+    grid: &PhotoGrid,
+    noise_dn: f64,
+    [offset, gain]: [f64; 2],
+) -> anyhow::Result<PathBuf> {
+    let img = photo.render(grid.corner_mm, grid.step_mm, grid.width, grid.height, 3);
+    let px = to_grey(
+        &img,
+        noise_dn,
+        [offset, gain],
+        0x9015E ^ photo.number as u64 ^ photo.texture_seed,
+        &format!("photo {}", photo.number),
+        [photo.t_min, photo.t_max],
+    )?;
     let tiff = dir.join(format!("{name}.tiff"));
     rig::digitise::output::write_tiff16(&tiff, grid.width, grid.height, &px)?;
     let side = ScannedPhoto {
@@ -334,13 +388,23 @@ pub fn truth_grid(
             hi = [hi[0].max(g[0]), hi[1].max(g[1])];
         }
     }
+    truth_grid_over(&a.dem, [lo[0], lo[1], hi[0], hi[1]], cell_m)
+}
+
+/// The true DEM resampled (bilinearly) to a square grid over the simulator's ground
+/// rectangle `ground` (xmin, ymin, xmax, ymax, local m) and a margin of 5 cells, in the
+/// world's CRS.
+pub fn truth_grid_over(
+    dem: &rig_sim::scene::Dem,
+    ground: [f64; 4],
+    cell_m: f64,
+) -> Result<ElevationGrid, rig::matching::grid::GridError> {
     let m = 5.0 * cell_m;
     let mut grid = ElevationGrid::covering(
-        [lo[0] - m, lo[1] - m, hi[0] + m, hi[1] + m],
+        [ground[0] - m, ground[1] - m, ground[2] + m, ground[3] + m],
         cell_m,
         rig::matching::project::default_memory_mb(),
     )?;
-    let dem = &a.dem;
     for r in 0..grid.rows {
         for c in 0..grid.cols {
             let [x, y] = grid.node(c, r);
@@ -349,6 +413,23 @@ pub fn truth_grid(
     }
     // Computed on the simulator's ground, handed over in the world's CRS.
     Ok(rig::sim_scene::grid_to_crs(grid))
+}
+
+/// truth-dem.tif and truth-reflectance.tif in `dir`, in the world's CRS.
+pub fn write_truth_grids(
+    dir: &Path,
+    truth: &ElevationGrid,
+    reflectance: &ElevationGrid,
+) -> anyhow::Result<()> {
+    let crs = rig::sim_scene::CRS;
+    rig::matching::output::write_geotiff(&dir.join("truth-dem.tif"), truth, crs)?;
+    rig::matching::output::write_ortho(
+        &dir.join("truth-reflectance.tif"),
+        reflectance,
+        crs,
+        &reflectance.z,
+    )?;
+    Ok(())
 }
 
 /// Cell of truth-reflectance.tif, m (finer than a ground pixel, about 1 m), doubled for
@@ -362,7 +443,7 @@ const REFLECTANCE_MAX_NODES: f64 = 25e6;
 /// grey values are a linear function of) over `dem`'s extent, in the world's CRS, and its
 /// cell ([`REFLECTANCE_CELL_M`] or coarser).
 pub fn truth_reflectance(
-    a: &AerialPhoto,
+    reflectance_at: &(dyn Fn(f64, f64) -> f64 + Sync),
     dem: &ElevationGrid,
 ) -> Result<(ElevationGrid, f64), rig::matching::grid::GridError> {
     let [ox, oy] = rig::sim_scene::ORIGIN_M;
@@ -386,7 +467,7 @@ pub fn truth_reflectance(
         .collect();
     use rayon::prelude::*;
     grid.z.par_iter_mut().zip(&nodes).for_each(|(z, [x, y])| {
-        *z = a.reflectance_at(*x, *y) as f32;
+        *z = reflectance_at(*x, *y) as f32;
     });
     Ok((rig::sim_scene::grid_to_crs(grid), cell_m))
 }
@@ -466,6 +547,9 @@ flying_height_m = 6500.0
 }
 
 pub fn run(a: &SceneArgs) -> anyhow::Result<i32> {
+    if a.sensor == SensorArg::Pushbroom {
+        return super::scene_pushbroom::run(a);
+    }
     let area = parse_area(&a.area)?;
     if !(1.0..=200.0).contains(&a.resolution_um) {
         anyhow::bail!("--resolution-um {}: 1 to 200", a.resolution_um);
@@ -519,7 +603,8 @@ pub fn run(a: &SceneArgs) -> anyhow::Result<i32> {
     // The truth grids before the photos: a large area is refused (or its reflectance
     // coarsened) at once, not after the rendering.
     let truth = truth_grid(&p1, area, a.truth_cell_m)?;
-    let (reflectance, reflectance_cell_m) = truth_reflectance(&p1, &truth)?;
+    let (reflectance, reflectance_cell_m) =
+        truth_reflectance(&|x, y| p1.reflectance_at(x, y), &truth)?;
     std::fs::create_dir_all(&a.out)?;
     eprintln!(
         "rendering photo 1 ({}×{} px) and photo 2 ({}×{} px)…",
@@ -548,17 +633,7 @@ pub fn run(a: &SceneArgs) -> anyhow::Result<i32> {
         &a.out.join("points.json"),
         &json!({"gcps": gcps, "cps": cps}),
     )?;
-    rig::matching::output::write_geotiff(
-        &a.out.join("truth-dem.tif"),
-        &truth,
-        rig::sim_scene::CRS,
-    )?;
-    rig::matching::output::write_ortho(
-        &a.out.join("truth-reflectance.tif"),
-        &reflectance,
-        rig::sim_scene::CRS,
-        &reflectance.z,
-    )?;
+    write_truth_grids(&a.out, &truth, &reflectance)?;
     rig::digitise::output::write_json(
         &a.out.join("truth.json"),
         &json!({"seed": a.seed,

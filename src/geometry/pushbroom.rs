@@ -11,8 +11,11 @@
 //! - **body**: the orbital frame turned by the attitude, R_att = R_x(roll)·R_y(pitch)·R_z(yaw).
 //! - **sensor**: the body frame turned by the mirror, R_m = R_y(−tilt_along)·R_x(−tilt_across);
 //!   the array lies along the sensor's y axis, detector u = (col − c₀)/f looks along
-//!   (0, −u, −1), so columns run to the right of the track and a positive across-track tilt
-//!   looks right, a positive along-track tilt forward.
+//!   (0, u, −1). Columns run to the left of the flight direction, so that the image, its
+//!   rows running with time, shows the ground as a map does (not mirrored) whichever way the
+//!   satellite flies: north up and east right on a descending (southbound) pass, as SPOT's
+//!   scenes. A positive across-track tilt looks right of the flight direction, a positive
+//!   along-track tilt forward.
 //!
 //! Rows are time: the continuous row r (corner origin, as everywhere in the core) is taken at
 //! t = (r − lines/2)·line period, so t = 0 at the scene's middle line.
@@ -203,7 +206,8 @@ impl super::Sensor for Pushbroom {
         if s.z >= 0.0 {
             return None;
         }
-        let u = s.y / s.z;
+        // s ∝ (0, u, −1).
+        let u = -s.y / s.z;
         Some(PixelXY::new(
             self.principal_col + self.focal_px * u,
             self.row(t),
@@ -213,7 +217,7 @@ impl super::Sensor for Pushbroom {
     fn image_to_ground(&self, q: PixelXY, z: f64) -> Option<GroundM> {
         let t = self.time(q.row);
         let u = (q.col - self.principal_col) / self.focal_px;
-        let d = self.rotation(t) * Vector3::new(0.0, -u, -1.0);
+        let d = self.rotation(t) * Vector3::new(0.0, u, -1.0);
         let p = self.position(t);
         let lambda = (z - p.z) / d.z;
         if !lambda.is_finite() || lambda <= 0.0 {
@@ -253,7 +257,8 @@ mod tests {
 
     /// A straight orbit along +X at constant height with no attitude is a cylinder
     /// perspective: along the track the row is the time the scan plane reaches the point,
-    /// X − X₀ − v·t = tan θ·(H − Z); across it col = c₀ + f·tan(ψ − β), ψ = atan(y_right/(H − Z)).
+    /// X − X₀ − v·t = tan θ·(H − Z); across it col = c₀ − f·tan(ψ − β), ψ = atan(y_right/(H − Z))
+    /// (columns run to the left of the track).
     #[test]
     fn a_straight_orbit_is_the_cylinder_perspective() {
         for (beta, theta) in [
@@ -281,7 +286,7 @@ mod tests {
                 // The along-track tilt lengthens the slant range: the array sees
                 // y_right/(H − Z) scaled by cos θ.
                 let psi = (psi.tan() * th.cos()).atan();
-                let want = PixelXY::new(1500.0 + 83_000.0 * (psi - b).tan(), s.row(t));
+                let want = PixelXY::new(1500.0 - 83_000.0 * (psi - b).tan(), s.row(t));
                 assert!(
                     q.dist(want) < 1e-6,
                     "tilts {beta}°, {theta}°, point {g:?}: {q:?} vs {want:?}"
@@ -312,6 +317,31 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// A southbound pass shows the ground as a map does: east to the right, north up.
+    #[test]
+    fn a_descending_pass_is_not_mirrored() {
+        let mut s = straight(10.0, 0.0);
+        s.position[0] = [500_000.0, 0.0, 0.0];
+        s.position[1] = [4_000_000.0, -6600.0, 0.0];
+        let c = s
+            .ground_to_image(GroundM::new(500_000.0, 4e6, 0.0))
+            .unwrap();
+        let e = s
+            .ground_to_image(GroundM::new(500_100.0, 4e6, 0.0))
+            .unwrap();
+        let n = s
+            .ground_to_image(GroundM::new(500_000.0, 4e6 + 100.0, 0.0))
+            .unwrap();
+        assert!(
+            e.col > c.col + 5.0 && (e.row - c.row).abs() < 0.5,
+            "{c:?} {e:?}"
+        );
+        assert!(
+            n.row < c.row - 5.0 && (n.col - c.col).abs() < 0.5,
+            "{c:?} {n:?}"
+        );
     }
 
     /// Above the satellite nothing is seen, and models out of range are refused by name.

@@ -1,0 +1,126 @@
+//! `rig sim scene --sensor pushbroom` against the core: the simulator projects its points with
+//! its own line-scanner code (bisection on the scan plane), the core with its own (Newton);
+//! the views' models and RPCs as written must put every noise-free point where the simulator
+//! saw it.
+
+mod common;
+
+use rig::coords::GroundM;
+use rig::coords::PixelXY;
+use rig::geometry::{Crs, Geographic, Pushbroom, Rpc, RpcSensor, Sensor};
+use std::collections::BTreeMap;
+
+fn points(scene: &std::path::Path) -> Vec<(String, GroundM, String, PixelXY)> {
+    let text = std::fs::read_to_string(scene.join("truth_points.csv")).unwrap();
+    let mut lines = text.lines();
+    assert_eq!(lines.next(), Some("id,kind,x,y,z,photo,col,row"));
+    lines
+        .map(|l| {
+            let f: Vec<&str> = l.split(',').collect();
+            let n = |k: usize| f[k].parse::<f64>().unwrap();
+            (
+                f[0].to_string(),
+                GroundM::new(n(2), n(3), n(4)),
+                f[5].to_string(),
+                // The file's convention: (0, 0) at the top-left pixel's centre.
+                PixelXY::new(n(6) + 0.5, n(7) + 0.5),
+            )
+        })
+        .collect()
+}
+
+#[test]
+fn the_written_models_and_rpcs_see_the_points_where_the_simulator_rendered_them() {
+    let d = tempfile::tempdir().unwrap();
+    for stereo in ["across", "along"] {
+        let dir = d.path().join(stereo);
+        std::fs::create_dir_all(&dir).unwrap();
+        let scene = common::sim_scene(
+            &dir,
+            &[
+                "--sensor",
+                "pushbroom",
+                "--stereo",
+                stereo,
+                "--size",
+                "300",
+                "--gsd-m",
+                "10",
+                "--seed",
+                "4",
+            ],
+        );
+        let geo = Geographic::new(Crs::Epsg(32616)).unwrap();
+        let mut models = BTreeMap::new();
+        for v in 1..=3 {
+            let name = format!("view-{v}");
+            let text = std::fs::read_to_string(scene.join(format!("{name}.json"))).unwrap();
+            let model: Pushbroom = serde_json::from_str(&text).unwrap();
+            model.check().unwrap();
+            let rpc = Rpc::read_beside(&scene.join(format!("{name}.tiff"))).unwrap();
+            let rpc = RpcSensor {
+                rpc,
+                geo: geo.clone(),
+                width: 300,
+                height: 300,
+            };
+            models.insert(name, (model, rpc));
+        }
+        let pts = points(&scene);
+        assert_eq!(pts.len(), 50 * 3, "{stereo}");
+        let (mut worst_model, mut worst_rpc): (f64, f64) = (0.0, 0.0);
+        let mut by_id: BTreeMap<&str, Vec<PixelXY>> = BTreeMap::new();
+        for (id, g, view, q) in &pts {
+            let (model, rpc) = &models[view];
+            worst_model = worst_model.max(model.ground_to_image(*g).unwrap().dist(*q));
+            worst_rpc = worst_rpc.max(rpc.ground_to_image(*g).unwrap().dist(*q));
+            by_id.entry(id).or_default().push(*q);
+        }
+        eprintln!("{stereo}: rigorous model {worst_model:.1e} px, RPC {worst_rpc:.1e} px from the simulator's projection");
+        // The points' coordinates are written to 1e-4 px and 1 mm on the ground.
+        assert!(worst_model < 2e-3, "{stereo}: {worst_model} px");
+        assert!(worst_rpc < 3e-3, "{stereo}: {worst_rpc} px");
+        // The parallax lies along the base: columns across the track, rows along it.
+        let spread = |axis: usize| {
+            by_id
+                .values()
+                .map(|q| {
+                    let v = |p: &PixelXY| if axis == 0 { p.col } else { p.row };
+                    (v(&q[0]) - v(&q[2])).abs()
+                })
+                .fold(0.0, f64::max)
+        };
+        let (cols, rows) = (spread(0), spread(1));
+        if stereo == "across" {
+            assert!(cols > 5.0 * rows.max(0.1), "{stereo}: {cols} vs {rows}");
+        } else {
+            assert!(rows > 5.0 * cols.max(0.1), "{stereo}: {cols} vs {rows}");
+        }
+    }
+}
+
+#[test]
+fn bad_pushbroom_scenes_are_refused_before_anything_is_written() {
+    let d = tempfile::tempdir().unwrap();
+    for (args, want) in [
+        (vec!["--size", "10"], "--size 10: 200 to 6000"),
+        (vec!["--gsd-m", "nan"], "--gsd-m NaN: 0.5 to 50"),
+        (
+            vec!["--size", "6000", "--gsd-m", "10"],
+            "more than the simulated terrain",
+        ),
+        (vec!["--gains", "1,1"], "2 values for 3 photos"),
+    ] {
+        let out = d.path().join("scene");
+        let o = common::rig()
+            .args(["sim", "scene", "--sensor", "pushbroom"])
+            .args(&args)
+            .arg("--out")
+            .arg(&out)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success() && err.contains(want), "{args:?}: {err}");
+        assert!(!out.exists(), "{args:?} wrote {}", out.display());
+    }
+}
