@@ -124,3 +124,144 @@ fn bad_pushbroom_scenes_are_refused_before_anything_is_written() {
         assert!(!out.exists(), "{args:?} wrote {}", out.display());
     }
 }
+
+/// Issue 20's DEM goal on a simulated SPOT-like triplet (across-track, ±20°): the sweep
+/// through the views' line-scanner models, and again through their RPCs as a user's
+/// satellite images would come, within 0.25 px of parallax of the widest pair against the
+/// true DEM; the pixels of parallax per metre from the closed form of a ±20° pair
+/// (2·sin 20°·cos 20° per ground pixel of the nadir view).
+#[test]
+fn a_triplet_through_its_models_or_its_rpcs_gives_the_dem_within_a_quarter_pixel() {
+    let d = tempfile::tempdir().unwrap();
+    let gsd = 10.0;
+    let scene = common::sim_scene(
+        d.path(),
+        &[
+            "--sensor",
+            "pushbroom",
+            "--size",
+            "400",
+            "--gsd-m",
+            "10",
+            "--noise-dn",
+            "100",
+            "--seed",
+            "7",
+        ],
+    );
+    let b = 20f64.to_radians();
+    let px_per_m = 2.0 * b.sin() * b.cos() / gsd;
+    for project in ["block.toml", "block-rpc.toml"] {
+        let r = common::dtm_json(
+            &scene.join(project),
+            &d.path().join(project.replace(".toml", "")),
+        );
+        let c = &r["comparison"];
+        let rmse = c["rmse_m"].as_f64().unwrap();
+        let nodes = c["nodes"].as_u64().unwrap();
+        eprintln!(
+            "{project}: RMSE {rmse:.2} m = {:.3} px of parallax over {nodes} nodes",
+            rmse * px_per_m
+        );
+        assert!(rmse * px_per_m <= 0.25, "{project}: {rmse} m");
+        // Most of the common footprint (about 3.5 × 4 km at 10 m) has a height.
+        assert!(nodes > 80_000, "{project}: {nodes} nodes");
+    }
+}
+
+/// A project's pushbroom and RPC photos with bad models are refused with the photo, the file
+/// and the field named, before any matching.
+#[test]
+fn bad_models_in_a_project_are_refused_by_name() {
+    let d = tempfile::tempdir().unwrap();
+    let scene = common::sim_scene(
+        d.path(),
+        &[
+            "--sensor",
+            "pushbroom",
+            "--size",
+            "200",
+            "--gsd-m",
+            "10",
+            "--views",
+            "2",
+        ],
+    );
+    let block = std::fs::read_to_string(scene.join("block.toml")).unwrap();
+    let rpc_block = std::fs::read_to_string(scene.join("block-rpc.toml")).unwrap();
+    let model = std::fs::read_to_string(scene.join("view-1.json")).unwrap();
+    let write = |name: &str, text: &str| {
+        let p = scene.join(name);
+        std::fs::write(&p, text).unwrap();
+        p
+    };
+    let mut v: serde_json::Value = serde_json::from_str(&model).unwrap();
+    v["tilt_across"] = serde_json::json!(2.0);
+    let tilted = v.to_string();
+    let cases: Vec<(String, &str)> = vec![
+        (
+            block.replacen(
+                "pushbroom = \"view-1.json\"",
+                "pushbroom = \"view-1.json\"\nrpc = \"view-1_RPC.TXT\"",
+                1,
+            ),
+            "not both",
+        ),
+        (
+            block.replacen(
+                "pushbroom = \"view-1.json\"",
+                "pushbroom = \"view-1.json\"\nposition = [0, 0, 0]",
+                1,
+            ),
+            "no camera, scan, position or angles_deg",
+        ),
+        (
+            block.replacen("view-1.json", "missing.json", 1),
+            "cannot read",
+        ),
+        (
+            {
+                write("bad.json", &tilted);
+                block.replacen("view-1.json", "bad.json", 1)
+            },
+            "bad.json: tilt_across must be within ±45°",
+        ),
+        (
+            {
+                write(
+                    "wide.json",
+                    &model.replacen("\"columns\": 200", "\"columns\": 201", 1),
+                );
+                block.replacen("view-1.json", "wide.json", 1)
+            },
+            "201 × 200 pixels",
+        ),
+        (
+            {
+                let t = std::fs::read_to_string(scene.join("view-1_RPC.TXT")).unwrap();
+                write("nan_RPC.TXT", &t.replacen("LAT_OFF: ", "LAT_OFF: nan", 1));
+                rpc_block.replacen("view-1_RPC.TXT", "nan_RPC.TXT", 1)
+            },
+            "LAT_OFF",
+        ),
+        (
+            rpc_block.replacen("EPSG:32616", "local", 1),
+            "RPCs need longitude and latitude",
+        ),
+    ];
+    for (k, (text, want)) in cases.iter().enumerate() {
+        let p = write(&format!("case{k}.toml"), text);
+        let o = common::rig()
+            .arg("dtm")
+            .arg(&p)
+            .arg("--out")
+            .arg(d.path().join(format!("out{k}")))
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(
+            !o.status.success() && err.contains(want),
+            "case {k} (want `{want}`): {err}"
+        );
+    }
+}

@@ -34,6 +34,18 @@ pub struct DemoArgs {
     /// at once).
     #[arg(long, value_enum, default_value_t = Method::Sweep)]
     pub method: Method,
+    /// "frame": the aerial film chain above. "pushbroom": a SPOT-like triplet of satellite
+    /// views (simulated, no rig hardware): each view's RPCs left beside it (view-N_RPC.TXT),
+    /// the noise-free points in truth_points.csv, and the elevation model from the three
+    /// views through their line-scanner models.
+    #[arg(long, value_enum, default_value_t = DemoSensor::Frame)]
+    pub sensor: DemoSensor,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum DemoSensor {
+    Frame,
+    Pushbroom,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -45,19 +57,19 @@ pub enum Method {
 /// The elevation model's report, of either matcher.
 #[derive(serde::Serialize)]
 #[serde(untagged)]
-enum Model {
+pub(super) enum Model {
     Sweep(Box<Report2>),
     Mgcm(Box<MgcmReport>),
 }
 
 impl Model {
-    fn summary(&self) -> Vec<(String, String)> {
+    pub(super) fn summary(&self) -> Vec<(String, String)> {
         match self {
             Model::Sweep(r) => r.summary(),
             Model::Mgcm(r) => r.summary(),
         }
     }
-    fn comparison(&self) -> Option<&rig::matching::grid::Comparison> {
+    pub(super) fn comparison(&self) -> Option<&rig::matching::grid::Comparison> {
         match self {
             Model::Sweep(r) => r.model.comparison.as_ref(),
             Model::Mgcm(r) => r.model.comparison.as_ref(),
@@ -80,6 +92,14 @@ const PHOTOS: [u32; 3] = [1, 2, 3];
 /// Runs `rig ARGS` and reads what it printed with --json as a `T` (the type the command
 /// wrote it with).
 fn step<T: serde::de::DeserializeOwned>(title: &str, args: &[String]) -> anyhow::Result<T> {
+    let text = run_step(title, args)?;
+    serde_json::from_str(text.trim())
+        .with_context(|| format!("step `{title}` printed no report the demo can read"))
+}
+
+/// Runs `rig ARGS` as a step of the demo (printed before it runs, timed); what it printed on
+/// its standard output.
+pub(super) fn run_step(title: &str, args: &[String]) -> anyhow::Result<String> {
     eprintln!("\n== {title}\n$ rig {}", args.join(" "));
     let exe = std::env::current_exe().context("finding the rig executable")?;
     let t = Instant::now();
@@ -95,9 +115,7 @@ fn step<T: serde::de::DeserializeOwned>(title: &str, args: &[String]) -> anyhow:
         );
     }
     eprintln!("   ({:.1} s)", t.elapsed().as_secs_f64());
-    let text = String::from_utf8_lossy(&out.stdout);
-    serde_json::from_str(text.trim())
-        .with_context(|| format!("step `{title}` printed no report the demo can read"))
+    Ok(String::from_utf8_lossy(&out.stdout).into_owned())
 }
 
 fn s(p: &Path) -> String {
@@ -141,6 +159,9 @@ photo_mm = [{:.3}, {:.3}, {:.3}, {:.3}]
 pub fn run(a: &DemoArgs) -> anyhow::Result<i32> {
     if a.out.exists() && std::fs::read_dir(&a.out)?.next().is_some() {
         bail!("{} is not empty: give a new directory", a.out.display());
+    }
+    if a.sensor == DemoSensor::Pushbroom {
+        return super::demo_pushbroom::run(a);
     }
     std::fs::create_dir_all(&a.out)?;
     let out = std::fs::canonicalize(&a.out)?;

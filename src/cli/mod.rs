@@ -5,6 +5,7 @@ pub mod camera_cmd;
 pub mod config;
 pub mod connect;
 pub mod demo_cmd;
+pub mod demo_pushbroom;
 pub mod dtm_cmd;
 pub mod match_cmd;
 pub mod measure_cmd;

@@ -23,4 +23,4 @@ pub use pixel_frame::PixelToPhoto;
 pub use pushbroom::Pushbroom;
 pub use resection::{resect, Resection, ResectionError};
 pub use rpc::{Rpc, RpcSensor};
-pub use sensor::{FrameSensor, Sensor};
+pub use sensor::{FrameSensor, PhotoSensor, Sensor};

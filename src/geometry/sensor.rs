@@ -112,6 +112,57 @@ impl Sensor for FrameSensor {
     }
 }
 
+/// Any photo's sensor, as a project's photos come: a frame camera, a line scanner's
+/// rigorous model, or RPCs.
+// A project holds a few of them, made once: their sizes do not matter.
+#[allow(clippy::large_enum_variant)]
+#[derive(Debug, Clone)]
+pub enum PhotoSensor {
+    Frame(FrameSensor),
+    Pushbroom(super::Pushbroom),
+    Rpc(Box<super::RpcSensor>),
+}
+
+impl PhotoSensor {
+    fn inner(&self) -> &(dyn Sensor + Sync) {
+        match self {
+            PhotoSensor::Frame(s) => s,
+            PhotoSensor::Pushbroom(s) => s,
+            PhotoSensor::Rpc(s) => s.as_ref(),
+        }
+    }
+
+    /// The frame camera, where the photo is one.
+    pub fn frame(&self) -> Option<&FrameSensor> {
+        match self {
+            PhotoSensor::Frame(s) => Some(s),
+            _ => None,
+        }
+    }
+}
+
+impl Sensor for PhotoSensor {
+    fn image_size(&self) -> (usize, usize) {
+        self.inner().image_size()
+    }
+
+    fn ground_to_image(&self, g: GroundM) -> Option<PixelXY> {
+        self.inner().ground_to_image(g)
+    }
+
+    fn image_to_ground(&self, q: PixelXY, z: f64) -> Option<GroundM> {
+        self.inner().image_to_ground(q, z)
+    }
+
+    fn partials(&self, g: GroundM) -> Option<[[f64; 3]; 2]> {
+        self.inner().partials(g)
+    }
+
+    fn pointing_covariance(&self, g: GroundM) -> Option<[[f64; 2]; 2]> {
+        self.inner().pointing_covariance(g)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -14,6 +14,7 @@ use super::pmf_set::FitReport;
 use super::precision::{
     check_sigma, sigma_vs_reference, variance_factor, SigmaCheck, VarianceFactor,
 };
+use super::project2::GivenModel;
 use super::project2::{Kind, Observation, Project2, Project2Error, Source};
 use super::regions::RegionParams;
 use super::sweep::{
@@ -22,8 +23,8 @@ use super::sweep::{
 use super::{MatchedPoint, PmfSet};
 use crate::coords::{GroundM, PixelXY};
 use crate::geometry::{
-    resect, Crs, FrameCamera, FrameSensor, Interior, PhotoGrid, PixelToPhoto, Resection,
-    ResectionError, Sensor,
+    resect, Crs, FrameCamera, FrameSensor, Geographic, Interior, PhotoGrid, PhotoSensor,
+    PixelToPhoto, Resection, ResectionError, RpcSensor, Sensor,
 };
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
@@ -316,6 +317,32 @@ pub fn load_photo(
             })
         }
         Source::Scan { sidecar } => scan(sidecar).map_err(err),
+        Source::Model { path, model } => {
+            let image = crate::image::load_grey(path, max).map_err(|e| err(e.to_string()))?;
+            if let GivenModel::Pushbroom(m) = model.as_ref() {
+                if (m.columns, m.lines) != (image.width, image.height) {
+                    return Err(err(format!(
+                        "its line-scanner model is for {} × {} pixels, its image {} has {} × {}",
+                        m.columns,
+                        m.lines,
+                        path.display(),
+                        image.width,
+                        image.height
+                    )));
+                }
+            }
+            // The frame and interior are a frame camera's: unused for a photo with its own
+            // model (orient takes the model), a unit grid to keep the type whole.
+            let frame = centred_grid(image.width, image.height, 1.0).into();
+            Ok(Photo {
+                image,
+                frame,
+                interior: Interior {
+                    focal_mm: 1.0,
+                    principal_point: crate::coords::PhotoMm::new(0.0, 0.0),
+                },
+            })
+        }
     }
 }
 
@@ -375,7 +402,7 @@ pub struct PlannedPair {
 /// same on every machine of a tiled run.
 #[derive(Debug, Clone)]
 pub struct Plan {
-    pub sensors: Vec<FrameSensor>,
+    pub sensors: Vec<PhotoSensor>,
     pub resected: Vec<(String, Resection)>,
     pub heights: [f64; 2],
     pub extent: [f64; 4],
@@ -410,7 +437,7 @@ impl Plan {
 /// the pairs of photos whose footprints overlap.
 #[derive(Debug, Clone)]
 pub struct Oriented {
-    pub sensors: Vec<FrameSensor>,
+    pub sensors: Vec<PhotoSensor>,
     pub resected: Vec<(String, Resection)>,
     pub heights: [f64; 2],
     pub extent: [f64; 4],
@@ -426,6 +453,21 @@ pub fn orient(p: &Project2, photos: &[PhotoGeometry]) -> Result<Oriented, Pipeli
     let mut resected = Vec::new();
     let mut sensors = Vec::new();
     for (ph, input) in p.photos.iter().zip(photos) {
+        if let Source::Model { model, .. } = &ph.source {
+            sensors.push(match model.as_ref() {
+                GivenModel::Pushbroom(m) => PhotoSensor::Pushbroom(*m),
+                GivenModel::Rpc(rpc) => PhotoSensor::Rpc(Box::new(RpcSensor {
+                    rpc: rpc.as_ref().clone(),
+                    geo: Geographic::new(p.crs).map_err(|e| Pipeline2Error::Photo {
+                        id: ph.id.clone(),
+                        message: e.to_string(),
+                    })?,
+                    width: input.width,
+                    height: input.height,
+                })),
+            });
+            continue;
+        }
         let (exterior, cov) = match ph.exterior {
             Some(e) => (e, None),
             None => {
@@ -447,14 +489,14 @@ pub fn orient(p: &Project2, photos: &[PhotoGeometry]) -> Result<Oriented, Pipeli
                 e
             }
         };
-        sensors.push(FrameSensor {
+        sensors.push(PhotoSensor::Frame(FrameSensor {
             camera: FrameCamera {
                 interior: input.interior,
                 exterior,
             },
             frame: input.frame,
             exterior_cov: cov,
-        });
+        }));
     }
     // Heights: given, or the control and check points' range with a margin.
     let heights = match p.heights {
@@ -784,7 +826,7 @@ pub(crate) fn write_model(
     points: &[MatchedPoint],
     quality: &super::grid::NodeQuality,
     photos: &[Photo],
-    sensors: &[FrameSensor],
+    sensors: &[PhotoSensor],
     reference: Option<(&ElevationGrid, &Comparison)>,
     crs: Crs,
     report: &impl Serialize,

@@ -44,6 +44,8 @@ struct RawPhoto {
     position: Option<[f64; 3]>,
     angles_deg: Option<[f64; 3]>,
     scan: Option<String>,
+    pushbroom: Option<String>,
+    rpc: Option<String>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -168,6 +170,37 @@ pub enum Source {
     Image { path: PathBuf, camera: Camera2 },
     /// The rig's own scanned photo (its sidecar): image, grid and focal length from the scan.
     Scan { sidecar: PathBuf },
+    /// A plain image with its own geometry: a line scanner's rigorous model or RPCs (read
+    /// and checked when the project is read).
+    Model {
+        path: PathBuf,
+        model: Box<GivenModel>,
+    },
+}
+
+/// A photo's geometry given with it, not a frame camera's.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub enum GivenModel {
+    /// The rig's line-scanner model (JSON, as `rig sim scene --sensor pushbroom` writes it).
+    Pushbroom(crate::geometry::Pushbroom),
+    /// RPC00B, from GDAL's `_RPC.TXT`.
+    Rpc(Box<crate::geometry::Rpc>),
+}
+
+/// Reads a photo's pushbroom model or RPC file, every number checked with the file named.
+fn read_model(path: &Path, rpc: bool) -> Result<GivenModel, String> {
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| format!("cannot read {}: {e}", path.display()))?;
+    if rpc {
+        crate::geometry::Rpc::parse_txt(&text, path)
+            .map(|r| GivenModel::Rpc(Box::new(r)))
+            .map_err(|e| e.to_string())
+    } else {
+        let m: crate::geometry::Pushbroom = serde_json::from_str(&text)
+            .map_err(|e| format!("{}: not a line-scanner model: {e}", path.display()))?;
+        m.check().map_err(|e| format!("{}: {e}", path.display()))?;
+        Ok(GivenModel::Pushbroom(m))
+    }
 }
 
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
@@ -338,6 +371,33 @@ impl Project2 {
             if p.id.trim().is_empty() || photos.iter().any(|q| q.id == p.id) {
                 return Err(bad(format!("{at}: id empty or used twice")));
             }
+            let given = match (&p.pushbroom, &p.rpc) {
+                (None, None) => None,
+                (Some(m), None) => Some(read_model(&base.join(m), false)),
+                (None, Some(r)) => Some(read_model(&base.join(r), true)),
+                (Some(_), Some(_)) => {
+                    return Err(bad(format!("{at}: give pushbroom or rpc, not both")))
+                }
+            };
+            if let Some(model) = given {
+                let model = model.map_err(|e| bad(format!("{at}: {e}")))?;
+                let (Some(img), None, None, None, None) =
+                    (&p.image, &p.camera, &p.scan, &p.position, &p.angles_deg)
+                else {
+                    return Err(bad(format!(
+                        "{at}: a photo with its pushbroom model or RPCs takes image (and no camera, scan, position or angles_deg: the model is its orientation)"
+                    )));
+                };
+                photos.push(Photo2 {
+                    id: p.id.clone(),
+                    source: Source::Model {
+                        path: base.join(img),
+                        model: Box::new(model),
+                    },
+                    exterior: None,
+                });
+                continue;
+            }
             let source = match (&p.image, &p.camera, &p.scan) {
                 (Some(img), Some(cam), None) => Source::Image {
                     path: base.join(img),
@@ -353,7 +413,7 @@ impl Project2 {
                 },
                 _ => {
                     return Err(bad(format!(
-                        "{at}: give image and camera, or scan (the rig's scanned-photo sidecar)"
+                        "{at}: give image and camera, or scan (the rig's scanned-photo sidecar), or image and pushbroom (a line-scanner model) or rpc (GDAL's _RPC.TXT)"
                     )))
                 }
             };
