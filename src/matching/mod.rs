@@ -34,5 +34,6 @@ pub mod regions;
 pub mod sgm;
 pub mod sweep;
 pub mod tiles;
+pub mod triplets;
 pub mod volume;
 pub mod winner;
