@@ -239,7 +239,8 @@ fn bad_models_in_a_project_are_refused_by_name() {
         (
             {
                 let t = std::fs::read_to_string(scene.join("view-1_RPC.TXT")).unwrap();
-                write("nan_RPC.TXT", &t.replacen("LAT_OFF: ", "LAT_OFF: nan", 1));
+                let off = t.lines().find(|l| l.starts_with("LAT_OFF")).unwrap();
+                write("nan_RPC.TXT", &t.replacen(off, "LAT_OFF: nan", 1));
                 rpc_block.replacen("view-1_RPC.TXT", "nan_RPC.TXT", 1)
             },
             "LAT_OFF",

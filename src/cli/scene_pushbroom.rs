@@ -34,6 +34,9 @@ pub fn run(a: &SceneArgs) -> anyhow::Result<i32> {
             0.9 * ex.min(ey) / 1000.0
         );
     }
+    if a.gcps > 10_000 || a.cps > 10_000 {
+        anyhow::bail!("--gcps {} and --cps {}: 0 to 10000 each", a.gcps, a.cps);
+    }
     if !(a.noise_dn.is_finite() && (0.0..=10_000.0).contains(&a.noise_dn)) {
         anyhow::bail!("--noise-dn {}: 0 to 10000 grey values", a.noise_dn);
     }

@@ -83,10 +83,12 @@ impl Geographic {
         let mut p = (g.x, g.y, g.z);
         proj4rs::transform::transform(&self.projected, &self.wgs84, &mut p)
             .map_err(|e| self.fail(g.x, g.y, e))?;
+        // The height is carried through as it is (see the module's note): a datum shift
+        // through geocentric coordinates would otherwise change it by metres.
         let out = LonLatH {
             lon: p.0.to_degrees(),
             lat: p.1.to_degrees(),
-            h: p.2,
+            h: g.z,
         };
         if [out.lon, out.lat, out.h].iter().all(|v| v.is_finite()) {
             Ok(out)
@@ -99,8 +101,8 @@ impl Geographic {
         let mut p = (l.lon.to_radians(), l.lat.to_radians(), l.h);
         proj4rs::transform::transform(&self.wgs84, &self.projected, &mut p)
             .map_err(|e| self.fail(l.lon, l.lat, e))?;
-        if [p.0, p.1, p.2].iter().all(|v| v.is_finite()) {
-            Ok(GroundM::new(p.0, p.1, p.2))
+        if [p.0, p.1, l.h].iter().all(|v| v.is_finite()) {
+            Ok(GroundM::new(p.0, p.1, l.h))
         } else {
             Err(self.fail(l.lon, l.lat, "not finite"))
         }

@@ -188,8 +188,8 @@ impl Rpc {
         let ranges = [
             ("LAT_OFF", self.lat_off, -90.0, 90.0),
             ("LONG_OFF", self.long_off, -180.0, 360.0),
-            ("LAT_SCALE", self.lat_scale, 1e-9, 90.0),
-            ("LONG_SCALE", self.long_scale, 1e-9, 180.0),
+            ("LAT_SCALE", self.lat_scale, 1e-5, 90.0),
+            ("LONG_SCALE", self.long_scale, 1e-5, 180.0),
             ("HEIGHT_SCALE", self.height_scale, 1e-6, 1e5),
             ("HEIGHT_OFF", self.height_off, -1e4, 1e5),
             ("LINE_SCALE", self.line_scale, 1e-6, 1e7),
@@ -202,6 +202,11 @@ impl Rpc {
                 return Err(format!("{k} must be {lo} … {hi} (got {x})"));
             }
         }
+        for (k, e) in [("ERR_BIAS", self.err_bias), ("ERR_RAND", self.err_rand)] {
+            if e != -1.0 && !(0.0..=1e4).contains(&e) {
+                return Err(format!("{k} must be −1 (unknown) or 0 … 10000 m (got {e})"));
+            }
+        }
         if self.line_den.iter().all(|c| *c == 0.0) || self.samp_den.iter().all(|c| *c == 0.0) {
             return Err("LINE_DEN_COEFF and SAMP_DEN_COEFF must not be all zero".into());
         }
@@ -210,8 +215,11 @@ impl Rpc {
 
     /// Normalised (L, P, H) of a ground point.
     fn normalise(&self, g: LonLatH) -> (f64, f64, f64) {
+        // Longitudes differ by less than half a turn (a scene across ±180°, an offset
+        // given in 0 … 360).
+        let dlon = (g.lon - self.long_off + 180.0).rem_euclid(360.0) - 180.0;
         (
-            (g.lon - self.long_off) / self.long_scale,
+            dlon / self.long_scale,
             (g.lat - self.lat_off) / self.lat_scale,
             (g.h - self.height_off) / self.height_scale,
         )
@@ -560,7 +568,7 @@ pub fn fit_rpc(
             .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| {
                 (a.min(v), b.max(v))
             });
-        ((lo + hi) / 2.0, ((hi - lo) / 2.0).max(1e-9))
+        ((lo + hi) / 2.0, ((hi - lo) / 2.0).max(1e-5))
     };
     let (lat_off, lat_scale) = span(&|s| s.0.lat);
     let (long_off, long_scale) = span(&|s| s.0.lon);

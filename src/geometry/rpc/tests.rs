@@ -100,7 +100,10 @@ fn the_text_form_round_trips_exactly_and_names_what_is_wrong() {
         e.contains("LAT_SCALE is missing") && e.contains("photo_RPC.TXT"),
         "{e}"
     );
-    let e = err(text.replacen("LINE_OFF: ", "LINE_OFF: nan", 1));
+    let off = text.lines().find(|l| l.starts_with("LINE_OFF")).unwrap();
+    let e = err(text.replacen(off, "LINE_OFF: nan", 1));
+    assert!(e.contains("line 3") && e.contains("LINE_OFF"), "{e}");
+    let e = err(text.replacen(off, "LINE_OFF: inf", 1));
     assert!(e.contains("line 3") && e.contains("LINE_OFF"), "{e}");
     let e = err(format!("{text}LAT_OFF: 10\n"));
     assert!(e.contains("twice"), "{e}");
@@ -109,6 +112,9 @@ fn the_text_form_round_trips_exactly_and_names_what_is_wrong() {
     let mut bad = rpc.clone();
     bad.lat_off = 91.0;
     assert!(err(bad.to_txt()).contains("LAT_OFF must be"));
+    let mut bad = rpc.clone();
+    bad.err_bias = 1e150;
+    assert!(err(bad.to_txt()).contains("ERR_BIAS must be"));
     let mut bad = rpc.clone();
     bad.samp_scale = 0.0;
     assert!(err(bad.to_txt()).contains("SAMP_SCALE must be"));
