@@ -3,7 +3,7 @@
 //! elevation model from the three views, compared with the true DEM in metres and in pixels
 //! of parallax of the widest pair.
 
-use super::demo_cmd::{run_step, DemoArgs, Method, Model};
+use super::demo_cmd::{run_step, s, DemoArgs, Method, Model};
 use anyhow::Context;
 use rig::coords::PixelXY;
 use rig::geometry::{Pushbroom, Sensor};
@@ -11,10 +11,6 @@ use rig::matching::block_geometry::parallax_per_m;
 use serde_json::json;
 use std::path::Path;
 use std::time::Instant;
-
-fn s(p: &Path) -> String {
-    p.display().to_string()
-}
 
 fn model(dir: &Path, view: u32) -> anyhow::Result<Pushbroom> {
     let p = dir.join(format!("view-{view}.json"));

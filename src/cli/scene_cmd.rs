@@ -125,7 +125,7 @@ impl From<TextureArg> for rig_sim::scene::Texture {
 
 /// A per-photo list of `photos` numbers from flag `name`, each within `range` (the default
 /// `fill` for every photo when the flag is not given).
-pub(super) fn per_photo(
+fn per_photo(
     list: Option<&str>,
     name: &str,
     photos: u32,
@@ -546,6 +546,29 @@ flying_height_m = 6500.0
     )
 }
 
+/// The flags frame and pushbroom scenes share, checked (noise, truth cell, the `pictures`'
+/// gains and offsets, an empty --out): the gains and offsets.
+pub(super) fn check_shared(a: &SceneArgs, pictures: u32) -> anyhow::Result<(Vec<f64>, Vec<f64>)> {
+    if !(a.noise_dn.is_finite() && (0.0..=10_000.0).contains(&a.noise_dn)) {
+        anyhow::bail!("--noise-dn {}: 0 to 10000 grey values", a.noise_dn);
+    }
+    if !(a.truth_cell_m.is_finite() && (0.5..=100.0).contains(&a.truth_cell_m)) {
+        anyhow::bail!("--truth-cell-m {}: 0.5 to 100 m", a.truth_cell_m);
+    }
+    let gains = per_photo(a.gains.as_deref(), "gains", pictures, 0.2..=5.0, 1.0)?;
+    let offsets = per_photo(
+        a.offsets.as_deref(),
+        "offsets",
+        pictures,
+        -30_000.0..=30_000.0,
+        0.0,
+    )?;
+    if a.out.exists() && std::fs::read_dir(&a.out)?.next().is_some() {
+        anyhow::bail!("{} is not empty: give a new directory", a.out.display());
+    }
+    Ok((gains, offsets))
+}
+
 pub fn run(a: &SceneArgs) -> anyhow::Result<i32> {
     if a.sensor == SensorArg::Pushbroom {
         return super::scene_pushbroom::run(a);
@@ -554,24 +577,8 @@ pub fn run(a: &SceneArgs) -> anyhow::Result<i32> {
     if !(1.0..=200.0).contains(&a.resolution_um) {
         anyhow::bail!("--resolution-um {}: 1 to 200", a.resolution_um);
     }
-    if !(a.noise_dn.is_finite() && (0.0..=10_000.0).contains(&a.noise_dn)) {
-        anyhow::bail!("--noise-dn {}: 0 to 10000 grey values", a.noise_dn);
-    }
-    if !(a.truth_cell_m.is_finite() && (0.5..=100.0).contains(&a.truth_cell_m)) {
-        anyhow::bail!("--truth-cell-m {}: 0.5 to 100 m", a.truth_cell_m);
-    }
-    let gains = per_photo(a.gains.as_deref(), "gains", a.photos, 0.2..=5.0, 1.0)?;
-    let offsets = per_photo(
-        a.offsets.as_deref(),
-        "offsets",
-        a.photos,
-        -30_000.0..=30_000.0,
-        0.0,
-    )?;
+    let (gains, offsets) = check_shared(a, a.photos)?;
     let radiometry: Vec<[f64; 2]> = offsets.iter().zip(&gains).map(|(&o, &g)| [o, g]).collect();
-    if a.out.exists() && std::fs::read_dir(&a.out)?.next().is_some() {
-        anyhow::bail!("{} is not empty: give a new directory", a.out.display());
-    }
     let dem = jacksboro();
     let photo = |n: u32| {
         let mut p = AerialPhoto::new(dem.clone(), a.seed, n, 110.0);

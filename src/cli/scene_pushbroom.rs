@@ -37,23 +37,7 @@ pub fn run(a: &SceneArgs) -> anyhow::Result<i32> {
     if a.gcps > 10_000 || a.cps > 10_000 {
         anyhow::bail!("--gcps {} and --cps {}: 0 to 10000 each", a.gcps, a.cps);
     }
-    if !(a.noise_dn.is_finite() && (0.0..=10_000.0).contains(&a.noise_dn)) {
-        anyhow::bail!("--noise-dn {}: 0 to 10000 grey values", a.noise_dn);
-    }
-    if !(a.truth_cell_m.is_finite() && (0.5..=100.0).contains(&a.truth_cell_m)) {
-        anyhow::bail!("--truth-cell-m {}: 0.5 to 100 m", a.truth_cell_m);
-    }
-    let gains = super::scene_cmd::per_photo(a.gains.as_deref(), "gains", a.views, 0.2..=5.0, 1.0)?;
-    let offsets = super::scene_cmd::per_photo(
-        a.offsets.as_deref(),
-        "offsets",
-        a.views,
-        -30_000.0..=30_000.0,
-        0.0,
-    )?;
-    if a.out.exists() && std::fs::read_dir(&a.out)?.next().is_some() {
-        anyhow::bail!("{} is not empty: give a new directory", a.out.display());
-    }
+    let (gains, offsets) = super::scene_cmd::check_shared(a, a.views)?;
     let stereo = match a.stereo {
         super::scene_cmd::StereoArg::Across => Stereo::Across,
         super::scene_cmd::StereoArg::Along => Stereo::Along,
