@@ -167,6 +167,84 @@ fn a_triplet_through_its_models_or_its_rpcs_gives_the_dem_within_a_quarter_pixel
         // Most of the common footprint (about 3.5 × 4 km at 10 m) has a height.
         assert!(nodes > 80_000, "{project}: {nodes} nodes");
     }
+    // The models disturbed as an ephemeris leaves them (tens of metres, tens of µrad) and
+    // the RPCs shifted by pixels: the control points in truth_points.csv correct them back
+    // (seed 004's rigorous solution; Fraser and Hanley's shift), and without those points the
+    // same disturbance spoils the model.
+    let block = std::fs::read_to_string(scene.join("block.toml")).unwrap();
+    let block_rpc = std::fs::read_to_string(scene.join("block-rpc.toml")).unwrap();
+    let (mut disturbed, mut disturbed_rpc) = (block.clone(), block_rpc.clone());
+    for (v, dx, roll) in [(1, 60.0, 3e-5), (2, -40.0, -2e-5), (3, 25.0, 4e-5)] {
+        let path = scene.join(format!("view-{v}.json"));
+        let mut m: Pushbroom =
+            serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+        m.position[0][0] += dx;
+        m.position[1][0] -= 0.5 * dx;
+        m.attitude[0][0] += roll;
+        std::fs::write(
+            scene.join(format!("off-{v}.json")),
+            serde_json::to_string(&m).unwrap(),
+        )
+        .unwrap();
+        disturbed = disturbed.replace(
+            &format!("pushbroom = \"view-{v}.json\""),
+            &format!("pushbroom = \"off-{v}.json\""),
+        );
+        let mut rpc = Rpc::read_beside(&scene.join(format!("view-{v}.tiff"))).unwrap();
+        rpc.samp_off += 2.5 * v as f64;
+        rpc.line_off -= 1.5;
+        let txt = scene.join(format!("off-{v}_RPC.TXT"));
+        std::fs::write(&txt, rpc.to_txt()).unwrap();
+        disturbed_rpc =
+            disturbed_rpc.replace(&format!("view-{v}_RPC.TXT"), &format!("off-{v}_RPC.TXT"));
+    }
+    assert_ne!(disturbed, block);
+    assert_ne!(disturbed_rpc, block_rpc);
+    let csv = std::fs::read_to_string(scene.join("truth_points.csv")).unwrap();
+    let checks_only: String = csv
+        .lines()
+        .filter(|l| !l.contains(",gcp,"))
+        .map(|l| format!("{l}\n"))
+        .collect();
+    std::fs::write(scene.join("checks_only.csv"), checks_only).unwrap();
+    for (name, text) in [("off.toml", &disturbed), ("off-rpc.toml", &disturbed_rpc)] {
+        std::fs::write(scene.join(name), text).unwrap();
+        let r = common::dtm_json(&scene.join(name), &d.path().join(name.replace(".toml", "")));
+        let rmse = r["comparison"]["rmse_m"].as_f64().unwrap();
+        let fits = r["corrected"].as_array().unwrap();
+        assert_eq!(fits.len(), 3, "{name}: {fits:?}");
+        for f in fits {
+            let (before, after) = (
+                f[1]["rms_before_px"].as_f64().unwrap(),
+                f[1]["rms_after_px"].as_f64().unwrap(),
+            );
+            eprintln!(
+                "{name}: {}: control RMS {before:.2} px → {after:.4} px",
+                f[0]
+            );
+            assert!(before > 1.0 && after < 0.02, "{name}: {f}");
+        }
+        eprintln!(
+            "{name}: corrected by the control points, RMSE {rmse:.2} m = {:.3} px",
+            rmse * px_per_m
+        );
+        assert!(rmse * px_per_m <= 0.25, "{name}: {rmse} m");
+        // The same disturbance, no control points to take it out.
+        let bare = text.replace("truth_points.csv", "checks_only.csv");
+        let bare_name = format!("bare-{name}");
+        std::fs::write(scene.join(&bare_name), bare).unwrap();
+        let r = common::dtm_json(
+            &scene.join(&bare_name),
+            &d.path().join(bare_name.replace(".toml", "")),
+        );
+        let bare_rmse = r["comparison"]["rmse_m"].as_f64().unwrap();
+        eprintln!("{bare_name}: uncorrected, RMSE {bare_rmse:.2} m");
+        assert!(r["corrected"].as_array().unwrap().is_empty());
+        assert!(
+            bare_rmse > 3.0 * rmse,
+            "{bare_name}: {bare_rmse} m against {rmse} m"
+        );
+    }
 }
 
 /// A project's pushbroom and RPC photos with bad models are refused with the photo, the file

@@ -453,6 +453,9 @@ fn print_format2(
         r.heights_m[1],
         r.crs
     );
+    for (what, line) in rig::matching::pipeline2::corrected_lines(&r.corrected) {
+        println!("  {what}: {line}");
+    }
     for pr in &r.pairs {
         println!(
             "  {} × {}: step {:.2} m, {:.1} % matched, {} points kept",

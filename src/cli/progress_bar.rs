@@ -1,23 +1,48 @@
 //! The core's progress drawn as an `indicatif` bar on standard error: the step's name, a bar,
-//! the count, the rate and the time left; hidden when standard error is not a terminal or the
-//! output is `--json`, so scripts and logs get none of it.
+//! the count, the rate and the time left. When standard error is not a terminal (a run left
+//! in the background with its output in a log) a plain line instead at the start, at most
+//! every [`LOG_EVERY`] and at the end of each step; nothing with `--json`.
 
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use rig::matching::progress::Progress;
 use std::io::IsTerminal;
 use std::sync::Mutex;
+use std::time::{Duration, Instant};
+
+/// How often a log line is written at the most (not a terminal).
+pub const LOG_EVERY: Duration = Duration::from_secs(60);
 
 pub struct Bar {
     bar: Mutex<Option<ProgressBar>>,
     shown: bool,
+    /// Lines for a log: the step's name and when the last line was written.
+    log: Option<Mutex<(String, Instant)>>,
 }
 
 impl Bar {
-    /// A bar drawn only when `wanted` and standard error is a terminal.
+    /// A bar drawn when `wanted` and standard error is a terminal; log lines when `wanted`
+    /// and it is not.
     pub fn new(wanted: bool) -> Bar {
+        let tty = std::io::stderr().is_terminal();
         Bar {
             bar: Mutex::new(None),
-            shown: wanted && std::io::stderr().is_terminal(),
+            shown: wanted && tty,
+            log: (wanted && !tty).then(|| Mutex::new((String::new(), Instant::now()))),
+        }
+    }
+
+    /// One log line for bar `b` of step `what`.
+    fn log_line(what: &str, b: &ProgressBar, last: bool) {
+        let (pos, len) = (b.position(), b.length().unwrap_or(0));
+        let secs = b.elapsed().as_secs_f64();
+        if last {
+            eprintln!("{what}: {pos}/{len} done in {secs:.0} s");
+        } else {
+            eprintln!(
+                "{what}: {pos}/{len} after {secs:.0} s ({:.2}/s, about {:.0} s left)",
+                b.per_sec(),
+                b.eta().as_secs_f64()
+            );
         }
     }
 }
@@ -38,6 +63,10 @@ impl Progress for Bar {
             b.set_style(style.progress_chars("=> "));
         }
         b.set_message(what.to_string());
+        if let Some(Ok(mut l)) = self.log.as_ref().map(|l| l.lock()) {
+            eprintln!("{what}: 0/{total}");
+            *l = (what.to_string(), Instant::now());
+        }
         if let Ok(mut g) = self.bar.lock() {
             *g = Some(b);
         }
@@ -47,6 +76,12 @@ impl Progress for Bar {
         if let Ok(g) = self.bar.lock() {
             if let Some(b) = g.as_ref() {
                 b.inc(n);
+                if let Some(Ok(mut l)) = self.log.as_ref().map(|l| l.lock()) {
+                    if l.1.elapsed() >= LOG_EVERY {
+                        Self::log_line(&l.0, b, false);
+                        l.1 = Instant::now();
+                    }
+                }
             }
         }
     }
@@ -54,6 +89,9 @@ impl Progress for Bar {
     fn end(&self) {
         if let Ok(mut g) = self.bar.lock() {
             if let Some(b) = g.take() {
+                if let Some(Ok(l)) = self.log.as_ref().map(|l| l.lock()) {
+                    Self::log_line(&l.0, &b, true);
+                }
                 b.finish_and_clear();
             }
         }

@@ -3,6 +3,7 @@
 //! the matching core and the polynomial mapping functions build on it.
 
 pub mod affine;
+pub mod control_fit;
 pub mod crs;
 pub mod frame;
 pub mod geographic;

@@ -22,6 +22,9 @@ use super::sweep::{
 };
 use super::{MatchedPoint, PmfSet};
 use crate::coords::{GroundM, PixelXY};
+use crate::geometry::control_fit::{
+    correct_orbit, correct_rpc_shift, ControlFit, ControlFitError, OrbitPrior,
+};
 use crate::geometry::{
     resect, Crs, FrameCamera, FrameSensor, Geographic, Interior, PhotoGrid, PhotoSensor,
     PixelToPhoto, Resection, ResectionError, RpcSensor, Sensor,
@@ -86,6 +89,9 @@ pub struct Report2 {
     pub crs: Crs,
     /// Photos resected from the control points (the others had their orientation given).
     pub resected: Vec<(String, Resection)>,
+    /// Given models corrected by their control points.
+    #[serde(default)]
+    pub corrected: Vec<(String, ControlFit)>,
     pub heights_m: [f64; 2],
     pub extent: [f64; 4],
     pub pairs: Vec<PairReport>,
@@ -114,6 +120,7 @@ impl Report2 {
                 ),
             ));
         }
+        v.extend(corrected_lines(&self.corrected));
         for pr in &self.pairs {
             v.push((
                 format!("photos {} × {}", pr.left, pr.right),
@@ -404,6 +411,7 @@ pub struct PlannedPair {
 pub struct Plan {
     pub sensors: Vec<PhotoSensor>,
     pub resected: Vec<(String, Resection)>,
+    pub corrected: Vec<(String, ControlFit)>,
     pub heights: [f64; 2],
     pub extent: [f64; 4],
     pub pairs: Vec<PlannedPair>,
@@ -432,6 +440,25 @@ impl Plan {
     }
 }
 
+/// Each corrected model's line for a report's summary.
+pub fn corrected_lines(corrected: &[(String, ControlFit)]) -> Vec<(String, String)> {
+    corrected
+        .iter()
+        .map(|(id, f)| {
+            (
+                format!("photo {id}"),
+                format!(
+                    "{} corrected by {} control points: their RMS {:.3} px before, {:.3} px after",
+                    f.kind, f.points, f.rms_before_px, f.rms_after_px
+                ),
+            )
+        })
+        .collect()
+}
+
+/// A control point's measurement on a photo, px: what a given model is corrected to.
+pub const CONTROL_SIGMA_PX: f64 = 0.5;
+
 /// A project's photos as sensors, what the matchers share before they differ: each photo's
 /// orientation (given or resected), the heights to search, the ground extent of the model and
 /// the pairs of photos whose footprints overlap.
@@ -439,6 +466,8 @@ impl Plan {
 pub struct Oriented {
     pub sensors: Vec<PhotoSensor>,
     pub resected: Vec<(String, Resection)>,
+    /// Given models (line scanners, RPCs) corrected by their photos' control points.
+    pub corrected: Vec<(String, ControlFit)>,
     pub heights: [f64; 2],
     pub extent: [f64; 4],
     /// Pairs (i, j), i < j, of photos that overlap on the ground at the middle height.
@@ -451,20 +480,53 @@ pub fn orient(p: &Project2, photos: &[PhotoGeometry]) -> Result<Oriented, Pipeli
     let control: Vec<&Observation> = obs.iter().filter(|o| o.kind == Kind::Gcp).collect();
     // Orientation: given, or resected from this photo's control points.
     let mut resected = Vec::new();
+    let mut corrected = Vec::new();
     let mut sensors = Vec::new();
     for (ph, input) in p.photos.iter().zip(photos) {
         if let Source::Model { model, .. } = &ph.source {
+            // A given model is corrected by the control points on its photo, when there are
+            // any: the orbit and attitude of a line scanner, the image shift of RPCs.
+            let pts: Vec<(PixelXY, GroundM)> = control
+                .iter()
+                .filter(|o| o.photo == ph.id)
+                .filter_map(|o| Some((PixelXY::new(o.col, o.row), o.ground?)))
+                .collect();
+            let failed = |cause: ControlFitError| {
+                Pipeline2Error::Photo {
+                id: ph.id.clone(),
+                message: format!(
+                    "correcting its model by its {} control points: {cause} (remove them from the points file to use the model as given)",
+                    pts.len()
+                ),
+            }
+            };
             sensors.push(match model.as_ref() {
-                GivenModel::Pushbroom(m) => PhotoSensor::Pushbroom(*m),
-                GivenModel::Rpc(rpc) => PhotoSensor::Rpc(Box::new(RpcSensor {
-                    rpc: rpc.as_ref().clone(),
-                    geo: Geographic::new(p.crs).map_err(|e| Pipeline2Error::Photo {
-                        id: ph.id.clone(),
-                        message: e.to_string(),
-                    })?,
-                    width: input.width,
-                    height: input.height,
-                })),
+                GivenModel::Pushbroom(m) if pts.is_empty() => PhotoSensor::Pushbroom(*m),
+                GivenModel::Pushbroom(m) => {
+                    let (m, fit) = correct_orbit(m, &pts, CONTROL_SIGMA_PX, OrbitPrior::default())
+                        .map_err(failed)?;
+                    corrected.push((ph.id.clone(), fit));
+                    PhotoSensor::Pushbroom(m)
+                }
+                GivenModel::Rpc(rpc) => {
+                    let s = RpcSensor {
+                        rpc: rpc.as_ref().clone(),
+                        geo: Geographic::new(p.crs).map_err(|e| Pipeline2Error::Photo {
+                            id: ph.id.clone(),
+                            message: e.to_string(),
+                        })?,
+                        width: input.width,
+                        height: input.height,
+                    };
+                    if pts.is_empty() {
+                        PhotoSensor::Rpc(Box::new(s))
+                    } else {
+                        let (s, fit) =
+                            correct_rpc_shift(&s, &pts, CONTROL_SIGMA_PX).map_err(failed)?;
+                        corrected.push((ph.id.clone(), fit));
+                        PhotoSensor::Rpc(Box::new(s))
+                    }
+                }
             });
             continue;
         }
@@ -555,6 +617,7 @@ pub fn orient(p: &Project2, photos: &[PhotoGeometry]) -> Result<Oriented, Pipeli
     Ok(Oriented {
         sensors,
         resected,
+        corrected,
         heights,
         extent,
         overlapping,
@@ -571,6 +634,7 @@ pub fn plan(
     let Oriented {
         sensors,
         resected,
+        corrected,
         heights,
         extent,
         overlapping,
@@ -632,6 +696,7 @@ pub fn plan(
     Ok(Plan {
         sensors,
         resected,
+        corrected,
         heights,
         extent,
         pairs,
@@ -724,6 +789,7 @@ pub fn finish(
     let Plan {
         sensors,
         resected,
+        corrected,
         heights,
         extent,
         budget,
@@ -794,6 +860,7 @@ pub fn finish(
         project: p.path.clone(),
         crs: p.crs,
         resected,
+        corrected,
         heights_m: heights,
         extent,
         pairs: reports,

@@ -84,6 +84,9 @@ pub struct MgcmReport {
     pub method: String,
     pub crs: Crs,
     pub resected: Vec<(String, Resection)>,
+    /// Given models corrected by their control points.
+    #[serde(default)]
+    pub corrected: Vec<(String, crate::geometry::control_fit::ControlFit)>,
     /// The photo carrying the templates, and the photos searched.
     pub reference: String,
     pub searched: Vec<String>,
@@ -125,6 +128,7 @@ impl MgcmReport {
                 format!("{:.1} … {:.1} m", self.heights_m[0], self.heights_m[1]),
             ),
         ];
+        v.extend(crate::matching::pipeline2::corrected_lines(&self.corrected));
         for l in &self.levels {
             v.push((
                 format!("level {}", l.level),
@@ -504,6 +508,7 @@ pub fn run(
             Oriented {
                 sensors,
                 resected,
+                corrected,
                 heights,
                 extent,
                 ..
@@ -766,6 +771,7 @@ pub fn run(
         method: "mgcm".into(),
         crs: p.crs,
         resected,
+        corrected,
         reference: p.photos[r].id.clone(),
         searched: others.iter().map(|&k| p.photos[k].id.clone()).collect(),
         heights_m: heights,

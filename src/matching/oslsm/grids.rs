@@ -73,6 +73,29 @@ impl Grids {
             .sum()
     }
 
+    /// The steepest the bilinear surface gets anywhere (rise per horizontal metre): in a cell
+    /// ∂z/∂x is a blend of its two X edges' differences and ∂z/∂y of its two Y edges', so
+    /// the gradient's length is at most the hypotenuse of the larger of each. 0 without cells;
+    /// infinite when a height is not finite.
+    pub fn max_slope(&self) -> f64 {
+        let (c, z) = (self.cols, &self.z);
+        let mut worst: f64 = 0.0;
+        for j in 0..self.rows.saturating_sub(1) {
+            for i in 0..c.saturating_sub(1) {
+                let p = j * c + i;
+                let dx = (z[p + 1] - z[p]).abs().max((z[p + c + 1] - z[p + c]).abs());
+                let dy = (z[p + c] - z[p]).abs().max((z[p + c + 1] - z[p + 1]).abs());
+                let s = dx.hypot(dy);
+                worst = if s.is_nan() {
+                    f64::INFINITY
+                } else {
+                    worst.max(s)
+                };
+            }
+        }
+        worst / self.post_m
+    }
+
     /// Height anywhere inside the posts' hull (bilinear); `None` outside.
     pub fn z_xy(&self, x: f64, y: f64) -> Option<f64> {
         let u = (x - self.x0) / self.post_m;

@@ -14,7 +14,7 @@ pub mod visibility;
 pub use grids::{Grids, Groundel};
 pub use patches::{refine_block, Merged, PatchLayout, PatchReport};
 pub use solve::{refine, sight, Iteration, OslsmError, OslsmParams, Refinement};
-pub use visibility::visible;
+pub use visibility::Occluder;
 
 /// A photo as the object-space matching sees it: its grey values and its sensor (the slopes
 /// are the bilinear surface's own, taken where it is sampled).

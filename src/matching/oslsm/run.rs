@@ -45,6 +45,9 @@ pub struct OslsmReport {
     pub method: String,
     pub crs: Crs,
     pub resected: Vec<(String, Resection)>,
+    /// Given models corrected by their control points.
+    #[serde(default)]
+    pub corrected: Vec<(String, crate::geometry::control_fit::ControlFit)>,
     /// The radiometric datum and the photo whose footprint is modelled.
     pub reference: String,
     /// The photos adjusted with it.
@@ -108,6 +111,7 @@ impl OslsmReport {
                 ),
             ),
         ];
+        v.extend(crate::matching::pipeline2::corrected_lines(&self.corrected));
         if let Some(c) = &self.coarse_comparison {
             v.push((
                 format!("coarse model ({})", self.coarse_source),
@@ -173,6 +177,12 @@ impl OslsmReport {
     }
 }
 
+/// Groundels along a post cell's side at the least: with fewer, a post's height rests on a
+/// handful of grey values, each also carrying its own reflectance, and the patches swing
+/// between neighbouring solutions (on a pushbroom triplet, 2 to a side left 323 of 342
+/// patches unconverged; 6 converged 23 of 25).
+pub const MIN_PER_CELL: usize = 4;
+
 /// Bytes the adjustment holds at once for `groundels` in the block, `posts` per patch
 /// (patch_posts²), `kp` photos and `threads` patches in flight: per groundel of the block its
 /// merged reflectance and weight (f32 each, patches merged as they finish) and the
@@ -210,6 +220,7 @@ pub fn run(
             Oriented {
                 sensors,
                 resected,
+                corrected,
                 heights,
                 extent,
                 ..
@@ -242,6 +253,14 @@ pub fn run(
             "{}: [dem] cell_m = {post_m} m holds {per_cell:.0} groundels of {:.2} m along a side (at most 64): use a smaller cell_m or a larger [matching.oslsm] groundel_px",
             p.path.display(),
             cfg.groundel_px * gsd
+        )));
+    }
+    if per_cell < MIN_PER_CELL as f64 {
+        return Err(Pipeline2Error::Oslsm(format!(
+            "{}: [dem] cell_m = {post_m} m holds only {per_cell:.0} groundel(s) of {:.2} m along a side (at least {MIN_PER_CELL}): posts that close are not fixed by the grey values and the patches swing without converging; use cell_m = {:.0} m or more for the object-space matching",
+            p.path.display(),
+            cfg.groundel_px * gsd,
+            (MIN_PER_CELL as f64 * cfg.groundel_px * gsd).ceil()
         )));
     }
     let per_cell = per_cell as usize;
@@ -528,6 +547,7 @@ pub fn run(
         method: "oslsm".into(),
         crs: p.crs,
         resected,
+        corrected,
         reference: p.photos[r].id.clone(),
         others: others.iter().map(|&k| p.photos[k].id.clone()).collect(),
         heights_m: heights,

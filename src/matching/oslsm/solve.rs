@@ -27,7 +27,7 @@
 //! grey values, so it steers where the grey values are silent and yields where they speak.
 
 use super::grids::{Grids, Groundel};
-use super::visibility::visible;
+use super::visibility::Occluder;
 use super::PhotoView;
 use crate::coords::GroundM;
 use nalgebra::{DMatrix, DVector};
@@ -920,15 +920,12 @@ fn framed(
 
 /// Which photos see each groundel on the terrain of `g`: only these observe it.
 pub fn sight(photos: &[PhotoView<'_>], g: &Grids, groundels: &[Groundel]) -> Vec<Vec<bool>> {
-    let top = g.z.iter().copied().fold(f64::MIN, f64::max);
+    let terrain = Occluder::new(g);
     groundels
         .par_iter()
         .map(|gr| {
             let pt = GroundM::new(gr.x, gr.y, g.z_at(gr));
-            photos
-                .iter()
-                .map(|v| visible(v.sensor, pt, g, top))
-                .collect()
+            photos.iter().map(|v| terrain.sees(v.sensor, pt)).collect()
         })
         .collect()
 }

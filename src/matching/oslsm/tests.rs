@@ -372,14 +372,14 @@ fn an_occluded_groundel_takes_no_observation() {
         }
     };
     let g = grids(30.0, 20.0, 25, 2.0, &wall);
-    let top = 90.0;
+    let terrain = Occluder::new(&g);
     let behind = GroundM::new(55.0, 30.0, 50.0);
     let east = camera(400.0, 0.0);
     let above = camera(55.0, 30.0);
-    assert!(!visible(&east, behind, &g, top));
-    assert!(visible(&above, behind, &g, top));
+    assert!(!terrain.sees(&east, behind));
+    assert!(terrain.sees(&above, behind));
     // In front of the wall (east of it) the eastern photo sees the ground.
-    assert!(visible(&east, GroundM::new(70.0, 30.0, 50.0), &g, top));
+    assert!(terrain.sees(&east, GroundM::new(70.0, 30.0, 50.0)));
     // What the adjustment takes its observations from: groundel (u, v) = (100, 40) is
     // centred at (55.125, 30.125), behind the wall from the east; (160, 40) in front.
     let blank = ImageF32::new(SIDE, SIDE);
@@ -392,6 +392,67 @@ fn an_occluded_groundel_takes_no_observation() {
     );
     let s = sight(&views(&sensors, &images), &g, &[gr, g.groundel(160, 40)]);
     assert_eq!(s, vec![vec![true, false], vec![true, true]]);
+}
+
+/// The march's long steps against a dense one (a fiftieth of a groundel, every sample
+/// tested) on steep, bumpy terrain seen from five sides: every groundel the march hides is
+/// hidden (its samples lie on the ray), and it misses at most a few thin grazes.
+#[test]
+fn the_long_stepped_march_agrees_with_a_dense_one() {
+    let bumps = |x: f64, y: f64| 50.0 + 15.0 * (x / 7.0).sin() * (y / 5.0).cos() + 0.2 * x;
+    let g = grids(0.0, 0.0, 25, 2.0, &bumps);
+    let terrain = Occluder::new(&g);
+    let top = g.z.iter().copied().fold(f64::MIN, f64::max);
+    let gm = g.groundel_m();
+    let dense = |s: &FrameSensor, p: GroundM| -> bool {
+        let q = s.ground_to_image(p).unwrap();
+        let (a, b) = (
+            s.image_to_ground(q, p.z).unwrap(),
+            s.image_to_ground(q, p.z + 1.0).unwrap(),
+        );
+        let (dx, dy) = (b.x - a.x, b.y - a.y);
+        let lean = dx.hypot(dy);
+        let mut dz = gm / lean;
+        while p.z + dz <= top {
+            match g.z_xy(p.x + dx * dz, p.y + dy * dz) {
+                Some(t) if t > p.z + dz => return false,
+                Some(_) => dz += gm / 50.0 / lean,
+                None => return true,
+            }
+        }
+        true
+    };
+    let (mut hidden, mut missed, mut n) = (0, 0, 0);
+    for s in [
+        camera(24.0, 24.0),
+        camera(424.0, 24.0),
+        camera(-376.0, 24.0),
+        camera(24.0, 424.0),
+        camera(300.0, -300.0),
+    ] {
+        for v in (0..192).step_by(5) {
+            for u in (0..192).step_by(5) {
+                let gr = g.groundel(u, v);
+                let p = GroundM::new(gr.x, gr.y, g.z_at(&gr));
+                let (fast, slow) = (terrain.sees(&s, p), dense(&s, p));
+                assert!(fast || !slow, "{p:?}: hidden by the march, seen densely");
+                missed += usize::from(fast && !slow);
+                hidden += usize::from(!slow);
+                n += 1;
+            }
+        }
+    }
+    eprintln!(
+        "{n} rays: {hidden} hidden by the dense march, {missed} of them missed by the long steps"
+    );
+    assert!(
+        hidden > n / 50,
+        "the terrain hides too little to test: {hidden} of {n}"
+    );
+    assert!(
+        missed * 100 <= hidden,
+        "{missed} of {hidden} hidden groundels missed"
+    );
 }
 
 /// The hill of the planted-gains test refined in four overlapping patches of 7 × 7 posts
