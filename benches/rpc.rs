@@ -24,7 +24,8 @@ fn view() -> Pushbroom {
         tilt_across: tilt,
         tilt_along: 0.0,
         position: [
-            [740_000.0 - 830_000.0 * tilt.tan(), 900.0, 0.3],
+            // Flown south, looking right (west) by the tilt: the track lies east of the scene.
+            [740_000.0 + 830_000.0 * tilt.tan(), 900.0, 0.3],
             [4_050_000.0, -6540.0, 0.1],
             [830_000.0, -5.0, 0.0],
         ],

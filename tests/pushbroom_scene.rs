@@ -151,7 +151,13 @@ fn a_triplet_through_its_models_or_its_rpcs_gives_the_dem_within_a_quarter_pixel
     );
     let b = 20f64.to_radians();
     let px_per_m = 2.0 * b.sin() * b.cos() / gsd;
-    for project in ["block.toml", "block-rpc.toml"] {
+    // The RPCs from the images' own RPC tag (50844) rather than the _RPC.TXT beside them.
+    let tagged = std::fs::read_to_string(scene.join("block-rpc.toml"))
+        .unwrap()
+        .replace("_RPC.TXT\"", ".tiff\"");
+    assert!(tagged.contains("rpc = \"view-1.tiff\""), "{tagged}");
+    std::fs::write(scene.join("block-tag.toml"), tagged).unwrap();
+    for project in ["block.toml", "block-rpc.toml", "block-tag.toml"] {
         let r = common::dtm_json(
             &scene.join(project),
             &d.path().join(project.replace(".toml", "")),

@@ -9,7 +9,9 @@ use rig::geometry::{Crs, Geographic, LonLatH, Pushbroom, Rpc, RpcSensor, Sensor}
 use std::io::Write;
 use std::process::{Command, Stdio};
 
-/// A tilted SPOT-like view with a drifting attitude (ground pixel about 10 m).
+/// A tilted SPOT-like view with a drifting attitude (ground pixel about 10 m), flown north:
+/// looking 15° left (west) and 5° forward (north), it passes east of and behind (south of)
+/// the ground it sees.
 fn view() -> Pushbroom {
     let tilt = (-15f64).to_radians();
     Pushbroom {
@@ -21,8 +23,12 @@ fn view() -> Pushbroom {
         tilt_across: tilt,
         tilt_along: 5f64.to_radians(),
         position: [
-            [700_000.0 - 830_000.0 * 5f64.to_radians().tan(), 1200.0, 0.3],
-            [4_060_000.0 + 830_000.0 * tilt.tan(), 6500.0, -0.1],
+            [700_000.0 - 830_000.0 * tilt.tan(), 1200.0, 0.3],
+            [
+                4_060_000.0 - 830_000.0 * 5f64.to_radians().tan(),
+                6500.0,
+                -0.1,
+            ],
             [830_000.0, 3.0, 0.0],
         ],
         attitude: [[2e-4, 1e-6, 0.0], [1e-4, -2e-6, 0.0], [-1e-3, 0.0, 0.0]],
@@ -137,4 +143,113 @@ fn gdaltransform_agrees_with_the_rigs_rpc_evaluation() {
     }
     eprintln!("image → ground: the rig and gdaltransform -rpc differ by at most {worst_m:.2e} m");
     assert!(worst_m <= 0.01, "{worst_m} m");
+}
+
+/// The RPCs in a TIFF's RPCCoefficientTag (50844), both ways: GDAL reads the tag the rig
+/// writes (gdalinfo's RPC metadata, with no `_RPC.TXT` beside the image), and the rig reads the
+/// tag GDAL writes (gdal_translate of an image whose RPCs are in its `_RPC.TXT`).
+#[test]
+fn the_tiff_rpc_tag_is_read_and_written_as_gdal_does() {
+    let s = view();
+    let geo = Geographic::new(Crs::Epsg(32616)).unwrap();
+    let (rpc, _) = fit_rpc(&s, &geo, [100.0, 1500.0], FitGrid::default()).unwrap();
+    let d = tempfile::tempdir().unwrap();
+    let tagged = d.path().join("tagged.tif");
+    let px = vec![1000u16; 16 * 16];
+    rig::digitise::output::write_tiff16_tagged(
+        &tagged,
+        16,
+        16,
+        &px,
+        &[(rig::geometry::rpc::TIFF_TAG, &rpc.to_values())],
+    )
+    .unwrap();
+    assert!(!Rpc::txt_path(&tagged).exists());
+    assert_eq!(Rpc::read_tiff_tag(&tagged).unwrap(), rpc);
+    // An image without the tag is refused with the tag named.
+    let plain = d.path().join("plain.tif");
+    rig::digitise::output::write_tiff16(&plain, 16, 16, &px).unwrap();
+    let e = Rpc::read_tiff_tag(&plain).unwrap_err().to_string();
+    assert!(e.contains("50844") && e.contains("plain.tif"), "{e}");
+    if !common::gdal_tools() {
+        return;
+    }
+    let out = Command::new("gdalinfo").arg(&tagged).output().unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    let values: std::collections::BTreeMap<String, String> = text
+        .lines()
+        .skip_while(|l| !l.starts_with("RPC Metadata:"))
+        .skip(1)
+        .take_while(|l| l.starts_with("  "))
+        .filter_map(|l| l.trim().split_once('=').map(|(k, v)| (k.into(), v.into())))
+        .collect();
+    let num = |k: &str| -> f64 {
+        values
+            .get(k)
+            .unwrap_or_else(|| panic!("gdalinfo shows no {k}: {text}"))
+            .trim()
+            .parse()
+            .unwrap()
+    };
+    let close = |a: f64, b: f64| (a - b).abs() <= 1e-12 * a.abs().max(b.abs()).max(1.0);
+    assert!(close(num("LINE_OFF"), rpc.line_off), "{text}");
+    assert!(close(num("SAMP_SCALE"), rpc.samp_scale), "{text}");
+    assert!(close(num("LAT_OFF"), rpc.lat_off), "{text}");
+    assert!(close(num("LONG_SCALE"), rpc.long_scale), "{text}");
+    let coeffs = |k: &str| -> Vec<f64> {
+        values[k]
+            .split_whitespace()
+            .map(|w| w.parse().unwrap())
+            .collect()
+    };
+    for (k, want) in [
+        ("LINE_NUM_COEFF", &rpc.line_num),
+        ("SAMP_DEN_COEFF", &rpc.samp_den),
+    ] {
+        let got = coeffs(k);
+        assert_eq!(got.len(), 20, "{k}: {got:?}");
+        for (g, w) in got.iter().zip(want.iter()) {
+            assert!(close(*g, *w), "{k}: {got:?} against {want:?}");
+        }
+    }
+    // GDAL writes the tag: an image with an _RPC.TXT translated to a new GeoTIFF.
+    rpc.write_beside(&plain).unwrap();
+    let by_gdal = d.path().join("by_gdal.tif");
+    let st = Command::new("gdal_translate")
+        .args(["-q"])
+        .arg(&plain)
+        .arg(&by_gdal)
+        .status()
+        .unwrap();
+    assert!(st.success());
+    assert!(
+        !Rpc::txt_path(&by_gdal).exists(),
+        "GDAL wrote an _RPC.TXT: the tag would not be tested"
+    );
+    let theirs = Rpc::read_tiff_tag(&by_gdal).unwrap();
+    let (a, b) = (
+        RpcSensor {
+            rpc: rpc.clone(),
+            geo: geo.clone(),
+            width: 2000,
+            height: 2400,
+        },
+        RpcSensor {
+            rpc: theirs,
+            geo,
+            width: 2000,
+            height: 2400,
+        },
+    );
+    let mut worst: f64 = 0.0;
+    for i in 0..10 {
+        for j in 0..10 {
+            let q = rig::coords::PixelXY::new(50.0 + 210.0 * i as f64, 40.0 + 250.0 * j as f64);
+            let g = s.image_to_ground(q, 200.0 + 100.0 * j as f64).unwrap();
+            let (p, r) = (a.ground_to_image(g).unwrap(), b.ground_to_image(g).unwrap());
+            worst = worst.max(p.dist(r));
+        }
+    }
+    eprintln!("the RPCs through GDAL's tag project within {worst:.2e} px of the rig's");
+    assert!(worst < 1e-6, "{worst} px");
 }

@@ -111,11 +111,18 @@ pub fn run(a: &SceneArgs) -> anyhow::Result<i32> {
             [v.t_min, v.t_max],
         )?;
         let tiff = a.out.join(format!("{name}.tiff"));
-        rig::digitise::output::write_tiff16(&tiff, a.size, a.size, &px)?;
         let model = rig::sim_scene::pushbroom(v);
         model.check().map_err(|e| anyhow::anyhow!("{name}: {e}"))?;
         rig::atomic::write_json(&a.out.join(format!("{name}.json")), &model)?;
         let (rpc, report) = fit_rpc(&model, &geo, heights, FitGrid::default())?;
+        // The RPCs twice, as GDAL keeps them: in the image's RPC tag and beside it.
+        rig::digitise::output::write_tiff16_tagged(
+            &tiff,
+            a.size,
+            a.size,
+            &px,
+            &[(rig::geometry::rpc::TIFF_TAG, &rpc.to_values())],
+        )?;
         rpc.write_beside(&tiff)?;
         fits.push(json!({"view": name, "rpc_fit": report}));
     }

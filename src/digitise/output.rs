@@ -5,7 +5,19 @@ use std::path::Path;
 
 /// Writes `px` (row-major, `width × height`) as a 16-bit greyscale TIFF at `path`, atomically.
 pub fn write_tiff16(path: &Path, width: usize, height: usize, px: &[u16]) -> std::io::Result<()> {
+    write_tiff16_tagged(path, width, height, px, &[])
+}
+
+/// [`write_tiff16`] with extra tags of doubles, `(tag, values)` (as the RPCs' tag 50844).
+pub fn write_tiff16_tagged(
+    path: &Path,
+    width: usize,
+    height: usize,
+    px: &[u16],
+    tags: &[(u16, &[f64])],
+) -> std::io::Result<()> {
     use tiff::encoder::{colortype, Compression, DeflateLevel, Predictor, TiffEncoder};
+    use tiff::tags::Tag;
     let (w, h) = (
         u32::try_from(width).map_err(std::io::Error::other)?,
         u32::try_from(height).map_err(std::io::Error::other)?,
@@ -14,12 +26,20 @@ pub fn write_tiff16(path: &Path, width: usize, height: usize, px: &[u16]) -> std
         // Deflate after horizontal differencing (TIFF predictor 2), lossless: neighbouring
         // pixels differ little, so their differences compress where the raw 16-bit values do
         // not; every TIFF reader (GDAL, libtiff, QGIS) takes it.
-        TiffEncoder::new(out)
+        let mut enc = TiffEncoder::new(out)
             .map_err(std::io::Error::other)?
             .with_predictor(Predictor::Horizontal)
-            .with_compression(Compression::Deflate(DeflateLevel::Fast))
-            .write_image::<colortype::Gray16>(w, h, px)
-            .map_err(std::io::Error::other)
+            .with_compression(Compression::Deflate(DeflateLevel::Fast));
+        let mut image = enc
+            .new_image::<colortype::Gray16>(w, h)
+            .map_err(std::io::Error::other)?;
+        for (tag, values) in tags {
+            image
+                .encoder()
+                .write_tag(Tag::Unknown(*tag), *values)
+                .map_err(std::io::Error::other)?;
+        }
+        image.write_data(px).map_err(std::io::Error::other)
     })
 }
 

@@ -114,10 +114,33 @@ impl Pushbroom {
         if all.clone().any(|v| !v.is_finite()) {
             return Err("position and attitude coefficients must be finite numbers".into());
         }
-        if self.velocity(0.0).xy().norm() < 1e-3 {
-            return Err(
-                "the orbit must move horizontally (position's linear terms are zero)".into(),
-            );
+        // Over the whole span the model is used for (the image and its margin): the sensor
+        // moves, its attitude stays within ±45°, its height within −1 km … 100 000 km.
+        let span = (0.5 + ROW_MARGIN) * self.lines as f64 * self.line_period_s;
+        let v0 = self.velocity(0.0).xy();
+        for k in 0..=8 {
+            let t = span * (k as f64 / 4.0 - 1.0);
+            let v = self.velocity(t).xy();
+            // Moving, and within 60° of the direction at the image's centre.
+            if v.norm() < 1e-3 || v.dot(&v0) < 0.5 * v.norm() * v0.norm() {
+                return Err(format!(
+                    "the orbit must move horizontally and steadily over the image (at t = {t:.3} s it stands still or turns away: check position's linear and quadratic terms)"
+                ));
+            }
+            for (name, c) in ["roll", "pitch", "yaw"].iter().zip(&self.attitude) {
+                let a = poly(*c, t);
+                if a.abs() > limit {
+                    return Err(format!(
+                        "attitude {name} must stay within ±45° over the image (it reaches {a:.3} rad at t = {t:.3} s)"
+                    ));
+                }
+            }
+            let z = self.position(t).z;
+            if !(-1e3..=1e8).contains(&z) {
+                return Err(format!(
+                    "the sensor's height must stay within -1 km … 100 000 km over the image (it reaches {z:.0} m at t = {t:.3} s)"
+                ));
+            }
         }
         Ok(())
     }
@@ -368,5 +391,18 @@ mod tests {
         let mut bad = s;
         bad.attitude[2][0] = f64::INFINITY;
         assert!(bad.check().is_err());
+        // Valid at t = 0, not over the image: the speed turns, the roll drifts to 60°, the
+        // orbit sinks under the ground.
+        let half = 1500.0 * s.line_period_s;
+        let mut bad = s;
+        bad.position[0][2] = -6600.0 / (2.0 * half);
+        bad.position[1][1] = 0.0;
+        assert!(bad.check().unwrap_err().contains("move horizontally"));
+        let mut bad = s;
+        bad.attitude[0][1] = 1.05 / half;
+        assert!(bad.check().unwrap_err().contains("roll"));
+        let mut bad = s;
+        bad.position[2][1] = -830_100.0 / half;
+        assert!(bad.check().unwrap_err().contains("height"));
     }
 }

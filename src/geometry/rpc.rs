@@ -81,6 +81,9 @@ pub struct Rpc {
     pub samp_den: [f64; 20],
 }
 
+/// The TIFF tag that holds RPCs (RPCCoefficientTag), the 92 numbers of [`Rpc::to_values`].
+pub const TIFF_TAG: u16 = 50844;
+
 /// The keys of a GDAL `_RPC.TXT` file and of GDAL's RPC metadata, in the order of the TIFF
 /// RPCCoefficientTag (50844).
 const SCALARS: [&str; 12] = [
@@ -414,6 +417,29 @@ impl Rpc {
             message: format!("cannot read it: {e}"),
         })?;
         Rpc::parse_txt(&text, &path)
+    }
+
+    /// Reads the RPCs from a TIFF's RPCCoefficientTag ([`TIFF_TAG`], as GDAL writes them
+    /// into a GeoTIFF), every number range-checked.
+    pub fn read_tiff_tag(image: &Path) -> Result<Rpc, RpcError> {
+        let fail = |message: String| RpcError::File {
+            path: image.display().to_string(),
+            message,
+        };
+        let f = std::fs::File::open(image).map_err(|e| fail(format!("cannot read it: {e}")))?;
+        let mut d = tiff::decoder::Decoder::new(std::io::BufReader::new(f))
+            .map_err(|e| fail(format!("not a TIFF: {e}")))?;
+        let values = d
+            .find_tag(tiff::tags::Tag::Unknown(TIFF_TAG))
+            .map_err(|e| fail(format!("its RPC tag ({TIFF_TAG}) cannot be read: {e}")))?
+            .ok_or_else(|| {
+                fail(format!(
+                    "it has no RPC tag ({TIFF_TAG}, RPCCoefficientTag): give the _RPC.TXT beside it instead"
+                ))
+            })?
+            .into_f64_vec()
+            .map_err(|e| fail(format!("its RPC tag ({TIFF_TAG}) is not numbers: {e}")))?;
+        Rpc::from_values(&values).map_err(|e| fail(format!("its RPC tag ({TIFF_TAG}): {e}")))
     }
 
     /// GDAL's name for the RPC file of an image: `photo.tif` → `photo_RPC.TXT`.

@@ -183,12 +183,21 @@ pub enum Source {
 pub enum GivenModel {
     /// The rig's line-scanner model (JSON, as `rig sim scene --sensor pushbroom` writes it).
     Pushbroom(crate::geometry::Pushbroom),
-    /// RPC00B, from GDAL's `_RPC.TXT`.
+    /// RPC00B, from GDAL's `_RPC.TXT`, or from a TIFF's RPC tag (50844) when the file named
+    /// is a TIFF.
     Rpc(Box<crate::geometry::Rpc>),
 }
 
 /// Reads a photo's pushbroom model or RPC file, every number checked with the file named.
 fn read_model(path: &Path, rpc: bool) -> Result<GivenModel, String> {
+    let tiff = path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("tif") || e.eq_ignore_ascii_case("tiff"));
+    if rpc && tiff {
+        return crate::geometry::Rpc::read_tiff_tag(path)
+            .map(|r| GivenModel::Rpc(Box::new(r)))
+            .map_err(|e| e.to_string());
+    }
     let text = std::fs::read_to_string(path)
         .map_err(|e| format!("cannot read {}: {e}", path.display()))?;
     if rpc {

@@ -15,8 +15,9 @@ pub(crate) fn spot_like(tilt_across_deg: f64) -> Pushbroom {
         tilt_across: tilt,
         tilt_along: 0.0,
         position: [
-            [746_800.0, 900.0, 0.4],
-            [4_055_840.0 + h * tilt.tan(), 6540.0, -0.2],
+            // Flown north, looking right (east) by the tilt: the track lies west of the scene.
+            [746_800.0 - h * tilt.tan(), 900.0, 0.4],
+            [4_055_840.0, 6540.0, -0.2],
             [h, -8.0, 0.01],
         ],
         attitude: [[1e-4, 3e-6, 1e-8], [-2e-4, -1e-6, 0.0], [2e-3, 5e-7, 0.0]],
