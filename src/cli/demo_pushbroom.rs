@@ -81,7 +81,11 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<i32> {
     let mid = 0.5 * (hs[0].as_f64().unwrap_or(0.0) + hs[1].as_f64().unwrap_or(0.0));
     let centre = PixelXY::new(v1.columns as f64 / 2.0, v1.lines as f64 / 2.0);
     let px_per_m = parallax_per_m(&v1, &[&v3 as &dyn Sensor], centre, mid);
+    // Seed 004's triplets on the widest pair: the heights of the noise-free points from three
+    // of their four image coordinates through the image → image mappings.
+    let triplets = widest_pair_triplets(&out, &v1, &v3, [hs[0].as_f64(), hs[1].as_f64()])?;
     let report = json!({
+        "triplets_view_1_3": triplets,
         "seed": a.seed,
         "seconds": t0.elapsed().as_secs_f64(),
         "sensor": "pushbroom",
@@ -115,6 +119,21 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<i32> {
             c.nodes
         );
     }
+    for t in &triplets {
+        println!(
+            "  triplet {} (views 1 and 3): heights of {} noise-free points within {:.3} m RMS; {:.2e} px per m, so a tenth of a pixel of measuring error is {:.1} m{}",
+            t.triplet,
+            t.points,
+            t.rms_m,
+            t.px_per_m,
+            0.1 / t.px_per_m,
+            if t.warning.is_some() {
+                " (weak: the base lies along the other axis)"
+            } else {
+                ""
+            }
+        );
+    }
     for (k, v) in dtm.summary() {
         if k == "warning" {
             println!("  warning: {v}");
@@ -125,4 +144,42 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<i32> {
         dtm_dir.display()
     );
     Ok(0)
+}
+
+/// The four triplets of views 1 and 3 over the noise-free points both see (truth_points.csv,
+/// centre-origin pixels).
+fn widest_pair_triplets(
+    out: &Path,
+    v1: &Pushbroom,
+    v3: &Pushbroom,
+    heights: [Option<f64>; 2],
+) -> anyhow::Result<Vec<rig::matching::triplets::TripletReport>> {
+    let [Some(lo), Some(hi)] = heights else {
+        anyhow::bail!("truth.json has no heights_m");
+    };
+    let maps = rig::matching::triplets::ImageToImage::from_sensors(v1, v3, [lo, hi], 3)?;
+    let path = out.join("truth_points.csv");
+    let text =
+        std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
+    let mut seen: std::collections::BTreeMap<String, [Option<PixelXY>; 2]> = Default::default();
+    let mut z = std::collections::BTreeMap::new();
+    for l in text.lines().skip(1) {
+        let f: Vec<&str> = l.split(',').collect();
+        let num = |k: usize| f.get(k).and_then(|v| v.parse::<f64>().ok());
+        let (Some(h), Some(c), Some(r)) = (num(4), num(6), num(7)) else {
+            continue;
+        };
+        let slot = match f.get(5) {
+            Some(&"view-1") => 0,
+            Some(&"view-3") => 1,
+            _ => continue,
+        };
+        seen.entry(f[0].to_string()).or_default()[slot] = Some(PixelXY::new(c + 0.5, r + 0.5));
+        z.insert(f[0].to_string(), h);
+    }
+    let points: Vec<(PixelXY, PixelXY, f64)> = seen
+        .iter()
+        .filter_map(|(id, [a, b])| Some(((*a)?, (*b)?, *z.get(id)?)))
+        .collect();
+    Ok(rig::matching::triplets::assess(&maps, &points))
 }

@@ -82,13 +82,18 @@ pub fn run(a: &SceneArgs) -> anyhow::Result<i32> {
             (n + 1) * (n + 1)
         );
     }
-    let zs = ground.iter().map(|g| g[2]);
+    let truth = truth_grid_over(&dem, [lo[0], lo[1], hi[0], hi[1]], a.truth_cell_m)?;
+    // The terrain's range over the common footprint: the true DEM's nodes there as well as
+    // the samples (a peak between samples must not fall outside the heights fitted).
+    let zs = ground
+        .iter()
+        .map(|g| g[2])
+        .chain(truth.z.iter().filter(|z| z.is_finite()).map(|&z| z as f64));
     let (zmin, zmax) = zs.fold((f64::MAX, f64::MIN), |(a, b), z| (a.min(z), b.max(z)));
     let heights = [
         (zmin - HEIGHT_MARGIN_M).floor(),
         (zmax + HEIGHT_MARGIN_M).ceil(),
     ];
-    let truth = truth_grid_over(&dem, [lo[0], lo[1], hi[0], hi[1]], a.truth_cell_m)?;
     let v0 = views[0].clone();
     let (reflectance, reflectance_cell_m) =
         truth_reflectance(&move |x, y| v0.reflectance_at(x, y), &truth)?;

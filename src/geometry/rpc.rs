@@ -462,6 +462,38 @@ pub struct RpcSensor {
     pub height: usize,
 }
 
+impl RpcSensor {
+    /// The image must lie within the RPCs' domain (SAMP_OFF ± SAMP_SCALE, LINE_OFF ±
+    /// LINE_SCALE) give or take a tenth of it: beyond, the polynomials extrapolate (an image
+    /// larger than the one they were made for, or the wrong image).
+    pub fn check_extent(&self) -> Result<(), String> {
+        let r = &self.rpc;
+        let norm = |v: f64, off: f64, scale: f64| (v - off) / scale;
+        // The image's outer edges in the RPCs' centre-origin pixels.
+        let (w, h) = (self.width as f64, self.height as f64);
+        let worst = [
+            norm(-0.5, r.samp_off, r.samp_scale),
+            norm(w - 0.5, r.samp_off, r.samp_scale),
+            norm(-0.5, r.line_off, r.line_scale),
+            norm(h - 0.5, r.line_off, r.line_scale),
+        ]
+        .iter()
+        .fold(0.0f64, |a, v| a.max(v.abs()));
+        if worst > 1.1 {
+            return Err(format!(
+                "the image is {} × {} px but its RPCs cover samples {:.0} … {:.0} and lines {:.0} … {:.0} (SAMP_OFF ± SAMP_SCALE, LINE_OFF ± LINE_SCALE): are they the RPCs of this image, not of a smaller one?",
+                self.width,
+                self.height,
+                r.samp_off - r.samp_scale,
+                r.samp_off + r.samp_scale,
+                r.line_off - r.line_scale,
+                r.line_off + r.line_scale
+            ));
+        }
+        Ok(())
+    }
+}
+
 impl Sensor for RpcSensor {
     fn image_size(&self) -> (usize, usize) {
         (self.width, self.height)

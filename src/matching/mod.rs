@@ -4,7 +4,7 @@
 pub mod pmf;
 pub mod pmf_set;
 
-pub use pmf_set::{PmfSet, StereoPoint};
+pub use pmf_set::{PmfSet, SampleGrid, StereoPoint, TermSet};
 pub use point::MatchedPoint;
 pub mod accuracy;
 pub mod block_geometry;

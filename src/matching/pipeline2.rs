@@ -10,7 +10,7 @@ use super::pipeline::{Photo, PipelineError};
 use super::pmf_dtm::{
     estimate, pmf_dtm_from_heights, Budget, DtmError, PmfDtmParams, PmfDtmReport,
 };
-use super::pmf_set::FitReport;
+use super::pmf_set::{FitReport, SampleGrid, TermSet};
 use super::precision::{
     check_sigma, sigma_vs_reference, variance_factor, SigmaCheck, VarianceFactor,
 };
@@ -518,6 +518,10 @@ pub fn orient(p: &Project2, photos: &[PhotoGeometry]) -> Result<Oriented, Pipeli
                         width: input.width,
                         height: input.height,
                     };
+                    s.check_extent().map_err(|message| Pipeline2Error::Photo {
+                        id: ph.id.clone(),
+                        message,
+                    })?;
                     if pts.is_empty() {
                         PhotoSensor::Rpc(Box::new(s))
                     } else {
@@ -648,8 +652,15 @@ pub fn plan(
     for (i, j) in overlapping {
         let (l, r) = (&sensors[i], &sensors[j]);
         let (li, ri) = (&p.photos[i].id, &p.photos[j].id);
-        let pmfs =
-            PmfSet::from_sensors(l, r, heights, m.order).map_err(|e| Pipeline2Error::Mappings {
+        // A line scanner's (or its RPCs') mappings may take seed 004's extended terms.
+        let scanner = |s: &PhotoSensor| !matches!(s, PhotoSensor::Frame(_));
+        let set = if scanner(l) || scanner(r) {
+            TermSet::Extended
+        } else {
+            TermSet::Basic
+        };
+        let pmfs = PmfSet::from_sensors_on(l, r, heights, m.order, SampleGrid::default(), set)
+            .map_err(|e| Pipeline2Error::Mappings {
                 left: li.clone(),
                 right: ri.clone(),
                 message: e.to_string(),

@@ -101,6 +101,8 @@ pub enum PmfError {
     Singular,
     #[error("no check points: the terms are chosen by the check points' RMSE")]
     NoCheckPoints,
+    #[error("a sampling grid of {0} × {0} at {1} heights: 2 … 50 across, 2 … 20 heights")]
+    Grid(usize, usize),
     #[error("a control or check point has a coordinate that is not a number")]
     NotFinite,
     #[error("the control points do not determine the first-order term(s) {missing}: they lie on a line, at one place or at one height; spread them over the photo and the terrain's heights")]
@@ -312,6 +314,51 @@ pub fn select_order(gcps: &[Sample], cps: &[Sample]) -> Result<(u8, Selection), 
         (None, Some(e)) => Err(e),
         (None, None) => Err(PmfError::Singular),
     }
+}
+
+/// The fourth-order terms Kratky's extended set draws from (seed 004: "two more terms
+/// involving mainly powers of y or Y", for a line scanner whose orbit and attitude were
+/// modelled as quadratic in time: time runs along y).
+pub const EXTENDED_TERMS: [Term; 3] = [Term(0, 4, 0), Term(1, 3, 0), Term(0, 3, 1)];
+
+/// Seed 004's extended set: `basic` with up to two of [`EXTENDED_TERMS`], each added only
+/// when it lowers the check points' RMSE below [`HIGHER_ORDER_GAIN`] of what it was (the
+/// basic set stays where they do not help). Returns the selection and the terms added.
+pub fn extend(basic: Selection, gcps: &[Sample], cps: &[Sample]) -> (Selection, Vec<Term>) {
+    let mut best = basic;
+    let mut added = Vec::new();
+    let norm = best.poly.norm.clone();
+    for _ in 0..2 {
+        let mut cand: Option<(Term, Polynomial, f64)> = None;
+        for t in EXTENDED_TERMS {
+            if best.poly.terms.contains(&t) || best.poly.terms.len() + 1 + REDUNDANCY > gcps.len() {
+                continue;
+            }
+            let mut terms = best.poly.terms.clone();
+            terms.push(t);
+            let Ok(p) = Polynomial::fit(&terms, &norm, gcps) else {
+                continue;
+            };
+            let r = p.rmse(cps);
+            if cand.as_ref().is_none_or(|c| r < c.2) {
+                cand = Some((t, p, r));
+            }
+        }
+        match cand {
+            Some((t, p, r)) if r < HIGHER_ORDER_GAIN * best.cp_rmse => {
+                added.push(t);
+                best = Selection {
+                    gcp_rmse: p.rmse(gcps),
+                    cp_rmse: r,
+                    poly: p,
+                    start_cp_rmse: best.start_cp_rmse,
+                    removed: best.removed,
+                };
+            }
+            _ => break,
+        }
+    }
+    (best, added)
 }
 
 /// Two polynomials of the same variables: a mapping to a 2-D space.

@@ -5,7 +5,7 @@
 //! three heights (seed 004 §4), the check points then at the cells' centres at two heights in
 //! between. Image coordinates are pixels of each photo (continuous, corner origin).
 
-use super::pmf::{select, select_order, Mapping, PmfError, Polynomial, Sample, Selection};
+use super::pmf::{extend, select, select_order, Mapping, PmfError, Polynomial, Sample, Selection};
 use crate::coords::{GroundM, PixelXY};
 use crate::geometry::Sensor;
 use serde::{Deserialize, Serialize};
@@ -31,12 +31,23 @@ pub struct FitReport {
     pub gcp_rmse: f64,
     pub cp_rmse: f64,
     pub units: String,
+    /// The terms seed 004's extended set added to the basic one (none: the basic set).
+    #[serde(default)]
+    pub extended: Vec<String>,
+    /// The check points' RMSE in the other space, where the ground pixel converts it
+    /// (metres for a mapping into an image, pixels for one onto the ground; mappings from
+    /// sensors only).
+    #[serde(default)]
+    pub cp_rmse_other: Option<f64>,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct PmfSet {
     /// (x′, y′, h) → (x″, y″).
     pub left_to_right: Mapping,
+    /// (x″, y″, h) → (x′, y′) (seed 004's sixth mapping; absent from older files).
+    #[serde(default)]
+    pub right_to_left: Option<Mapping>,
     /// (x′, y′, h) → (X, Y).
     pub left_to_ground: Mapping,
     /// (x″, y″, h) → (X, Y).
@@ -50,10 +61,20 @@ pub struct PmfSet {
     pub report: Vec<FitReport>,
 }
 
+/// Which of seed 004's term sets a fit may use.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum TermSet {
+    /// The terms chosen from the full form of the order.
+    Basic,
+    /// The basic terms and up to two fourth-order ones in y where the check points want
+    /// them (a line scanner with a quadratic orbit).
+    Extended,
+}
+
 fn chosen(
     name: &str,
     units: &str,
-    order: u8,
+    (order, set): (u8, TermSet),
     g: &[Sample],
     c: &[Sample],
     report: &mut Vec<FitReport>,
@@ -64,6 +85,10 @@ fn chosen(
     } else {
         (order, select(order, g, c)?)
     };
+    let (s, added) = match set {
+        TermSet::Basic => (s, Vec::new()),
+        TermSet::Extended => extend(s, g, c),
+    };
     report.push(FitReport {
         name: name.into(),
         order,
@@ -71,8 +96,33 @@ fn chosen(
         gcp_rmse: s.gcp_rmse,
         cp_rmse: s.cp_rmse,
         units: units.into(),
+        extended: added.iter().map(|t| t.to_string()).collect(),
+        cp_rmse_other: None,
     });
     Ok(s.poly)
+}
+
+/// The grid a sensor is sampled on (seed 004 §4): `n` × `n` over the left image at `levels`
+/// heights from the lowest to the highest; the check points at the cells' centres at the
+/// heights between.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct SampleGrid {
+    pub n: usize,
+    pub levels: usize,
+}
+
+impl SampleGrid {
+    /// Seed 004's own: 5 × 5 at three heights (75 points).
+    pub const SEED_004: SampleGrid = SampleGrid { n: 5, levels: 3 };
+}
+
+impl Default for SampleGrid {
+    /// 5 × 5 at five heights: a frame pair's parallax goes with 1/(Z₀ − h), whose cubic term
+    /// is still a tenth of a pixel over a few hundred metres, and at three heights h³ cannot
+    /// be told from h.
+    fn default() -> Self {
+        SampleGrid { n: 5, levels: 5 }
+    }
 }
 
 impl PmfSet {
@@ -83,6 +133,17 @@ impl PmfSet {
         gcps: &[StereoPoint],
         cps: &[StereoPoint],
     ) -> Result<PmfSet, PmfError> {
+        Self::from_points_with(order, TermSet::Basic, gcps, cps)
+    }
+
+    /// [`PmfSet::from_points`] with the term set named.
+    pub fn from_points_with(
+        order: u8,
+        set: TermSet,
+        gcps: &[StereoPoint],
+        cps: &[StereoPoint],
+    ) -> Result<PmfSet, PmfError> {
+        let order = (order, set);
         let mut report = Vec::new();
         let mut pair = |name: &str,
                         units: &str,
@@ -115,6 +176,7 @@ impl PmfSet {
         let right = |p: &StereoPoint| [p.right[0], p.right[1], p.ground.z];
         let ground = |p: &StereoPoint| [p.ground.x, p.ground.y, p.ground.z];
         let left_to_right = pair("left→right", "px", &left, &|p| p.right)?;
+        let right_to_left = pair("right→left", "px", &right, &|p| p.left)?;
         let left_to_ground = pair("left→ground", "m", &left, &|p| [p.ground.x, p.ground.y])?;
         let right_to_ground = pair("right→ground", "m", &right, &|p| [p.ground.x, p.ground.y])?;
         let ground_to_left = pair("ground→left", "px", &ground, &|p| p.left)?;
@@ -134,6 +196,7 @@ impl PmfSet {
         )?;
         Ok(PmfSet {
             left_to_right,
+            right_to_left: Some(right_to_left),
             left_to_ground,
             right_to_ground,
             ground_to_left,
@@ -143,18 +206,39 @@ impl PmfSet {
         })
     }
 
-    /// Seed 004 §4: a 5×5 grid over the left photo at several heights from the lowest to the
-    /// highest through the rigorous model into the ground and the right photo; check points
-    /// at the grid cells' centres at the heights in between. Seed 004 used three heights (75
-    /// points, for SPOT); a frame pair's parallax goes with 1/(Z₀ − h), whose cubic term is
-    /// still a tenth of a pixel over a few hundred metres, and at three heights h³ cannot be
-    /// told from h: so five (125 points).
+    /// Seed 004 §4 on the default grid ([`SampleGrid::default`], 5 × 5 at five heights) with
+    /// the basic terms.
     pub fn from_sensors(
         left: &dyn Sensor,
         right: &dyn Sensor,
         heights: [f64; 2],
         order: u8,
     ) -> Result<PmfSet, PmfError> {
+        Self::from_sensors_on(
+            left,
+            right,
+            heights,
+            order,
+            SampleGrid::default(),
+            TermSet::Basic,
+        )
+    }
+
+    /// Seed 004 §4: a grid over the left photo at several heights from the lowest to the
+    /// highest through the rigorous models into the ground and the right photo, the check
+    /// points at the grid cells' centres at the heights in between; each fit's check-point
+    /// RMSE also in the other space (the left photo's ground pixel at the middle height).
+    pub fn from_sensors_on(
+        left: &dyn Sensor,
+        right: &dyn Sensor,
+        heights: [f64; 2],
+        order: u8,
+        grid: SampleGrid,
+        set: TermSet,
+    ) -> Result<PmfSet, PmfError> {
+        if !(2..=50).contains(&grid.n) || !(2..=20).contains(&grid.levels) {
+            return Err(PmfError::Grid(grid.n, grid.levels));
+        }
         let (w, h) = left.image_size();
         let (w, h) = (w as f64, h as f64);
         let point = |id: String, px: [f64; 2], z: f64| -> Option<StereoPoint> {
@@ -168,26 +252,127 @@ impl PmfSet {
             })
         };
         let [lo, hi] = heights;
-        const LEVELS: usize = 5;
-        let level = |t: f64| lo + (hi - lo) * t / (LEVELS - 1) as f64;
+        let (n, levels) = (grid.n, grid.levels);
+        let cell = (n - 1) as f64;
+        let level = |t: f64| lo + (hi - lo) * t / (levels - 1) as f64;
         let mut gcps = Vec::new();
-        for (k, z) in (0..LEVELS).map(|k| level(k as f64)).enumerate() {
-            for j in 0..5 {
-                for i in 0..5 {
-                    let px = [w * i as f64 / 4.0, h * j as f64 / 4.0];
-                    gcps.extend(point(format!("g{i}{j}{k}"), px, z));
+        for (k, z) in (0..levels).map(|k| level(k as f64)).enumerate() {
+            for j in 0..n {
+                for i in 0..n {
+                    let px = [w * i as f64 / cell, h * j as f64 / cell];
+                    gcps.extend(point(format!("g{i}_{j}_{k}"), px, z));
                 }
             }
         }
         let mut cps = Vec::new();
-        for (k, z) in (0..LEVELS - 1).map(|k| level(k as f64 + 0.5)).enumerate() {
-            for j in 0..4 {
-                for i in 0..4 {
-                    let px = [w * (i as f64 + 0.5) / 4.0, h * (j as f64 + 0.5) / 4.0];
-                    cps.extend(point(format!("c{i}{j}{k}"), px, z));
+        for (k, z) in (0..levels - 1).map(|k| level(k as f64 + 0.5)).enumerate() {
+            for j in 0..n - 1 {
+                for i in 0..n - 1 {
+                    let px = [w * (i as f64 + 0.5) / cell, h * (j as f64 + 0.5) / cell];
+                    cps.extend(point(format!("c{i}_{j}_{k}"), px, z));
                 }
             }
         }
-        Self::from_points(order, &gcps, &cps)
+        let mut set = Self::from_points_with(order, set, &gcps, &cps)?;
+        // The ground pixel: the left photo's neighbouring pixels at the middle height.
+        let mid = 0.5 * (lo + hi);
+        let gsd = match (
+            left.image_to_ground(PixelXY::new(0.5 * w, 0.5 * h), mid),
+            left.image_to_ground(PixelXY::new(0.5 * w + 1.0, 0.5 * h + 1.0), mid),
+        ) {
+            (Some(a), Some(b)) => (a.x - b.x).hypot(a.y - b.y) / 2f64.sqrt(),
+            _ => f64::NAN,
+        };
+        if gsd.is_finite() && gsd > 0.0 {
+            for r in set.report.iter_mut().filter(|r| r.name.contains('→')) {
+                r.cp_rmse_other = Some(if r.units == "px" {
+                    r.cp_rmse * gsd
+                } else {
+                    r.cp_rmse / gsd
+                });
+            }
+        }
+        Ok(set)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::Pushbroom;
+
+    /// A SPOT-like across-track pair (−20°, +20°, 10 m pixels) with a curved orbit and a
+    /// drifting attitude (the quadratic model of seed 004's rigorous solution).
+    fn pair() -> (Pushbroom, Pushbroom) {
+        let view = |deg: f64| {
+            let tilt = deg.to_radians();
+            Pushbroom {
+                columns: 3000,
+                lines: 3000,
+                line_period_s: 10.0 / 6600.0,
+                focal_px: 83_000.0 / tilt.cos(),
+                principal_col: 1500.0,
+                tilt_across: tilt,
+                tilt_along: 0.0,
+                // Southbound: right of the track is west, so a right tilt sits east.
+                position: [
+                    [500_000.0 + 830_000.0 * tilt.tan(), 15.0, 0.3],
+                    [4_000_000.0, -6600.0, 0.2],
+                    [830_000.0, 2.0, 0.01],
+                ],
+                attitude: [
+                    [1e-4 * deg.signum(), 3e-6, 1e-8],
+                    [-1e-4, -1e-6, 0.0],
+                    [5e-4, 5e-7, 0.0],
+                ],
+            }
+        };
+        (view(-20.0), view(20.0))
+    }
+
+    /// Seed 004's check of the mapping functions: every one of the six, on seed 004's own
+    /// 5 × 5 × 3 grid and on the default 5 × 5 × 5, basic and extended, within 1 m in object
+    /// space and 1 µm (0.077 SPOT pixels) in image space at the check points, and the
+    /// extended set never worse than the basic.
+    #[test]
+    fn all_six_mappings_of_a_spot_pair_meet_seed_004s_check() {
+        let (l, r) = pair();
+        let heights = [0.0, 2000.0];
+        for grid in [SampleGrid::SEED_004, SampleGrid::default()] {
+            let mut basic_rmse = Vec::new();
+            for set in [TermSet::Basic, TermSet::Extended] {
+                let s = PmfSet::from_sensors_on(&l, &r, heights, 0, grid, set).unwrap();
+                assert!(s.right_to_left.is_some());
+                let maps: Vec<&FitReport> =
+                    s.report.iter().filter(|f| f.name.contains('→')).collect();
+                assert_eq!(maps.len(), 12, "six mappings, two coordinates each");
+                for (k, f) in maps.iter().enumerate() {
+                    let (px, m) = if f.units == "px" {
+                        (f.cp_rmse, f.cp_rmse_other.unwrap())
+                    } else {
+                        (f.cp_rmse_other.unwrap(), f.cp_rmse)
+                    };
+                    eprintln!(
+                        "{grid:?} {set:?} {}: {} terms (order {}, added {:?}), check points {px:.2e} px = {m:.2e} m",
+                        f.name, f.terms, f.order, f.extended
+                    );
+                    assert!(px <= 0.077 && m <= 1.0, "{f:?}");
+                    if set == TermSet::Basic {
+                        basic_rmse.push(f.cp_rmse);
+                    } else {
+                        assert!(f.cp_rmse <= basic_rmse[k] * (1.0 + 1e-9), "{f:?}");
+                    }
+                }
+            }
+        }
+        assert!(PmfSet::from_sensors_on(
+            &l,
+            &r,
+            heights,
+            0,
+            SampleGrid { n: 1, levels: 3 },
+            TermSet::Basic
+        )
+        .is_err());
     }
 }

@@ -118,11 +118,10 @@ impl ImageToImage {
         heights: [f64; 2],
         order: u8,
     ) -> Result<ImageToImage, PmfError> {
-        let lr = PmfSet::from_sensors(left, right, heights, order)?;
-        let rl = PmfSet::from_sensors(right, left, heights, order)?;
+        let set = PmfSet::from_sensors(left, right, heights, order)?;
         Ok(ImageToImage {
-            left_to_right: lr.left_to_right,
-            right_to_left: rl.left_to_right,
+            right_to_left: set.right_to_left.ok_or(PmfError::Singular)?,
+            left_to_right: set.left_to_right,
             heights,
         })
     }

@@ -189,3 +189,20 @@ fn a_linear_rpc_has_its_closed_form_and_its_stated_error() {
     let want = 25.0 * px_per_m * px_per_m;
     assert!((c[0][0] / want - 1.0).abs() < 0.01, "{} vs {want}", c[0][0]);
 }
+
+/// An image larger than the one the RPCs were made for is refused; the image itself passes.
+#[test]
+fn an_image_beyond_its_rpcs_domain_is_refused() {
+    let s = spot_like(0.0);
+    let (rpc, _) = fit_rpc(&s, &geo(), [0.0, 1000.0], FitGrid::default()).unwrap();
+    let mut sensor = RpcSensor {
+        rpc,
+        geo: geo(),
+        width: 3000,
+        height: 3000,
+    };
+    sensor.check_extent().unwrap();
+    sensor.width = 6000;
+    let e = sensor.check_extent().unwrap_err();
+    assert!(e.contains("6000 × 3000"), "{e}");
+}
