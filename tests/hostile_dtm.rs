@@ -246,6 +246,18 @@ fn a_killed_run_can_be_run_again_and_foreign_files_are_kept() {
     std::fs::write(out.join("report.json.part"), b"{\"half").unwrap();
     let again = run();
     assert_eq!(again.code, Some(0), "{}", again.stderr);
+    // Standard error is a pipe here, as a log file would be: the progress comes as lines, a
+    // step's start and its end, not as a terminal's bar.
+    let lines: Vec<&str> = again.stderr.lines().collect();
+    assert!(
+        lines.iter().any(|l| l.contains(": 0/")) && lines.iter().any(|l| l.contains(" done in ")),
+        "{}",
+        again.stderr
+    );
+    assert!(
+        !again.stderr.contains('\r'),
+        "a bar's carriage returns in a log"
+    );
     assert_eq!(
         std::fs::read(out.join("dem.tif")).unwrap(),
         dem,

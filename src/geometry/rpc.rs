@@ -520,13 +520,8 @@ impl Sensor for RpcSensor {
             (a, b) => a.unwrap_or(0.0) + b.unwrap_or(0.0),
         };
         let j = self.partials(g)?;
-        let mut c = [[0.0; 2]; 2];
-        for r in 0..2 {
-            for s in 0..2 {
-                c[r][s] = var * (j[r][0] * j[s][0] + j[r][1] * j[s][1]);
-            }
-        }
-        Some(c)
+        let horizontal = [[var, 0.0, 0.0], [0.0, var, 0.0], [0.0, 0.0, 0.0]];
+        Some(super::sensor::propagate(&j, &horizontal))
     }
 }
 

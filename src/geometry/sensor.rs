@@ -98,18 +98,24 @@ impl Sensor for FrameSensor {
             j[0][k] = (a.col - b.col) / (2.0 * step);
             j[1][k] = (a.row - b.row) / (2.0 * step);
         }
-        let mut c = [[0.0; 2]; 2];
-        for (r, cr) in c.iter_mut().enumerate() {
-            for (s, v) in cr.iter_mut().enumerate() {
-                for a in 0..6 {
-                    for b in 0..6 {
-                        *v += j[r][a] * cov[a][b] * j[s][b];
-                    }
+        Some(propagate(&j, &cov))
+    }
+}
+
+/// J·Σ·Jᵀ: the covariance `cov` of N parameters carried to a pixel's column and row through
+/// their partials `j` (px per parameter).
+pub fn propagate<const N: usize>(j: &[[f64; N]; 2], cov: &[[f64; N]; N]) -> [[f64; 2]; 2] {
+    let mut c = [[0.0; 2]; 2];
+    for (r, cr) in c.iter_mut().enumerate() {
+        for (s, v) in cr.iter_mut().enumerate() {
+            for a in 0..N {
+                for b in 0..N {
+                    *v += j[r][a] * cov[a][b] * j[s][b];
                 }
             }
         }
-        Some(c)
     }
+    c
 }
 
 /// Any photo's sensor, as a project's photos come: a frame camera, a line scanner's
