@@ -299,35 +299,13 @@ impl PmfSet {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::geometry::pushbroom::fixtures::spot_like;
     use crate::geometry::Pushbroom;
 
-    /// A SPOT-like across-track pair (−20°, +20°, 10 m pixels) with a curved orbit and a
-    /// drifting attitude (the quadratic model of seed 004's rigorous solution).
+    /// A SPOT-like across-track pair from two passes (−20°, +20°, 10 m pixels) with a curved
+    /// orbit and a drifting attitude (the quadratic model of seed 004's rigorous solution).
     fn pair() -> (Pushbroom, Pushbroom) {
-        let view = |deg: f64| {
-            let tilt = deg.to_radians();
-            Pushbroom {
-                columns: 3000,
-                lines: 3000,
-                line_period_s: 10.0 / 6600.0,
-                focal_px: 83_000.0 / tilt.cos(),
-                principal_col: 1500.0,
-                tilt_across: tilt,
-                tilt_along: 0.0,
-                // Southbound: right of the track is west, so a right tilt sits east.
-                position: [
-                    [500_000.0 + 830_000.0 * tilt.tan(), 15.0, 0.3],
-                    [4_000_000.0, -6600.0, 0.2],
-                    [830_000.0, 2.0, 0.01],
-                ],
-                attitude: [
-                    [1e-4 * deg.signum(), 3e-6, 1e-8],
-                    [-1e-4, -1e-6, 0.0],
-                    [5e-4, 5e-7, 0.0],
-                ],
-            }
-        };
-        (view(-20.0), view(20.0))
+        (spot_like(-20.0), spot_like(20.0))
     }
 
     /// Seed 004's check of the mapping functions: every one of the six, on seed 004's own

@@ -1,28 +1,11 @@
 use super::*;
+use crate::geometry::pushbroom::fixtures::spot_like;
 use crate::geometry::rpc::{fit_rpc, FitGrid};
 use crate::geometry::{Crs, Geographic};
 
-/// A SPOT-like scene flown northward (830 km up, 10 m pixels, 3000 × 3000), looking 20° to
-/// the right of the track (east, so the satellite passes west of the scene), with a curved
-/// orbit and a drifting attitude.
+/// The SPOT-like view of the unit tests, looking 20° right of its northward track.
 fn truth() -> Pushbroom {
-    let h = 830_000.0;
-    let tilt = 20f64.to_radians();
-    Pushbroom {
-        columns: 3000,
-        lines: 3000,
-        line_period_s: 10.0 / 6600.0,
-        focal_px: 83_000.0 / tilt.cos(),
-        principal_col: 1500.0,
-        tilt_across: tilt,
-        tilt_along: 0.0,
-        position: [
-            [746_800.0 - h * tilt.tan(), 900.0, 0.4],
-            [4_055_840.0, 6540.0, -0.2],
-            [h, -8.0, 0.01],
-        ],
-        attitude: [[1e-4, 3e-6, 1e-8], [-2e-4, -1e-6, 0.0], [2e-3, 5e-7, 0.0]],
-    }
+    spot_like(20.0)
 }
 
 /// A low-discrepancy scatter of `n` image points with heights in 300 … 900 m, on the

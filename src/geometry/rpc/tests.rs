@@ -1,28 +1,6 @@
 use super::*;
-use crate::geometry::{Crs, Pushbroom};
-
-/// A SPOT-like scene: 830 km up, 10 m pixels, 3000 × 3000 lines, tilted 20° across the
-/// track, with a curved orbit and a drifting attitude, over UTM zone 16 (EPSG:32616).
-pub(crate) fn spot_like(tilt_across_deg: f64) -> Pushbroom {
-    let h = 830_000.0;
-    let tilt = tilt_across_deg.to_radians();
-    Pushbroom {
-        columns: 3000,
-        lines: 3000,
-        line_period_s: 10.0 / 6600.0,
-        focal_px: 83_000.0 / tilt.cos(),
-        principal_col: 1500.0,
-        tilt_across: tilt,
-        tilt_along: 0.0,
-        position: [
-            // Flown north, looking right (east) by the tilt: the track lies west of the scene.
-            [746_800.0 - h * tilt.tan(), 900.0, 0.4],
-            [4_055_840.0, 6540.0, -0.2],
-            [h, -8.0, 0.01],
-        ],
-        attitude: [[1e-4, 3e-6, 1e-8], [-2e-4, -1e-6, 0.0], [2e-3, 5e-7, 0.0]],
-    }
-}
+use crate::geometry::pushbroom::fixtures::spot_like;
+use crate::geometry::Crs;
 
 fn geo() -> Geographic {
     Geographic::new(Crs::Epsg(32616)).unwrap()
