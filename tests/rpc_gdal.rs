@@ -253,3 +253,75 @@ fn the_tiff_rpc_tag_is_read_and_written_as_gdal_does() {
     eprintln!("the RPCs through GDAL's tag project within {worst:.2e} px of the rig's");
     assert!(worst < 1e-6, "{worst} px");
 }
+
+/// The Orfeo Toolbox as a second, independent reader: `otbcli_ConvertSensorToGeoPoint`
+/// (OTB's own RPC model, its pixel (0, 0) at the top-left pixel's centre as GDAL's RPC
+/// convention) on an image with the rig's `_RPC.TXT` beside it, against the rig's image →
+/// ground at height 0. OTB iterates its inverse only to a few centimetres, so the goal is a
+/// tenth of a pixel. Skipped where OTB is not installed (CI installs otb-bin and sets
+/// RIG_OTB=1). OTB 8.1 does not read the RPC TIFF tag, and needs an absolute path.
+#[test]
+fn otb_reads_the_rigs_rpc_file_and_agrees_within_a_tenth_of_a_pixel() {
+    let required = std::env::var("RIG_OTB").is_ok_and(|v| v == "1");
+    let app = "otbcli_ConvertSensorToGeoPoint";
+    if Command::new(app).arg("-help").output().is_err() {
+        assert!(!required, "RIG_OTB=1 but {app} cannot run");
+        eprintln!("{app} not installed: OTB check skipped");
+        return;
+    }
+    let s = view();
+    let geo = Geographic::new(Crs::Epsg(32616)).unwrap();
+    let (rpc, _) = fit_rpc(&s, &geo, [-100.0, 1500.0], FitGrid::default()).unwrap();
+    let d = tempfile::tempdir().unwrap();
+    let image = std::fs::canonicalize(d.path()).unwrap().join("view.tif");
+    rig::digitise::output::write_tiff16(&image, 2000, 2400, &vec![1000u16; 2000 * 2400]).unwrap();
+    rpc.write_beside(&image).unwrap();
+    let sensor = RpcSensor {
+        rpc,
+        geo: geo.clone(),
+        width: 2000,
+        height: 2400,
+    };
+    let mut worst: f64 = 0.0;
+    for (i, j) in [
+        (10, 10),
+        (1000, 1200),
+        (1990, 15),
+        (25, 2390),
+        (1985, 2385),
+        (700, 1900),
+    ] {
+        let out = Command::new(app)
+            .arg("-in")
+            .arg(&image)
+            .args(["-input.idx", &i.to_string(), "-input.idy", &j.to_string()])
+            .output()
+            .unwrap();
+        let text = String::from_utf8_lossy(&out.stdout).to_string()
+            + &String::from_utf8_lossy(&out.stderr);
+        let value = |key: &str| -> f64 {
+            text.lines()
+                .find_map(|l| l.strip_prefix(key))
+                .and_then(|v| v.trim().parse().ok())
+                .unwrap_or_else(|| panic!("{app} gave no {key}: {text}"))
+        };
+        let theirs = geo
+            .to_ground(LonLatH {
+                lon: value("output.idx:"),
+                lat: value("output.idy:"),
+                h: 0.0,
+            })
+            .unwrap();
+        let ours = sensor
+            .image_to_ground(
+                rig::coords::PixelXY::new(i as f64 + 0.5, j as f64 + 0.5),
+                0.0,
+            )
+            .unwrap();
+        worst = worst.max((ours.x - theirs.x).hypot(ours.y - theirs.y));
+    }
+    eprintln!(
+        "OTB's image → ground against the rig's: {worst:.3} m at most (pixels of about 10 m)"
+    );
+    assert!(worst <= 1.0, "{worst} m");
+}
