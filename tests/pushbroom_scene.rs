@@ -333,6 +333,38 @@ fn bad_models_in_a_project_are_refused_by_name() {
             rpc_block.replacen("EPSG:32616", "local", 1),
             "RPCs need longitude and latitude",
         ),
+        (
+            block.replacen("[matching]", "[matching]\npmf_grid = [1, 3]", 1),
+            "pmf_grid = [1, 3]: 2 … 50",
+        ),
+        (
+            // RPCs of an image half as wide as this one.
+            {
+                let t = std::fs::read_to_string(scene.join("view-1_RPC.TXT")).unwrap();
+                let line = t.lines().find(|l| l.starts_with("SAMP_SCALE")).unwrap();
+                let v: f64 = line
+                    .split(':')
+                    .nth(1)
+                    .unwrap()
+                    .split_whitespace()
+                    .next()
+                    .unwrap()
+                    .parse()
+                    .unwrap();
+                let off = t.lines().find(|l| l.starts_with("SAMP_OFF")).unwrap();
+                write(
+                    "half_RPC.TXT",
+                    &t.replacen(line, &format!("SAMP_SCALE: {}", 0.5 * v), 1)
+                        .replacen(off, &format!("SAMP_OFF: {}", 0.5 * v), 1),
+                );
+                rpc_block.replacen("view-1_RPC.TXT", "half_RPC.TXT", 1)
+            },
+            "are they the RPCs of this image",
+        ),
+        (
+            rpc_block.replacen("view-1_RPC.TXT", "truth-dem.tif", 1),
+            "no RPC tag (50844",
+        ),
     ];
     for (k, (text, want)) in cases.iter().enumerate() {
         let p = write(&format!("case{k}.toml"), text);

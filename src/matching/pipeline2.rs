@@ -659,12 +659,17 @@ pub fn plan(
         } else {
             TermSet::Basic
         };
-        let pmfs = PmfSet::from_sensors_on(l, r, heights, m.order, SampleGrid::default(), set)
-            .map_err(|e| Pipeline2Error::Mappings {
+        let grid = m
+            .pmf_grid
+            .map(|[n, levels]| SampleGrid { n, levels })
+            .unwrap_or_default();
+        let pmfs = PmfSet::from_sensors_on(l, r, heights, m.order, grid, set).map_err(|e| {
+            Pipeline2Error::Mappings {
                 left: li.clone(),
                 right: ri.clone(),
                 message: e.to_string(),
-            })?;
+            }
+        })?;
         let (w, h) = l.image_size();
         let h_step = m
             .h_step

@@ -116,6 +116,9 @@ pub struct Matching2 {
         deserialize_with = "super::project::order_or_auto"
     )]
     pub order: u8,
+    /// The grid the mapping functions sample the sensors on, [n, heights]: n × n image
+    /// points at that many heights (seed 004: [5, 3]; default [5, 5]).
+    pub pmf_grid: Option<[usize; 2]>,
     #[serde(default = "d_search")]
     pub search_distance: usize,
     pub height_threshold: Option<f64>,
@@ -488,6 +491,13 @@ impl Project2 {
         if let Some(s) = m.h_step {
             if !(s.is_finite() && (0.001..=1000.0).contains(&s)) {
                 return Err(bad(format!("[matching] h_step {s}: 0.001 to 1000 m")));
+            }
+        }
+        if let Some([n, levels]) = m.pmf_grid {
+            if !(2..=50).contains(&n) || !(2..=20).contains(&levels) {
+                return Err(bad(format!(
+                    "[matching] pmf_grid = [{n}, {levels}]: 2 … 50 image points across, 2 … 20 heights (seed 004: [5, 3])"
+                )));
             }
         }
         if !(0..=3).contains(&m.order) {
