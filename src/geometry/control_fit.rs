@@ -124,6 +124,15 @@ fn residuals(
         .collect()
 }
 
+/// A control point's σ as given, or 1 px where it is not a positive number.
+fn measured(sigma_px: f64) -> f64 {
+    if sigma_px.is_finite() && sigma_px > 0.0 {
+        sigma_px
+    } else {
+        1.0
+    }
+}
+
 fn rms(r: &[[f64; 2]]) -> f64 {
     (r.iter().map(|v| v[0] * v[0] + v[1] * v[1]).sum::<f64>() / (2 * r.len()).max(1) as f64).sqrt()
 }
@@ -149,11 +158,7 @@ pub fn correct_orbit(
     prior: OrbitPrior,
 ) -> Result<(Pushbroom, ControlFit), ControlFitError> {
     check_points(points, MIN_POINTS_ORBIT)?;
-    let sigma_px = if sigma_px.is_finite() && sigma_px > 0.0 {
-        sigma_px
-    } else {
-        1.0
-    };
+    let sigma_px = measured(sigma_px);
     let before = rms(&residuals(model, points)?);
     let priors = [
         prior.position_m,
@@ -252,11 +257,7 @@ pub fn correct_rpc_shift(
     s.rpc.samp_off += shift[0];
     s.rpc.line_off += shift[1];
     let after = residuals(&s, points)?;
-    let sigma = if sigma_px.is_finite() && sigma_px > 0.0 {
-        sigma_px
-    } else {
-        1.0
-    } / n.sqrt();
+    let sigma = measured(sigma_px) / n.sqrt();
     Ok((
         s,
         ControlFit {
