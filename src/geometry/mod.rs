@@ -4,6 +4,7 @@
 
 pub mod affine;
 pub mod control_fit;
+pub mod convergence;
 pub mod crs;
 pub mod frame;
 pub mod geographic;
@@ -24,4 +25,4 @@ pub use pixel_frame::PixelToPhoto;
 pub use pushbroom::Pushbroom;
 pub use resection::{resect, Resection, ResectionError};
 pub use rpc::{Rpc, RpcSensor};
-pub use sensor::{FrameSensor, PhotoSensor, Sensor};
+pub use sensor::{FrameSensor, PhotoSensor, ProjectionError, Sensor};

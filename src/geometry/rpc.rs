@@ -8,8 +8,9 @@
 //! standard and GDAL take them; the core's continuous pixels have it at the pixel's corner:
 //! core column = sample + 0.5, core row = line + 0.5, and nowhere else is that shift made.
 
+use super::convergence::{ulp, Convergence};
 use super::geographic::{Geographic, GeographicError, LonLatH};
-use super::Sensor;
+use super::{ProjectionError, Sensor};
 use crate::coords::{GroundM, PixelXY};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
@@ -244,22 +245,29 @@ impl Rpc {
 
     /// The longitude and latitude at height `h` seen at (sample, line): Newton's method on
     /// the forward model, from the model's centre, with the Jacobian by central differences
-    /// over 1e-6 of the scales; converged when the step is below 1e-9 pixel's worth.
-    pub fn locate(&self, samp: f64, line: f64, h: f64) -> Option<LonLatH> {
+    /// over 1e-6 of the scales; converged ([`Convergence`]) when the step is below 1e-9 px or
+    /// below what the longitude's and latitude's own resolution gives in pixels (at 0.31 m
+    /// pixels near ±180° and 80° latitude one unit in the last place of a longitude is
+    /// 1.8e-9 px), or when it stops shrinking.
+    pub fn locate(&self, samp: f64, line: f64, h: f64) -> Result<LonLatH, ProjectionError> {
+        const VANISHES: ProjectionError =
+            ProjectionError::Model("a denominator of the RPCs vanishes on the way to the point");
         let mut g = LonLatH {
             lon: self.long_off,
             lat: self.lat_off,
             h,
         };
         let (dl, dp) = (self.long_scale * 1e-6, self.lat_scale * 1e-6);
+        let mut test = Convergence::new(1e-9);
         for _ in 0..MAX_ITERATIONS {
-            let (s, l) = self.project(g)?;
+            let (s, l) = self.project(g).ok_or(VANISHES)?;
             let at = |dlon: f64, dlat: f64| {
                 self.project(LonLatH {
                     lon: g.lon + dlon,
                     lat: g.lat + dlat,
                     h,
                 })
+                .ok_or(VANISHES)
             };
             let (a, b) = (at(dl, 0.0)?, at(-dl, 0.0)?);
             let (c, d) = (at(0.0, dp)?, at(0.0, -dp)?);
@@ -269,7 +277,9 @@ impl Rpc {
             ];
             let det = j[0][0] * j[1][1] - j[0][1] * j[1][0];
             if !det.is_finite() || det == 0.0 {
-                return None;
+                return Err(ProjectionError::Model(
+                    "the RPCs' Jacobian is singular there (the model folds over)",
+                ));
             }
             let (rs, rl) = (samp - s, line - l);
             let dlon = (j[1][1] * rs - j[0][1] * rl) / det;
@@ -277,15 +287,25 @@ impl Rpc {
             g.lon += dlon;
             g.lat += dlat;
             if g.lat.is_nan() || g.lat.abs() > 90.0 || !g.lon.is_finite() {
-                return None;
+                return Err(ProjectionError::Model(
+                    "the RPCs' inverse leaves the globe (latitude beyond ±90°): the pixel is far outside the model's domain",
+                ));
             }
             let px =
                 (j[0][0] * dlon).hypot(j[1][1] * dlat) + (j[0][1] * dlat).hypot(j[1][0] * dlon);
-            if px < 1e-9 {
-                return Some(g);
+            // One unit in the last place of the longitude and latitude, in pixels.
+            let (ul, up) = (ulp(g.lon), ulp(g.lat));
+            let floor = (j[0][0] * ul).hypot(j[1][0] * ul) + (j[0][1] * up).hypot(j[1][1] * up);
+            if test.done(px, floor) {
+                // In −180° … 180° whichever form LONG_OFF takes (0 … 360 too).
+                g.lon = (g.lon + 180.0).rem_euclid(360.0) - 180.0;
+                return Ok(g);
             }
         }
-        None
+        Err(ProjectionError::NoConvergence {
+            iterations: MAX_ITERATIONS,
+            last_px: test.last_px,
+        })
     }
 
     /// GDAL's `_RPC.TXT`: one `KEY: value` per line, the coefficients as `KEY_n`.
@@ -463,32 +483,57 @@ pub struct RpcSensor {
 }
 
 impl RpcSensor {
-    /// The image must lie within the RPCs' domain (SAMP_OFF ± SAMP_SCALE, LINE_OFF ±
-    /// LINE_SCALE) give or take a tenth of it: beyond, the polynomials extrapolate (an image
-    /// larger than the one they were made for, or the wrong image).
+    /// Where the model is valid, in its normalised longitude and latitude: vendors fit the
+    /// polynomials over the image at the height range and normalise that to ±1; an off-nadir
+    /// view's corners at the extreme heights reach a little beyond (±1.05). Beyond ±1.2 the
+    /// cubic is extrapolated and the image is not the one the RPCs describe.
+    pub const DOMAIN: f64 = 1.2;
+
+    /// The image must lie where its RPCs are valid. Judged by where the image's corners and
+    /// centre fall on the ground (through the model, at the lowest, middle and highest of the
+    /// RPCs' heights), not by the offsets: a crop's RPCs keep the full product's LINE_OFF and
+    /// SAMP_OFF and fold the crop's shift into the numerators, and are right for the crop.
+    /// The error names the first point that fails, and why.
     pub fn check_extent(&self) -> Result<(), String> {
         let r = &self.rpc;
-        let norm = |v: f64, off: f64, scale: f64| (v - off) / scale;
-        // The image's outer edges in the RPCs' centre-origin pixels.
         let (w, h) = (self.width as f64, self.height as f64);
-        let worst = [
-            norm(-0.5, r.samp_off, r.samp_scale),
-            norm(w - 0.5, r.samp_off, r.samp_scale),
-            norm(-0.5, r.line_off, r.line_scale),
-            norm(h - 0.5, r.line_off, r.line_scale),
-        ]
-        .iter()
-        .fold(0.0f64, |a, v| a.max(v.abs()));
-        if worst > 1.1 {
-            return Err(format!(
-                "the image is {} × {} px but its RPCs cover samples {:.0} … {:.0} and lines {:.0} … {:.0} (SAMP_OFF ± SAMP_SCALE, LINE_OFF ± LINE_SCALE): are they the RPCs of this image, not of a smaller one?",
-                self.width,
-                self.height,
-                r.samp_off - r.samp_scale,
-                r.samp_off + r.samp_scale,
-                r.line_off - r.line_scale,
-                r.line_off + r.line_scale
-            ));
+        // The image's outer edges, in the RPCs' centre-origin pixels.
+        let points = [
+            ("top-left corner", -0.5, -0.5),
+            ("top-right corner", w - 0.5, -0.5),
+            ("bottom-left corner", -0.5, h - 0.5),
+            ("bottom-right corner", w - 0.5, h - 0.5),
+            ("centre", 0.5 * w - 0.5, 0.5 * h - 0.5),
+        ];
+        for (name, samp, line) in points {
+            for z in [
+                r.height_off - r.height_scale,
+                r.height_off,
+                r.height_off + r.height_scale,
+            ] {
+                let at = format!(
+                    "the image's {name} (sample {samp:.1}, line {line:.1} in the RPCs' pixels) at {z:.0} m"
+                );
+                let g = r.locate(samp, line, z).map_err(|e| {
+                    format!(
+                        "{at} has no ground point through the RPCs ({e}): are they the RPCs of this {} × {} px image?",
+                        self.width, self.height
+                    )
+                })?;
+                let (l, p, _) = r.normalise(g);
+                if l.abs() > Self::DOMAIN || p.abs() > Self::DOMAIN {
+                    return Err(format!(
+                        "{at} falls at longitude {:.6}°, latitude {:.6}°: {:.2} × LONG_SCALE from LONG_OFF and {:.2} × LAT_SCALE from LAT_OFF, outside where the RPCs are valid (±{}): are they the RPCs of this {} × {} px image, not of a smaller one?",
+                        g.lon,
+                        g.lat,
+                        l.abs(),
+                        p.abs(),
+                        Self::DOMAIN,
+                        self.width,
+                        self.height
+                    ));
+                }
+            }
         }
         Ok(())
     }
@@ -499,16 +544,18 @@ impl Sensor for RpcSensor {
         (self.width, self.height)
     }
 
-    fn ground_to_image(&self, g: GroundM) -> Option<PixelXY> {
-        let l = self.geo.to_lonlat(g).ok()?;
-        let (s, line) = self.rpc.project(l)?;
-        Some(PixelXY::new(s + 0.5, line + 0.5))
+    fn try_ground_to_image(&self, g: GroundM) -> Result<PixelXY, ProjectionError> {
+        let l = self.geo.to_lonlat(g).map_err(|_| ProjectionError::Crs)?;
+        let (s, line) = self.rpc.project(l).ok_or(ProjectionError::Model(
+            "a denominator of the RPCs vanishes at the point",
+        ))?;
+        Ok(PixelXY::new(s + 0.5, line + 0.5))
     }
 
-    fn image_to_ground(&self, q: PixelXY, z: f64) -> Option<GroundM> {
+    fn try_image_to_ground(&self, q: PixelXY, z: f64) -> Result<GroundM, ProjectionError> {
         let l = self.rpc.locate(q.col - 0.5, q.row - 0.5, z)?;
-        let g = self.geo.to_ground(l).ok()?;
-        Some(GroundM::new(g.x, g.y, z))
+        let g = self.geo.to_ground(l).map_err(|_| ProjectionError::Crs)?;
+        Ok(GroundM::new(g.x, g.y, z))
     }
 
     /// The RPC's stated errors (ERR_BIAS² + ERR_RAND², metres² per horizontal axis) carried

@@ -9,16 +9,43 @@
 use super::{FrameCamera, PixelToPhoto};
 use crate::coords::{GroundM, PixelXY};
 
+/// Why a sensor could not map a point, so that a failure reaches the user with its cause (and
+/// the caller names the photo and the point) instead of a bare "not seen".
+#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
+pub enum ProjectionError {
+    #[error("the point is behind the sensor")]
+    Behind,
+    #[error("the ray never reaches height {z:.1} m")]
+    HeightNotReached { z: f64 },
+    #[error("{0}")]
+    Model(&'static str),
+    #[error(
+        "the iteration did not converge in {iterations} steps (its last step {last_px:.1e} px)"
+    )]
+    NoConvergence { iterations: usize, last_px: f64 },
+    #[error("the ground point has no WGS 84 longitude and latitude in the project's CRS")]
+    Crs,
+}
+
 pub trait Sensor {
     /// Width and height of the image, pixels.
     fn image_size(&self) -> (usize, usize);
 
-    /// Where ground point `g` appears; `None` where the sensor cannot see it (behind it).
-    fn ground_to_image(&self, g: GroundM) -> Option<PixelXY>;
+    /// Where ground point `g` appears, or why it cannot be said.
+    fn try_ground_to_image(&self, g: GroundM) -> Result<PixelXY, ProjectionError>;
 
-    /// The ground point at height `z` seen at pixel `q`; `None` where the ray never reaches
-    /// that height.
-    fn image_to_ground(&self, q: PixelXY, z: f64) -> Option<GroundM>;
+    /// The ground point at height `z` seen at pixel `q`, or why it cannot be found.
+    fn try_image_to_ground(&self, q: PixelXY, z: f64) -> Result<GroundM, ProjectionError>;
+
+    /// [`Sensor::try_ground_to_image`] where only whether matters (the matchers' inner loops).
+    fn ground_to_image(&self, g: GroundM) -> Option<PixelXY> {
+        self.try_ground_to_image(g).ok()
+    }
+
+    /// [`Sensor::try_image_to_ground`] where only whether matters.
+    fn image_to_ground(&self, q: PixelXY, z: f64) -> Option<GroundM> {
+        self.try_image_to_ground(q, z).ok()
+    }
 
     /// ∂(col, row)/∂(X, Y, Z) at `g`, pixels per metre: by default central differences of
     /// [`Sensor::ground_to_image`] over ±0.5 m (a model with closed forms overrides it).
@@ -62,13 +89,28 @@ impl Sensor for FrameSensor {
         (self.frame.width, self.frame.height)
     }
 
-    fn ground_to_image(&self, g: GroundM) -> Option<PixelXY> {
-        self.camera.project(g).map(|p| self.frame.pixel(p))
+    fn try_ground_to_image(&self, g: GroundM) -> Result<PixelXY, ProjectionError> {
+        let q = self
+            .camera
+            .project(g)
+            .map(|p| self.frame.pixel(p))
+            .ok_or(ProjectionError::Behind)?;
+        if q.col.is_finite() && q.row.is_finite() {
+            Ok(q)
+        } else {
+            Err(ProjectionError::Model(
+                "the pixel → photo affine is singular",
+            ))
+        }
     }
 
-    fn image_to_ground(&self, q: PixelXY, z: f64) -> Option<GroundM> {
+    fn try_image_to_ground(&self, q: PixelXY, z: f64) -> Result<GroundM, ProjectionError> {
         let g = self.camera.at_height(self.frame.photo(q), z);
-        [g.x, g.y].iter().all(|v| v.is_finite()).then_some(g)
+        if [g.x, g.y].iter().all(|v| v.is_finite()) {
+            Ok(g)
+        } else {
+            Err(ProjectionError::HeightNotReached { z })
+        }
     }
 
     /// J·Σ·Jᵀ, J = ∂(col, row)/∂(ω, φ, κ, X0, Y0, Z0) by central differences (10 µrad,
@@ -150,6 +192,14 @@ impl PhotoSensor {
 impl Sensor for PhotoSensor {
     fn image_size(&self) -> (usize, usize) {
         self.inner().image_size()
+    }
+
+    fn try_ground_to_image(&self, g: GroundM) -> Result<PixelXY, ProjectionError> {
+        self.inner().try_ground_to_image(g)
+    }
+
+    fn try_image_to_ground(&self, q: PixelXY, z: f64) -> Result<GroundM, ProjectionError> {
+        self.inner().try_image_to_ground(q, z)
     }
 
     fn ground_to_image(&self, g: GroundM) -> Option<PixelXY> {

@@ -353,16 +353,25 @@ pub fn load_photo(
     }
 }
 
-/// The ground rectangle (xmin, ymin, xmax, ymax) the image's corners and middle see at `z`.
-fn footprint(s: &dyn Sensor, z: f64) -> Option<[f64; 4]> {
+/// The ground rectangle (xmin, ymin, xmax, ymax) the image's corners and middle see at `z`;
+/// the point that has none, and why, when one fails.
+pub fn footprint(s: &dyn Sensor, z: f64) -> Result<[f64; 4], String> {
     let (w, h) = s.image_size();
     let (w, h) = (w as f64, h as f64);
     let mut r = [f64::MAX, f64::MAX, f64::MIN, f64::MIN];
-    for (c, q) in [(0.0, 0.0), (w, 0.0), (0.0, h), (w, h), (0.5 * w, 0.5 * h)] {
-        let g = s.image_to_ground(PixelXY::new(c, q), z)?;
+    for (name, c, q) in [
+        ("top-left corner", 0.0, 0.0),
+        ("top-right corner", w, 0.0),
+        ("bottom-left corner", 0.0, h),
+        ("bottom-right corner", w, h),
+        ("centre", 0.5 * w, 0.5 * h),
+    ] {
+        let g = s.try_image_to_ground(PixelXY::new(c, q), z).map_err(|e| {
+            format!("its {name} (pixel {c:.0}, {q:.0}) has no ground point at {z:.0} m: {e}")
+        })?;
         r = [r[0].min(g.x), r[1].min(g.y), r[2].max(g.x), r[3].max(g.y)];
     }
-    Some(r)
+    Ok(r)
 }
 
 fn overlap(a: [f64; 4], b: [f64; 4]) -> Option<[f64; 4]> {
@@ -586,27 +595,31 @@ pub fn orient(p: &Project2, photos: &[PhotoGeometry]) -> Result<Oriented, Pipeli
         }
     };
     let mid = 0.5 * (heights[0] + heights[1]);
-    let prints: Vec<Option<[f64; 4]>> = sensors
+    let prints: Vec<[f64; 4]> = sensors
         .iter()
-        .map(|s| footprint(s as &dyn Sensor, mid))
-        .collect();
+        .zip(&p.photos)
+        .map(|(s, ph)| {
+            footprint(s as &dyn Sensor, mid).map_err(|m| Pipeline2Error::Photo {
+                id: ph.id.clone(),
+                message: format!("its footprint on the ground: {m}"),
+            })
+        })
+        .collect::<Result<_, _>>()?;
     let mut overlapping = Vec::new();
     let mut union: Option<[f64; 4]> = None;
     for i in 0..sensors.len() {
         for j in i + 1..sensors.len() {
-            if let (Some(a), Some(b)) = (prints[i], prints[j]) {
-                if let Some(o) = overlap(a, b) {
-                    overlapping.push((i, j));
-                    union = Some(match union {
-                        None => o,
-                        Some(u) => [
-                            u[0].min(o[0]),
-                            u[1].min(o[1]),
-                            u[2].max(o[2]),
-                            u[3].max(o[3]),
-                        ],
-                    });
-                }
+            if let Some(o) = overlap(prints[i], prints[j]) {
+                overlapping.push((i, j));
+                union = Some(match union {
+                    None => o,
+                    Some(u) => [
+                        u[0].min(o[0]),
+                        u[1].min(o[1]),
+                        u[2].max(o[2]),
+                        u[3].max(o[3]),
+                    ],
+                });
             }
         }
     }

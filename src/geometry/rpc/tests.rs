@@ -182,5 +182,148 @@ fn an_image_beyond_its_rpcs_domain_is_refused() {
     sensor.check_extent().unwrap();
     sensor.width = 6000;
     let e = sensor.check_extent().unwrap_err();
-    assert!(e.contains("6000 × 3000"), "{e}");
+    assert!(
+        e.contains("6000 × 3000") && e.contains("top-right corner"),
+        "{e}"
+    );
+}
+
+/// A WorldView-3-like model: 0.31 m pixels, a 40 000 × 40 000 px scene centred at
+/// (`lon`, `lat`), viewed 20° off nadir across the columns (0.36 m of image shift per metre of
+/// height), with small quadratic and cubic terms and a non-constant denominator as vendors'
+/// models have. Sample grows east, line south.
+fn worldview_like(lon: f64, lat: f64) -> Rpc {
+    let half_m = 20_000.0 * 0.31;
+    let lat_scale = half_m / 111_320.0;
+    let long_scale = half_m / (111_320.0 * lat.to_radians().cos());
+    let mut samp_num = [0.0; 20];
+    let mut line_num = [0.0; 20];
+    let mut den = [0.0; 20];
+    samp_num[1] = 1.0; // L
+    samp_num[3] = 0.36 * 500.0 / 0.31 / 20_000.0; // H: parallax of the off-nadir view
+    samp_num[2] = 0.01; // a little rotation
+    samp_num[7] = 2e-4; // L²
+    samp_num[11] = -3e-5; // L³
+    line_num[2] = -1.0; // −P: lines run south
+    line_num[1] = 0.012;
+    line_num[8] = 1.5e-4; // P²
+    line_num[10] = 2e-5; // PLH
+    den[0] = 1.0;
+    den[1] = 1e-4;
+    den[2] = -2e-4;
+    den[3] = 5e-5;
+    Rpc {
+        err_bias: -1.0,
+        err_rand: -1.0,
+        line_off: 20_000.0,
+        samp_off: 20_000.0,
+        lat_off: lat,
+        long_off: lon,
+        height_off: 500.0,
+        line_scale: 20_000.0,
+        samp_scale: 20_000.0,
+        lat_scale,
+        long_scale,
+        height_scale: 500.0,
+        line_num,
+        line_den: den,
+        samp_num,
+        samp_den: den,
+    }
+}
+
+/// Where the image → ground iteration must converge: WorldView-3's 0.31 m pixels on the
+/// equator, across the antimeridian (±180°), at ±80° latitude and both at once. There one
+/// unit in the last place of a longitude is up to 1.8e-9 px, so a fixed 1e-9 px cannot be
+/// reached; the test of [`Convergence`] takes the coordinates' resolution.
+const PLACES: [(f64, f64); 7] = [
+    (55.3, 25.2),
+    (179.97, 0.0),
+    (-179.97, -12.0),
+    (12.0, 80.0),
+    (-70.0, -80.0),
+    (179.99, 79.9),
+    (-179.99, -79.9),
+];
+
+#[test]
+fn ground_from_image_converges_at_0_31_m_pixels_anywhere_on_earth() {
+    for (lon, lat) in PLACES {
+        let rpc = worldview_like(lon, lat);
+        rpc.check().unwrap();
+        let mut worst: f64 = 0.0;
+        let mut floor: f64 = 0.0;
+        for i in 0..=10 {
+            for j in 0..=10 {
+                for h in [0.0, 500.0, 1000.0] {
+                    let (s, l) = (i as f64 * 4000.0 - 0.5, j as f64 * 4000.0 - 0.5);
+                    let g = rpc
+                        .locate(s, l, h)
+                        .unwrap_or_else(|e| panic!("({lon}, {lat}): ({s}, {l}) at {h} m: {e}"));
+                    let (s2, l2) = rpc.project(g).unwrap();
+                    worst = worst.max((s2 - s).hypot(l2 - l));
+                    // One unit in the last place of the longitude, in pixels.
+                    let px_per_deg = rpc.samp_scale / rpc.long_scale;
+                    floor = floor.max(crate::geometry::convergence::ulp(g.lon) * px_per_deg);
+                }
+            }
+        }
+        eprintln!("({lon}°, {lat}°): round trip within {worst:.1e} px; a longitude resolves {floor:.1e} px");
+        assert!(worst < 1e-7, "({lon}, {lat}): {worst:e} px");
+    }
+}
+
+proptest::proptest! {
+    #![proptest_config(proptest::prelude::ProptestConfig { cases: 400, failure_persistence: None, .. Default::default() })]
+
+    /// Image → ground → image returns to the pixel, for any pixel of the scene, any height
+    /// in the model's range and any of the places above.
+    #[test]
+    fn image_to_ground_to_image_round_trips(
+        place in 0usize..PLACES.len(),
+        s in -0.5f64..39_999.5,
+        l in -0.5f64..39_999.5,
+        h in 0.0f64..1000.0,
+    ) {
+        let (lon, lat) = PLACES[place];
+        let rpc = worldview_like(lon, lat);
+        let g = rpc.locate(s, l, h);
+        proptest::prop_assert!(g.is_ok(), "({}, {}) at {} m: {:?}", s, l, h, g);
+        let g = g.unwrap();
+        proptest::prop_assert!(g.lon >= -180.0 && g.lon <= 180.0 && g.lat.abs() <= 90.0);
+        let (s2, l2) = rpc.project(g).unwrap();
+        proptest::prop_assert!((s2 - s).hypot(l2 - l) < 1e-6, "({}, {}) → ({}, {})", s, l, s2, l2);
+    }
+}
+
+/// A crop tool's RPCs keep the product's LINE_OFF and SAMP_OFF and fold the crop's corner
+/// into the numerators (sample − c₀ = (N − c₀/scale · D)/D · scale + off): the crop passes the
+/// domain check, which an image that the model does not cover fails, naming the corner.
+#[test]
+fn a_crop_with_the_products_offsets_passes_and_an_image_beyond_the_model_does_not() {
+    let product = worldview_like(55.3, 25.2);
+    let (c0, r0) = (19_488.0, 18_892.0);
+    let mut crop = product.clone();
+    for k in 0..20 {
+        crop.samp_num[k] -= c0 / crop.samp_scale * crop.samp_den[k];
+        crop.line_num[k] -= r0 / crop.line_scale * crop.line_den[k];
+    }
+    let g = LonLatH {
+        lon: 55.3001,
+        lat: 25.2002,
+        h: 321.0,
+    };
+    let (a, b) = (product.project(g).unwrap(), crop.project(g).unwrap());
+    assert!((a.0 - c0 - b.0).abs() < 1e-7 && (a.1 - r0 - b.1).abs() < 1e-7);
+    let sensor = |rpc: Rpc, side: usize| RpcSensor {
+        rpc,
+        geo: Geographic::new(Crs::Epsg(32640)).unwrap(),
+        width: side,
+        height: side,
+    };
+    sensor(crop.clone(), 1024).check_extent().unwrap();
+    sensor(product.clone(), 40_000).check_extent().unwrap();
+    // The crop's RPCs given to a 40 000 px image: its far corners lie 1.9 scales away.
+    let e = sensor(crop, 40_000).check_extent().unwrap_err();
+    assert!(e.contains("corner") && e.contains("40000 × 40000") && e.contains("outside where the RPCs are valid"), "{e}");
 }

@@ -10,7 +10,7 @@
 //! the finest texture at the top, which the sweep there does not need.
 
 use crate::coords::{GroundM, PixelXY};
-use crate::geometry::Sensor;
+use crate::geometry::{ProjectionError, Sensor};
 use crate::image::ImageF32;
 
 /// A level's image with its gradients, sampled together: least-squares matching needs the
@@ -131,16 +131,16 @@ impl Sensor for AtLevel<'_> {
         (w.div_ceil(s), h.div_ceil(s))
     }
 
-    fn ground_to_image(&self, g: GroundM) -> Option<PixelXY> {
-        let q = self.inner.ground_to_image(g)?;
+    fn try_ground_to_image(&self, g: GroundM) -> Result<PixelXY, ProjectionError> {
+        let q = self.inner.try_ground_to_image(g)?;
         let s = self.scale();
-        Some(PixelXY::new(q.col / s, q.row / s))
+        Ok(PixelXY::new(q.col / s, q.row / s))
     }
 
-    fn image_to_ground(&self, q: PixelXY, z: f64) -> Option<GroundM> {
+    fn try_image_to_ground(&self, q: PixelXY, z: f64) -> Result<GroundM, ProjectionError> {
         let s = self.scale();
         self.inner
-            .image_to_ground(PixelXY::new(q.col * s, q.row * s), z)
+            .try_image_to_ground(PixelXY::new(q.col * s, q.row * s), z)
     }
 
     fn partials(&self, g: GroundM) -> Option<[[f64; 3]; 2]> {
