@@ -8,7 +8,16 @@
 //! - `$10` chooses MPos or WPos (WPos = MPos − WCO, with a `WCO:` field every 10th report when
 //!   idle, every 30th when busy, and at once after the offset changed); `$13=1` reports inches;
 //! - an empty line is answered `ok` (hosts use it to sync);
-//! - a reset during homing is ALARM:6, during motion ALARM:3.
+//! - a reset during homing is ALARM:6, during motion ALARM:3 (a decelerating hold, `Hold:1`,
+//!   is motion); in `Hold:0` or Idle it keeps the position and comes up Idle;
+//! - the parser takes one line at a time and answers it once executed: a `G4` first waits for
+//!   the planner to empty (protocol_buffer_synchronize), so the lines behind it and their `ok`s
+//!   wait too; the dwell itself runs with GRBL Idle;
+//! - a feed hold (`!`) acts in Idle, Run and Jog (Commands.md): from Run it decelerates
+//!   (`Hold:1`) to `Hold:0`, from Idle it is `Hold:0` at once, in a jog it cancels the jog. Once
+//!   the hold is complete GRBL suspends its main loop (protocol_exec_rt_suspend) until cycle start
+//!   `~` or a reset: no line is read, so nothing is answered `ok` and a pending `G4` never
+//!   completes, as the planner does not empty while held. `?` is answered all along.
 
 use crate::stage::{MotionKind, Stage, StageEvent, StopCause};
 use std::collections::{BTreeMap, VecDeque};
@@ -21,7 +30,6 @@ pub const BANNER: &str = "\r\nGrbl 1.1h ['$' for help]\r\n";
 enum Block {
     Move { target: [f64; 2], speed: f64 },
     Jog { target: [f64; 2], speed: f64 },
-    Dwell { seconds: f64 },
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -35,10 +43,11 @@ enum Mode {
 }
 
 /// What holds the parser until the machine catches up (GRBL blocks its main loop for these).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 enum Sync {
-    /// `G4`: wait for the planner to empty, dwell, then `ok`.
-    Dwell,
+    /// `G4`: wait for the planner to empty, dwell, then `ok`. `started`: the planner is empty
+    /// and the dwell's delay runs.
+    Dwell { seconds: f64, started: bool },
     /// `$H`: `ok` when homing is done.
     Home,
 }
@@ -47,7 +56,7 @@ pub struct GrblFirmware {
     rx: VecDeque<u8>,
     planner: VecDeque<Block>,
     current: Option<Block>,
-    sync: Option<(Sync, Option<f64>)>,
+    sync: Option<Sync>,
     mode: Mode,
     /// Critical alarm (hard limit): only a reset is accepted.
     critical: bool,
@@ -243,7 +252,7 @@ impl GrblFirmware {
         } else {
             ("WPos", [machine[0] - wco[0], machine[1] - wco[1]])
         };
-        let feed = if stage.is_busy() {
+        let feed = if stage.is_busy() && stage.motion_kind() != Some(MotionKind::Dwell) {
             self.feed_mm_min.unwrap_or(0.0) / if inch { 25.4 } else { 1.0 }
         } else {
             0.0
@@ -287,36 +296,22 @@ impl GrblFirmware {
         out.extend_from_slice(format!("ALARM:{code}\r\n").as_bytes());
     }
 
-    /// Bytes from the host: real-time commands act at once, the rest fills the RX buffer.
+    /// Bytes from the host, one burst between two looks of GRBL's main loop. As GRBL's serial
+    /// interrupt does, real-time bytes only raise flags (several of one kind count once) and the
+    /// rest fills the receive buffer; the main loop then acts on the flags in the order of
+    /// protocol.c's protocol_exec_rt_system: a reset (which drops the rest), the status report,
+    /// the feed hold, cycle start (not when a hold came with it). A `?` that arrives with a `!`
+    /// is therefore answered with the state from before the hold.
     pub fn on_bytes(&mut self, bytes: &[u8], stage: &mut Stage, out: &mut Vec<u8>) {
+        let (mut reset, mut report, mut hold, mut start, mut jog_cancel) =
+            (false, false, false, false, false);
         for &b in bytes {
             match b {
-                // During homing GRBL's main loop is in the cycle: the request waits.
-                b'?' if self.mode == Mode::Home => self.late_report = true,
-                b'?' => {
-                    let r = self.status_report(stage);
-                    out.extend_from_slice(r.as_bytes())
-                }
-                b'!' => {
-                    if matches!(self.mode, Mode::Run | Mode::Jog) {
-                        stage.stop();
-                        self.mode = Mode::Hold;
-                    }
-                }
-                b'~' => {
-                    if self.mode == Mode::Hold && !stage.is_busy() {
-                        self.mode = Mode::Run;
-                        self.resume_current(stage);
-                    }
-                }
-                0x18 => self.soft_reset(stage, out),
-                0x85 => {
-                    if self.mode == Mode::Jog {
-                        stage.stop();
-                        self.planner.retain(|b| !matches!(b, Block::Jog { .. }));
-                        self.current = None;
-                    }
-                }
+                b'?' => report = true,
+                b'!' => hold = true,
+                b'~' => start = true,
+                0x18 => reset = true,
+                0x85 => jog_cancel = true,
                 0x80..=0xFF => {} // other real-time overrides: accepted, not modelled
                 _ => {
                     if self.rx.len() < RX_BUFFER - 1 {
@@ -327,7 +322,83 @@ impl GrblFirmware {
                 }
             }
         }
+        if reset {
+            self.soft_reset(stage, out);
+            return;
+        }
+        if report {
+            if self.mode == Mode::Home {
+                // During homing GRBL's main loop is in the cycle: the request waits.
+                self.late_report = true;
+            } else {
+                let r = self.status_report(stage);
+                out.extend_from_slice(r.as_bytes());
+            }
+        }
+        if hold {
+            self.feed_hold(stage);
+        } else if jog_cancel && self.mode == Mode::Jog {
+            self.cancel_jog(stage);
+        }
+        if start && !hold {
+            self.cycle_start(stage);
+        }
         self.pump(stage, out);
+    }
+
+    /// `!` (Commands.md: "executes when Grbl is in an IDLE, RUN, or JOG state. It is otherwise
+    /// ignored"). Run: decelerate to `Hold:0`. Idle: `Hold:0` at once (protocol.c: "If IDLE, Grbl
+    /// is not in motion. Simply indicate suspend state and hold is complete"), which also
+    /// suspends a dwell under way. Jog: the jog is cancelled and its blocks flushed, back to Idle.
+    fn feed_hold(&mut self, stage: &mut Stage) {
+        match self.mode {
+            Mode::Run => {
+                stage.stop();
+                self.mode = Mode::Hold;
+            }
+            Mode::Jog => self.cancel_jog(stage),
+            Mode::Idle => {
+                if let Some(Sync::Dwell { seconds, .. }) = self.sync {
+                    // The dwell's delay is suspended; it runs again on resume.
+                    stage.halt();
+                    self.sync = Some(Sync::Dwell {
+                        seconds,
+                        started: false,
+                    });
+                }
+                self.mode = Mode::Hold;
+            }
+            Mode::Hold | Mode::Home | Mode::Alarm => {}
+        }
+    }
+
+    /// `~`: resumes a complete hold (`Hold:0`); ignored otherwise, a hold still decelerating
+    /// included (protocol.c: cycle start "only when IDLE or when a hold is complete"). With
+    /// motion left the cycle runs on; without, GRBL is Idle again and the parser resumes.
+    fn cycle_start(&mut self, stage: &mut Stage) {
+        if self.mode != Mode::Hold || stage.is_busy() {
+            return;
+        }
+        match self.current {
+            Some(Block::Move { target, speed }) | Some(Block::Jog { target, speed }) => {
+                self.mode = Mode::Run;
+                stage.start_move(target, speed);
+            }
+            _ => self.mode = Mode::Idle,
+        }
+    }
+
+    /// Jog cancel (0x85, or `!` during a jog): decelerate, flush the jog blocks; Idle once
+    /// stopped.
+    fn cancel_jog(&mut self, stage: &mut Stage) {
+        stage.stop();
+        self.planner.retain(|b| !matches!(b, Block::Jog { .. }));
+        self.current = None;
+    }
+
+    /// A complete hold: GRBL's main loop is suspended and reads no line.
+    fn suspended(&self, stage: &Stage) -> bool {
+        self.mode == Mode::Hold && !stage.is_busy()
     }
 
     fn soft_reset(&mut self, stage: &mut Stage, out: &mut Vec<u8>) {
@@ -348,15 +419,6 @@ impl GrblFirmware {
         self.boot(stage, out, false);
     }
 
-    fn resume_current(&mut self, stage: &mut Stage) {
-        match self.current {
-            Some(Block::Move { target, speed }) | Some(Block::Jog { target, speed }) => {
-                stage.start_move(target, speed)
-            }
-            _ => {}
-        }
-    }
-
     /// Parses lines while nothing holds the parser and the planner has room; feeds blocks to
     /// the stage.
     fn pump(&mut self, stage: &mut Stage, out: &mut Vec<u8>) {
@@ -367,7 +429,10 @@ impl GrblFirmware {
                 self.rx.clear();
                 return;
             }
-            if self.sync.is_some() || self.planner.len() >= PLANNER_BLOCKS {
+            // A pending `G4` or `$H` holds the parser (the lines behind it wait, unanswered),
+            // as do a full planner and a complete feed hold (the main loop is suspended).
+            if self.sync.is_some() || self.planner.len() >= PLANNER_BLOCKS || self.suspended(stage)
+            {
                 return;
             }
             let Some(nl) = self.rx.iter().position(|&b| b == b'\n' || b == b'\r') else {
@@ -384,7 +449,9 @@ impl GrblFirmware {
         }
     }
 
-    /// Starts the next planner block when the stage is free.
+    /// Starts the next planner block when the stage is free; with the planner empty the cycle
+    /// ends (Idle) and a pending `G4` starts its delay, GRBL staying Idle meanwhile (mc_dwell:
+    /// protocol_buffer_synchronize, then the delay).
     fn execute(&mut self, stage: &mut Stage) {
         if stage.is_busy() || matches!(self.mode, Mode::Hold | Mode::Alarm | Mode::Home) {
             return;
@@ -402,20 +469,22 @@ impl GrblFirmware {
                         self.mode = Mode::Jog;
                         stage.start_move(target, speed);
                     }
-                    Block::Dwell { seconds } => {
-                        self.mode = Mode::Run;
-                        stage.start_dwell(seconds);
-                    }
                 }
             }
             None => {
-                if let Some((Sync::Dwell, Some(s))) = self.sync {
-                    self.sync = Some((Sync::Dwell, None));
-                    self.current = Some(Block::Dwell { seconds: s });
-                    stage.start_dwell(s);
-                    self.mode = Mode::Run;
-                } else if matches!(self.mode, Mode::Run | Mode::Jog) {
+                if matches!(self.mode, Mode::Run | Mode::Jog) {
                     self.mode = Mode::Idle;
+                }
+                if let Some(Sync::Dwell {
+                    seconds,
+                    started: false,
+                }) = self.sync
+                {
+                    self.sync = Some(Sync::Dwell {
+                        seconds,
+                        started: true,
+                    });
+                    stage.start_dwell(seconds);
                 }
             }
         }
@@ -518,7 +587,10 @@ impl GrblFirmware {
             if s < 0.0 {
                 return Err(4);
             }
-            self.sync = Some((Sync::Dwell, Some(s)));
+            self.sync = Some(Sync::Dwell {
+                seconds: s,
+                started: false,
+            });
             return Ok(true); // deferred: `ok` after the dwell
         }
         let here = self.planned_end(stage);
@@ -602,12 +674,10 @@ impl GrblFirmware {
     }
 
     fn planned_end(&self, stage: &Stage) -> [f64; 2] {
-        for b in self.planner.iter().rev().chain(self.current.iter()) {
-            if let Block::Move { target, .. } | Block::Jog { target, .. } = b {
-                return *target;
-            }
+        match self.planner.iter().rev().chain(self.current.iter()).next() {
+            Some(Block::Move { target, .. } | Block::Jog { target, .. }) => *target,
+            None => [stage.logical(0), stage.logical(1)],
         }
-        [stage.logical(0), stage.logical(1)]
     }
 
     fn dollar(&mut self, rest: &str, stage: &mut Stage, out: &mut Vec<u8>) -> Result<bool, u32> {
@@ -674,7 +744,7 @@ impl GrblFirmware {
                     return Err(8);
                 }
                 self.mode = Mode::Home;
-                self.sync = Some((Sync::Home, None));
+                self.sync = Some(Sync::Home);
                 // `$23` picks the switch per axis; machine zero on a + switch, minus the max
                 // travel on a − switch; then the pull-off (`$27`) away from it.
                 let dir = homing_dirs(self.settings[&23]);
@@ -739,9 +809,8 @@ impl GrblFirmware {
                     return;
                 }
                 if kind == MotionKind::Dwell {
-                    if let Some((Sync::Dwell, None)) = self.sync {
+                    if let Some(Sync::Dwell { started: true, .. }) = self.sync {
                         self.sync = None;
-                        self.current = None;
                         out.extend_from_slice(b"ok\r\n");
                     }
                 }
@@ -758,7 +827,7 @@ impl GrblFirmware {
                     out.extend_from_slice(r.as_bytes());
                 }
                 self.mode = Mode::Idle;
-                if let Some((Sync::Home, _)) = self.sync {
+                if let Some(Sync::Home) = self.sync {
                     self.sync = None;
                     out.extend_from_slice(b"ok\r\n");
                 }
@@ -833,4 +902,201 @@ fn parse_words(line: &str) -> Result<Vec<(char, f64)>, u32> {
         words.push((l, v));
     }
     Ok(words)
+}
+
+/// The firmware on a stage under a virtual clock, byte for byte, against what GRBL 1.1's
+/// documents and source say: Interface.md ("send a line, wait for `ok`"; a line is answered
+/// once executed), Commands.md (`!`, `~`, 0x18), protocol.c (a complete hold suspends the main
+/// loop), motion_control.c (mc_dwell synchronises with the planner; mc_reset's alarms).
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::faults::FaultSpec;
+    use crate::rng::Rng;
+    use crate::stage::StageConfig;
+
+    struct Board {
+        fw: GrblFirmware,
+        stage: Stage,
+        out: Vec<u8>,
+    }
+
+    impl Board {
+        /// A board homed toward + before this run (machine −250..0 mm), Idle at machine
+        /// −100, −100 mm.
+        fn homed() -> Board {
+            let mut rng = Rng::new(3);
+            let mut cfg = StageConfig::grbl(&mut rng, [1.0, 1.0]);
+            cfg.repeat_sigma_um = 0.0;
+            let stage = Stage::new(cfg, FaultSpec::default(), 3, true);
+            let mut boot = Vec::new();
+            let fw = GrblFirmware::new(&stage, &[], &mut boot);
+            let mut b = Board {
+                fw,
+                stage,
+                out: Vec::new(),
+            };
+            assert_eq!(b.tx(b"G90 G21 G53 G0 X-100 Y-100\n"), "ok\r\n");
+            b.run(60.0);
+            assert_eq!(b.mpos(), "MPos:-100.000,-100.000,0.000");
+            b
+        }
+
+        /// Bytes in; what the board printed at once.
+        fn tx(&mut self, bytes: &[u8]) -> String {
+            self.fw.on_bytes(bytes, &mut self.stage, &mut self.out);
+            String::from_utf8(std::mem::take(&mut self.out)).unwrap()
+        }
+
+        /// Runs the virtual clock `dt` seconds on; what the board printed meanwhile.
+        fn run(&mut self, dt: f64) -> String {
+            let end = self.stage.t + dt;
+            for _ in 0..10_000 {
+                let next = self.stage.next_event_time().filter(|&t| t <= end);
+                let mut events = Vec::new();
+                self.stage.advance(next.unwrap_or(end), &mut events);
+                for e in events {
+                    self.fw.on_event(e, &mut self.stage, &mut self.out);
+                }
+                if next.is_none() {
+                    break;
+                }
+            }
+            String::from_utf8(std::mem::take(&mut self.out)).unwrap()
+        }
+
+        fn state(&mut self) -> String {
+            let r = self.tx(b"?");
+            r.trim_start_matches('<').split('|').next().unwrap().into()
+        }
+
+        fn mpos(&mut self) -> String {
+            let r = self.tx(b"?");
+            r.split('|').nth(1).unwrap().into()
+        }
+    }
+
+    /// A `G4` waits for the planner to empty before its delay, and the parser takes no line
+    /// until it is done: the lines behind it, and their `ok`s, wait (mc_dwell →
+    /// protocol_buffer_synchronize; protocol_main_loop executes one line before it reads the
+    /// next). The dwell itself runs with GRBL Idle (the cycle has ended).
+    #[test]
+    fn lines_and_their_oks_wait_behind_a_pending_dwell() {
+        let mut b = Board::homed();
+        // 50 mm at 10 mm/s: 5 s of motion; then the sync point and two more lines.
+        let out = b.tx(b"G90 G21 G53 G1 X-60 Y-70 F600\nG4 P0.5\n\n$I\n");
+        assert_eq!(
+            out, "ok\r\n",
+            "only the move is answered: the G4 holds the parser"
+        );
+        assert_eq!(b.run(2.0), "", "mid-move: nothing more answered");
+        assert_eq!(b.state(), "Run");
+        // The move ends (5.1 s); the dwell's delay runs, GRBL Idle, nothing answered yet.
+        let out = b.run(3.3);
+        assert_eq!(out, "", "{out:?}");
+        assert_eq!(b.state(), "Idle");
+        // The dwell ends: its `ok`, then the lines behind it, in order.
+        let out = b.run(1.0);
+        assert!(
+            out.starts_with("ok\r\nok\r\n[VER:") && out.ends_with("ok\r\n"),
+            "{out:?}"
+        );
+    }
+
+    /// A feed hold stops the motion and the planner does not empty, so a pending `G4` never
+    /// completes; once the hold is complete (`Hold:0`) GRBL's main loop is suspended and reads
+    /// no line (protocol_exec_rt_suspend) until cycle start, which resumes the motion, after
+    /// which the `G4` and the lines behind it are answered in order.
+    #[test]
+    fn a_pending_dwell_waits_behind_a_feed_hold_until_cycle_start() {
+        let mut b = Board::homed();
+        assert_eq!(b.tx(b"G90 G21 G53 G1 X-60 Y-70 F600\nG4 P0.01\n"), "ok\r\n");
+        b.run(1.0);
+        assert_eq!(b.tx(b"!"), "");
+        assert_eq!(b.state(), "Hold:1", "decelerating");
+        b.run(1.0);
+        assert_eq!(b.state(), "Hold:0", "hold complete");
+        let held_at = b.mpos();
+        // Held: no line is answered, however long, and nothing moves.
+        assert_eq!(b.tx(b"\n$I\n"), "");
+        assert_eq!(b.run(120.0), "");
+        assert_eq!((b.state(), b.mpos()), ("Hold:0".to_string(), held_at));
+        // `~` resumes: the move ends, then the dwell's `ok` and the lines behind it.
+        assert_eq!(b.tx(b"~"), "");
+        assert_eq!(b.state(), "Run");
+        let out = b.run(10.0);
+        assert!(
+            out.starts_with("ok\r\nok\r\n[VER:") && out.ends_with("ok\r\n"),
+            "{out:?}"
+        );
+        assert_eq!(b.mpos(), "MPos:-60.000,-70.000,0.000");
+    }
+
+    /// GRBL's way out of a hold that should not resume: a soft reset once still. In `Hold:0`
+    /// it keeps the position and raises no alarm (Commands.md: "If reset while in not motion,
+    /// position is retained"); the banner says the planner and the pending lines are gone, and
+    /// the next line is answered at once. In `Hold:1` (still decelerating) it is ALARM:3.
+    #[test]
+    fn a_soft_reset_in_hold_0_keeps_the_position_and_frees_the_parser() {
+        let mut b = Board::homed();
+        b.tx(b"G90 G21 G53 G1 X-60 Y-70 F600\nG4 P0.01\n\n");
+        b.run(1.0);
+        b.tx(b"!");
+        b.run(1.0);
+        let held_at = b.mpos();
+        let out = b.tx(&[0x18]);
+        assert_eq!(out, BANNER, "no alarm, no `ok` for the dropped lines");
+        assert_eq!((b.state(), b.mpos()), ("Idle".to_string(), held_at));
+        assert!(b.stage.homed, "the reference is kept");
+        assert_eq!(b.run(30.0), "", "the rest of the move was dropped");
+        assert_eq!(b.tx(b"\n"), "ok\r\n");
+
+        let mut b = Board::homed();
+        b.tx(b"G90 G21 G53 G1 X-60 Y-70 F600\n");
+        b.run(1.0);
+        b.tx(b"!");
+        assert_eq!(b.state(), "Hold:1");
+        let out = b.tx(&[0x18]);
+        assert!(out.starts_with("ALARM:3\r\n"), "{out:?}");
+        assert_eq!(b.state(), "Alarm");
+        assert!(!b.stage.homed, "reset while decelerating: position lost");
+    }
+
+    /// `!` in Idle is `Hold:0` at once (protocol.c: "If IDLE, Grbl is not in motion. Simply
+    /// indicate suspend state and hold is complete"), with the main loop suspended; `~` brings
+    /// it back to Idle and the waiting line is answered. In a jog, `!` cancels the jog (Idle,
+    /// not Hold); during homing and in Alarm it is ignored.
+    #[test]
+    fn feed_hold_in_idle_jog_homing_and_alarm() {
+        let mut b = Board::homed();
+        // A `?` that comes with the `!` is answered first (protocol_exec_rt_system serves the
+        // status report before the hold): Idle, then Hold:0.
+        assert!(b.tx(b"!?").starts_with("<Idle|"));
+        assert_eq!(b.state(), "Hold:0");
+        assert_eq!(b.tx(b"\n"), "", "suspended: the line waits");
+        assert_eq!(b.tx(b"~"), "ok\r\n", "resumed to Idle, the line answered");
+        assert_eq!(b.state(), "Idle");
+
+        assert_eq!(b.tx(b"$J=G91 G21 X-20 F600\n"), "ok\r\n");
+        b.run(0.5);
+        b.tx(b"!");
+        b.run(1.0);
+        assert_eq!(b.state(), "Idle", "a feed hold cancels a jog");
+
+        let mut b = Board::homed();
+        assert_eq!(b.tx(b"$H\n"), "");
+        b.run(0.5);
+        b.tx(b"!");
+        assert_eq!(b.tx(b"?"), "", "silent while homing; the hold is ignored");
+        // A reset aborts the cycle: ALARM:6, and the reference is not set.
+        let out = b.tx(&[0x18]);
+        assert!(
+            out.starts_with("ALARM:6\r\n") && out.contains("Grbl 1.1h") && out.contains("unlock"),
+            "{out:?}"
+        );
+        assert_eq!(b.state(), "Alarm");
+        assert!(!b.stage.homed);
+        b.tx(b"!");
+        assert_eq!(b.state(), "Alarm", "ignored in Alarm");
+    }
 }

@@ -212,7 +212,11 @@ fn act(stage: &mut dyn Stage, action: &Action) -> Result<Outcome, StageError> {
                 st.controller_state,
                 st.position.x_mm(),
                 st.position.y_mm(),
-                if st.homed { "" } else { " (not homed)" },
+                if st.homed {
+                    ""
+                } else {
+                    " (not homed: `rig stage home` references it)"
+                },
                 if st.limit_switches.is_empty() {
                     String::new()
                 } else {
@@ -285,17 +289,9 @@ fn act(stage: &mut dyn Stage, action: &Action) -> Result<Outcome, StageError> {
         }
         Action::Stop => {
             let stopped = stage.stop()?;
-            let mut j = json!({"action": stopped.action, "done": stopped.action.describe()});
-            if let Some(p) = stopped.position {
-                j["x_mm"] = json!(p.x_mm());
-                j["y_mm"] = json!(p.y_mm());
-            }
             Outcome {
-                text: match stopped.position {
-                    Some(p) => format!("{}; at {p}", stopped.action.describe()),
-                    None => stopped.action.describe().to_string(),
-                },
-                json: j,
+                text: stopped_text(&stopped),
+                json: stopped_json(&stopped),
             }
         }
         Action::CheckSetup => {
@@ -339,6 +335,29 @@ fn act(stage: &mut dyn Stage, action: &Action) -> Result<Outcome, StageError> {
             }
         }
     })
+}
+
+/// What a stop did, in words.
+fn stopped_text(s: &stage::Stopped) -> String {
+    let mut t = s.action.describe().to_string();
+    if let Some(p) = s.position {
+        t.push_str(&format!("; at {p}"));
+    }
+    if let Some(f) = &s.fault {
+        t.push_str(&format!(
+            "; the controller is in a fault: {f} (clear it, then home)"
+        ));
+    }
+    t
+}
+
+fn stopped_json(s: &stage::Stopped) -> serde_json::Value {
+    let mut j = json!({"action": s.action, "done": s.action.describe(), "fault": s.fault});
+    if let Some(p) = s.position {
+        j["x_mm"] = json!(p.x_mm());
+        j["y_mm"] = json!(p.y_mm());
+    }
+    j
 }
 
 /// A one-line "working…" indicator on stderr while a slow action runs, only on an interactive
@@ -459,15 +478,25 @@ pub fn run(a: StageArgs) -> anyhow::Result<i32> {
         cancel: Some(cancel),
     };
     let progress = Progress::start(label(&a.action), !a.json);
-    let result = stage::open(&port, cfg.dialect(), opts, &link).and_then(|mut s| {
+    // Stopping takes a controller as an earlier program left it (held, moving, busy).
+    let open = match a.action {
+        Action::Stop | Action::Estop => stage::open_to_stop,
+        _ => stage::open,
+    };
+    let mut after_cancel = None;
+    let result = open(&port, cfg.dialect(), opts, &link).and_then(|mut s| {
         let r = act(s.as_mut(), &a.action);
         if matches!(r, Err(StageError::Cancelled)) {
-            // Wait for the deceleration to end before letting go of the line.
-            if let Err(e) = s.stop() {
-                return Err(StageError::StopFailed {
-                    cause: Box::new(StageError::Cancelled),
-                    why: e.to_string(),
-                });
+            // Wait for the deceleration to end before letting go of the line, and say how the
+            // stages came to rest (a stop that is not confirmed is an error of its own).
+            match s.stop() {
+                Ok(stopped) => after_cancel = Some(stopped),
+                Err(e) => {
+                    return Err(StageError::StopFailed {
+                        cause: Box::new(StageError::Cancelled),
+                        why: e.to_string(),
+                    })
+                }
             }
         }
         r
@@ -493,10 +522,14 @@ pub fn run(a: StageArgs) -> anyhow::Result<i32> {
         }
         Err(e) => {
             if a.json {
-                println!(
-                    "{}",
-                    json!({"error": {"kind": e.kind(), "message": e.to_string()}})
-                );
+                let mut j = json!({"error": {"kind": e.kind(), "message": e.to_string()}});
+                if let Some(s) = &after_cancel {
+                    j["stopped"] = stopped_json(s);
+                }
+                println!("{j}");
+            }
+            if let Some(s) = &after_cancel {
+                eprintln!("rig stage: stopped: {}", stopped_text(s));
             }
             eprintln!("rig stage: {e}");
             Ok(e.exit_code())

@@ -247,20 +247,30 @@ impl<C: Controller> Stage for Driver<C> {
 
     fn stop(&mut self) -> Result<Stopped> {
         let action = self.ctl.stop()?;
-        let position = match action {
+        let (position, fault) = match action {
             StopAction::Nothing | StopAction::Decelerated => {
                 let info = self.ctl.info();
                 // From full speed a stop takes v/a.
                 let expected = secs(info.max_speed_um_s / info.accel_um_s2);
-                let st = self
+                match self
                     .ctl
-                    .wait_done(self.opts.timeouts.for_duration(expected))?;
-                Some(self.plausible(st)?.position)
+                    .wait_done(self.opts.timeouts.for_duration(expected))
+                {
+                    Ok(st) => (Some(self.plausible(st)?.position), None),
+                    // Stopped, in an alarm of its own (a GRBL soft-limit alarm survives the
+                    // reset): the stop is done; the fault is said, not taken for a failed stop.
+                    Err(StageError::Fault { kind, position }) => (position, Some(kind.to_string())),
+                    Err(e) => return Err(e),
+                }
             }
             // The reference is gone: whatever the controller counts is not a carriage position.
-            StopAction::Reset | StopAction::HomingAborted => None,
+            StopAction::Reset | StopAction::HomingAborted => (None, None),
         };
-        Ok(Stopped { action, position })
+        Ok(Stopped {
+            action,
+            position,
+            fault,
+        })
     }
 
     fn emergency_stop(&mut self) -> Result<()> {

@@ -108,6 +108,14 @@ pub enum StageError {
     },
     #[error("cancelled by the operator; stages stopped")]
     Cancelled,
+    /// The controller takes no command in the state an earlier program left it in (GRBL in a
+    /// feed hold reads no line until resumed or reset; one still moving refuses `$$`).
+    #[error(
+        "the controller is {state}, as an earlier program left it, and takes no command now. \
+         `rig stage stop` brings it to a standstill and soft-resets it (keeping the position when \
+         it stands still); then connect again"
+    )]
+    NotReady { state: String },
     #[error("motion did not finish within {after:?} (its expected duration with margin); stages stopped")]
     MotionTimeout { after: Duration },
     #[error("{dialect} setting {setting} = {value} is outside the allowed range {allowed}; nothing was moved. Fix it on the controller ({fix}), then connect again")]
@@ -139,7 +147,9 @@ impl StageError {
         match self {
             StageError::OutOfLimits { .. } => exit::OUTSIDE_LIMITS,
             StageError::Timeout { .. } | StageError::MotionTimeout { .. } => exit::TIMEOUT,
-            StageError::Fault { .. } | StageError::NotHomed => exit::FAULT,
+            StageError::Fault { .. } | StageError::NotHomed | StageError::NotReady { .. } => {
+                exit::FAULT
+            }
             StageError::PositionMismatch { .. } => exit::POSITION,
             StageError::Open { .. } | StageError::PortBusy { .. } | StageError::Disconnected(_) => {
                 exit::PORT
@@ -171,6 +181,7 @@ impl StageError {
             StageError::PositionMismatch { .. } => "position_mismatch",
             StageError::MotionTimeout { .. } => "motion_timeout",
             StageError::Cancelled => "cancelled",
+            StageError::NotReady { .. } => "not_ready",
             StageError::BadSetting { .. } => "bad_setting",
             StageError::StopFailed { .. } => "stop_failed",
         }

@@ -12,13 +12,18 @@
 //!   line reply has arrived after it, so a late report never answers a later question.
 //! - Connecting never resets the board (that would abort a homing cycle in progress); a silent
 //!   board is reported as such.
-//! - A stop always acts: a feed hold at once, then a soft reset if the board does not report
-//!   Hold or Idle in time; what was done is reported, and a stop that was not confirmed is an
-//!   error, never "stopped".
+//! - A stop always acts and leaves a board that takes the next command ([`stop`]): a feed hold
+//!   at once, a soft reset once the board stands still (`Hold:0`), the position compared across
+//!   it; a soft reset anyway if it does not stand still in time. What was done is reported, and a
+//!   stop that was not confirmed is an error, never "stopped". A board left held, moving or busy
+//!   by an earlier program is refused by [`GrblController::open`] and brought to rest by
+//!   [`GrblController::open_to_stop`].
 //! - Reports in MPos or WPos (`$10`; WPos + WCO), in mm or inches (`$13`); the homing switch at
 //!   either end per axis (`$23`). Machine coordinates run from −max travel to 0 whichever way the
 //!   board homes; the host's carriage coordinates are machine + max travel (`$130`, `$131`).
 //! - Every setting used is range-checked first ([`GrblSettings::from_raw`]).
+
+mod stop;
 
 use super::grbl_report::{self, Report};
 use super::grbl_settings::GrblSettings;
@@ -136,10 +141,47 @@ pub struct GrblController {
     pub late_reports: u64,
     /// The first bytes heard on the line, for messages.
     heard: Vec<u8>,
+    /// The last report heard, believed or not (the stop's wait reads reports as they come: a
+    /// held board answers no line, so none can vouch for them).
+    latest_report: Option<String>,
+    /// A critical alarm (hard or soft limit, ALARM:1/2) arrived and no reset since: GRBL then
+    /// waits for a reset and answers nothing else.
+    critical_pending: bool,
+    /// The board was confirmed still after this stop, and nothing that moves was sent since.
+    settled: Option<StopAction>,
+}
+
+/// GRBL's state in words, for messages.
+fn state_words(state: &str) -> String {
+    let what = match state.split(':').next().unwrap_or("") {
+        "Hold" => "in a feed hold",
+        "Door" => "in a safety-door hold",
+        "Run" => "moving",
+        "Jog" => "jogging",
+        "Home" => "homing",
+        "Sleep" => "asleep",
+        _ => "busy",
+    };
+    format!("{what} ({state})")
 }
 
 impl GrblController {
+    /// Connects without changing anything on the board (no reset: that would abort a homing
+    /// cycle in progress). A board that cannot take commands as it is (held, moving, busy with
+    /// earlier commands) is refused with [`StageError::NotReady`].
     pub fn open(path: &Path, link: &LinkOptions) -> Result<Self> {
+        Self::connect(path, link, false)
+    }
+
+    /// Connects to stop the board: one left held, moving, busy or silent by an earlier program
+    /// is brought to a standstill and soft-reset first ([`Self::stop`]'s procedure; a silent
+    /// one, in a homing cycle, is reset at once), so that it takes commands; the next
+    /// [`Controller::stop`] reports what was done.
+    pub fn open_to_stop(path: &Path, link: &LinkOptions) -> Result<Self> {
+        Self::connect(path, link, true)
+    }
+
+    fn connect(path: &Path, link: &LinkOptions, to_stop: bool) -> Result<Self> {
         let port = Port::open(path, 115_200, link)?;
         let mut c = GrblController {
             port,
@@ -162,8 +204,26 @@ impl GrblController {
             stale_reports: false,
             late_reports: 0,
             heard: Vec::new(),
+            latest_report: None,
+            critical_pending: false,
+            settled: None,
         };
-        c.find_grbl()?;
+        let (first, reset_at_connect) = c.find_grbl(to_stop)?;
+        if let Some(alarm) = reset_at_connect {
+            // Silent (a homing cycle), ended by a reset: where it stands is not a reference.
+            c.homed = false;
+            c.settled = Some(if alarm == Some(6) {
+                StopAction::HomingAborted
+            } else {
+                StopAction::Reset
+            });
+        } else if to_stop {
+            c.make_ready(&first)?;
+        } else if !grbl_report::still(&first.state) || grbl_report::suspended(&first.state) {
+            return Err(StageError::NotReady {
+                state: state_words(&first.state),
+            });
+        }
         c.clear_partial_line()?;
         let alarm_at_connect = c.alarm.take();
         c.read_settings()?;
@@ -195,7 +255,34 @@ impl GrblController {
         }
         c.new_alarm = false;
         c.reset_seen = false;
+        if let Some(done) = c.settled {
+            c.info.notes.push(format!(
+                "as the rig connected to stop it, GRBL was {}: {}",
+                if done == StopAction::Nothing {
+                    "still but took no command (held or busy)"
+                } else {
+                    "not at rest"
+                },
+                done.describe()
+            ));
+        }
         Ok(c)
+    }
+
+    /// For [`Self::open_to_stop`]: a board that is not standing still and reading lines is
+    /// stopped (feed hold, soft reset once still); so is one that answers `?` but no line.
+    fn make_ready(&mut self, first: &Report) -> Result<()> {
+        if !grbl_report::still(&first.state) || grbl_report::suspended(&first.state) {
+            self.hold_and_reset(stop::STILL_CAP + stop::STILL_MARGIN)?;
+            return Ok(());
+        }
+        match self.clear_partial_line() {
+            Err(StageError::NotReady { .. }) => {
+                self.hold_and_reset(stop::STILL_CAP + stop::STILL_MARGIN)?;
+                Ok(())
+            }
+            r => r,
+        }
     }
 
     fn settings(&self) -> &GrblSettings {
@@ -206,15 +293,29 @@ impl GrblController {
 
     /// Finds a GRBL on the line without resetting it (a reset would abort a homing cycle in
     /// progress): a status report answers `?` at once, or a board that was reset by the opening
-    /// of the port prints its banner. Silence is reported as such.
-    fn find_grbl(&mut self) -> Result<()> {
+    /// of the port prints its banner. Silence is reported as such, unless `to_stop`: a silent
+    /// GRBL is in a homing cycle (Commands.md: `?` is not executed during homing), which only a
+    /// reset ends, so one is sent. Returns the first report, and whether a reset was sent (with
+    /// the alarm it raised).
+    fn find_grbl(&mut self, to_stop: bool) -> Result<(Report, Option<Option<u32>>)> {
         self.port.purge()?;
         self.rx.clear();
         let start = Instant::now();
-        let deadline = start + CONNECT_WAIT;
+        let mut deadline = start + CONNECT_WAIT;
         let mut asked = 0;
         let mut next_ask = start;
-        while Instant::now() < deadline {
+        let mut reset_sent = None;
+        loop {
+            if Instant::now() >= deadline {
+                if to_stop && self.heard.is_empty() && reset_sent.is_none() {
+                    self.port.write_all(&[0x18])?;
+                    self.new_alarm = false;
+                    reset_sent = Some(None);
+                    deadline = Instant::now() + stop::BANNER_WAIT + REPLY_TIMEOUT;
+                    continue;
+                }
+                break;
+            }
             if Instant::now() >= next_ask {
                 self.port.write_all(b"?")?;
                 asked += 1;
@@ -225,25 +326,26 @@ impl GrblController {
                 // Booted just now: ask again once it is up.
                 self.reset_seen = false;
                 next_ask = Instant::now() + Duration::from_millis(100);
+                if reset_sent.is_some() {
+                    reset_sent = Some(self.new_alarm.then_some(self.alarm).flatten());
+                    self.new_alarm = false;
+                }
             }
-            if self
-                .last_report
-                .take()
-                .is_some_and(|l| grbl_report::parse(&l).is_some())
-            {
+            if let Some(r) = self.last_report.take().and_then(|l| grbl_report::parse(&l)) {
                 // More than one question may still be answered: believe nothing until a line
                 // reply (the partial-line sync that follows) has come.
                 self.stale_reports = asked > 1;
-                return Ok(());
+                return Ok((r, reset_sent));
             }
         }
         let path = self.port.path.display().to_string();
         Err(StageError::Protocol(if self.heard.is_empty() {
             format!(
                 "no answer on {path} within {CONNECT_WAIT:?}: nothing at all was heard. A GRBL \
-                 in a homing cycle is silent until the cycle ends: wait and connect again. \
-                 Otherwise check the port, the baud rate (115200), the cable and the power. No \
-                 reset was sent, so nothing in progress was aborted"
+                 in a homing cycle is silent until the cycle ends: wait and connect again (or \
+                 end the cycle with `rig stage stop`, a reset: home again). Otherwise check the \
+                 port, the baud rate (115200), the cable and the power. No reset was sent, so \
+                 nothing in progress was aborted"
             )
         } else {
             format!(
@@ -266,12 +368,14 @@ impl GrblController {
         }
         if self.replies.is_empty() {
             self.inflight.clear();
-            return Err(StageError::Protocol(format!(
-                "GRBL on {} answers `?` but not an empty line within {:?}: it is busy with \
-                 earlier commands. Wait for it, or stop it (`rig stage --dialect grbl estop`)",
-                self.port.path.display(),
-                REPLY_TIMEOUT * 4
-            )));
+            return Err(StageError::NotReady {
+                state: format!(
+                    "busy with earlier commands (GRBL on {} answers `?` but not an empty line \
+                     within {:?})",
+                    self.port.path.display(),
+                    REPLY_TIMEOUT * 4
+                ),
+            });
         }
         self.replies.clear();
         Ok(())
@@ -428,6 +532,9 @@ impl GrblController {
             // Whatever a late report would have been, it came before this.
             self.stale_reports = false;
         }
+        if line.starts_with('<') {
+            self.latest_report = Some(line.clone());
+        }
         if line == "ok" {
             self.inflight.pop_front();
             self.replies.push_back(Reply::Ok);
@@ -437,12 +544,14 @@ impl GrblController {
         } else if let Some(code) = line.strip_prefix("ALARM:").and_then(|c| c.parse().ok()) {
             self.alarm = Some(code);
             self.new_alarm = true;
+            self.critical_pending = matches!(code, 1 | 2);
             if code != 2 {
                 self.homed = false;
             }
         } else if line.starts_with("Grbl ") {
             // A (re)boot: the receive buffer and planner are empty now.
             self.reset_seen = true;
+            self.critical_pending = false;
             self.inflight.clear();
             self.jogging = false;
             self.wco = None;
@@ -713,25 +822,10 @@ impl GrblController {
             .filter(|s| !s.starts_with("Home")))
     }
 
-    /// Waits for a boot banner after a soft reset.
+    /// A soft reset and its banner (see [`Self::soft_reset`]); the board is settled after it.
     fn reset_and_wait(&mut self) -> Result<()> {
-        self.reset_seen = false;
-        self.port.write_all(&[0x18])?;
-        let deadline = Instant::now() + Duration::from_secs(2);
-        while !self.reset_seen {
-            if Instant::now() >= deadline {
-                return Err(StageError::Timeout {
-                    what: "GRBL banner after a soft reset (0x18)".into(),
-                    after: Duration::from_secs(2),
-                });
-            }
-            self.pump(deadline.min(Instant::now() + POLL))?;
-        }
-        self.reset_seen = false;
-        self.new_alarm = false;
-        self.homing = false;
-        self.inflight.clear();
-        self.replies.clear();
+        self.soft_reset()?;
+        self.settled = Some(StopAction::Reset);
         Ok(())
     }
 
@@ -831,6 +925,7 @@ impl Controller for GrblController {
 
     fn start_move(&mut self, target: CarriageUm, speed_um_s: f64) -> Result<()> {
         self.settle_line()?;
+        self.settled = None;
         self.jogging = false;
         let (x, y) = self.to_machine_mm(target);
         let f = (speed_um_s * 60.0 / 1000.0).max(1.0);
@@ -867,6 +962,7 @@ impl Controller for GrblController {
 
     fn start_home(&mut self) -> Result<()> {
         self.settle_line()?;
+        self.settled = None;
         self.jogging = false;
         if !self.settings().homing {
             return Err(StageError::Rejected {
@@ -882,6 +978,7 @@ impl Controller for GrblController {
 
     fn start_jog(&mut self, delta: CarriageUm, speed_um_s: f64) -> Result<()> {
         self.settle_line()?;
+        self.settled = None;
         let f = (speed_um_s * 60.0 / 1000.0).max(1.0);
         let line = format!(
             "$J=G91 G21 X{:.4} Y{:.4} F{f:.1}",
@@ -988,57 +1085,31 @@ impl Controller for GrblController {
         }
     }
 
-    /// A feed hold at once (GRBL acts on it without a question first), then a soft reset to
-    /// empty the planner once the board holds still; if it does not report Hold or Idle within
-    /// the time a stop from full speed takes, a soft reset anyway (position lost). A homing
-    /// cycle ignores a feed hold: only a reset ends it (ALARM:6).
+    /// GRBL's stop that leaves the board taking commands (see [`stop`]): a homing cycle ends by
+    /// a reset (a feed hold does not act on it); a critical alarm, which waits for a reset and
+    /// answers nothing else, gets one; a board confirmed still since the last stop, with nothing
+    /// sent that moves, is only looked at; otherwise a feed hold, the wait for a standstill (up
+    /// to the v/a a stop from full speed takes, capped), and a soft reset.
     fn stop(&mut self) -> Result<StopAction> {
         if self.homing {
-            self.reset_and_wait()?;
-            self.homed = false;
-            return Ok(StopAction::HomingAborted);
+            return self.abort_homing();
         }
-        if self.jogging {
-            self.port.write_all(&[0x85])?;
+        if self.critical_pending {
+            self.soft_reset_confirmed()?;
+            self.settled = Some(StopAction::Nothing);
+            return Ok(StopAction::Nothing);
         }
-        self.port.write_all(b"!")?;
-        // From full speed a stop takes v/a; the settings are range-checked, the wait capped.
-        let v_a = (self.info.max_speed_um_s / self.info.accel_um_s2).min(30.0);
-        let deadline = Instant::now() + super::secs(v_a) + Duration::from_secs(1);
-        let mut held = None;
-        while Instant::now() < deadline {
-            match self.query(1) {
-                Ok((r, _)) => {
-                    let s = r.state.as_str();
-                    if s == "Hold:0" || s == "Idle" || s.starts_with("Alarm") {
-                        held = Some(r.state);
-                        break;
-                    }
+        if let Some(done) = self.settled {
+            if let Some(seen) = self.look(Instant::now() + REPLY_TIMEOUT)? {
+                let state = seen.report.state;
+                if state == "Idle" || state.starts_with("Alarm") {
+                    return Ok(done);
                 }
-                Err(StageError::Timeout { .. }) => {}
-                Err(e) => return Err(e),
-            }
-            std::thread::sleep(POLL);
-        }
-        match held.as_deref() {
-            Some(s) if s.starts_with("Alarm") => Ok(StopAction::Nothing), // GRBL stopped itself
-            Some("Idle") if self.inflight.is_empty() => {
-                self.jogging = false;
-                Ok(StopAction::Nothing)
-            }
-            Some(_) => {
-                // Holding still: a reset empties the planner and keeps the position.
-                self.reset_and_wait()?;
-                self.jogging = false;
-                Ok(StopAction::Decelerated)
-            }
-            None => {
-                self.reset_and_wait()?;
-                self.homed = false;
-                self.jogging = false;
-                Ok(StopAction::Reset)
             }
         }
+        let v_a =
+            super::secs(self.info.max_speed_um_s / self.info.accel_um_s2).min(stop::STILL_CAP);
+        self.hold_and_reset(v_a + stop::STILL_MARGIN)
     }
 
     fn emergency_stop(&mut self) -> Result<()> {
@@ -1051,7 +1122,8 @@ impl Controller for GrblController {
     /// position is good, so `$X` unlocks it; after any other alarm the position is lost and only
     /// homing (`$H`, which the driver sends next) may unlock it.
     fn clear_fault(&mut self) -> Result<()> {
-        self.reset_and_wait()?;
+        self.soft_reset()?;
+        self.settled = Some(StopAction::Nothing);
         if self.alarm == Some(2) && self.homed {
             self.command("$X", REPLY_TIMEOUT)?;
             self.alarm = None;

@@ -22,6 +22,25 @@ const STATES: [&str; 9] = [
     "Idle", "Run", "Hold", "Jog", "Alarm", "Door", "Check", "Home", "Sleep",
 ];
 
+/// Whether a soft reset in `state` keeps the position: GRBL's reset kills the steppers, raising
+/// ALARM:3 (position lost), only in a motion state (motion_control.c's mc_reset: Run, Jog,
+/// Home, or a hold still decelerating). Interface.md's sub-states: `Hold:0` "hold complete,
+/// ready to resume", `Hold:1` "hold in-progress, reset will throw an alarm", `Door:0` and
+/// `Door:1` stopped, `Door:2` and `Door:3` moving.
+pub fn still(state: &str) -> bool {
+    matches!(
+        state,
+        "Idle" | "Hold:0" | "Door:0" | "Door:1" | "Alarm" | "Check" | "Sleep"
+    )
+}
+
+/// Whether GRBL in `state` reads no line: a hold or a door suspends its main loop
+/// (protocol_exec_rt_suspend) until cycle start (`~`) or a reset, and sleep until a reset.
+pub fn suspended(state: &str) -> bool {
+    let name = state.split(':').next().unwrap_or("");
+    matches!(name, "Hold" | "Door" | "Sleep")
+}
+
 fn xy(field: &str) -> Option<[f64; 2]> {
     let mut it = field.split(',').map(|x| x.trim().parse::<f64>().ok());
     let x = it.next()??;
@@ -85,6 +104,10 @@ mod tests {
         );
         // GRBL 0.9's and 1.1's two-axis builds print two numbers.
         assert_eq!(parse("<Run|MPos:1,2|FS:500,0>").unwrap().pos, [1.0, 2.0]);
+        assert!(still("Hold:0") && still("Idle") && still("Alarm") && still("Door:1"));
+        assert!(!still("Hold:1") && !still("Run") && !still("Jog") && !still("Door:2"));
+        assert!(suspended("Hold:0") && suspended("Hold:1") && suspended("Door:0"));
+        assert!(!suspended("Idle") && !suspended("Run") && !suspended("Alarm"));
         for bad in [
             "<Idxe|MPos:0,0,0>",
             "<Idle|MPos:0,x,0>",

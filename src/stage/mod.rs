@@ -109,13 +109,15 @@ pub struct SetupAdvice {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, serde::Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum StopAction {
-    /// Nothing was moving (or the controller had already stopped itself in an alarm).
+    /// Nothing was moving (or the controller had already stopped itself in an alarm). GRBL:
+    /// still, its hold and any pending commands dropped by a soft reset; position kept.
     Nothing,
-    /// A decelerating stop (native Stop; GRBL feed hold, then a reset of the emptied planner);
-    /// the position is kept.
+    /// A decelerating stop (native Stop; GRBL feed hold to `Hold:0`, then a soft reset that
+    /// drops what is left of the motion, the position compared before and after); the position
+    /// is kept.
     Decelerated,
-    /// The controller did not confirm a decelerating stop in time and was reset: the motors
-    /// stopped at once and the position is lost (home again).
+    /// The controller did not confirm a decelerating stop in time and was reset, or its reset
+    /// lost the position: the motors stopped at once; home again.
     Reset,
     /// A homing cycle was ended by a reset: not homed.
     HomingAborted,
@@ -124,10 +126,13 @@ pub enum StopAction {
 impl StopAction {
     pub fn describe(self) -> &'static str {
         match self {
-            StopAction::Nothing => "nothing was moving",
-            StopAction::Decelerated => "decelerated to a stop; position kept",
+            StopAction::Nothing => "nothing was moving; the controller takes commands",
+            StopAction::Decelerated => {
+                "decelerated to a stop; position kept; the controller takes commands"
+            }
             StopAction::Reset => {
-                "the controller did not confirm a feed hold in time and was reset: stopped at once, position lost (home again)"
+                "the controller did not confirm a controlled stop in time (or its reset lost the \
+                 position) and was reset: stopped at once, position lost (home again)"
             }
             StopAction::HomingAborted => "homing cycle ended by a reset: home again",
         }
@@ -140,6 +145,10 @@ pub struct Stopped {
     pub action: StopAction,
     /// The position after the stop, when the controller still knows it.
     pub position: Option<CarriageUm>,
+    /// The fault or alarm the controller is in after it stopped (clear the cause, then home),
+    /// if any.
+    #[serde(default)]
+    pub fault: Option<String>,
 }
 
 impl ControllerInfo {
@@ -240,7 +249,8 @@ pub enum Dialect {
 }
 
 /// Opens the controller at `path` (with `link`: wire log, Ctrl-C) and wraps it in the safety
-/// [`Driver`].
+/// [`Driver`]. A controller that takes no command in the state it was left in is refused
+/// ([`StageError::NotReady`]), never changed.
 pub fn open(
     path: &Path,
     dialect: Dialect,
@@ -253,5 +263,27 @@ pub fn open(
             opts,
         )),
         Dialect::Grbl => Box::new(Driver::new(grbl::GrblController::open(path, link)?, opts)),
+    })
+}
+
+/// As [`open`], for stopping (`rig stage stop`, `estop`): a controller left moving, holding or
+/// busy by an earlier program is brought to a standstill and made to take commands as it
+/// connects (GRBL: feed hold, then a soft reset once still), and the next [`Stage::stop`] says
+/// what that did.
+pub fn open_to_stop(
+    path: &Path,
+    dialect: Dialect,
+    opts: DriverOptions,
+    link: &LinkOptions,
+) -> Result<Box<dyn Stage>> {
+    Ok(match dialect {
+        Dialect::Native => Box::new(Driver::new(
+            native::NativeController::open(path, link)?,
+            opts,
+        )),
+        Dialect::Grbl => Box::new(Driver::new(
+            grbl::GrblController::open_to_stop(path, link)?,
+            opts,
+        )),
     })
 }

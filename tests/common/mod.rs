@@ -72,12 +72,26 @@ pub struct SimProcess {
 }
 
 impl SimProcess {
+    /// A simulator whose clock jumps (`--time-scale 0`).
     pub fn start(dialect: &str, extra: &[&str]) -> SimProcess {
+        Self::start_scaled(dialect, "0", extra)
+    }
+
+    /// A simulator at `scale` wall seconds per simulated second (1: real time, so that a
+    /// motion is still under way when a test interrupts it).
+    pub fn start_scaled(dialect: &str, scale: &str, extra: &[&str]) -> SimProcess {
         let dir = tempfile::tempdir().unwrap();
         let truth = dir.path().join("truth.json");
         let link = dir.path().join("stage");
         let mut child = rig()
-            .args(["sim", "--dialect", dialect, "--time-scale", "0", "--truth"])
+            .args([
+                "sim",
+                "--dialect",
+                dialect,
+                "--time-scale",
+                scale,
+                "--truth",
+            ])
             .arg(&truth)
             .arg("--stage-link")
             .arg(&link)
