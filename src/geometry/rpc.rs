@@ -811,5 +811,11 @@ fn fit_ratio(
     Ok((num, den, used))
 }
 
+// The other forms RPCs come in (DigitalGlobe .RPB, Airbus DIMAP RPC_*.XML) and the one
+// entry point for all of them, `Rpc::read`.
+mod dimap;
+mod read;
+mod rpb;
+
 #[cfg(test)]
 mod tests;

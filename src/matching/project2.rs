@@ -186,33 +186,24 @@ pub enum Source {
 pub enum GivenModel {
     /// The rig's line-scanner model (JSON, as `rig sim scene --sensor pushbroom` writes it).
     Pushbroom(crate::geometry::Pushbroom),
-    /// RPC00B, from GDAL's `_RPC.TXT`, or from a TIFF's RPC tag (50844) when the file named
-    /// is a TIFF.
+    /// RPC00B in any form [`crate::geometry::Rpc::read`] takes: GDAL's `_RPC.TXT`, a
+    /// DigitalGlobe `.RPB`, an Airbus DIMAP `RPC_*.XML`, or a TIFF with the RPC tag (50844).
     Rpc(Box<crate::geometry::Rpc>),
 }
 
 /// Reads a photo's pushbroom model or RPC file, every number checked with the file named.
 fn read_model(path: &Path, rpc: bool) -> Result<GivenModel, String> {
-    let tiff = path
-        .extension()
-        .is_some_and(|e| e.eq_ignore_ascii_case("tif") || e.eq_ignore_ascii_case("tiff"));
-    if rpc && tiff {
-        return crate::geometry::Rpc::read_tiff_tag(path)
+    if rpc {
+        return crate::geometry::Rpc::read(path)
             .map(|r| GivenModel::Rpc(Box::new(r)))
             .map_err(|e| e.to_string());
     }
     let text = std::fs::read_to_string(path)
         .map_err(|e| format!("cannot read {}: {e}", path.display()))?;
-    if rpc {
-        crate::geometry::Rpc::parse_txt(&text, path)
-            .map(|r| GivenModel::Rpc(Box::new(r)))
-            .map_err(|e| e.to_string())
-    } else {
-        let m: crate::geometry::Pushbroom = serde_json::from_str(&text)
-            .map_err(|e| format!("{}: not a line-scanner model: {e}", path.display()))?;
-        m.check().map_err(|e| format!("{}: {e}", path.display()))?;
-        Ok(GivenModel::Pushbroom(m))
-    }
+    let m: crate::geometry::Pushbroom = serde_json::from_str(&text)
+        .map_err(|e| format!("{}: not a line-scanner model: {e}", path.display()))?;
+    m.check().map_err(|e| format!("{}: {e}", path.display()))?;
+    Ok(GivenModel::Pushbroom(m))
 }
 
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
