@@ -122,3 +122,31 @@ impl GroundM {
         GroundM { x, y, z }
     }
 }
+
+/// A rectangle of an image's whole pixels: columns `col0 … col0 + width − 1`, rows
+/// `row0 … row0 + height − 1`. A photo read through a window keeps its pixels there; its
+/// sensor is shifted by (`col0`, `row0`) so that both speak of the same pixels.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct PixelWindow {
+    pub col0: usize,
+    pub row0: usize,
+    pub width: usize,
+    pub height: usize,
+}
+
+impl PixelWindow {
+    /// The whole of a `width × height` image.
+    pub fn whole(width: usize, height: usize) -> PixelWindow {
+        PixelWindow {
+            col0: 0,
+            row0: 0,
+            width,
+            height,
+        }
+    }
+
+    /// Whether it starts at (0, 0) and spans `width × height`.
+    pub fn is_whole(&self, width: usize, height: usize) -> bool {
+        *self == PixelWindow::whole(width, height)
+    }
+}

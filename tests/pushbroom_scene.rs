@@ -359,7 +359,7 @@ fn bad_models_in_a_project_are_refused_by_name() {
                 );
                 rpc_block.replacen("view-1_RPC.TXT", "half_RPC.TXT", 1)
             },
-            "are they the RPCs of this image",
+            "are they the RPCs of this 200 × 200 px image",
         ),
         (
             rpc_block.replacen("view-1_RPC.TXT", "truth-dem.tif", 1),

@@ -172,7 +172,7 @@ fn run_format2(
     use rig::matching::pipeline2;
     use rig::matching::project2::Project2;
     let p = Project2::load(project)?;
-    let photos = pipeline2::load_photos(&p, &scan_photo)?;
+    let photos = rig::matching::photos::load_photos(&p, &scan_photo)?;
     let bar = super::progress_bar::Bar::new(!json);
     if p.matching.method == "mgcm" {
         let r = rig::matching::mgcm::run::run(&p, &photos, out, max_memory, &bar)?;
@@ -297,8 +297,9 @@ fn run_tile(
     tiles::prepare_dir(out)?;
     let mut geometry = Vec::new();
     let mut pixels = Vec::new();
+    let windows = rig::matching::photos::windows(&p, &scan_photo)?;
     for k in 0..p.photos.len() {
-        let ph = pipeline2::load_photo(&p, k, &scan_photo)?;
+        let ph = rig::matching::photos::load_photo(&p, k, &scan_photo, windows[k])?;
         geometry.push(ph.geometry());
         pixels.push(tiles::pixels_fnv64(&ph.image));
     }
@@ -310,7 +311,12 @@ fn run_tile(
     for &(k, _) in &shares {
         for i in [plan.pairs[k].left, plan.pairs[k].right] {
             if loaded[i].is_none() {
-                loaded[i] = Some(pipeline2::load_photo(&p, i, &scan_photo)?);
+                loaded[i] = Some(rig::matching::photos::load_photo(
+                    &p,
+                    i,
+                    &scan_photo,
+                    windows[i],
+                )?);
             }
         }
     }
@@ -395,7 +401,7 @@ fn merge(
         );
     }
     let p = Project2::load(&m0.project)?;
-    let photos = pipeline2::load_photos(&p, &scan_photo)?;
+    let photos = rig::matching::photos::load_photos(&p, &scan_photo)?;
     let geometry: Vec<_> = photos.iter().map(|ph| ph.geometry()).collect();
     let plan = pipeline2::plan(&p, &geometry, max_memory)?;
     let pixels: Vec<String> = photos

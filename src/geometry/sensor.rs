@@ -7,7 +7,7 @@
 //! row), as everywhere in the core; ground coordinates are `GroundM` in the project's CRS.
 
 use super::{FrameCamera, PixelToPhoto};
-use crate::coords::{GroundM, PixelXY};
+use crate::coords::{GroundM, PixelWindow, PixelXY};
 
 /// Why a sensor could not map a point, so that a failure reaches the user with its cause (and
 /// the caller names the photo and the point) instead of a bare "not seen".
@@ -161,7 +161,8 @@ pub fn propagate<const N: usize>(j: &[[f64; N]; 2], cov: &[[f64; N]; N]) -> [[f6
 }
 
 /// Any photo's sensor, as a project's photos come: a frame camera, a line scanner's
-/// rigorous model, or RPCs.
+/// rigorous model, or RPCs; or one of those seen through a window of its image (a large
+/// image of which only the part that sees the project's area was read).
 // A project holds a few of them, made once: their sizes do not matter.
 #[allow(clippy::large_enum_variant)]
 #[derive(Debug, Clone)]
@@ -169,6 +170,7 @@ pub enum PhotoSensor {
     Frame(FrameSensor),
     Pushbroom(super::Pushbroom),
     Rpc(Box<super::RpcSensor>),
+    Window(Box<Windowed>),
 }
 
 impl PhotoSensor {
@@ -177,15 +179,69 @@ impl PhotoSensor {
             PhotoSensor::Frame(s) => s,
             PhotoSensor::Pushbroom(s) => s,
             PhotoSensor::Rpc(s) => s.as_ref(),
+            PhotoSensor::Window(s) => s.as_ref(),
         }
     }
 
-    /// The frame camera, where the photo is one.
+    /// The frame camera, where the photo is one (through a window or not).
     pub fn frame(&self) -> Option<&FrameSensor> {
         match self {
             PhotoSensor::Frame(s) => Some(s),
+            PhotoSensor::Window(w) => w.sensor.frame(),
             _ => None,
         }
+    }
+
+    /// The sensor as seen through `window` of its image (itself for the whole image).
+    pub fn windowed(self, window: PixelWindow) -> PhotoSensor {
+        let (w, h) = self.image_size();
+        if window.is_whole(w, h) {
+            return self;
+        }
+        PhotoSensor::Window(Box::new(Windowed {
+            sensor: self,
+            window,
+        }))
+    }
+}
+
+/// A sensor through a window of its image: the window's pixel (c, r) is the image's
+/// (c + col0, r + row0).
+#[derive(Debug, Clone)]
+pub struct Windowed {
+    pub sensor: PhotoSensor,
+    pub window: PixelWindow,
+}
+
+impl Windowed {
+    fn shift(&self) -> (f64, f64) {
+        (self.window.col0 as f64, self.window.row0 as f64)
+    }
+}
+
+impl Sensor for Windowed {
+    fn image_size(&self) -> (usize, usize) {
+        (self.window.width, self.window.height)
+    }
+
+    fn try_ground_to_image(&self, g: GroundM) -> Result<PixelXY, ProjectionError> {
+        let q = self.sensor.try_ground_to_image(g)?;
+        let (c0, r0) = self.shift();
+        Ok(PixelXY::new(q.col - c0, q.row - r0))
+    }
+
+    fn try_image_to_ground(&self, q: PixelXY, z: f64) -> Result<GroundM, ProjectionError> {
+        let (c0, r0) = self.shift();
+        self.sensor
+            .try_image_to_ground(PixelXY::new(q.col + c0, q.row + r0), z)
+    }
+
+    fn partials(&self, g: GroundM) -> Option<[[f64; 3]; 2]> {
+        self.sensor.partials(g)
+    }
+
+    fn pointing_covariance(&self, g: GroundM) -> Option<[[f64; 2]; 2]> {
+        self.sensor.pointing_covariance(g)
     }
 }
 
@@ -261,5 +317,42 @@ mod tests {
         assert!(s
             .ground_to_image(GroundM::new(0.0, 0.0, z0 + 10.0))
             .is_none());
+    }
+
+    /// A sensor through a window of its image sees at window pixel q what the whole image
+    /// shows at q + (col0, row0), both ways; the whole window is the sensor itself.
+    #[test]
+    fn a_window_shifts_the_pixels_and_nothing_else() {
+        let s = PhotoSensor::Pushbroom(crate::geometry::pushbroom::fixtures::spot_like(12.0));
+        let win = PixelWindow {
+            col0: 1200,
+            row0: 700,
+            width: 300,
+            height: 200,
+        };
+        let w = s.clone().windowed(win);
+        assert_eq!(w.image_size(), (300, 200));
+        for (c, r, z) in [
+            (0.0, 0.0, 100.0),
+            (150.5, 99.25, 900.0),
+            (300.0, 200.0, -50.0),
+        ] {
+            let g = w.try_image_to_ground(PixelXY::new(c, r), z).unwrap();
+            let whole = s
+                .try_image_to_ground(PixelXY::new(c + 1200.0, r + 700.0), z)
+                .unwrap();
+            assert_eq!((g.x, g.y), (whole.x, whole.y));
+            let q = w.try_ground_to_image(g).unwrap();
+            assert!(
+                (q.col - c).abs() < 1e-6 && (q.row - r).abs() < 1e-6,
+                "{q:?}"
+            );
+            assert_eq!(w.partials(g), s.partials(g));
+        }
+        assert!(matches!(
+            s.clone().windowed(PixelWindow::whole(3000, 3000)),
+            PhotoSensor::Pushbroom(_)
+        ));
+        assert!(w.frame().is_none());
     }
 }

@@ -2,6 +2,10 @@
 //! side (digitisation, scanning) produces them; the matchers and the least-squares measurement
 //! consume them, whoever made them.
 
+pub mod window;
+
+pub use window::{grey_size, load_grey_window};
+
 /// A single-channel floating-point image, row-major.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ImageF32 {
@@ -103,6 +107,20 @@ fn invalid(path: &std::path::Path, what: String) -> std::io::Error {
     )
 }
 
+/// An I/O error with the file named.
+fn io_error(path: &std::path::Path, e: std::io::Error) -> std::io::Error {
+    std::io::Error::new(e.kind(), format!("{}: {e}", path.display()))
+}
+
+/// Whether the file starts with PNG's signature (else it is read as a TIFF).
+fn is_png(path: &std::path::Path) -> std::io::Result<bool> {
+    use std::io::Read;
+    let mut head = [0u8; 8];
+    let mut f = std::fs::File::open(path).map_err(|e| io_error(path, e))?;
+    let n = f.read(&mut head).map_err(|e| io_error(path, e))?;
+    Ok(head[..n].starts_with(b"\x89PNG"))
+}
+
 /// A `w × h` image as f32 must exist and fit in `max_bytes`, checked before it is decoded.
 fn fits(path: &std::path::Path, w: u64, h: u64, max_bytes: u64) -> std::io::Result<()> {
     if w == 0 || h == 0 || 4 * w * h > max_bytes {
@@ -131,10 +149,9 @@ pub fn load_grey(path: &std::path::Path, max_bytes: u64) -> std::io::Result<Imag
 /// refused either way).
 fn read_grey(path: &std::path::Path, max_bytes: u64, nodata: bool) -> std::io::Result<ImageF32> {
     let bad = |what: String| invalid(path, what);
-    let bytes = std::fs::read(path)
-        .map_err(|e| std::io::Error::new(e.kind(), format!("{}: {e}", path.display())))?;
     let fits = |w: u64, h: u64| fits(path, w, h, max_bytes);
-    if bytes.starts_with(b"\x89PNG") {
+    if is_png(path)? {
+        let bytes = std::fs::read(path).map_err(|e| io_error(path, e))?;
         let r =
             image::ImageReader::with_format(std::io::Cursor::new(&bytes), image::ImageFormat::Png);
         let (w, h) = r
@@ -161,10 +178,12 @@ fn read_grey(path: &std::path::Path, max_bytes: u64, nodata: bool) -> std::io::R
             data,
         });
     }
-    use tiff::decoder::{Decoder, DecodingResult as D, Limits};
+    use tiff::decoder::{Decoder, Limits};
     let mut limits = Limits::default();
     limits.decoding_buffer_size = usize::try_from(2 * max_bytes).unwrap_or(usize::MAX);
-    let mut d = Decoder::new(std::io::Cursor::new(&bytes))
+    // A TIFF is decoded from the file, not from a copy of it in memory.
+    let file = std::fs::File::open(path).map_err(|e| io_error(path, e))?;
+    let mut d = Decoder::new(std::io::BufReader::new(file))
         .map_err(|e| bad(format!("neither a PNG nor a readable TIFF ({e})")))?
         .with_limits(limits);
     let (w, h) = d.dimensions().map_err(|e| bad(e.to_string()))?;
@@ -178,7 +197,27 @@ fn read_grey(path: &std::path::Path, max_bytes: u64, nodata: bool) -> std::io::R
         }
         Err(e) => return Err(bad(e.to_string())),
     }
-    let data: Vec<f32> = match d.read_image().map_err(|e| bad(e.to_string()))? {
+    let data = samples_f32(d.read_image().map_err(|e| bad(e.to_string()))?, path)?;
+    if data.len() != w as usize * h as usize {
+        return Err(bad(
+            "one band of grey values expected (more bands found)".into()
+        ));
+    }
+    check_values(&data, path, nodata)?;
+    Ok(ImageF32 {
+        width: w as usize,
+        height: h as usize,
+        data,
+    })
+}
+
+/// A TIFF's decoded samples as the core's f32 grey values.
+fn samples_f32(
+    r: tiff::decoder::DecodingResult,
+    path: &std::path::Path,
+) -> std::io::Result<Vec<f32>> {
+    use tiff::decoder::DecodingResult as D;
+    Ok(match r {
         D::U8(v) => v.into_iter().map(f32::from).collect(),
         D::U16(v) => v.into_iter().map(f32::from).collect(),
         D::U32(v) => v.into_iter().map(|x| x as f32).collect(),
@@ -186,37 +225,40 @@ fn read_grey(path: &std::path::Path, max_bytes: u64, nodata: bool) -> std::io::R
         D::I16(v) => v.into_iter().map(f32::from).collect(),
         D::I32(v) => v.into_iter().map(|x| x as f32).collect(),
         D::F32(v) => v,
-        D::F64(v) => {
-            if v.iter().any(|x| x.is_finite() && x.abs() > f32::MAX as f64) {
-                return Err(bad(format!(
-                    "grey values beyond ±{:.1e}, the largest the rig computes with (rescale the image)",
-                    f32::MAX
-                )));
-            }
-            v.into_iter().map(|x| x as f32).collect()
-        }
-        _ => return Err(bad("a sample type the rig does not read".into())),
-    };
-    if data.len() != w as usize * h as usize {
-        return Err(bad(
-            "one band of grey values expected (more bands found)".into()
+        D::F64(v) => f64_to_f32(&v, path)?,
+        _ => return Err(invalid(path, "a sample type the rig does not read".into())),
+    })
+}
+
+/// 64-bit floats as f32, refused beyond f32's range (not turned infinite).
+fn f64_to_f32(v: &[f64], path: &std::path::Path) -> std::io::Result<Vec<f32>> {
+    if v.iter().any(|x| x.is_finite() && x.abs() > f32::MAX as f64) {
+        return Err(invalid(
+            path,
+            format!(
+                "grey values beyond ±{:.1e}, the largest the rig computes with (rescale the image)",
+                f32::MAX
+            ),
         ));
     }
+    Ok(v.iter().map(|&x| x as f32).collect())
+}
+
+/// No infinite value; NaN only where it is no data (`nodata`).
+fn check_values(data: &[f32], path: &std::path::Path, nodata: bool) -> std::io::Result<()> {
     if data.iter().any(|v| v.is_infinite()) {
-        return Err(bad(
+        return Err(invalid(
+            path,
             "infinite grey values: finite values expected (NaN where there is no data)".into(),
         ));
     }
     if !nodata && data.iter().any(|v| v.is_nan()) {
-        return Err(bad(
+        return Err(invalid(
+            path,
             "NaN grey values: this input needs a value at every pixel (fill the gaps first)".into(),
         ));
     }
-    Ok(ImageF32 {
-        width: w as usize,
-        height: h as usize,
-        data,
-    })
+    Ok(())
 }
 
 /// Reads an image for a plain stereo pair: grey as [`load_grey`] reads it; anything else the

@@ -18,6 +18,7 @@ pub mod mgcm;
 pub mod ortho;
 pub mod oslsm;
 pub mod output;
+pub mod photos;
 pub mod pair_match;
 pub mod pair_output;
 pub mod pipeline;

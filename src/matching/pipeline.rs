@@ -31,9 +31,13 @@ use std::path::{Path, PathBuf};
 /// point (mm) each pixel shows, and the camera's interior orientation.
 #[derive(Debug, Clone)]
 pub struct Photo {
+    /// The pixels read: the whole image, or [`Photo::window`] of it.
     pub image: ImageF32,
+    /// Which photo point each pixel of the whole image shows (its size is the whole image's).
     pub frame: PixelToPhoto,
     pub interior: Interior,
+    /// Where `image` lies in the whole image.
+    pub window: crate::coords::PixelWindow,
 }
 
 #[derive(Debug, thiserror::Error)]

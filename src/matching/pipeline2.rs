@@ -21,7 +21,7 @@ use super::sweep::{
     step_for_parallax, sweep_bands, HeightMap, SweepLayout, SweepParams, SweptBands,
 };
 use super::{MatchedPoint, PmfSet};
-use crate::coords::{GroundM, PixelXY};
+use crate::coords::{GroundM, PixelWindow, PixelXY};
 use crate::geometry::control_fit::{
     correct_orbit, correct_rpc_shift, ControlFit, ControlFitError, OrbitPrior,
 };
@@ -275,7 +275,7 @@ pub fn centred_grid(width: usize, height: usize, pixel_mm: f64) -> PhotoGrid {
 }
 
 /// A camera's pixel → photo relation applied to an image of `width × height`.
-fn frame_of(
+pub(crate) fn frame_of(
     camera: &super::project2::Camera2,
     width: usize,
     height: usize,
@@ -283,73 +283,6 @@ fn frame_of(
     match camera.pixel_to_photo {
         Some(p) => PixelToPhoto::from_centre_origin(p, width, height),
         None => Some(centred_grid(width, height, camera.pixel_mm).into()),
-    }
-}
-
-/// Loads the project's photos (scans come through `scan`, the hardware side's hand-over),
-/// each within the project's memory limit.
-pub fn load_photos(
-    p: &Project2,
-    scan: &dyn Fn(&Path) -> Result<Photo, String>,
-) -> Result<Vec<Photo>, Pipeline2Error> {
-    (0..p.photos.len())
-        .map(|k| load_photo(p, k, scan))
-        .collect()
-}
-
-/// Loads photo `k` of the project.
-pub fn load_photo(
-    p: &Project2,
-    k: usize,
-    scan: &dyn Fn(&Path) -> Result<Photo, String>,
-) -> Result<Photo, Pipeline2Error> {
-    let max = p.limits.max_memory_mb << 20;
-    let ph = &p.photos[k];
-    let err = |message: String| Pipeline2Error::Photo {
-        id: ph.id.clone(),
-        message,
-    };
-    match &ph.source {
-        Source::Image { path, camera } => {
-            let image = crate::image::load_grey(path, max).map_err(|e| err(e.to_string()))?;
-            let frame = frame_of(camera, image.width, image.height)
-                .ok_or_else(|| err("its camera's pixel_to_photo is singular".into()))?;
-            Ok(Photo {
-                image,
-                frame,
-                interior: Interior {
-                    focal_mm: camera.focal_mm,
-                    principal_point: camera.principal_point,
-                },
-            })
-        }
-        Source::Scan { sidecar } => scan(sidecar).map_err(err),
-        Source::Model { path, model } => {
-            let image = crate::image::load_grey(path, max).map_err(|e| err(e.to_string()))?;
-            if let GivenModel::Pushbroom(m) = model.as_ref() {
-                if (m.columns, m.lines) != (image.width, image.height) {
-                    return Err(err(format!(
-                        "its line-scanner model is for {} × {} pixels, its image {} has {} × {}",
-                        m.columns,
-                        m.lines,
-                        path.display(),
-                        image.width,
-                        image.height
-                    )));
-                }
-            }
-            // The frame and interior are a frame camera's: unused for a photo with its own
-            // model (orient takes the model), a unit grid to keep the type whole.
-            let frame = centred_grid(image.width, image.height, 1.0).into();
-            Ok(Photo {
-                image,
-                frame,
-                interior: Interior {
-                    focal_mm: 1.0,
-                    principal_point: crate::coords::PhotoMm::new(0.0, 0.0),
-                },
-            })
-        }
     }
 }
 
@@ -387,10 +320,15 @@ fn overlap(a: [f64; 4], b: [f64; 4]) -> Option<[f64; 4]> {
 /// A photo's geometry without its pixels: what the plan needs.
 #[derive(Debug, Clone, Copy)]
 pub struct PhotoGeometry {
+    /// Which photo point each pixel of the whole image shows.
     pub frame: PixelToPhoto,
     pub interior: Interior,
+    /// The whole image's size, pixels.
     pub width: usize,
     pub height: usize,
+    /// The part of it that was read (the matchers see this part; their sensors are shifted
+    /// to it).
+    pub window: PixelWindow,
 }
 
 impl Photo {
@@ -398,8 +336,9 @@ impl Photo {
         PhotoGeometry {
             frame: self.frame,
             interior: self.interior,
-            width: self.image.width,
-            height: self.image.height,
+            width: self.frame.width,
+            height: self.frame.height,
+            window: self.window,
         }
     }
 }
@@ -594,6 +533,12 @@ pub fn orient(p: &Project2, photos: &[PhotoGeometry]) -> Result<Oriented, Pipeli
             [lo - m, hi + m]
         }
     };
+    // Each photo's sensor seen through the window of its image that was read.
+    let sensors: Vec<PhotoSensor> = sensors
+        .into_iter()
+        .zip(photos)
+        .map(|(s, g)| s.windowed(g.window))
+        .collect();
     let mid = 0.5 * (heights[0] + heights[1]);
     let prints: Vec<[f64; 4]> = sensors
         .iter()
@@ -609,7 +554,10 @@ pub fn orient(p: &Project2, photos: &[PhotoGeometry]) -> Result<Oriented, Pipeli
     let mut union: Option<[f64; 4]> = None;
     for i in 0..sensors.len() {
         for j in i + 1..sensors.len() {
-            if let Some(o) = overlap(prints[i], prints[j]) {
+            // Within the project's extent, when it gives one.
+            let o = overlap(prints[i], prints[j])
+                .and_then(|o| p.extent.map_or(Some(o), |e| overlap(o, e)));
+            if let Some(o) = o {
                 overlapping.push((i, j));
                 union = Some(match union {
                     None => o,
@@ -666,7 +614,7 @@ pub fn plan(
         let (l, r) = (&sensors[i], &sensors[j]);
         let (li, ri) = (&p.photos[i].id, &p.photos[j].id);
         // A line scanner's (or its RPCs') mappings may take seed 004's extended terms.
-        let scanner = |s: &PhotoSensor| !matches!(s, PhotoSensor::Frame(_));
+        let scanner = |s: &PhotoSensor| s.frame().is_none();
         let set = if scanner(l) || scanner(r) {
             TermSet::Extended
         } else {
@@ -706,7 +654,7 @@ pub fn plan(
             },
             cell_m: p.cell_m,
         };
-        let (a, b) = (&photos[i], &photos[j]);
+        let (a, b) = (&photos[i].window, &photos[j].window);
         estimate((a.width, a.height), (b.width, b.height), &params, &budget).map_err(|source| {
             Pipeline2Error::Pair {
                 left: li.clone(),

@@ -131,6 +131,7 @@ impl ScannedPhoto {
                 focal_mm: s.camera_certificate.focal_length_mm,
                 principal_point: crate::coords::PhotoMm::new(0.0, 0.0),
             },
+            window: crate::coords::PixelWindow::whole(s.grid.width, s.grid.height),
         })
     }
 }
