@@ -116,6 +116,8 @@ fn settings_moves_dwell_and_errors() {
     // the position (nothing moved) is kept.
     let out = g.tx(b"G90 G0 X-300\n", "continue]\r\n");
     assert!(out.starts_with("ALARM:2\r\n"), "{out:?}");
+    // Critical: no status report until a reset (Commands.md), no line either.
+    assert_eq!(g.tx(b"?\n", "\n"), "");
     // The reset keeps the Alarm state (GRBL 1.1 keeps it across resets) and the position;
     // `$X` unlocks.
     let out = g.tx(&[0x18], "unlock]\r\n");
@@ -201,9 +203,10 @@ fn client_unlocks_a_soft_limit_alarm_keeping_the_position() {
     let before = c.status().unwrap();
     assert_eq!(before.state, StageState::Idle);
     // Below the driver: a target past GRBL's travel, so that GRBL itself refuses it.
-    c.start_move(CarriageUm::new(-5_000.0, 10_000.0), 5_000.0)
-        .unwrap_or(());
-    let e = c.wait_done(Duration::from_secs(5)).unwrap_err();
+    let e = c
+        .start_move(CarriageUm::new(-5_000.0, 10_000.0), 5_000.0)
+        .and_then(|_| c.wait_done(Duration::from_secs(5)))
+        .unwrap_err();
     assert!(
         matches!(
             e,
@@ -214,6 +217,19 @@ fn client_unlocks_a_soft_limit_alarm_keeping_the_position() {
         ),
         "{e}"
     );
+    // A critical alarm answers no `?` until a reset (Commands.md): the silence is the alarm's.
+    // The stop gives it the reset, and the board then reports the alarm (kept across it).
+    assert!(
+        matches!(
+            c.status(),
+            Err(StageError::Fault {
+                kind: FaultKind::Alarm { code: 2, .. },
+                ..
+            })
+        ),
+        "GRBL is silent in a critical alarm"
+    );
+    c.stop().unwrap();
     assert_eq!(c.status().unwrap().state, StageState::Fault);
     // Soft-limit alarm: nothing moved, so reset + `$X` gives back an idle, referenced stage.
     c.clear_fault().unwrap();

@@ -265,3 +265,23 @@ fn rig_stage_stop_recovers_a_board_another_program_left_held_or_running() {
         eprintln!("{what}: `rig stage stop` took {took:?}");
     }
 }
+
+/// A fault mid-move (a limit switch: GRBL's hard-limit alarm, critical, which answers nothing
+/// until a reset): the rig reports the fault, resets the board on its way out, and the next
+/// status reads it, in Alarm and not homed (a hard limit loses the position).
+#[test]
+fn a_fault_mid_move_leaves_a_board_the_next_status_reads() {
+    let sim = SimProcess::start_scaled("grbl", "0", &["--start-homed", "--faults", "limit=1"]);
+    let (code, j, err) = sim.stage("grbl", &["move", "60", "40"]);
+    assert_eq!(code, 5, "{err}");
+    assert_eq!(j["error"]["kind"], "fault", "{j}");
+    assert!(err.contains("ALARM:1"), "{err}");
+    let t = rest(&sim);
+    assert_eq!(t["controller_state"], "Alarm", "{t}");
+    let (code, st, err) = sim.stage("grbl", &["status"]);
+    assert_eq!(code, 0, "the next status failed: {err}");
+    assert_eq!(
+        (st["controller_state"].as_str(), st["homed"].as_bool()),
+        (Some("Alarm"), Some(false))
+    );
+}

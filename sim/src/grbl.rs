@@ -5,6 +5,7 @@
 //! As the interface documents, and unlike an eager emulator:
 //! - a status request during a homing cycle is not answered then: GRBL services it once the
 //!   cycle has ended, as one late `<Home|…>` report before the `$H`'s `ok` (requests coalesce);
+//!   after a critical alarm (hard or soft limit) it is not answered at all until a reset;
 //! - `$10` chooses MPos or WPos (WPos = MPos − WCO, with a `WCO:` field every 10th report when
 //!   idle, every 30th when busy, and at once after the offset changed); `$13=1` reports inches;
 //! - an empty line is answered `ok` (hosts use it to sync);
@@ -330,6 +331,10 @@ impl GrblFirmware {
             if self.mode == Mode::Home {
                 // During homing GRBL's main loop is in the cycle: the request waits.
                 self.late_report = true;
+            } else if self.critical {
+                // A critical alarm (hard or soft limit) spins until a reset and answers no `?`
+                // (Commands.md: "except during a homing cycle and when critical alarm (hard/soft
+                // limit error) is thrown").
             } else {
                 let r = self.status_report(stage);
                 out.extend_from_slice(r.as_bytes());

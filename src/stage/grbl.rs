@@ -674,29 +674,51 @@ impl GrblController {
             self.send_line("")?;
         }
         let deadline = Instant::now() + REPLY_TIMEOUT * 2;
-        while self.stale_reports && Instant::now() < deadline {
+        while self.stale_reports && Instant::now() < deadline && !self.critical_pending {
             self.pump(deadline.min(Instant::now() + POLL))?;
         }
         // The marker's `ok` is no answer to anything else.
         self.replies.retain(|r| !matches!(r, Reply::Ok));
         if self.stale_reports {
-            return Err(StageError::Timeout {
+            return Err(self.silence(StageError::Timeout {
                 what: "GRBL (silent: a homing cycle in progress?)".into(),
                 after: REPLY_TIMEOUT * 2,
-            });
+            }));
         }
         Ok(())
+    }
+
+    /// Why GRBL said nothing: after a critical alarm (hard or soft limit) it answers nothing
+    /// until a reset (Commands.md), so the alarm is the error; otherwise `timeout`.
+    fn silence(&mut self, timeout: StageError) -> StageError {
+        if !self.critical_pending {
+            return timeout;
+        }
+        self.new_alarm = false;
+        let code = self.alarm.unwrap_or(0);
+        StageError::Fault {
+            kind: FaultKind::Alarm {
+                code,
+                meaning: alarm_meaning(code).into(),
+            },
+            position: None,
+        }
     }
 
     /// `?` until a well-formed report arrives, up to `tries` questions: the report and the
     /// machine position in mm.
     fn query(&mut self, tries: usize) -> Result<(Report, (f64, f64))> {
+        // A critical alarm ends the asking: GRBL answers nothing more until a reset.
         for _ in 0..tries {
+            if self.critical_pending {
+                break;
+            }
             self.resync_reports()?;
             self.last_report = None;
             self.port.write_all(b"?")?;
             let deadline = Instant::now() + REPLY_TIMEOUT;
-            while Instant::now() < deadline && self.last_report.is_none() {
+            while Instant::now() < deadline && self.last_report.is_none() && !self.critical_pending
+            {
                 self.pump(deadline.min(Instant::now() + POLL))?;
             }
             match self.last_report.take() {
@@ -710,10 +732,10 @@ impl GrblController {
                 }
             }
         }
-        Err(StageError::Timeout {
+        Err(self.silence(StageError::Timeout {
             what: "GRBL status report (`?`)".into(),
             after: REPLY_TIMEOUT * tries as u32,
-        })
+        }))
     }
 
     fn raw_status(&mut self) -> Result<(Report, (f64, f64))> {
@@ -804,19 +826,24 @@ impl GrblController {
     }
 
     /// One `?` during a homing wait: the state of a report that arrives within the reply time,
-    /// if it is not `Home` (the cycle is over); `None` when GRBL is silent or still homing.
+    /// if it is not `Home` (the cycle is over); `None` when GRBL is silent or still homing. Any
+    /// report is taken, believed or not: GRBL answers a question asked during the cycle only
+    /// when the cycle ends, as a `Home` report, so one in any other state was made after it
+    /// (and waiting for a line reply to vouch for it could wait forever when the `$H`'s `ok`
+    /// was lost).
     fn homing_probe(&mut self) -> Result<Option<String>> {
-        self.last_report = None;
+        self.latest_report = None;
         self.port.write_all(b"?")?;
         let deadline = Instant::now() + REPLY_TIMEOUT;
-        while Instant::now() < deadline && self.last_report.is_none() && self.replies.is_empty() {
+        while Instant::now() < deadline && self.latest_report.is_none() && self.replies.is_empty() {
             self.pump(deadline.min(Instant::now() + POLL))?;
         }
-        let Some(line) = self.last_report.take() else {
+        let Some(line) = self.latest_report.take() else {
             // Ignored, or it may yet be answered late: later reports need a resync first.
             self.stale_reports = true;
             return Ok(None);
         };
+        self.last_report = None;
         Ok(grbl_report::parse(&line)
             .map(|r| r.state)
             .filter(|s| !s.starts_with("Home")))
