@@ -243,7 +243,7 @@ fn rig_stage_stop_recovers_a_board_another_program_left_held_or_running() {
         let (code, j, err) = sim.stage("grbl", &["stop"]);
         let took = t.elapsed();
         assert_eq!(code, 0, "{what}: {err}");
-        let want = if held { "nothing" } else { "decelerated" };
+        let want = if held { "released" } else { "decelerated" };
         assert_eq!(j["action"], want, "{what}: {j}");
         let after = rest(&sim);
         assert_eq!(after["controller_state"], "Idle", "{what}: {after}");

@@ -248,7 +248,7 @@ impl<C: Controller> Stage for Driver<C> {
     fn stop(&mut self) -> Result<Stopped> {
         let action = self.ctl.stop()?;
         let (position, fault) = match action {
-            StopAction::Nothing | StopAction::Decelerated => {
+            StopAction::Nothing | StopAction::Decelerated | StopAction::Released => {
                 let info = self.ctl.info();
                 // From full speed a stop takes v/a.
                 let expected = secs(info.max_speed_um_s / info.accel_um_s2);

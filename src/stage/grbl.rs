@@ -257,12 +257,7 @@ impl GrblController {
         c.reset_seen = false;
         if let Some(done) = c.settled {
             c.info.notes.push(format!(
-                "as the rig connected to stop it, GRBL was {}: {}",
-                if done == StopAction::Nothing {
-                    "still but took no command (held or busy)"
-                } else {
-                    "not at rest"
-                },
+                "as the rig connected to stop it: {}",
                 done.describe()
             ));
         }
@@ -271,18 +266,22 @@ impl GrblController {
 
     /// For [`Self::open_to_stop`]: a board that is not standing still and reading lines is
     /// stopped (feed hold, soft reset once still); so is one that answers `?` but no line.
+    /// A board that stood still throughout was held or busy: its stop is [`StopAction::Released`].
     fn make_ready(&mut self, first: &Report) -> Result<()> {
-        if !grbl_report::still(&first.state) || grbl_report::suspended(&first.state) {
-            self.hold_and_reset(stop::STILL_CAP + stop::STILL_MARGIN)?;
-            return Ok(());
-        }
-        match self.clear_partial_line() {
-            Err(StageError::NotReady { .. }) => {
-                self.hold_and_reset(stop::STILL_CAP + stop::STILL_MARGIN)?;
-                Ok(())
+        let busy = if !grbl_report::still(&first.state) || grbl_report::suspended(&first.state) {
+            true
+        } else {
+            match self.clear_partial_line() {
+                Ok(()) => false,
+                Err(StageError::NotReady { .. }) => true,
+                Err(e) => return Err(e),
             }
-            r => r,
+        };
+        if busy && self.hold_and_reset(stop::STILL_CAP + stop::STILL_MARGIN)? == StopAction::Nothing
+        {
+            self.settled = Some(StopAction::Released);
         }
+        Ok(())
     }
 
     fn settings(&self) -> &GrblSettings {

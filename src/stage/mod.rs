@@ -121,6 +121,10 @@ pub enum StopAction {
     Reset,
     /// A homing cycle was ended by a reset: not homed.
     HomingAborted,
+    /// The controller stood still but took no command, as an earlier program left it (GRBL in
+    /// a feed hold, or busy with commands it was sent): a soft reset dropped what was pending;
+    /// the position is kept.
+    Released,
 }
 
 impl StopAction {
@@ -135,6 +139,11 @@ impl StopAction {
                  position) and was reset: stopped at once, position lost (home again)"
             }
             StopAction::HomingAborted => "homing cycle ended by a reset: home again",
+            StopAction::Released => {
+                "the controller stood still but took no command (a feed hold, or commands an \
+                 earlier program left); a soft reset dropped them; position kept; the controller \
+                 takes commands"
+            }
         }
     }
 }
