@@ -285,3 +285,40 @@ fn a_fault_mid_move_leaves_a_board_the_next_status_reads() {
         (Some("Alarm"), Some(false))
     );
 }
+
+/// Another program started a homing cycle and left: GRBL says nothing during the cycle (not
+/// even to `?`), and ignores a feed hold. A status reports the silence and names `rig stage
+/// stop`, sending no reset; `rig stage stop` ends the cycle with a reset (ALARM:6), and the board
+/// then answers, in Alarm, not homed.
+#[test]
+fn rig_stage_stop_ends_a_homing_cycle_another_program_left() {
+    let sim = SimProcess::start_scaled("grbl", "1", &["--seed", "5"]);
+    {
+        let mut f = open_nonblocking(&sim.port);
+        f.write_all(b"$H\n").unwrap();
+        let deadline = Instant::now() + Duration::from_secs(5);
+        while sim.truth()["controller_state"] != "Home" {
+            assert!(Instant::now() < deadline, "{}", sim.truth());
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+    let (code, _, err) = sim.stage("grbl", &["status"]);
+    assert_ne!(code, 0, "a homing board cannot answer");
+    assert!(err.contains("rig stage stop"), "{err}");
+    assert_eq!(
+        sim.truth()["controller_state"],
+        "Home",
+        "status sent no reset"
+    );
+    let (code, j, err) = sim.stage("grbl", &["stop"]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(j["action"], "homing_aborted", "{j}");
+    let t = rest(&sim);
+    assert_eq!(
+        (t["controller_state"].as_str(), t["homed"].as_bool()),
+        (Some("Alarm"), Some(false))
+    );
+    let (code, st, err) = sim.stage("grbl", &["status"]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(st["controller_state"], "Alarm", "{st}");
+}

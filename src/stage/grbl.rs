@@ -175,8 +175,8 @@ impl GrblController {
 
     /// Connects to stop the board: one left held, moving, busy or silent by an earlier program
     /// is brought to a standstill and soft-reset first ([`Self::stop`]'s procedure; a silent
-    /// one, in a homing cycle, is reset at once), so that it takes commands; the next
-    /// [`Controller::stop`] reports what was done.
+    /// one, in a homing cycle or a hard- or soft-limit alarm, is reset at once), so that it
+    /// takes commands; the next [`Controller::stop`] reports what was done.
     pub fn open_to_stop(path: &Path, link: &LinkOptions) -> Result<Self> {
         Self::connect(path, link, true)
     }
@@ -293,9 +293,9 @@ impl GrblController {
     /// Finds a GRBL on the line without resetting it (a reset would abort a homing cycle in
     /// progress): a status report answers `?` at once, or a board that was reset by the opening
     /// of the port prints its banner. Silence is reported as such, unless `to_stop`: a silent
-    /// GRBL is in a homing cycle (Commands.md: `?` is not executed during homing), which only a
-    /// reset ends, so one is sent. Returns the first report, and whether a reset was sent (with
-    /// the alarm it raised).
+    /// GRBL is in a homing cycle or a critical alarm (Commands.md: `?` is not executed then),
+    /// which only a reset ends, so one is sent. Returns the first report, and whether a reset
+    /// was sent (with the alarm it raised).
     fn find_grbl(&mut self, to_stop: bool) -> Result<(Report, Option<Option<u32>>)> {
         self.port.purge()?;
         self.rx.clear();
@@ -342,7 +342,8 @@ impl GrblController {
             format!(
                 "no answer on {path} within {CONNECT_WAIT:?}: nothing at all was heard. A GRBL \
                  in a homing cycle is silent until the cycle ends: wait and connect again (or \
-                 end the cycle with `rig stage stop`, a reset: home again). Otherwise check the \
+                 end the cycle with `rig stage stop`, a reset: home again); one in a hard- or \
+                 soft-limit alarm is silent until reset (`rig stage stop`). Otherwise check the \
                  port, the baud rate (115200), the cable and the power. No reset was sent, so \
                  nothing in progress was aborted"
             )
