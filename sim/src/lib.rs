@@ -8,7 +8,8 @@
 //! - [`pty`]: the real pseudo-terminal the host opens;
 //! - [`camera`], [`plate`], [`film`], [`scene`]: what the camera sees: the carriage plate, the
 //!   film and the aerial photo on it, rendered from a DEM; [`pushbroom`]: satellite line
-//!   scanner views of the same terrain;
+//!   scanner views of the same terrain; [`rpc_scene`]: crops of real satellite products
+//!   rendered through their real RPCs ([`rpc`]) over a real lidar DEM laid on UTM ([`utm`]);
 //! - [`server`]: the loop that ties them together; [`truth`]: the truth file.
 
 pub mod camera;
@@ -27,10 +28,13 @@ pub mod profile;
 pub mod pty;
 pub mod pushbroom;
 pub mod rng;
+pub mod rpc;
+pub mod rpc_scene;
 pub mod scene;
 pub mod server;
 pub mod stage;
 pub mod truth;
+pub mod utm;
 
 pub use faults::FaultSpec;
 pub use server::{serve, Dialect, EmbeddedSim, SimConfig, World};

@@ -14,6 +14,7 @@ pub mod progress_bar;
 pub mod scan_cmd;
 pub mod scene_cmd;
 pub mod scene_pushbroom;
+pub mod scene_rpc;
 pub mod stage_cmd;
 
 use clap::{Args, Parser, Subcommand};

@@ -56,9 +56,10 @@ pub struct SceneArgs {
     #[arg(long, default_value_t = 0.0)]
     pub noise_dn: f64,
     /// Cell of truth-dem.tif, m (the simulator's DEM resampled bilinearly; finer cells follow
-    /// its 74 × 92 m facets more closely where a cell straddles their edges).
-    #[arg(long, default_value_t = 10.0)]
-    pub truth_cell_m: f64,
+    /// its 74 × 92 m facets more closely where a cell straddles their edges). Default 10 m;
+    /// for --sensor rpc the lidar DEM's own 1 m.
+    #[arg(long)]
+    pub truth_cell_m: Option<f64>,
     /// Each photo's radiometric gain, in photo order (e.g. 1,1.2,0.85): its grey values are
     /// gain × 60 000 × transmittance + offset, as film developed and scanned differently
     /// (seed 001's linear radiometric model). Default 1 for every photo.
@@ -73,11 +74,14 @@ pub struct SceneArgs {
     /// Default 0 for every photo.
     #[arg(long, value_name = "DN,DN,…", allow_hyphen_values = true)]
     pub offsets: Option<String>,
-    /// What takes the pictures: "frame" (the aerial block's photos) or "pushbroom" (SPOT-like
+    /// What takes the pictures: "frame" (the aerial block's photos), "pushbroom" (SPOT-like
     /// satellite views from 830 km: a line scanner whose every line has its own position and
-    /// attitude). The pushbroom scene writes each view's rigorous model (view-N.json), its
-    /// RPCs (view-N_RPC.TXT, as GDAL reads them) and the noise-free points
-    /// (truth_points.csv); --area, --resolution-um and --photos are the frame photos' only.
+    /// attitude) or "rpc" (crops of real satellite products through their real RPCs, given by
+    /// --rpc, over a real 1 m lidar DEM). The pushbroom scene writes each view's rigorous model
+    /// (view-N.json), its RPCs (view-N_RPC.TXT, as GDAL reads them) and the noise-free points
+    /// (truth_points.csv); the rpc scene writes each crop as img_0N.tif with its RPCs in the
+    /// TIFF tag only, as crop tools hand them out; --area, --resolution-um and --photos are the
+    /// frame photos' only.
     #[arg(long, value_enum, default_value_t = SensorArg::Frame)]
     pub sensor: SensorArg,
     /// Pushbroom: views in the set, 2 (tilted −20° and +20°) or 3 (−20°, 0°, +20°).
@@ -91,15 +95,27 @@ pub struct SceneArgs {
     /// Pushbroom: the ground pixel at nadir, m.
     #[arg(long, default_value_t = 5.0)]
     pub gsd_m: f64,
-    /// Pushbroom: columns and lines of every view.
-    #[arg(long, default_value_t = 1200)]
-    pub size: usize,
+    /// Pushbroom and rpc: columns and lines of every view (default 1200 for pushbroom, 500
+    /// for rpc).
+    #[arg(long)]
+    pub size: Option<usize>,
+    /// Rpc: a real product's RPCs as GDAL's `_RPC.TXT`, once per view (2 to 5 views of the
+    /// same area): each view is a --size crop of that product around the first product's
+    /// centre, rendered over a real lidar DEM laid there.
+    #[arg(long, value_name = "FILE_RPC.TXT")]
+    pub rpc: Vec<PathBuf>,
 }
+
+/// Pushbroom views' --size by default, px.
+pub const PUSHBROOM_SIZE: usize = 1200;
+/// truth-dem.tif's cell by default (frame and pushbroom scenes), m.
+pub const TRUTH_CELL_M: f64 = 10.0;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum SensorArg {
     Frame,
     Pushbroom,
+    Rpc,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -552,8 +568,10 @@ pub(super) fn check_shared(a: &SceneArgs, pictures: u32) -> anyhow::Result<(Vec<
     if !(a.noise_dn.is_finite() && (0.0..=10_000.0).contains(&a.noise_dn)) {
         anyhow::bail!("--noise-dn {}: 0 to 10000 grey values", a.noise_dn);
     }
-    if !(a.truth_cell_m.is_finite() && (0.5..=100.0).contains(&a.truth_cell_m)) {
-        anyhow::bail!("--truth-cell-m {}: 0.5 to 100 m", a.truth_cell_m);
+    if let Some(c) = a.truth_cell_m {
+        if !(c.is_finite() && (0.5..=100.0).contains(&c)) {
+            anyhow::bail!("--truth-cell-m {c}: 0.5 to 100 m");
+        }
     }
     let gains = per_photo(a.gains.as_deref(), "gains", pictures, 0.2..=5.0, 1.0)?;
     let offsets = per_photo(
@@ -570,9 +588,12 @@ pub(super) fn check_shared(a: &SceneArgs, pictures: u32) -> anyhow::Result<(Vec<
 }
 
 pub fn run(a: &SceneArgs) -> anyhow::Result<i32> {
-    if a.sensor == SensorArg::Pushbroom {
-        return super::scene_pushbroom::run(a);
+    match a.sensor {
+        SensorArg::Pushbroom => return super::scene_pushbroom::run(a),
+        SensorArg::Rpc => return super::scene_rpc::run(a),
+        SensorArg::Frame => {}
     }
+    let truth_cell_m = a.truth_cell_m.unwrap_or(TRUTH_CELL_M);
     let area = parse_area(&a.area)?;
     if !(1.0..=200.0).contains(&a.resolution_um) {
         anyhow::bail!("--resolution-um {}: 1 to 200", a.resolution_um);
@@ -609,7 +630,7 @@ pub fn run(a: &SceneArgs) -> anyhow::Result<i32> {
     }
     // The truth grids before the photos: a large area is refused (or its reflectance
     // coarsened) at once, not after the rendering.
-    let truth = truth_grid(&p1, area, a.truth_cell_m)?;
+    let truth = truth_grid(&p1, area, truth_cell_m)?;
     let (reflectance, reflectance_cell_m) =
         truth_reflectance(&|x, y| p1.reflectance_at(x, y), &truth)?;
     std::fs::create_dir_all(&a.out)?;
@@ -647,7 +668,7 @@ pub fn run(a: &SceneArgs) -> anyhow::Result<i32> {
                 "photos": std::iter::once(&p1).chain([&p2]).chain(more.iter().map(|m| &m.0)).collect::<Vec<_>>(),
                 "area_mm": std::iter::once(area).chain([area2]).chain(more.iter().map(|m| m.1)).collect::<Vec<_>>(),
                 "terrain_m": hs,
-                "dem": format!("tests/data/jacksboro_fault_dem.asc (bilinear, {} m grid in truth-dem.tif)", a.truth_cell_m),
+                "dem": format!("tests/data/jacksboro_fault_dem.asc (bilinear, {} m grid in truth-dem.tif)", truth_cell_m),
                 "photo_noise_um": a.photo_noise_um, "ground_noise_m": a.ground_noise_m,
                 "noise_dn": a.noise_dn,
                 "radiometry": {"gains": gains, "offsets_dn": offsets,

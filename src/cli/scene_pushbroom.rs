@@ -16,19 +16,21 @@ use std::fmt::Write as _;
 const HEIGHT_MARGIN_M: f64 = 50.0;
 
 pub fn run(a: &SceneArgs) -> anyhow::Result<i32> {
+    let size = a.size.unwrap_or(super::scene_cmd::PUSHBROOM_SIZE);
+    let truth_cell_m = a.truth_cell_m.unwrap_or(super::scene_cmd::TRUTH_CELL_M);
     if !(a.gsd_m.is_finite() && (0.5..=50.0).contains(&a.gsd_m)) {
         anyhow::bail!("--gsd-m {}: 0.5 to 50 m", a.gsd_m);
     }
-    if !(200..=6000).contains(&a.size) {
-        anyhow::bail!("--size {}: 200 to 6000 pixels", a.size);
+    if !(200..=6000).contains(&size) {
+        anyhow::bail!("--size {}: 200 to 6000 pixels", size);
     }
     let dem = jacksboro();
     let [ex, ey] = dem.extent_m();
-    let footprint = a.size as f64 * a.gsd_m / 20f64.to_radians().cos().powi(2);
+    let footprint = size as f64 * a.gsd_m / 20f64.to_radians().cos().powi(2);
     if footprint > 0.9 * ex.min(ey) {
         anyhow::bail!(
             "--size {} at --gsd-m {}: the tilted views would cover {:.1} km, more than the simulated terrain's {:.1} km: make the views smaller or their pixels finer",
-            a.size,
+            size,
             a.gsd_m,
             footprint / 1000.0,
             0.9 * ex.min(ey) / 1000.0
@@ -44,8 +46,7 @@ pub fn run(a: &SceneArgs) -> anyhow::Result<i32> {
     };
     let views: Vec<PushbroomView> = (1..=a.views)
         .map(|n| {
-            let mut v =
-                PushbroomView::new(dem.clone(), a.seed, stereo, a.views, n, a.size, a.gsd_m);
+            let mut v = PushbroomView::new(dem.clone(), a.seed, stereo, a.views, n, size, a.gsd_m);
             v.texture = a.texture.into();
             v
         })
@@ -59,13 +60,13 @@ pub fn run(a: &SceneArgs) -> anyhow::Result<i32> {
     for j in 0..=n {
         for i in 0..=n {
             let (c, r) = (
-                a.size as f64 * i as f64 / n as f64,
-                a.size as f64 * j as f64 / n as f64,
+                size as f64 * i as f64 / n as f64,
+                size as f64 * j as f64 / n as f64,
             );
             let g = views[0].ground_point(c, r);
             let inside_all = views.iter().all(|v| {
                 v.project(g).is_some_and(|q| {
-                    (0.0..=a.size as f64).contains(&q[0]) && (0.0..=a.size as f64).contains(&q[1])
+                    (0.0..=size as f64).contains(&q[0]) && (0.0..=size as f64).contains(&q[1])
                 })
             });
             if inside_all {
@@ -82,7 +83,7 @@ pub fn run(a: &SceneArgs) -> anyhow::Result<i32> {
             (n + 1) * (n + 1)
         );
     }
-    let truth = truth_grid_over(&dem, [lo[0], lo[1], hi[0], hi[1]], a.truth_cell_m)?;
+    let truth = truth_grid_over(&dem, [lo[0], lo[1], hi[0], hi[1]], truth_cell_m)?;
     // The terrain's range over the common footprint: the true DEM's nodes there as well as
     // the samples (a peak between samples must not fall outside the heights fitted).
     let zs = ground
@@ -104,7 +105,7 @@ pub fn run(a: &SceneArgs) -> anyhow::Result<i32> {
         let name = format!("view-{}", v.number);
         eprintln!(
             "rendering {name} ({0}×{0} px, tilted {1:+.0}° across and {2:+.0}° along the track)…",
-            a.size, v.tilt_across_deg, v.tilt_along_deg
+            size, v.tilt_across_deg, v.tilt_along_deg
         );
         let img = v.render(3);
         let px = to_grey(
@@ -123,8 +124,8 @@ pub fn run(a: &SceneArgs) -> anyhow::Result<i32> {
         // The RPCs twice, as GDAL keeps them: in the image's RPC tag and beside it.
         rig::digitise::output::write_tiff16_tagged(
             &tiff,
-            a.size,
-            a.size,
+            size,
+            size,
             &px,
             &[(rig::geometry::rpc::TIFF_TAG, &rpc.to_values())],
         )?;
@@ -146,8 +147,8 @@ pub fn run(a: &SceneArgs) -> anyhow::Result<i32> {
             .iter()
             .map(|v| {
                 v.project(g).filter(|q| {
-                    (1.0..a.size as f64 - 1.0).contains(&q[0])
-                        && (1.0..a.size as f64 - 1.0).contains(&q[1])
+                    (1.0..size as f64 - 1.0).contains(&q[0])
+                        && (1.0..size as f64 - 1.0).contains(&q[1])
                 })
             })
             .collect();
