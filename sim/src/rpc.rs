@@ -132,7 +132,7 @@ pub enum RpcError {
         path: PathBuf,
         source: Box<RpcError>,
     },
-    #[error("line {line}: `{text}` is not `KEY: value`")]
+    #[error("line {line}: `{text}` is not `KEY: value` (GDAL's _RPC.TXT; GDAL writes one for any RPCs it reads: gdal_translate -co RPCTXT=YES)")]
     Syntax { line: usize, text: String },
     #[error("line {line}: {key} `{value}` is not a finite number")]
     Number {
