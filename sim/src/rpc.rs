@@ -316,7 +316,8 @@ impl Rpc00b {
     }
 
     /// (sample, line) of a ground point: longitude, latitude (degrees), ellipsoidal height
-    /// (m). (0, 0) at the centre of the first pixel.
+    /// (m). (0, 0) at the centre of the first pixel. Longitudes are taken as given, not
+    /// wrapped at ±180° (no product here straddles the antimeridian).
     pub fn project(&self, lon: f64, lat: f64, h: f64) -> [f64; 2] {
         let [l, p, hh] = self.normalise(lon, lat, h);
         let t = terms(l, p, hh);

@@ -394,7 +394,9 @@ impl RpcScene {
             [xy[0], xy[1], z]
         };
         let mut z0 = warm.z;
-        let (mut g0, mut ll, mut xy) = eval(z0, warm.lonlat).ok_or_else(fail)?;
+        let (mut g0, mut ll, mut xy) = eval(z0, warm.lonlat)
+            .or_else(|| eval(z0, None))
+            .ok_or_else(fail)?;
         if g0.abs() < HIT_TOLERANCE_M {
             return Ok(done(z0, xy, ll, warm.slope, warm));
         }

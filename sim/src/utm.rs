@@ -8,7 +8,7 @@
 //! (2011): eqs. (7)–(9) for the conformal latitude, (11) with the α of eq. (35) forward, the
 //! β of eq. (36) backward and Newton's method of eqs. (19)–(21) for the latitude from its
 //! conformal one. Within a UTM zone (±3° of the central meridian) they are good to well under
-//! a millimetre.
+//! a millimetre; they agree with PROJ to a micrometre at the points tested.
 
 /// WGS 84's semi-major axis, m, and flattening.
 const A_M: f64 = 6_378_137.0;
@@ -188,7 +188,7 @@ mod tests {
 
     /// Points converted by PROJ 9.1 through GDAL 3.6 (`gdaltransform -s_srs EPSG:4326 -t_srs
     /// "+proj=utm +zone=36 +datum=WGS84" -output_xy`, and `-t_srs EPSG:32617` for the last):
-    /// the series agree to a tenth of a millimetre and come back to 1e-11°.
+    /// the series agree to a micrometre and come back to 1e-11°.
     #[test]
     fn the_series_agree_with_proj() {
         let z36 = Zone {
@@ -208,7 +208,7 @@ mod tests {
         ] {
             let [x, y] = z36.forward(lon, lat);
             assert!(
-                (x - e).abs() < 1e-4 && (y - n).abs() < 1e-4,
+                (x - e).abs() < 1e-6 && (y - n).abs() < 1e-6,
                 "({lon}, {lat}): {x} {y}, PROJ {e} {n}"
             );
             let [lo, la] = z36.inverse(x, y);
@@ -217,8 +217,8 @@ mod tests {
         let z17 = Zone::of(-80.5, 25.2);
         assert_eq!((z17.number, z17.north, z17.epsg()), (17, true, 32617));
         let [x, y] = z17.forward(-80.5, 25.2);
-        assert!((x - 550_373.284_630_879).abs() < 1e-4, "{x}");
-        assert!((y - 2_787_187.346_839_09).abs() < 1e-4, "{y}");
+        assert!((x - 550_373.284_630_879).abs() < 1e-6, "{x}");
+        assert!((y - 2_787_187.346_839_09).abs() < 1e-6, "{y}");
     }
 
     #[test]
