@@ -13,7 +13,7 @@ const CORE: [&str; 10] = [
     "seconds.rs",
     "picture.rs",
     "matching",
-    "image.rs",
+    "image",
     "correlation.rs",
     "coords.rs",
     "atomic.rs",
