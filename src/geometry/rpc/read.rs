@@ -281,6 +281,21 @@ mod tests {
         }
     }
 
+    /// A 4 × 4 grey TIFF, with the RPC tag when given (the core's tests write their own: the
+    /// scans' writer belongs to the hardware side).
+    fn write_tiff(path: &std::path::Path, px: &[u16], rpc: Option<&[f64]>) {
+        use tiff::encoder::{colortype, TiffEncoder};
+        let mut enc = TiffEncoder::new(std::fs::File::create(path).unwrap()).unwrap();
+        let mut image = enc.new_image::<colortype::Gray16>(4, 4).unwrap();
+        if let Some(v) = rpc {
+            image
+                .encoder()
+                .write_tag(tiff::tags::Tag::Unknown(TIFF_TAG), v)
+                .unwrap();
+        }
+        image.write_data(px).unwrap();
+    }
+
     #[test]
     fn a_tiff_is_read_for_its_tag_or_the_rpc_file_gdal_finds_beside_it() {
         let d = tempfile::tempdir().unwrap();
@@ -288,18 +303,11 @@ mod tests {
         let want = Rpc::read(&data("md_dg.RPB")).unwrap();
         // The tag.
         let tagged = d.path().join("tagged.tif");
-        crate::digitise::output::write_tiff16_tagged(
-            &tagged,
-            4,
-            4,
-            &px,
-            &[(TIFF_TAG, &want.to_values())],
-        )
-        .unwrap();
+        write_tiff(&tagged, &px, Some(&want.to_values()));
         assert_eq!(Rpc::read(&tagged).unwrap(), want);
         // Nothing: the tag and the files looked for are named.
         let plain = d.path().join("IMG_P_R1C1.tif");
-        crate::digitise::output::write_tiff16(&plain, 4, 4, &px).unwrap();
+        write_tiff(&plain, &px, None);
         let e = Rpc::read(&plain).unwrap_err().to_string();
         assert!(
             e.contains("no RPC tag (50844")
@@ -323,7 +331,7 @@ mod tests {
         assert_eq!(Rpc::read(&plain).unwrap(), want);
         // Another tile of a tiled product is refused: its offsets would be the product's.
         let tile = d.path().join("IMG_P_R2C1.tif");
-        crate::digitise::output::write_tiff16(&tile, 4, 4, &px).unwrap();
+        write_tiff(&tile, &px, None);
         let e = Rpc::read(&tile).unwrap_err().to_string();
         assert!(e.contains("tile R2C1") && e.contains("RPC_P.XML"), "{e}");
     }
