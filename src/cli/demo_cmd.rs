@@ -75,6 +75,15 @@ impl Model {
             Model::Mgcm(r) => r.model.comparison.as_ref(),
         }
     }
+    /// The DEM's nodes with a height, and all its nodes (its default extent, where two views
+    /// see the ground at every height).
+    pub(super) fn filled(&self) -> (usize, usize) {
+        let m = match self {
+            Model::Sweep(r) => &r.model,
+            Model::Mgcm(r) => &r.model,
+        };
+        (m.grid_filled, m.grid.cols * m.grid.rows)
+    }
     fn crs(&self) -> rig::geometry::Crs {
         match self {
             Model::Sweep(r) => r.crs,

@@ -116,6 +116,11 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<i32> {
             );
         }
     }
+    let (filled, nodes) = dtm.filled();
+    println!(
+        "  elevation model: a height at {filled} of its {nodes} nodes ({:.1} % of the extent where two views see the ground at every height)",
+        100.0 * filled as f64 / nodes.max(1) as f64
+    );
     if let Some(c) = dtm.comparison() {
         println!(
             "  elevation model vs the true DEM: RMSE {:.2} m = {:.3} px of parallax of the widest pair ({:.3} px per m), mean {:+.2} m, over {} nodes",

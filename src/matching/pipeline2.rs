@@ -573,7 +573,17 @@ pub fn orient(p: &Project2, photos: &[PhotoGeometry]) -> Result<Oriented, Pipeli
     }
     let extent = match (p.extent, union) {
         (Some(e), _) => e,
-        (None, Some(u)) => u,
+        // Where the pairs see the ground at every height (the union of their footprints'
+        // overlaps bounds it).
+        (None, Some(u)) => {
+            let dyns: Vec<&dyn Sensor> = sensors.iter().map(|s| s as &dyn Sensor).collect();
+            super::coverage::covered_extent(&dyns, &overlapping, u, heights).unwrap_or_else(|| {
+                tracing::warn!(
+                    "no ground is seen by two photos at every height tried: the DEM covers the photos' overlap at the middle height"
+                );
+                u
+            })
+        }
         (None, None) => return Err(Pipeline2Error::NoOverlap { z: mid }),
     };
     if overlapping.is_empty() {

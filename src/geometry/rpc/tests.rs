@@ -325,5 +325,10 @@ fn a_crop_with_the_products_offsets_passes_and_an_image_beyond_the_model_does_no
     sensor(product.clone(), 40_000).check_extent().unwrap();
     // The crop's RPCs given to a 40 000 px image: its far corners lie 1.9 scales away.
     let e = sensor(crop, 40_000).check_extent().unwrap_err();
-    assert!(e.contains("corner") && e.contains("40000 × 40000") && e.contains("outside where the RPCs are valid"), "{e}");
+    assert!(
+        e.contains("corner")
+            && e.contains("40000 × 40000")
+            && e.contains("outside where the RPCs are valid"),
+        "{e}"
+    );
 }
