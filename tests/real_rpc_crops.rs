@@ -14,7 +14,7 @@
 mod common;
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
+use std::process::Command;
 
 fn rpc(n: u32) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join(format!("tests/data/rpc/gizeh_img{n}_RPC.TXT"))
@@ -97,33 +97,9 @@ fn gdal_rpc_metadata(image: &Path) -> std::collections::BTreeMap<String, String>
 /// `gdaltransform -rpc -i -t_srs CRS image`: the pixels GDAL finds for ground points given in
 /// the scene's CRS (GDAL's own conversion to WGS 84, then the image's RPC tag).
 fn gdal_pixels(image: &Path, crs: &str, ground: &[[f64; 3]]) -> Vec<[f64; 2]> {
-    use std::io::Write;
-    let mut child = Command::new("gdaltransform")
-        .args(["-rpc", "-i", "-t_srs", crs])
-        .arg(image)
-        .stdin(Stdio::piped())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let input: String = ground
+    common::gdaltransform(&["-rpc", "-i", "-t_srs", crs], image, ground)
         .iter()
-        .map(|g| format!("{:.6} {:.6} {:.6}\n", g[0], g[1], g[2]))
-        .collect();
-    child
-        .stdin
-        .take()
-        .unwrap()
-        .write_all(input.as_bytes())
-        .unwrap();
-    let o = child.wait_with_output().unwrap();
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    String::from_utf8_lossy(&o.stdout)
-        .lines()
-        .map(|l| {
-            let v: Vec<f64> = l.split_whitespace().map(|t| t.parse().unwrap()).collect();
-            [v[0], v[1]]
-        })
+        .map(|v| [v[0], v[1]])
         .collect()
 }
 

@@ -6,8 +6,7 @@ mod common;
 
 use rig::geometry::rpc::{fit_rpc, FitGrid};
 use rig::geometry::{Crs, Geographic, LonLatH, Pushbroom, Rpc, RpcSensor, Sensor};
-use std::io::Write;
-use std::process::{Command, Stdio};
+use std::process::Command;
 
 /// A tilted SPOT-like view with a drifting attitude (ground pixel about 10 m), flown north:
 /// looking 15° left (west) and 5° forward (north), it passes east of and behind (south of)
@@ -35,39 +34,14 @@ fn view() -> Pushbroom {
     }
 }
 
-fn gdaltransform(image: &std::path::Path, inverse: bool, input: &str) -> Vec<[f64; 3]> {
-    let mut cmd = Command::new("gdaltransform");
-    // GDAL solves pixel → ground iteratively to 0.1 px by default: tighten it to compare.
-    cmd.args(["-rpc", "-to", "RPC_PIXEL_ERROR_THRESHOLD=1e-7"]);
+/// `gdaltransform -rpc` (`-i`: ground → image), GDAL's pixel → ground iterated to 1e-7 px
+/// (its default stops at 0.1 px).
+fn gdaltransform(image: &std::path::Path, inverse: bool, points: &[[f64; 3]]) -> Vec<Vec<f64>> {
+    let mut args = vec!["-rpc", "-to", "RPC_PIXEL_ERROR_THRESHOLD=1e-7"];
     if inverse {
-        cmd.arg("-i");
+        args.push("-i");
     }
-    let mut child = cmd
-        .arg(image)
-        .stdin(Stdio::piped())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    child
-        .stdin
-        .take()
-        .unwrap()
-        .write_all(input.as_bytes())
-        .unwrap();
-    let out = child.wait_with_output().unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8_lossy(&out.stdout)
-        .lines()
-        .map(|l| {
-            let v: Vec<f64> = l.split_whitespace().map(|w| w.parse().unwrap()).collect();
-            [v[0], v[1], v[2]]
-        })
-        .collect()
+    common::gdaltransform(&args, image, points)
 }
 
 #[test]
@@ -105,10 +79,7 @@ fn gdaltransform_agrees_with_the_rigs_rpc_evaluation() {
         .iter()
         .map(|(g, _)| geo.to_lonlat(*g).unwrap())
         .collect();
-    let input: String = lonlat
-        .iter()
-        .map(|l| format!("{:.12} {:.12} {}\n", l.lon, l.lat, l.h))
-        .collect();
+    let input: Vec<[f64; 3]> = lonlat.iter().map(|l| [l.lon, l.lat, l.h]).collect();
     let gdal = gdaltransform(&image, true, &input);
     assert_eq!(gdal.len(), ground.len());
     let mut worst: f64 = 0.0;
@@ -124,10 +95,7 @@ fn gdaltransform_agrees_with_the_rigs_rpc_evaluation() {
         .iter()
         .map(|(g, z)| (sensor.ground_to_image(*g).unwrap(), *z))
         .collect();
-    let input: String = pix
-        .iter()
-        .map(|(q, z)| format!("{} {} {z}\n", q.col, q.row))
-        .collect();
+    let input: Vec<[f64; 3]> = pix.iter().map(|(q, z)| [q.col, q.row, *z]).collect();
     let gdal = gdaltransform(&image, false, &input);
     let mut worst_m: f64 = 0.0;
     for ((q, z), v) in pix.iter().zip(&gdal) {

@@ -12,9 +12,8 @@
 mod common;
 
 use rig::geometry::{LonLatH, Rpc};
-use std::io::Write;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
+use std::process::Command;
 
 /// Each real file: its name in tests/data/rpc, the image GDAL opens for it and the name
 /// GDAL looks for beside that image.
@@ -58,52 +57,20 @@ fn every_real_file_is_read_directly_and_from_beside_its_image() {
     }
 }
 
-/// `gdaltransform -rpc` on `image`, `input` one point a line; GDAL's pixel → ground is
-/// iterated to 1e-9 px (its default stops at 0.1 px).
-fn gdaltransform(image: &Path, inverse: bool, input: &str) -> Vec<[f64; 3]> {
-    let mut cmd = Command::new("gdaltransform");
-    cmd.args([
+/// `gdaltransform -rpc` on `image` (`-i`: ground → image); GDAL's pixel → ground is iterated
+/// to 1e-9 px (its default stops at 0.1 px).
+fn gdaltransform(image: &Path, inverse: bool, points: &[[f64; 3]]) -> Vec<Vec<f64>> {
+    let mut args = vec![
         "-rpc",
         "-to",
         "RPC_PIXEL_ERROR_THRESHOLD=1e-9",
         "-to",
         "RPC_MAX_ITERATIONS=100",
-    ]);
+    ];
     if inverse {
-        cmd.arg("-i");
+        args.push("-i");
     }
-    let mut child = cmd
-        .arg(image)
-        .stdin(Stdio::piped())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    child
-        .stdin
-        .take()
-        .unwrap()
-        .write_all(input.as_bytes())
-        .unwrap();
-    let out = child.wait_with_output().unwrap();
-    let text = String::from_utf8_lossy(&out.stdout);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    text.lines()
-        .map(|l| {
-            let v: Vec<f64> = l
-                .split_whitespace()
-                .map(|w| {
-                    w.parse()
-                        .unwrap_or_else(|_| panic!("gdaltransform: `{l}` for {input}"))
-                })
-                .collect();
-            [v[0], v[1], v[2]]
-        })
-        .collect()
+    common::gdaltransform(&args, image, points)
 }
 
 /// The RPC metadata `gdalinfo` shows for `image`: key → its words.
@@ -194,10 +161,7 @@ fn gdal_reads_the_same_models_and_agrees_on_100_points_each() {
                 }
             })
             .collect();
-        let input: String = ground
-            .iter()
-            .map(|g| format!("{:.15} {:.15} {}\n", g.lon, g.lat, g.h))
-            .collect();
+        let input: Vec<[f64; 3]> = ground.iter().map(|g| [g.lon, g.lat, g.h]).collect();
         let pix = gdaltransform(&img, true, &input);
         assert_eq!(pix.len(), 100, "{}", case.0);
         let mut worst_px: f64 = 0.0;
@@ -209,10 +173,7 @@ fn gdal_reads_the_same_models_and_agrees_on_100_points_each() {
                 .max((l + 0.5 - p[1]).abs());
         }
         // And back: GDAL's pixels at their heights to ground, by both.
-        let input: String = pix
-            .iter()
-            .map(|p| format!("{:.12} {:.12} {}\n", p[0], p[1], p[2]))
-            .collect();
+        let input: Vec<[f64; 3]> = pix.iter().map(|p| [p[0], p[1], p[2]]).collect();
         let back = gdaltransform(&img, false, &input);
         assert_eq!(back.len(), 100, "{}", case.0);
         let metres = |a: LonLatH, lon: f64, lat: f64| {

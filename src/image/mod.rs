@@ -178,25 +178,10 @@ fn read_grey(path: &std::path::Path, max_bytes: u64, nodata: bool) -> std::io::R
             data,
         });
     }
-    use tiff::decoder::{Decoder, Limits};
-    let mut limits = Limits::default();
-    limits.decoding_buffer_size = usize::try_from(2 * max_bytes).unwrap_or(usize::MAX);
-    // A TIFF is decoded from the file, not from a copy of it in memory.
-    let file = std::fs::File::open(path).map_err(|e| io_error(path, e))?;
-    let mut d = Decoder::new(std::io::BufReader::new(file))
-        .map_err(|e| bad(format!("neither a PNG nor a readable TIFF ({e})")))?
-        .with_limits(limits);
+    let mut d = window::open_tiff(path, max_bytes)?;
     let (w, h) = d.dimensions().map_err(|e| bad(e.to_string()))?;
     fits(w as u64, h as u64)?;
-    match d.colortype() {
-        Ok(tiff::ColorType::Gray(_)) => {}
-        Ok(c) => {
-            return Err(bad(format!(
-                "{c:?} pixels: a one-band grey image is needed (convert it to grey first)"
-            )))
-        }
-        Err(e) => return Err(bad(e.to_string())),
-    }
+    require_grey(&mut d, path)?;
     let data = samples_f32(d.read_image().map_err(|e| bad(e.to_string()))?, path)?;
     if data.len() != w as usize * h as usize {
         return Err(bad(
@@ -209,6 +194,21 @@ fn read_grey(path: &std::path::Path, max_bytes: u64, nodata: bool) -> std::io::R
         height: h as usize,
         data,
     })
+}
+
+/// A one-band grey TIFF, or an error saying what it is instead.
+fn require_grey<R: std::io::Read + std::io::Seek>(
+    d: &mut tiff::decoder::Decoder<R>,
+    path: &std::path::Path,
+) -> std::io::Result<()> {
+    match d.colortype() {
+        Ok(tiff::ColorType::Gray(_)) => Ok(()),
+        Ok(c) => Err(invalid(
+            path,
+            format!("{c:?} pixels: a one-band grey image is needed (convert it to grey first)"),
+        )),
+        Err(e) => Err(invalid(path, e.to_string())),
+    }
 }
 
 /// A TIFF's decoded samples as the core's f32 grey values.

@@ -5,7 +5,9 @@
 //! common) is read row by row when it is uncompressed. A PNG has no such access: it is read
 //! whole and cut.
 
-use super::{check_values, f64_to_f32, fits, invalid, io_error, is_png, samples_f32, ImageF32};
+use super::{
+    check_values, f64_to_f32, fits, invalid, io_error, is_png, require_grey, samples_f32, ImageF32,
+};
 use crate::coords::PixelWindow;
 use std::io::{BufReader, Read, Seek, SeekFrom};
 use std::path::Path;
@@ -31,7 +33,12 @@ pub fn grey_size(path: &Path) -> std::io::Result<(usize, usize)> {
     Ok((w as usize, h as usize))
 }
 
-fn open_tiff(path: &Path, max_bytes: u64) -> std::io::Result<Decoder<BufReader<std::fs::File>>> {
+/// A TIFF decoder on the file (not a copy of it in memory), decoding at most `2 × max_bytes`
+/// at once.
+pub(super) fn open_tiff(
+    path: &Path,
+    max_bytes: u64,
+) -> std::io::Result<Decoder<BufReader<std::fs::File>>> {
     let file = std::fs::File::open(path).map_err(|e| io_error(path, e))?;
     let mut limits = Limits::default();
     limits.decoding_buffer_size = usize::try_from(2 * max_bytes).unwrap_or(usize::MAX);
@@ -59,15 +66,7 @@ pub fn load_grey_window(
     let (w, h) = d.dimensions().map_err(|e| bad(e.to_string()))?;
     let (w, h) = (w as usize, h as usize);
     check_within(path, win, w, h)?;
-    match d.colortype() {
-        Ok(tiff::ColorType::Gray(_)) => {}
-        Ok(c) => {
-            return Err(bad(format!(
-                "{c:?} pixels: a one-band grey image is needed (convert it to grey first)"
-            )))
-        }
-        Err(e) => return Err(bad(e.to_string())),
-    }
+    require_grey(&mut d, path)?;
     let bits = d
         .find_tag_unsigned::<u16>(Tag::BitsPerSample)
         .map_err(|e| bad(e.to_string()))?

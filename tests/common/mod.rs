@@ -63,6 +63,48 @@ pub fn dtm_json(project: &Path, out: &Path) -> Value {
     serde_json::from_slice(&o.stdout).unwrap()
 }
 
+/// `gdaltransform ARGS IMAGE` with `points` on its standard input, one a line; the numbers of
+/// each output line (GDAL's own transformer: the independent check of the rig's geometry).
+pub fn gdaltransform(args: &[&str], image: &Path, points: &[[f64; 3]]) -> Vec<Vec<f64>> {
+    use std::io::Write;
+    let mut child = Command::new("gdaltransform")
+        .args(args)
+        .arg(image)
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let input: String = points
+        .iter()
+        .map(|p| format!("{:.15} {:.15} {:.15}\n", p[0], p[1], p[2]))
+        .collect();
+    child
+        .stdin
+        .take()
+        .unwrap()
+        .write_all(input.as_bytes())
+        .unwrap();
+    let out = child.wait_with_output().unwrap();
+    assert!(
+        out.status.success(),
+        "gdaltransform {args:?} {}: {}",
+        image.display(),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout)
+        .lines()
+        .map(|l| {
+            l.split_whitespace()
+                .map(|w| {
+                    w.parse()
+                        .unwrap_or_else(|_| panic!("gdaltransform printed `{l}`"))
+                })
+                .collect()
+        })
+        .collect()
+}
+
 /// A `rig sim` child process, stopped with SIGTERM on drop.
 pub struct SimProcess {
     pub child: Child,
