@@ -431,6 +431,22 @@ pub fn truth_grid_over(
     Ok(rig::sim_scene::grid_to_crs(grid))
 }
 
+/// The terrain's range over the views' common ground (the sample points `zs` and the true
+/// DEM's nodes there: a peak between samples must not fall outside), and the heights a scene's
+/// project searches: that range with `margin_m` below and above, on whole metres.
+pub fn scene_heights(
+    zs: impl Iterator<Item = f64>,
+    truth: &rig::matching::grid::ElevationGrid,
+    margin_m: f64,
+) -> ([f64; 2], [f64; 2]) {
+    let all = zs.chain(truth.z.iter().filter(|z| z.is_finite()).map(|&z| z as f64));
+    let (zmin, zmax) = all.fold((f64::MAX, f64::MIN), |(a, b), z| (a.min(z), b.max(z)));
+    (
+        [zmin, zmax],
+        [(zmin - margin_m).floor(), (zmax + margin_m).ceil()],
+    )
+}
+
 /// truth-dem.tif and truth-reflectance.tif in `dir`, in the world's CRS.
 pub fn write_truth_grids(
     dir: &Path,

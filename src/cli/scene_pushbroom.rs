@@ -3,7 +3,9 @@
 //! them (`view-N_RPC.TXT`), the noise-free points (`truth_points.csv`), the true DEM and
 //! reflectance, and format-2 projects for the rigorous models and for the RPCs.
 
-use super::scene_cmd::{to_grey, truth_grid_over, truth_reflectance, write_truth_grids, SceneArgs};
+use super::scene_cmd::{
+    scene_heights, to_grey, truth_grid_over, truth_reflectance, write_truth_grids, SceneArgs,
+};
 use rig::geometry::rpc::{fit_rpc, FitGrid};
 use rig::geometry::Geographic;
 use rig_sim::pushbroom::{PushbroomView, Stereo};
@@ -84,17 +86,8 @@ pub fn run(a: &SceneArgs) -> anyhow::Result<i32> {
         );
     }
     let truth = truth_grid_over(&dem, [lo[0], lo[1], hi[0], hi[1]], truth_cell_m)?;
-    // The terrain's range over the common footprint: the true DEM's nodes there as well as
-    // the samples (a peak between samples must not fall outside the heights fitted).
-    let zs = ground
-        .iter()
-        .map(|g| g[2])
-        .chain(truth.z.iter().filter(|z| z.is_finite()).map(|&z| z as f64));
-    let (zmin, zmax) = zs.fold((f64::MAX, f64::MIN), |(a, b), z| (a.min(z), b.max(z)));
-    let heights = [
-        (zmin - HEIGHT_MARGIN_M).floor(),
-        (zmax + HEIGHT_MARGIN_M).ceil(),
-    ];
+    let ([zmin, zmax], heights) =
+        scene_heights(ground.iter().map(|g| g[2]), &truth, HEIGHT_MARGIN_M);
     let v0 = views[0].clone();
     let (reflectance, reflectance_cell_m) =
         truth_reflectance(&move |x, y| v0.reflectance_at(x, y), &truth)?;

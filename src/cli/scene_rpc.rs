@@ -6,7 +6,7 @@
 //! zone), the noise-free points (truth_points.csv) and a format-2 project (block.toml) that
 //! names the TIFFs as their own RPC files, with no control points.
 
-use super::scene_cmd::{check_shared, to_grey, SceneArgs};
+use super::scene_cmd::{check_shared, scene_heights, to_grey, SceneArgs};
 use rig::geometry::Crs;
 use rig::matching::grid::ElevationGrid;
 use rig_sim::rpc::{Rpc00b, TIFF_TAG};
@@ -65,15 +65,8 @@ pub fn run(a: &SceneArgs) -> anyhow::Result<i32> {
         hi = [hi[0].max(g[0]), hi[1].max(g[1])];
     }
     let truth = truth_grid(&scene, [lo[0], lo[1], hi[0], hi[1]], truth_cell_m)?;
-    let zs = common
-        .iter()
-        .map(|g| g[2])
-        .chain(truth.z.iter().filter(|z| z.is_finite()).map(|&z| z as f64));
-    let (zmin, zmax) = zs.fold((f64::MAX, f64::MIN), |(a, b), z| (a.min(z), b.max(z)));
-    let heights = [
-        (zmin - HEIGHT_MARGIN_M).floor(),
-        (zmax + HEIGHT_MARGIN_M).ceil(),
-    ];
+    let ([zmin, zmax], heights) =
+        scene_heights(common.iter().map(|g| g[2]), &truth, HEIGHT_MARGIN_M);
     std::fs::create_dir_all(&a.out)?;
     for (k, v) in scene.views.iter().enumerate() {
         let name = format!("img_{:02}", v.number);

@@ -266,13 +266,7 @@ pub fn open(
     opts: DriverOptions,
     link: &LinkOptions,
 ) -> Result<Box<dyn Stage>> {
-    Ok(match dialect {
-        Dialect::Native => Box::new(Driver::new(
-            native::NativeController::open(path, link)?,
-            opts,
-        )),
-        Dialect::Grbl => Box::new(Driver::new(grbl::GrblController::open(path, link)?, opts)),
-    })
+    open_as(path, dialect, opts, link, false)
 }
 
 /// As [`open`], for stopping (`rig stage stop`, `estop`): a controller left moving, holding or
@@ -285,14 +279,25 @@ pub fn open_to_stop(
     opts: DriverOptions,
     link: &LinkOptions,
 ) -> Result<Box<dyn Stage>> {
+    open_as(path, dialect, opts, link, true)
+}
+
+fn open_as(
+    path: &Path,
+    dialect: Dialect,
+    opts: DriverOptions,
+    link: &LinkOptions,
+    to_stop: bool,
+) -> Result<Box<dyn Stage>> {
     Ok(match dialect {
         Dialect::Native => Box::new(Driver::new(
             native::NativeController::open(path, link)?,
             opts,
         )),
-        Dialect::Grbl => Box::new(Driver::new(
+        Dialect::Grbl if to_stop => Box::new(Driver::new(
             grbl::GrblController::open_to_stop(path, link)?,
             opts,
         )),
+        Dialect::Grbl => Box::new(Driver::new(grbl::GrblController::open(path, link)?, opts)),
     })
 }
