@@ -170,6 +170,16 @@ fn a_triplet_through_its_models_or_its_rpcs_gives_the_dem_within_a_quarter_pixel
             rmse * px_per_m
         );
         assert!(rmse * px_per_m <= 0.25, "{project}: {rmse} m");
+        // The default extent is where the views see the ground at every height: nearly all of
+        // it has a height (the bounding box of the footprints' overlap left 30 % empty).
+        let g = &r["grid"];
+        let all = g["cols"].as_u64().unwrap() * g["rows"].as_u64().unwrap();
+        let share = r["grid_filled"].as_u64().unwrap() as f64 / all as f64;
+        eprintln!(
+            "{project}: a height at {:.1} % of the DEM's {all} nodes",
+            100.0 * share
+        );
+        assert!(share >= 0.9, "{project}: {share}");
         // Most of the common footprint (about 3.5 × 4 km at 10 m) has a height.
         assert!(nodes > 80_000, "{project}: {nodes} nodes");
     }
