@@ -309,3 +309,60 @@ fn bad_rpc_scenes_are_refused_by_flag() {
         assert!(!out.exists(), "{args:?} wrote {}", out.display());
     }
 }
+
+/// A project whose RPCs are wrong is refused, and the refusal helps to find why: a truncated
+/// RPC file names the file and the missing term; another product's RPCs, or heights far above
+/// the terrain, end in "no overlap" only once each photo's footprint exists, and the message
+/// says where each photo sees the ground (the operator can tell a photo of somewhere else from
+/// a wrong height).
+#[test]
+fn wrong_rpcs_and_heights_are_refused_saying_where_each_photo_sees() {
+    let d = tempfile::tempdir().unwrap();
+    let scene = scene(d.path(), &[1, 2], 200, 10);
+    let block = std::fs::read_to_string(scene.join("block.toml")).unwrap();
+    let rpb = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/rpc/md_dg.RPB");
+    let full = std::fs::read_to_string(rpc(2)).unwrap();
+    std::fs::write(scene.join("cut_RPC.TXT"), &full[..400]).unwrap();
+    for (name, edit, want) in [
+        (
+            "truncated",
+            block.replace("rpc = \"img_02.tif\"", "rpc = \"cut_RPC.TXT\""),
+            vec!["cut_RPC.TXT", "is missing", "img_02"],
+        ),
+        (
+            "another product",
+            block.replace(
+                "rpc = \"img_02.tif\"",
+                &format!("rpc = {:?}", rpb.display().to_string()),
+            ),
+            vec![
+                "no two photos overlap",
+                "`img_01` sees x 3",
+                "`img_02` sees x -1",
+            ],
+        ),
+        (
+            "heights above the terrain",
+            block.replace("heights = [", "heights = [5000.0, 5100.0] # ["),
+            vec!["at 5050 m", "`img_01` sees x 3", "`img_02` sees x 3"],
+        ),
+    ] {
+        assert_ne!(edit, block, "{name}");
+        let p = scene.join(format!("{}.toml", name.replace(' ', "-")));
+        std::fs::write(&p, edit).unwrap();
+        let out = d.path().join(format!("{name}-dtm"));
+        let o = common::rig()
+            .arg("dtm")
+            .arg(&p)
+            .arg("--out")
+            .arg(&out)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{name}: {err}");
+        for w in want {
+            assert!(err.contains(w), "{name}: wants {w:?} in {err}");
+        }
+        assert!(!out.join("dem.tif").exists(), "{name}");
+    }
+}

@@ -46,8 +46,14 @@ pub enum Pipeline2Error {
     },
     #[error("{0}")]
     Heights(String),
-    #[error("no two photos overlap on the ground at {z:.0} m (the middle of the heights tried): check [dem] heights (do they bracket the terrain?) and the photos' orientations")]
-    NoOverlap { z: f64 },
+    #[error("no two photos overlap on the ground at {z:.0} m (the middle of the heights tried){within}: {prints}; check [dem] heights (do they bracket the terrain?), [dem] extent and the photos' orientations")]
+    NoOverlap {
+        z: f64,
+        /// Each photo's footprint at `z`, in the project's CRS.
+        prints: String,
+        /// " within [dem] extent …" when the project gives one.
+        within: String,
+    },
     #[error("photos `{left}` and `{right}`: {cause}")]
     Pair {
         left: String,
@@ -305,6 +311,34 @@ pub fn footprint(s: &dyn Sensor, z: f64) -> Result<[f64; 4], String> {
         r = [r[0].min(g.x), r[1].min(g.y), r[2].max(g.x), r[3].max(g.y)];
     }
     Ok(r)
+}
+
+/// "No overlap", with where each photo does see the ground, so that the operator can tell a
+/// wrong height from a wrong orientation or a photo of somewhere else.
+fn no_overlap(
+    photos: &[super::project2::Photo2],
+    prints: &[[f64; 4]],
+    extent: Option<[f64; 4]>,
+    z: f64,
+) -> Pipeline2Error {
+    let prints = photos
+        .iter()
+        .zip(prints)
+        .map(|(ph, r)| {
+            format!(
+                "`{}` sees x {:.1} … {:.1}, y {:.1} … {:.1}",
+                ph.id, r[0], r[2], r[1], r[3]
+            )
+        })
+        .collect::<Vec<_>>()
+        .join("; ");
+    let within = extent.map_or(String::new(), |e| {
+        format!(
+            " within [dem] extent x {:.1} … {:.1}, y {:.1} … {:.1}",
+            e[0], e[2], e[1], e[3]
+        )
+    });
+    Pipeline2Error::NoOverlap { z, prints, within }
 }
 
 fn overlap(a: [f64; 4], b: [f64; 4]) -> Option<[f64; 4]> {
@@ -584,10 +618,10 @@ pub fn orient(p: &Project2, photos: &[PhotoGeometry]) -> Result<Oriented, Pipeli
                 u
             })
         }
-        (None, None) => return Err(Pipeline2Error::NoOverlap { z: mid }),
+        (None, None) => return Err(no_overlap(&p.photos, &prints, p.extent, mid)),
     };
     if overlapping.is_empty() {
-        return Err(Pipeline2Error::NoOverlap { z: mid });
+        return Err(no_overlap(&p.photos, &prints, p.extent, mid));
     }
     Ok(Oriented {
         sensors,
