@@ -162,9 +162,21 @@ impl NativeController {
     fn handshake(&mut self) -> Result<()> {
         self.port.purge()?;
         self.dec.reset();
-        match self.query(Message::Hello {
-            version: PROTOCOL_VERSION,
-        })? {
+        let answer = self
+            .query(Message::Hello {
+                version: PROTOCOL_VERSION,
+            })
+            .map_err(|e| match e {
+                // Silence at the handshake is most often the wrong port or the wrong dialect.
+                StageError::Timeout { after, .. } => StageError::Timeout {
+                    what: "the rig protocol's Hello (is the controller powered, on this port, \
+                           and running the rig's firmware? a GRBL board needs --dialect grbl)"
+                        .into(),
+                    after,
+                },
+                e => e,
+            })?;
+        match answer {
             Message::HelloReply { version } if major(version) == major(PROTOCOL_VERSION) => Ok(()),
             Message::HelloReply { version } => Err(StageError::Version {
                 host: format!("{}.{}", PROTOCOL_VERSION >> 8, PROTOCOL_VERSION & 0xff),
