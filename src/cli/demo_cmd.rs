@@ -76,7 +76,7 @@ impl Model {
         }
     }
     /// The DEM's nodes with a height, and all its nodes (its default extent, where two views
-    /// see the ground at every height).
+    /// see the ground at the middle height).
     pub(super) fn filled(&self) -> (usize, usize) {
         let m = match self {
             Model::Sweep(r) => &r.model,

@@ -118,7 +118,7 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<i32> {
     }
     let (filled, nodes) = dtm.filled();
     println!(
-        "  elevation model: a height at {filled} of its {nodes} nodes ({:.1} % of the extent where two views see the ground at every height)",
+        "  elevation model: a height at {filled} of its {nodes} nodes ({:.1} % of the default extent: where two views see the ground)",
         100.0 * filled as f64 / nodes.max(1) as f64
     );
     if let Some(c) = dtm.comparison() {

@@ -1,16 +1,23 @@
-//! The default extent of a DEM: where a height can be computed. A point of the ground has one
-//! when two photos of an overlapping pair see it at every height searched (the parallax moves
-//! it across the images as the height changes). The photos' common ground is seldom a
-//! rectangle (a satellite's track is inclined, a block's corners are seen by one photo only),
-//! while a DEM is: the default extent is the rectangle holding the most of that common ground
-//! of which at least [`MIN_FILL`] is common ground, so that the DEM holds a height nearly
-//! everywhere in it rather than leaving the corners of a bounding box empty.
+//! The default extent of a DEM: where a height can be computed. A point of the ground can have
+//! one when two photos of an overlapping pair see it at the terrain's height; that height is
+//! unknown, so the middle of the heights searched stands for it (demanding the lowest and the
+//! highest too would cut a block's borders wherever the terrain is not at the range's ends:
+//! on independent scenes that dropped 16–28 % of the heights a DEM can hold). The photos'
+//! common ground is seldom a rectangle (a satellite's track is inclined, a block's photos are
+//! turned, its corners seen by one photo only), while a DEM is: the default extent is the
+//! rectangle holding the most of that common ground of which at least [`MIN_FILL`] is common
+//! ground, so that the DEM holds a height nearly everywhere in it rather than leaving the
+//! corners of a bounding box empty.
 
 use crate::coords::GroundM;
 use crate::geometry::Sensor;
 
-/// The share of the default extent that two photos must see.
-pub const MIN_FILL: f64 = 0.97;
+/// The share of the default extent that two photos must see. Measured on six scenes (three
+/// independent aerial blocks, the simulator's block, a pushbroom triplet, real RPC crops): at
+/// 0.95 each DEM holds a height at 91–96 % of its extent and 93–100 % of the heights its
+/// footprints' bounding box held; at 0.97, 94–99 % of the extent but only 90–97 % of the
+/// heights.
+pub const MIN_FILL: f64 = 0.95;
 
 /// Cells per side of the ground sampled between the footprints.
 const CELLS: usize = 64;
@@ -19,7 +26,7 @@ const CELLS: usize = 64;
 const EDGE_PX: f64 = 8.0;
 
 /// The rectangle (xmin, ymin, xmax, ymax) within `bounds` where the pairs `pairs` of `sensors`
-/// see the ground at all of `heights` (low, middle, high), as described above; `None` where
+/// see the ground at the middle of `heights` (low, high), as described above; `None` where
 /// no sample is seen.
 pub fn covered_extent(
     sensors: &[&dyn Sensor],
@@ -31,7 +38,7 @@ pub fn covered_extent(
         (bounds[2] - bounds[0]) / CELLS as f64,
         (bounds[3] - bounds[1]) / CELLS as f64,
     );
-    let zs = [heights[0], 0.5 * (heights[0] + heights[1]), heights[1]];
+    let z = 0.5 * (heights[0] + heights[1]);
     let sees = |s: &dyn Sensor, g: GroundM| {
         let (w, h) = s.image_size();
         s.ground_to_image(g).is_some_and(|q| {
@@ -49,12 +56,10 @@ pub fn covered_extent(
                 bounds[0] + (i as f64 + 0.5) * dx,
                 bounds[1] + (j as f64 + 0.5) * dy,
             );
-            *c = pairs.iter().any(|&(a, b)| {
-                zs.iter().all(|&z| {
-                    let g = GroundM::new(x, y, z);
-                    sees(sensors[a], g) && sees(sensors[b], g)
-                })
-            });
+            let g = GroundM::new(x, y, z);
+            *c = pairs
+                .iter()
+                .any(|&(a, b)| sees(sensors[a], g) && sees(sensors[b], g));
         }
     }
     let [i0, j0, i1, j1] = fullest_rectangle(&covered, MIN_FILL)?;
@@ -147,18 +152,18 @@ mod tests {
         assert!(fullest_rectangle(&vec![[false; CELLS]; CELLS], 0.95).is_none());
     }
 
-    /// Two vertical photos with a base along x: the ground both see at every height is the
-    /// strip between the right photo's left edge at the lowest height and the left photo's
-    /// right edge at the highest (closed form), less the edge margin.
+    /// Two vertical photos with a base along x: the ground both see at the middle height is
+    /// the strip between the right photo's left edge and the left photo's right edge there
+    /// (closed form), less the edge margin.
     #[test]
-    fn two_vertical_photos_cover_their_common_strip_at_all_heights() {
+    fn two_vertical_photos_cover_their_common_strip_at_the_middle_height() {
         let (z0, f, side, p) = (1000.0, 100.0, 1000, 0.1);
         let l = vertical_sensor(GroundM::new(0.0, 0.0, z0), f, side, p);
         let r = vertical_sensor(GroundM::new(400.0, 0.0, z0), f, side, p);
         let heights = [0.0, 200.0];
         // Half the image on the ground at height z: (side/2 − edge)·p·(z0 − z)/f.
         let half = |z: f64| (side as f64 / 2.0 - EDGE_PX) * p * (z0 - z) / f;
-        let want = [400.0 - half(200.0), -half(200.0), half(200.0), half(200.0)];
+        let want = [400.0 - half(100.0), -half(100.0), half(100.0), half(100.0)];
         let bounds = [-600.0, -600.0, 1000.0, 600.0];
         let e = covered_extent(&[&l, &r], &[(0, 1)], bounds, heights).unwrap();
         let cell = 1600.0 / CELLS as f64;
