@@ -111,17 +111,8 @@ fn bad_pushbroom_scenes_are_refused_before_anything_is_written() {
         ),
         (vec!["--gains", "1,1"], "2 values for 3 photos"),
     ] {
-        let out = d.path().join("scene");
-        let o = common::rig()
-            .args(["sim", "scene", "--sensor", "pushbroom"])
-            .args(&args)
-            .arg("--out")
-            .arg(&out)
-            .output()
-            .unwrap();
-        let err = String::from_utf8_lossy(&o.stderr);
-        assert!(!o.status.success() && err.contains(want), "{args:?}: {err}");
-        assert!(!out.exists(), "{args:?} wrote {}", out.display());
+        let args: Vec<&str> = ["--sensor", "pushbroom"].into_iter().chain(args).collect();
+        common::sim_scene_refused(d.path(), &args, want);
     }
 }
 

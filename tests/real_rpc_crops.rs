@@ -296,17 +296,8 @@ fn bad_rpc_scenes_are_refused_by_flag() {
             "1 values for 2 photos",
         ),
     ] {
-        let out = d.path().join("scene");
-        let o = common::rig()
-            .args(["sim", "scene", "--sensor", "rpc"])
-            .args(&args)
-            .arg("--out")
-            .arg(&out)
-            .output()
-            .unwrap();
-        let err = String::from_utf8_lossy(&o.stderr);
-        assert!(!o.status.success() && err.contains(want), "{args:?}: {err}");
-        assert!(!out.exists(), "{args:?} wrote {}", out.display());
+        let args: Vec<&str> = ["--sensor", "rpc"].into_iter().chain(args).collect();
+        common::sim_scene_refused(d.path(), &args, want);
     }
 }
 

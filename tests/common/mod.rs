@@ -50,6 +50,22 @@ pub fn sim_scene(dir: &Path, args: &[&str]) -> PathBuf {
     scene
 }
 
+/// `rig sim scene ARGS --out DIR/scene`, asserted to fail with `want` in its standard error
+/// and to have written nothing.
+pub fn sim_scene_refused(dir: &Path, args: &[&str], want: &str) {
+    let out = dir.join("scene");
+    let o = rig()
+        .args(["sim", "scene"])
+        .args(args)
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && err.contains(want), "{args:?}: {err}");
+    assert!(!out.exists(), "{args:?} wrote {}", out.display());
+}
+
 /// `rig dtm PROJECT --json --out OUT`, asserted to succeed; its report.
 pub fn dtm_json(project: &Path, out: &Path) -> Value {
     let o = run_ok(
