@@ -46,14 +46,26 @@ impl MgcmConfig {
         }
     }
 
-    /// The interest operator's parameters for an image of grey range `range`.
-    pub fn interest(&self, range: f64) -> InterestParams {
+    /// The interest operator's parameters for an image of grey range `range`, one point per
+    /// `cell` px.
+    pub fn interest(&self, range: f64, cell: usize) -> InterestParams {
         InterestParams {
             selection: self.points,
-            cell: self.cell,
+            cell,
             length: self.mask_length,
             threshold: self.threshold_percent / 100.0 * range,
             margin: self.patch + 4,
         }
+    }
+}
+
+/// The side of the points' cells when the project gives none: half the DEM's post spacing
+/// `cell_m` in reference pixels of `gsd_m`, 5 to 25 px (seed 002's 21-29 px at most).
+pub fn auto_cell(cell_m: f64, gsd_m: f64) -> usize {
+    let px = 0.5 * cell_m / gsd_m;
+    if px.is_finite() {
+        px.round().clamp(5.0, 25.0) as usize
+    } else {
+        25
     }
 }

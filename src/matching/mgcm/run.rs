@@ -10,7 +10,7 @@
 //! accuracy analysis against the reference are written as the sweep's outputs are.
 
 use super::adjust::{local_shape, template, AdjustParams, PointFailure, View};
-use super::config::MgcmConfig;
+use super::config::{auto_cell, MgcmConfig};
 use super::interest::{epipolar_direction, select};
 use super::point::{match_point, PointResult, RayTests};
 use super::pyramid::{levels_for, pyramid, AtLevel, Textured};
@@ -90,6 +90,10 @@ pub struct MgcmReport {
     /// The photo carrying the templates, and the photos searched.
     pub reference: String,
     pub searched: Vec<String>,
+    /// Every reference with the photos searched from it: the first is `reference`; more
+    /// where some overlapping pair has neither photo as a reference.
+    #[serde(default)]
+    pub references: Vec<(String, Vec<String>)>,
     pub heights_m: [f64; 2],
     pub extent: [f64; 4],
     pub config: MgcmConfig,
@@ -118,9 +122,20 @@ impl MgcmReport {
             (
                 "method".to_string(),
                 format!(
-                    "multiphoto geometrically constrained matching: photo {} against {}",
-                    self.reference,
-                    self.searched.join(", ")
+                    "multiphoto geometrically constrained matching: {}",
+                    if self.references.is_empty() {
+                        format!(
+                            "photo {} against {}",
+                            self.reference,
+                            self.searched.join(", ")
+                        )
+                    } else {
+                        self.references
+                            .iter()
+                            .map(|(r, o)| format!("photo {r} against {}", o.join(", ")))
+                            .collect::<Vec<_>>()
+                            .join("; ")
+                    }
                 ),
             ),
             (
@@ -511,32 +526,48 @@ pub fn run(
                 corrected,
                 heights,
                 extent,
+                overlapping,
                 ..
             },
         mid,
         reference: r,
         others,
     } = block(p, photos, cfg.reference.as_deref(), "matching.mgcm")?;
+    // The references: the one named, or enough of them that every overlapping pair has one
+    // (a strip's first photo sees only its half of the second's overlap with the third).
+    let references = match cfg.reference {
+        Some(_) => vec![(r, others)],
+        None => references(r, others, &overlapping),
+    };
     // Memory: every pyramid (image and two gradients, 4/3 of level 0's pixels).
-    let bytes: u64 = std::iter::once(r)
-        .chain(others.iter().copied())
-        .map(|k| (photos[k].image.data.len() as u64) * 4 * 3 * 4 / 3)
+    let mut used: Vec<usize> = references
+        .iter()
+        .flat_map(|(r, o)| std::iter::once(*r).chain(o.iter().copied()))
+        .collect();
+    used.sort_unstable();
+    used.dedup();
+    let bytes: u64 = used
+        .iter()
+        .map(|&k| (photos[k].image.data.len() as u64) * 4 * 3 * 4 / 3)
         .sum();
     let limit = max_memory_mb.unwrap_or(p.limits.max_memory_mb) << 20;
     if bytes > limit {
         return Err(Pipeline2Error::Grid(format!(
             "the pyramids of {} photos need {} MiB; the limit is {} MiB ([limits] max_memory_mb or --max-memory)",
-            others.len() + 1,
+            used.len(),
             bytes >> 20,
             limit >> 20
         )));
     }
-    let (rw, rh) = (photos[r].image.width, photos[r].image.height);
-    let levels = levels_for(rw, rh, cfg.top_px);
-    progress.begin("pyramids", (others.len() + 1) as u64);
-    let pyr: Vec<(usize, Vec<Textured>)> = std::iter::once(r)
-        .chain(others.iter().copied())
-        .collect::<Vec<_>>()
+    let (rw0, rh0) = (photos[r].image.width, photos[r].image.height);
+    let levels = used
+        .iter()
+        .map(|&k| levels_for(photos[k].image.width, photos[k].image.height, cfg.top_px))
+        .min()
+        .unwrap_or_else(|| levels_for(rw0, rh0, cfg.top_px));
+    progress.begin("pyramids", used.len() as u64);
+    let pyr: Vec<(usize, Vec<Textured>)> = used
+        .clone()
         .into_par_iter()
         .map(|k| {
             let t = pyramid(photos[k].image.clone(), levels);
@@ -545,11 +576,249 @@ pub fn run(
         })
         .collect();
     progress.end();
+    let at = Shared {
+        sensors: &sensors,
+        pyr: &pyr,
+        heights,
+        mid,
+        levels,
+        cfg: &cfg,
+        cell_m: p.cell_m,
+        progress,
+    };
+    let mut runs = Vec::new();
+    for (r, others) in &references {
+        runs.push(match_reference(&at, *r, others)?);
+    }
+    let first = &runs[0];
+    let m_per_px = first.m_per_px;
+    let centre0 = first.centre;
+    let mut level_reports = Vec::new();
+    let mut warnings = Vec::new();
+    let mut points: Vec<(usize, FinePoint)> = Vec::new();
+    let mut fine_seconds = 0.0;
+    for run in &runs {
+        level_reports.extend(run.levels.iter().cloned());
+        for w in &run.warnings {
+            if !warnings.contains(w) {
+                warnings.push(w.clone());
+            }
+        }
+        points.extend(run.points.iter().cloned().map(|pt| (run.reference, pt)));
+        fine_seconds += run.fine_seconds;
+    }
+    let kept: Vec<&FinePoint> = points
+        .iter()
+        .map(|(_, p)| p)
+        .filter(|p| p.refusal.is_none())
+        .collect();
+    let most = references.iter().map(|(_, o)| o.len()).max().unwrap_or(0);
+    let mut rays_histogram = vec![0usize; most + 2];
+    let matched: Vec<MatchedPoint> = kept
+        .iter()
+        .filter_map(|p| {
+            let s = p.result.solution.as_ref().ok()?;
+            rays_histogram[s.rays.len() + 1] += 1;
+            Some(MatchedPoint {
+                ground: s.ground,
+                corr: s.corr() as f32,
+                sigma_m: s.sigma[2] as f32,
+            })
+        })
+        .collect();
+    // The DEM from the points.
+    let budget = max_memory_mb.unwrap_or(p.limits.max_memory_mb);
+    let mut grid = ElevationGrid::covering(extent, p.cell_m, budget)
+        .map_err(|e| Pipeline2Error::Grid(e.to_string()))?;
+    // The points' spacing on the ground, the widest of the references'.
+    let spacing_m = runs
+        .iter()
+        .map(|run| run.cell as f64 * run.gsd_m)
+        .fold(0.0, f64::max);
+    let quality = grid.fill_scattered(&matched, 1.6 * spacing_m);
+    let obs = p.observations()?;
+    let (model, reference_dem) = ModelFigures::check(reference_dem, &obs, grid, &quality.sigma_m);
+    let hg = flying_height(&sensors[r], centre0, mid).unwrap_or(f64::NAN);
+    // Blunders the matcher detected: points its tests refused (not those it could not try:
+    // a flat template, one at the edge, a ray that cannot reach the height).
+    let refused = points
+        .iter()
+        .filter(|(_, p)| match &p.refusal {
+            None => false,
+            Some(Refusal::Matching { failure }) => !matches!(
+                failure,
+                PointFailure::Flat | PointFailure::TemplateOutside | PointFailure::NoRay
+            ),
+            Some(_) => true,
+        })
+        .count();
+    let accuracy = reference_dem.as_ref().map(|g| {
+        let d: Vec<(f64, f64)> = matched
+            .iter()
+            .filter_map(|m| {
+                let z = g.interpolate(m.ground.x, m.ground.y);
+                z.is_finite().then_some((m.ground.z - z, m.sigma_m as f64))
+            })
+            .collect();
+        // A blunder is a wrong match: half a pixel of parallax at least.
+        analyse(&d, refused, hg, 0.5 * m_per_px)
+    });
+    let seconds = started.elapsed().as_secs_f64();
+    let report = MgcmReport {
+        project: p.path.clone(),
+        method: "mgcm".into(),
+        crs: p.crs,
+        resected,
+        corrected,
+        reference: p.photos[r].id.clone(),
+        searched: references[0]
+            .1
+            .iter()
+            .map(|&k| p.photos[k].id.clone())
+            .collect(),
+        references: references
+            .iter()
+            .map(|(r, o)| {
+                (
+                    p.photos[*r].id.clone(),
+                    o.iter().map(|&k| p.photos[k].id.clone()).collect(),
+                )
+            })
+            .collect(),
+        heights_m: heights,
+        extent,
+        config: cfg.clone(),
+        levels: level_reports,
+        selected: points.len(),
+        kept: matched.len(),
+        rays_histogram,
+        m_per_px,
+        seconds,
+        points_per_second: points.len() as f64 / fine_seconds.max(1e-9),
+        model,
+        accuracy,
+        warnings,
+    };
+    let write = |source| PipelineError::Write {
+        dir: out.to_path_buf(),
+        cause: source,
+    };
+    crate::matching::pipeline2::write_model(
+        out,
+        &report.model.grid,
+        &matched,
+        &quality,
+        photos,
+        &sensors,
+        reference_dem.as_ref().zip(report.model.comparison.as_ref()),
+        p.crs,
+        &report,
+        &report.summary(),
+    )
+    .map_err(write)?;
+    let ids: Vec<&str> = p.photos.iter().map(|ph| ph.id.as_str()).collect();
+    crate::atomic::write(
+        &out.join("points.csv"),
+        points_csv(&points, &references, &ids).as_bytes(),
+    )
+    .map_err(write)?;
+    if let Some(a) = &report.accuracy {
+        crate::atomic::write(&out.join("accuracy.txt"), a.table().as_bytes()).map_err(write)?;
+        crate::atomic::write_json(&out.join("accuracy.json"), a).map_err(write)?;
+    } else {
+        for f in ["accuracy.txt", "accuracy.json"] {
+            let _ = std::fs::remove_file(out.join(f));
+        }
+    }
+    Ok(report)
+}
+
+/// What every reference's matching shares: the block's sensors and pyramids, the heights
+/// and the configuration.
+struct Shared<'a> {
+    sensors: &'a [crate::geometry::PhotoSensor],
+    pyr: &'a [(usize, Vec<Textured>)],
+    heights: [f64; 2],
+    mid: f64,
+    levels: usize,
+    cfg: &'a MgcmConfig,
+    /// The DEM's post spacing, m.
+    cell_m: f64,
+    progress: &'a dyn Progress,
+}
+
+/// One reference photo's matching: its pyramid levels and its finest points.
+struct ReferenceRun {
+    reference: usize,
+    /// The reference image's centre, px.
+    centre: PixelXY,
+    levels: Vec<LevelReport>,
+    points: Vec<FinePoint>,
+    m_per_px: f64,
+    /// The points' cell, px, and the reference's ground pixel, m.
+    cell: usize,
+    gsd_m: f64,
+    warnings: Vec<String>,
+    fine_seconds: f64,
+}
+
+/// The references of a block: `first` (with `others`), then, while some overlapping pair has
+/// neither photo as a reference, the photo in most such pairs, with the photos it overlaps.
+fn references(
+    first: usize,
+    others: Vec<usize>,
+    overlapping: &[(usize, usize)],
+) -> Vec<(usize, Vec<usize>)> {
+    let mut refs = vec![(first, others)];
+    loop {
+        let open: Vec<(usize, usize)> = overlapping
+            .iter()
+            .copied()
+            .filter(|&(i, j)| !refs.iter().any(|(r, _)| *r == i || *r == j))
+            .collect();
+        let Some(next) = open.iter().flat_map(|&(i, j)| [i, j]).max_by_key(|&k| {
+            (
+                open.iter().filter(|&&(i, j)| i == k || j == k).count(),
+                std::cmp::Reverse(k),
+            )
+        }) else {
+            return refs;
+        };
+        let partners = overlapping
+            .iter()
+            .filter_map(|&(i, j)| (i == next).then_some(j).or((j == next).then_some(i)))
+            .collect();
+        refs.push((next, partners));
+    }
+}
+
+/// The pyramid's levels and the finest points with reference `r` and search photos `others`.
+fn match_reference(
+    at: &Shared<'_>,
+    r: usize,
+    others: &[usize],
+) -> Result<ReferenceRun, Pipeline2Error> {
+    let Shared {
+        sensors,
+        pyr,
+        heights,
+        mid,
+        levels,
+        cfg,
+        cell_m,
+        progress,
+    } = *at;
+    let (rw, rh) = {
+        let t = &pyr.iter().find(|(i, _)| *i == r).expect("built").1[0];
+        (t.image.width, t.image.height)
+    };
     let sensor_at = |k: usize, level: usize| AtLevel {
         inner: &sensors[k],
         level,
     };
     let centre0 = PixelXY::new(0.5 * rw as f64, 0.5 * rh as f64);
+    let gsd_m = ground_pixel_m(&sensors[r], centre0, mid).unwrap_or(f64::NAN);
+    let cell = cfg.cell.unwrap_or_else(|| auto_cell(cell_m, gsd_m));
     let search_sensors: Vec<&dyn Sensor> =
         others.iter().map(|&k| &sensors[k] as &dyn Sensor).collect();
     let px_per_m0 = parallax_per_m(&sensors[r], &search_sensors, centre0, mid);
@@ -654,7 +923,7 @@ pub fn run(
     let selected = select(
         &reference.image.image,
         &directions,
-        &cfg.interest(grey_range(&reference.image.image)),
+        &cfg.interest(grey_range(&reference.image.image), cell),
     );
     // The orientation's pointing error: the project's between photos given as exact, and
     // each resected photo's own through its sensor (the resection's covariance).
@@ -688,7 +957,7 @@ pub fn run(
             pt.refusal = Some(Refusal::Matching { failure: *e });
         }
     }
-    neighbourhood_tests(&mut points, 2.5 * cfg.cell as f64, m_per_px);
+    neighbourhood_tests(&mut points, 2.5 * cell as f64, m_per_px);
     let kept: Vec<&FinePoint> = points.iter().filter(|p| p.refusal.is_none()).collect();
     // Points beyond the heights tried by more than a pixel of parallax: the pyramid's
     // approximations led the matching there and its tests passed them, but the top level's
@@ -719,108 +988,17 @@ pub fn run(
         matched: kept.len(),
         blunders: points.len() - kept.len(),
     });
-    let mut rays_histogram = vec![0usize; others.len() + 2];
-    let matched: Vec<MatchedPoint> = kept
-        .iter()
-        .filter_map(|p| {
-            let s = p.result.solution.as_ref().ok()?;
-            rays_histogram[s.rays.len() + 1] += 1;
-            Some(MatchedPoint {
-                ground: s.ground,
-                corr: s.corr() as f32,
-                sigma_m: s.sigma[2] as f32,
-            })
-        })
-        .collect();
-    // The DEM from the points.
-    let budget = max_memory_mb.unwrap_or(p.limits.max_memory_mb);
-    let mut grid = ElevationGrid::covering(extent, p.cell_m, budget)
-        .map_err(|e| Pipeline2Error::Grid(e.to_string()))?;
-    let gsd = ground_pixel_m(&sensors[r], centre0, mid).unwrap_or(1.0);
-    let quality = grid.fill_scattered(&matched, 1.6 * cfg.cell as f64 * gsd);
-    let obs = p.observations()?;
-    let (model, reference_dem) = ModelFigures::check(reference_dem, &obs, grid, &quality.sigma_m);
-    let hg = flying_height(&sensors[r], centre0, mid).unwrap_or(f64::NAN);
-    // Blunders the matcher detected: points its tests refused (not those it could not try:
-    // a flat template, one at the edge, a ray that cannot reach the height).
-    let refused = points
-        .iter()
-        .filter(|p| match &p.refusal {
-            None => false,
-            Some(Refusal::Matching { failure }) => !matches!(
-                failure,
-                PointFailure::Flat | PointFailure::TemplateOutside | PointFailure::NoRay
-            ),
-            Some(_) => true,
-        })
-        .count();
-    let accuracy = reference_dem.as_ref().map(|g| {
-        let d: Vec<(f64, f64)> = matched
-            .iter()
-            .filter_map(|m| {
-                let z = g.interpolate(m.ground.x, m.ground.y);
-                z.is_finite().then_some((m.ground.z - z, m.sigma_m as f64))
-            })
-            .collect();
-        // A blunder is a wrong match: half a pixel of parallax at least.
-        analyse(&d, refused, hg, 0.5 * m_per_px)
-    });
-    let seconds = started.elapsed().as_secs_f64();
-    let report = MgcmReport {
-        project: p.path.clone(),
-        method: "mgcm".into(),
-        crs: p.crs,
-        resected,
-        corrected,
-        reference: p.photos[r].id.clone(),
-        searched: others.iter().map(|&k| p.photos[k].id.clone()).collect(),
-        heights_m: heights,
-        extent,
-        config: cfg.clone(),
+    Ok(ReferenceRun {
+        reference: r,
+        centre: centre0,
         levels: level_reports,
-        selected: points.len(),
-        kept: matched.len(),
-        rays_histogram,
+        points,
         m_per_px,
-        seconds,
-        points_per_second: points.len() as f64 / fine_seconds.max(1e-9),
-        model,
-        accuracy,
+        cell,
+        gsd_m,
         warnings,
-    };
-    let write = |source| PipelineError::Write {
-        dir: out.to_path_buf(),
-        cause: source,
-    };
-    crate::matching::pipeline2::write_model(
-        out,
-        &report.model.grid,
-        &matched,
-        &quality,
-        photos,
-        &sensors,
-        reference_dem.as_ref().zip(report.model.comparison.as_ref()),
-        p.crs,
-        &report,
-        &report.summary(),
-    )
-    .map_err(write)?;
-    let ids: Vec<&str> = p.photos.iter().map(|ph| ph.id.as_str()).collect();
-    let search_ids: Vec<&str> = others.iter().map(|&k| ids[k]).collect();
-    crate::atomic::write(
-        &out.join("points.csv"),
-        points_csv(&points, &search_ids).as_bytes(),
-    )
-    .map_err(write)?;
-    if let Some(a) = &report.accuracy {
-        crate::atomic::write(&out.join("accuracy.txt"), a.table().as_bytes()).map_err(write)?;
-        crate::atomic::write_json(&out.join("accuracy.json"), a).map_err(write)?;
-    } else {
-        for f in ["accuracy.txt", "accuracy.json"] {
-            let _ = std::fs::remove_file(out.join(f));
-        }
-    }
-    Ok(report)
+        fine_seconds,
+    })
 }
 
 /// Every finest-level point, kept or refused, with its precision, its rays and the reasons:
@@ -829,12 +1007,23 @@ pub fn run(
 /// the rays used (photo ids), each used ray's figures (`id: ρ correlation, rms grey residual,
 /// Δ constraint residual col/row px`, separated by `; `), `status` (kept or refused), `reason`,
 /// and the rays refused (`id: reason`, separated by `; `).
-fn points_csv(points: &[FinePoint], ids: &[&str]) -> String {
+fn points_csv(
+    points: &[(usize, FinePoint)],
+    references: &[(usize, Vec<usize>)],
+    all_ids: &[&str],
+) -> String {
     let mut s = String::from(
-        "id,col,row,x,y,z,sigma_x,sigma_y,sigma_z,sigma_z_formal,sigma0,iterations,corr,rays,ray_figures,status,reason,refused_rays\n",
+        "id,col,row,x,y,z,sigma_x,sigma_y,sigma_z,sigma_z_formal,sigma0,iterations,corr,rays,ray_figures,status,reason,refused_rays,reference\n",
     );
     let quote = |t: &str| format!("\"{}\"", t.replace('"', "'"));
-    for (k, p) in points.iter().enumerate() {
+    for (k, (reference, p)) in points.iter().enumerate() {
+        let ids: Vec<&str> = references
+            .iter()
+            .find(|(r, _)| r == reference)
+            .map(|(_, o)| o.iter().map(|&j| all_ids[j]).collect())
+            .unwrap_or_default();
+        let ids = ids.as_slice();
+        let reference = all_ids[*reference];
         let (c, r) = p.result.pixel;
         let refused_rays = p
             .result
@@ -875,7 +1064,7 @@ fn points_csv(points: &[FinePoint], ids: &[&str]) -> String {
                     })
                     .collect();
                 s += &format!(
-                    "{},{},{},{:.3},{:.3},{:.3},{:.4},{:.4},{:.4},{:.4},{:.4},{},{:.4},{},{},{},{},{}\n",
+                    "{},{},{},{:.3},{:.3},{:.3},{:.4},{:.4},{:.4},{:.4},{:.4},{},{:.4},{},{},{},{},{},{}\n",
                     k + 1,
                     c,
                     r,
@@ -893,21 +1082,56 @@ fn points_csv(points: &[FinePoint], ids: &[&str]) -> String {
                     quote(&figures.join("; ")),
                     status,
                     quote(&reason),
-                    quote(&refused_rays)
+                    quote(&refused_rays),
+                    quote(reference)
                 );
             }
             Err(_) => {
                 s += &format!(
-                    "{},{},{},,,,,,,,,,,,,{},{},{}\n",
+                    "{},{},{},,,,,,,,,,,,,{},{},{},{}\n",
                     k + 1,
                     c,
                     r,
                     status,
                     quote(&reason),
-                    quote(&refused_rays)
+                    quote(&refused_rays),
+                    quote(reference)
                 );
             }
         }
     }
     s
+}
+
+#[cfg(test)]
+mod reference_tests {
+    use super::references;
+
+    /// A strip of four photos, each overlapping the next and the one after (60–65 % overlap):
+    /// the photo overlapping most is the first reference; the pairs it leaves (3–4, 1–3 or
+    /// 2–4) take one more, so every overlapping pair has a reference among its photos.
+    #[test]
+    fn every_overlapping_pair_has_a_reference() {
+        let pairs = [(0, 1), (1, 2), (2, 3), (0, 2), (1, 3)];
+        let refs = references(1, vec![0, 2, 3], &pairs);
+        assert_eq!(refs.len(), 2, "{refs:?}");
+        for (i, j) in pairs {
+            assert!(
+                refs.iter().any(|(r, _)| *r == i || *r == j),
+                "{i}-{j}: {refs:?}"
+            );
+        }
+        assert_eq!(refs[1], (2, vec![1, 3, 0]), "{refs:?}");
+        // Three photos in a strip whose ends do not meet: photo 1 alone covers both pairs.
+        assert_eq!(references(1, vec![0, 2], &[(0, 1), (1, 2)]).len(), 1);
+    }
+
+    #[test]
+    fn the_points_cell_follows_the_posts() {
+        use crate::matching::mgcm::config::auto_cell;
+        assert_eq!(auto_cell(1.0, 0.35), 5);
+        assert_eq!(auto_cell(80.0, 5.0), 8);
+        assert_eq!(auto_cell(500.0, 1.0), 25);
+        assert_eq!(auto_cell(10.0, f64::NAN), 25);
+    }
 }
