@@ -9,6 +9,50 @@ use super::project2::Project2;
 use crate::coords::PixelXY;
 use crate::geometry::Sensor;
 
+/// The photos that overlap photo `k` (`overlapping`: the pairs whose footprints overlap).
+pub fn partners(overlapping: &[(usize, usize)], k: usize) -> Vec<usize> {
+    overlapping
+        .iter()
+        .filter_map(|&(i, j)| {
+            if i == k {
+                Some(j)
+            } else if j == k {
+                Some(i)
+            } else {
+                None
+            }
+        })
+        .collect()
+}
+
+/// The references a block needs: `first` (with `others`, the photos it overlaps), then,
+/// while some overlapping pair has neither photo as a reference, the photo in most such
+/// pairs (the first of those), with the photos it overlaps. A strip's first photo sees only
+/// its own overlaps; one reference per pair covers every ground two photos see.
+pub fn references_covering(
+    first: usize,
+    others: Vec<usize>,
+    overlapping: &[(usize, usize)],
+) -> Vec<(usize, Vec<usize>)> {
+    let mut refs = vec![(first, others)];
+    loop {
+        let open: Vec<(usize, usize)> = overlapping
+            .iter()
+            .copied()
+            .filter(|&(i, j)| !refs.iter().any(|(r, _)| *r == i || *r == j))
+            .collect();
+        let Some(next) = open.iter().flat_map(|&(i, j)| [i, j]).max_by_key(|&k| {
+            (
+                open.iter().filter(|&&(i, j)| i == k || j == k).count(),
+                std::cmp::Reverse(k),
+            )
+        }) else {
+            return refs;
+        };
+        refs.push((next, partners(overlapping, next)));
+    }
+}
+
 /// The reference photo and the photos overlapping it. `named` (a photo id from `section` of
 /// project `p`) if given, else the photo overlapping most others (the first of those);
 /// `overlapping` are the pairs whose footprints overlap, `z` the height they were found at.
@@ -19,20 +63,6 @@ pub fn choose_reference(
     section: &str,
     z: f64,
 ) -> Result<(usize, Vec<usize>), Pipeline2Error> {
-    let partners = |k: usize| -> Vec<usize> {
-        overlapping
-            .iter()
-            .filter_map(|&(i, j)| {
-                if i == k {
-                    Some(j)
-                } else if j == k {
-                    Some(i)
-                } else {
-                    None
-                }
-            })
-            .collect()
-    };
     let r = match named {
         Some(id) => p.photos.iter().position(|ph| ph.id == id).ok_or_else(|| {
             Pipeline2Error::Heights(format!(
@@ -42,10 +72,10 @@ pub fn choose_reference(
             ))
         })?,
         None => (0..p.photos.len())
-            .max_by_key(|&k| (partners(k).len(), std::cmp::Reverse(k)))
+            .max_by_key(|&k| (partners(overlapping, k).len(), std::cmp::Reverse(k)))
             .unwrap_or(0),
     };
-    let others = partners(r);
+    let others = partners(overlapping, r);
     if others.is_empty() {
         return Err(Pipeline2Error::Heights(format!(
             "{}: [{section}] reference = \"{}\" overlaps no other photo at {z:.0} m: name another",
@@ -125,6 +155,28 @@ pub fn flying_height(s: &dyn Sensor, q: PixelXY, z: f64) -> Option<f64> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A strip of four photos, each overlapping the next and the one after (60–65 % overlap):
+    /// the photo overlapping most is the first reference; the pairs it leaves (3–4, 1–3 or
+    /// 2–4) take one more, so every overlapping pair has a reference among its photos.
+    #[test]
+    fn every_overlapping_pair_has_a_reference() {
+        let pairs = [(0, 1), (1, 2), (2, 3), (0, 2), (1, 3)];
+        let refs = references_covering(1, vec![0, 2, 3], &pairs);
+        assert_eq!(refs.len(), 2, "{refs:?}");
+        for (i, j) in pairs {
+            assert!(
+                refs.iter().any(|(r, _)| *r == i || *r == j),
+                "{i}-{j}: {refs:?}"
+            );
+        }
+        assert_eq!(refs[1], (2, vec![1, 3, 0]), "{refs:?}");
+        // Three photos in a strip whose ends do not meet: photo 1 alone covers both pairs.
+        assert_eq!(
+            references_covering(1, vec![0, 2], &[(0, 1), (1, 2)]).len(),
+            1
+        );
+    }
     use crate::coords::GroundM;
     use crate::matching::pipeline2::vertical_sensor;
 

@@ -69,3 +69,16 @@ pub fn auto_cell(cell_m: f64, gsd_m: f64) -> usize {
         25
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::auto_cell;
+
+    #[test]
+    fn the_points_cell_follows_the_posts() {
+        assert_eq!(auto_cell(1.0, 0.35), 5);
+        assert_eq!(auto_cell(80.0, 5.0), 8);
+        assert_eq!(auto_cell(500.0, 1.0), 25);
+        assert_eq!(auto_cell(10.0, f64::NAN), 25);
+    }
+}

@@ -18,7 +18,7 @@ use crate::coords::PixelXY;
 use crate::geometry::{Crs, Resection, Sensor};
 use crate::matching::accuracy::{analyse, Accuracy};
 use crate::matching::block_geometry::{
-    block, flying_height, ground_pixel_m, parallax_per_m, Block,
+    block, flying_height, ground_pixel_m, parallax_per_m, references_covering, Block,
 };
 use crate::matching::grid::ElevationGrid;
 use crate::matching::pipeline::{Photo, PipelineError};
@@ -537,7 +537,7 @@ pub fn run(
     // (a strip's first photo sees only its half of the second's overlap with the third).
     let references = match cfg.reference {
         Some(_) => vec![(r, others)],
-        None => references(r, others, &overlapping),
+        None => references_covering(r, others, &overlapping),
     };
     // Memory: every pyramid (image and two gradients, 4/3 of level 0's pixels).
     let mut used: Vec<usize> = references
@@ -559,12 +559,11 @@ pub fn run(
             limit >> 20
         )));
     }
-    let (rw0, rh0) = (photos[r].image.width, photos[r].image.height);
+    // Levels every photo's pyramid has (the first reference is among them).
     let levels = used
         .iter()
         .map(|&k| levels_for(photos[k].image.width, photos[k].image.height, cfg.top_px))
-        .min()
-        .unwrap_or_else(|| levels_for(rw0, rh0, cfg.top_px));
+        .fold(usize::MAX, usize::min);
     progress.begin("pyramids", used.len() as u64);
     let pyr: Vec<(usize, Vec<Textured>)> = used
         .clone()
@@ -634,7 +633,13 @@ pub fn run(
     let spacing_m = runs
         .iter()
         .map(|run| run.cell as f64 * run.gsd_m)
-        .fold(0.0, f64::max);
+        .fold(f64::NAN, f64::max);
+    // A ground pixel that cannot be found counts as a metre (as it did before references).
+    let spacing_m = if spacing_m.is_finite() {
+        spacing_m
+    } else {
+        runs.iter().map(|run| run.cell).max().unwrap_or(1) as f64
+    };
     let quality = grid.fill_scattered(&matched, 1.6 * spacing_m);
     let obs = p.observations()?;
     let (model, reference_dem) = ModelFigures::check(reference_dem, &obs, grid, &quality.sigma_m);
@@ -760,36 +765,6 @@ struct ReferenceRun {
     gsd_m: f64,
     warnings: Vec<String>,
     fine_seconds: f64,
-}
-
-/// The references of a block: `first` (with `others`), then, while some overlapping pair has
-/// neither photo as a reference, the photo in most such pairs, with the photos it overlaps.
-fn references(
-    first: usize,
-    others: Vec<usize>,
-    overlapping: &[(usize, usize)],
-) -> Vec<(usize, Vec<usize>)> {
-    let mut refs = vec![(first, others)];
-    loop {
-        let open: Vec<(usize, usize)> = overlapping
-            .iter()
-            .copied()
-            .filter(|&(i, j)| !refs.iter().any(|(r, _)| *r == i || *r == j))
-            .collect();
-        let Some(next) = open.iter().flat_map(|&(i, j)| [i, j]).max_by_key(|&k| {
-            (
-                open.iter().filter(|&&(i, j)| i == k || j == k).count(),
-                std::cmp::Reverse(k),
-            )
-        }) else {
-            return refs;
-        };
-        let partners = overlapping
-            .iter()
-            .filter_map(|&(i, j)| (i == next).then_some(j).or((j == next).then_some(i)))
-            .collect();
-        refs.push((next, partners));
-    }
 }
 
 /// The pyramid's levels and the finest points with reference `r` and search photos `others`.
@@ -1101,37 +1076,4 @@ fn points_csv(
         }
     }
     s
-}
-
-#[cfg(test)]
-mod reference_tests {
-    use super::references;
-
-    /// A strip of four photos, each overlapping the next and the one after (60–65 % overlap):
-    /// the photo overlapping most is the first reference; the pairs it leaves (3–4, 1–3 or
-    /// 2–4) take one more, so every overlapping pair has a reference among its photos.
-    #[test]
-    fn every_overlapping_pair_has_a_reference() {
-        let pairs = [(0, 1), (1, 2), (2, 3), (0, 2), (1, 3)];
-        let refs = references(1, vec![0, 2, 3], &pairs);
-        assert_eq!(refs.len(), 2, "{refs:?}");
-        for (i, j) in pairs {
-            assert!(
-                refs.iter().any(|(r, _)| *r == i || *r == j),
-                "{i}-{j}: {refs:?}"
-            );
-        }
-        assert_eq!(refs[1], (2, vec![1, 3, 0]), "{refs:?}");
-        // Three photos in a strip whose ends do not meet: photo 1 alone covers both pairs.
-        assert_eq!(references(1, vec![0, 2], &[(0, 1), (1, 2)]).len(), 1);
-    }
-
-    #[test]
-    fn the_points_cell_follows_the_posts() {
-        use crate::matching::mgcm::config::auto_cell;
-        assert_eq!(auto_cell(1.0, 0.35), 5);
-        assert_eq!(auto_cell(80.0, 5.0), 8);
-        assert_eq!(auto_cell(500.0, 1.0), 25);
-        assert_eq!(auto_cell(10.0, f64::NAN), 25);
-    }
 }
