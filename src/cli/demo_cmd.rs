@@ -402,8 +402,8 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<i32> {
     if let Model::Sweep(dtm) = &dtm {
         if let Some(sv) = &dtm.model.sigma_vs_reference {
             println!(
-            "  its standard deviations (quality.tif, × {:.2} from the pairs' disagreement): RMS {:.2} m; the true errors are {:.1} × them, {:.0} % within 2σ",
-            dtm.variance_factor.map_or(1.0, |f| f.s0),
+            "  its standard deviations (quality.tif: the matching's, the terrain the nodes do not resolve{}): RMS {:.2} m; the true errors are {:.2} × them, {:.0} % within 2σ",
+            dtm.orientation_sigma_m.map_or(String::new(), |o| format!(", the orientations' {o:.2} m")),
             sv.rms_sigma_m,
             sv.ratio,
             sv.within_2_sigma_percent

@@ -475,14 +475,15 @@ fn print_format2(
     if let Some(c) = &r.model.comparison {
         println!("against the reference: {}", c.summary());
     }
-    match &r.variance_factor {
-        Some(f) => println!(
-            "standard deviations (quality.tif): the matching's, × {:.2} from {} node heights compared between pairs (a lower bound where pairs share a photo)",
-            f.s0, f.comparisons
-        ),
-        None => println!(
-            "standard deviations (quality.tif): the matching's alone (too few nodes seen by two pairs to scale them)"
-        ),
+    println!(
+        "standard deviations (quality.tif): the matching's per independent window and the terrain's curvature the nodes do not resolve{}",
+        r.orientation_sigma_m
+            .map_or(String::new(), |o| format!(", with the orientations' {o:.3} m"))
+    );
+    for (what, line) in r.summary() {
+        if what == "window averaging" || what == "pairs' agreement" {
+            println!("  {what}: {line}");
+        }
     }
     for (what, c) in [
         ("check points", &r.model.check_points),
@@ -491,7 +492,7 @@ fn print_format2(
         if let Some(c) = c {
             let verdict = if c.ratio > 1.5 {
                 format!(
-                    ": the errors are {:.1} × the standard deviations (errors the pairs share, as of the orientations or the sweep's sub-step bias, are not in them)",
+                    ": the errors are {:.1} × the standard deviations (errors σ does not hold, as of the interior orientation, a film's scan or terrain breaks, are in them)",
                     c.ratio
                 )
             } else {

@@ -225,19 +225,59 @@ impl ElevationGrid {
     /// a slope the mean lands where the points' centroid is, not at the node, so the plane's
     /// slope is taken out first). Fewer than 3 points, or points in a line: the plain mean.
     pub fn fill(&mut self, pts: &[GroundM]) {
-        let per = self.per_node(pts);
-        for (z, v) in self.z.iter_mut().zip(&per) {
-            *z = node_height(v, self.cell_m, false);
-        }
+        self.z = self.node_heights(pts, false);
     }
 
     /// Like [`ElevationGrid::fill`] but with the median of the slope-corrected heights: for
     /// heights merged from several pairs, where one pair's blunders must not pull the others'.
     pub fn fill_median(&mut self, pts: &[GroundM]) {
+        self.z = self.node_heights(pts, true);
+    }
+
+    /// Each node's height from its points ([`node_height`]); the plane's slope from the
+    /// node's own points, or, where they do not fix one (a sliver at the edge of the matched
+    /// area, points in a line), from the points of the node and its eight neighbours.
+    fn node_heights(&self, pts: &[GroundM], median: bool) -> Vec<f32> {
         let per = self.per_node(pts);
-        for (z, v) in self.z.iter_mut().zip(&per) {
-            *z = node_height(v, self.cell_m, true);
-        }
+        // A full cell's points: the median count over the nodes that have any.
+        let mut counts: Vec<usize> = per.iter().map(Vec::len).filter(|&n| n > 0).collect();
+        counts.sort_unstable();
+        let full = counts.get(counts.len() / 2).copied().unwrap_or(0);
+        (0..self.z.len())
+            .map(|i| {
+                let v = &per[i];
+                if v.is_empty() {
+                    return f32::NAN;
+                }
+                let slope = plane_slope(v, self.cell_m).or_else(|| {
+                    let (c, r) = ((i % self.cols) as isize, (i / self.cols) as isize);
+                    let mut near = Vec::new();
+                    for dr in -1..=1isize {
+                        for dc in -1..=1isize {
+                            let (cc, rr) = (c + dc, r + dr);
+                            if cc < 0
+                                || rr < 0
+                                || cc >= self.cols as isize
+                                || rr >= self.rows as isize
+                            {
+                                continue;
+                            }
+                            let (ox, oy) = (dc as f64 * self.cell_m, -dr as f64 * self.cell_m);
+                            near.extend(
+                                per[rr as usize * self.cols + cc as usize]
+                                    .iter()
+                                    .map(|p| [p[0] + ox, p[1] + oy, p[2]]),
+                            );
+                        }
+                    }
+                    plane_slope(&near, self.cell_m)
+                });
+                // Fewer than half a full cell's points, off to one side: the matched area ends
+                // inside this cell.
+                let partial = 2 * v.len() < full && v.len() >= 3;
+                node_height(v, slope, self.cell_m, median, partial)
+            })
+            .collect()
     }
 
     /// The standard deviation and correlation of each node that has a height, from the points
@@ -513,12 +553,31 @@ fn plane_slope(v: &[[f64; 3]], cell: f64) -> Option<[f64; 2]> {
 }
 
 /// A node's height from its points (relative to it): mean or median of the heights moved to
-/// the node along the fitted plane (or unmoved when no plane is fitted); NaN without points.
-fn node_height(v: &[[f64; 3]], cell: f64, median: bool) -> f32 {
+/// the node along the plane of slope `slope` (or unmoved without one); NaN without points, and
+/// NaN for a `partial` cell (fewer points than a full one) whose centroid lies more than
+/// [`OFF_CENTRE`] of a cell from the node: a sliver of points at the far side of a node's cell
+/// (where the matched area ends) would put a height at the node that the terrain's curvature
+/// between them and the node does not hold; the neighbouring node, whose cell they fill, has
+/// them. (A cell that holds few points everywhere, as under coarse pixels, keeps them, and so
+/// does one of one or two points.)
+fn node_height(
+    v: &[[f64; 3]],
+    slope: Option<[f64; 2]>,
+    cell: f64,
+    median: bool,
+    partial: bool,
+) -> f32 {
     if v.is_empty() {
         return f32::NAN;
     }
-    let [gx, gy] = plane_slope(v, cell).unwrap_or([0.0, 0.0]);
+    if partial {
+        let n = v.len() as f64;
+        let (mx, my) = v.iter().fold((0.0, 0.0), |a, p| (a.0 + p[0], a.1 + p[1]));
+        if (mx / n).hypot(my / n) > OFF_CENTRE * cell {
+            return f32::NAN;
+        }
+    }
+    let [gx, gy] = slope.unwrap_or([0.0, 0.0]);
     let mut z: Vec<f64> = v.iter().map(|p| p[2] - gx * p[0] - gy * p[1]).collect();
     if !median {
         return (z.iter().sum::<f64>() / z.len() as f64) as f32;
@@ -531,6 +590,9 @@ fn node_height(v: &[[f64; 3]], cell: f64, median: bool) -> f32 {
         0.5 * (z[n / 2 - 1] + z[n / 2])
     }) as f32
 }
+
+/// How far (in cells) the points' centroid may lie from their node.
+const OFF_CENTRE: f64 = 0.35;
 
 #[cfg(test)]
 mod tests {
@@ -674,6 +736,42 @@ mod tests {
             .collect();
         g.fill(&line);
         assert_eq!(g.z[g.cols + 1], 9.0);
+    }
+
+    /// Where the matched area ends inside a cell, its few points along the far edge are no
+    /// height for the node (they sat 6–16 m off on the validation scenes' edges); a grid whose
+    /// cells all hold as few keeps them.
+    #[test]
+    fn a_sliver_at_the_far_side_of_a_cell_gives_no_height() {
+        let hill = |x: f64, y: f64| 100.0 + 0.002 * ((x - 40.0).powi(2) + (y - 40.0).powi(2));
+        let mut g = ElevationGrid::covering([0.0, 0.0, 80.0, 80.0], 20.0, 64).unwrap();
+        let mut pts = Vec::new();
+        // Full cells of 2 m points, except node (4, 2) (x 80): only a sliver at x 70–71.
+        for j in 0..45 {
+            for i in 0..45 {
+                let (x, y) = (-9.0 + 2.0 * i as f64, -9.0 + 2.0 * j as f64);
+                if x >= 70.0 && !(40.0..60.0).contains(&y) {
+                    continue;
+                }
+                if x >= 72.0 {
+                    continue;
+                }
+                pts.push(GroundM::new(x, y, hill(x, y)));
+            }
+        }
+        g.fill_median(&pts);
+        let sliver = g.node_index(80.0, 50.0).unwrap();
+        assert!(g.z[sliver].is_nan(), "{}", g.z[sliver]);
+        let full = g.node_index(40.0, 40.0).unwrap();
+        assert!(
+            (g.z[full] as f64 - hill(40.0, 40.0)).abs() < 0.5,
+            "{}",
+            g.z[full]
+        );
+        // The same sliver alone in a grid of sparse cells: kept.
+        let few: Vec<GroundM> = pts.iter().copied().filter(|p| p.x >= 70.0).collect();
+        g.fill_median(&few);
+        assert!(g.z[sliver].is_finite());
     }
 
     #[test]

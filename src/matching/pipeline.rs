@@ -4,6 +4,7 @@
 //! and the files a run leaves. It takes plain photos (an image and its pixel → photo grid);
 //! whoever made them — the rig's scans or anyone's — hands them over as [`Photo`]s.
 
+use super::averaging::{remove_window_averaging, AveragingReport, Kernel};
 use super::grid::{Comparison, ElevationGrid, NodeQuality};
 use super::maps::{write_error_map, write_hillshade, write_sigma_map};
 use super::ortho::{orthophoto, View};
@@ -92,6 +93,9 @@ pub struct RunReport {
     /// reference model's differences.
     #[serde(default)]
     pub sigma_vs_reference: Option<SigmaCheck>,
+    /// The window averaging taken out of the nodes (see [`super::averaging`]).
+    #[serde(default)]
+    pub averaging: Option<AveragingReport>,
 }
 
 impl RunReport {
@@ -305,7 +309,7 @@ pub fn run(
         max_memory_mb: max_memory_mb.unwrap_or(p.limits.max_memory_mb),
         max_candidates: p.limits.max_candidates_g * 1e9,
     };
-    let r = pmf_dtm(
+    let mut r = pmf_dtm(
         &photos[0].image,
         &photos[1].image,
         &pmfs,
@@ -319,8 +323,30 @@ pub fn run(
         path: p.path.clone(),
         cause: source,
     })?;
-    // One pair: no redundancy to scale the matching's σ by (see precision.rs).
-    let quality = r.grid.quality(&r.points);
+    // One pair: no redundancy to scale the matching's σ by (see precision.rs). The window's
+    // averaging on curved terrain out of the nodes, its unresolved share into their σ; the
+    // window on the ground from the left photo's centre at the middle height.
+    let mut quality = r.grid.quality(&r.points);
+    let mid = 0.5 * (heights[0] + heights[1]);
+    let (cx, cy) = (0.5 * w as f64, 0.5 * h as f64);
+    let (a, b) = (
+        pmfs.left_to_ground.eval([cx, cy, mid]),
+        pmfs.left_to_ground.eval([cx + 1.0, cy, mid]),
+    );
+    let window_m = p.matching.window as f64 * (a[0] - b[0]).hypot(a[1] - b[1]);
+    let averaging = remove_window_averaging(
+        &mut r.grid,
+        &mut quality,
+        Kernel::cell_mean(window_m, p.grid.cell_m),
+    );
+    if let Some(f) = &height_at {
+        r.report.comparison = Some(r.grid.compare(f));
+        r.report.rmse_permille_of_flying_height =
+            match (&r.report.comparison, p.grid.flying_height_m) {
+                (Some(c), Some(h)) => Some(1000.0 * c.rmse_m / h),
+                _ => None,
+            };
+    }
     let sigma_vs_reference = reference
         .as_ref()
         .and_then(|g| sigma_vs_reference(&r.grid, &quality.sigma_m, g));
@@ -331,6 +357,7 @@ pub fn run(
         pmf: pmfs.report.clone(),
         dtm: r.report.clone(),
         sigma_vs_reference,
+        averaging,
     };
     let write = |source| PipelineError::Write {
         dir: out.to_path_buf(),

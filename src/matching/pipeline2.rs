@@ -3,6 +3,8 @@
 //! overlap gets mapping functions from the two sensors (seed 004 §4) and seed 000's sweep,
 //! and the heights of all pairs are merged into one grid in the project's CRS.
 
+use super::averaging::{remove_window_averaging, AveragingReport, Kernel};
+use super::block_geometry::ground_pixel_m;
 use super::grid::{Comparison, ElevationGrid};
 use super::ortho::View;
 use super::output::read_geotiff;
@@ -102,9 +104,20 @@ pub struct Report2 {
     pub extent: [f64; 4],
     pub pairs: Vec<PairReport>,
     pub points: usize,
-    /// The scale applied to the matching's standard deviations (from the pairs' redundancy);
-    /// `None` where no node was seen by two pairs often enough to estimate it.
+    /// How the pairs' node heights disagree against their σ (from the pairs' redundancy);
+    /// `None` where no node was seen by two pairs often enough to estimate it. Reported, not
+    /// applied: pairs that share a photo share its noise and the terrain's averaging, which
+    /// their difference cannot show (on ../shared/validation it came out 0.76 where the true
+    /// errors were 1.9 × σ).
     pub variance_factor: Option<VarianceFactor>,
+    /// The window averaging taken out of the nodes (see [`super::averaging`]).
+    #[serde(default)]
+    pub averaging: Option<AveragingReport>,
+    /// The RMS over the nodes of the height σ the orientations' own uncertainty gives (see
+    /// [`super::orientation_error`]), m; in quality.tif's σ. `None` where every orientation
+    /// was taken as exact.
+    #[serde(default)]
+    pub orientation_sigma_m: Option<f64>,
     #[serde(flatten)]
     pub model: ModelFigures,
 }
@@ -139,21 +152,111 @@ impl Report2 {
                 v.push(("warning".into(), w));
             }
         }
-        v.push((
-            "standard deviations".into(),
-            match &self.variance_factor {
-                Some(f) => format!(
-                    "the matching's × {:.2} (from {} node heights compared between pairs)",
+        if let Some(a) = &self.averaging {
+            v.push((
+                "window averaging".into(),
+                format!(
+                    "windows of {:.1} m on the ground: the terrain's curvature {} {:.3} m RMS (at most {:.3} m)",
+                    a.kernel.window_m,
+                    if a.moved { "moved the nodes by" } else { "counted in σ (nodes finer than the windows), a bias of" },
+                    a.rms_correction_m,
+                    a.max_correction_m
+                ),
+            ));
+        }
+        if let Some(o) = self.orientation_sigma_m {
+            v.push((
+                "orientation".into(),
+                format!(
+                    "the photos' orientations add σ {o:.3} m (RMS over the nodes) to every height"
+                ),
+            ));
+        }
+        if let Some(f) = &self.variance_factor {
+            v.push((
+                "pairs' agreement".into(),
+                format!(
+                    "node heights of two pairs differ {:.2} × their σ (from {} nodes; pairs that share a photo share errors their difference cannot show)",
                     f.s0, f.comparisons
                 ),
-                None => {
-                    "the matching's alone (too few nodes seen by two pairs to scale them)".into()
-                }
-            },
-        ));
+            ));
+        }
         v.extend(self.model.lines());
         v
     }
+}
+
+/// Adds to each node's σ the orientations' part: the mean over the pairs whose photos both
+/// see the ground there of its variance from their pointing covariances. Returns its RMS over the
+/// nodes, `None` where no photo has a pointing covariance.
+fn add_orientation_sigma(grid: &ElevationGrid, sigma: &mut [f32], plan: &Plan) -> Option<f64> {
+    use rayon::prelude::*;
+    let inside = |s: &PhotoSensor, g: GroundM| {
+        let (w, h) = s.image_size();
+        s.ground_to_image(g)
+            .is_some_and(|q| q.col >= 0.0 && q.row >= 0.0 && q.col <= w as f64 && q.row <= h as f64)
+    };
+    let centre = grid.node(grid.cols / 2, grid.rows / 2);
+    let mid = grid.z.iter().copied().find(|z| z.is_finite())? as f64;
+    let g0 = GroundM::new(centre[0], centre[1], mid);
+    if plan
+        .sensors
+        .iter()
+        .all(|s| s.pointing_covariance(g0).is_none())
+    {
+        return None;
+    }
+    // The orientations' part changes slowly across a model (a tilt, a shift): taken on a
+    // lattice of at most SAMPLES × SAMPLES nodes, each node takes its nearest sample's. (Each
+    // sample costs some forty projections per pair; on every node it doubled `rig demo`'s
+    // model's time.)
+    const SAMPLES: usize = 48;
+    let step = grid.cols.max(grid.rows).div_ceil(SAMPLES).max(1);
+    let (sc, sr) = (grid.cols.div_ceil(step), grid.rows.div_ceil(step));
+    let sample = |c: usize, r: usize| -> Option<f64> {
+        // The sample's own height, else the nearest with one in its block.
+        let mut g = None;
+        'find: for rr in r..(r + step).min(grid.rows) {
+            for cc in c..(c + step).min(grid.cols) {
+                let z = grid.z[rr * grid.cols + cc] as f64;
+                if z.is_finite() {
+                    let [x, y] = grid.node(cc, rr);
+                    g = Some(GroundM::new(x, y, z));
+                    break 'find;
+                }
+            }
+        }
+        let g = g?;
+        let (mut sum, mut n) = (0.0, 0usize);
+        for pair in &plan.pairs {
+            let (a, b) = (&plan.sensors[pair.left], &plan.sensors[pair.right]);
+            if !(inside(a, g) && inside(b, g)) {
+                continue;
+            }
+            if let Some(s) = super::orientation_error::height_sigma(a, b, g) {
+                sum += s * s;
+                n += 1;
+            }
+        }
+        (n > 0).then(|| sum / n as f64)
+    };
+    let lattice: Vec<Option<f64>> = (0..sc * sr)
+        .into_par_iter()
+        .map(|k| sample((k % sc) * step, (k / sc) * step))
+        .collect();
+    let per_node: Vec<Option<f64>> = (0..grid.z.len())
+        .map(|i| lattice[(i / grid.cols / step) * sc + (i % grid.cols) / step])
+        .collect();
+    let (mut ss, mut n) = (0.0, 0usize);
+    for (s, v) in sigma.iter_mut().zip(&per_node) {
+        if let (Some(v), true) = (v, s.is_finite()) {
+            *s = (*s as f64).hypot(v.sqrt()) as f32;
+            ss += v;
+            n += 1;
+        }
+    }
+    // Pointing covariances of zero (an RPC stating no error) say nothing either.
+    (n > 0 && ss > 0.0).then(|| (ss / n as f64).sqrt())
 }
 
 /// A format-2 model, whichever matcher made it, and its checks (in report.json at the top
@@ -861,17 +964,33 @@ pub fn finish(
     }
     let mut grid = ElevationGrid::covering(extent, p.cell_m, budget.max_memory_mb)
         .map_err(|e| Pipeline2Error::Grid(e.to_string()))?;
-    // The matchers' standard deviations scaled by what the pairs' disagreement shows.
+    // How the pairs agree, for the report (not applied: see `Report2::variance_factor`).
     let refs: Vec<&[MatchedPoint]> = per_pair.iter().map(|v| v.as_slice()).collect();
     let factor = variance_factor(&grid, &refs);
     tracing::info!(?factor, "variance factor from the pairs");
-    // The factor is a node's (means of many points compared): it scales the nodes' σ, not
-    // the points', which keep the matching's own.
-    let s0 = factor.map_or(1.0, |f| f.s0);
+    // The window on the ground, from each pair's reference photo at its centre and the middle
+    // height, weighted by the points the pair gave.
+    let (mut ws, mut wn) = (0.0, 0.0);
+    for (pair, pts) in plan.pairs.iter().zip(&per_pair) {
+        let s = &plan.sensors[pair.left];
+        let (w, h) = s.image_size();
+        let centre = PixelXY::new(0.5 * w as f64, 0.5 * h as f64);
+        if let Some(g) = ground_pixel_m(s, centre, 0.5 * (heights[0] + heights[1])) {
+            ws += pts.len() as f64 * g * pair.params.sweep.window as f64;
+            wn += pts.len() as f64;
+        }
+    }
     let all: Vec<MatchedPoint> = per_pair.into_iter().flatten().collect();
     let pts: Vec<GroundM> = all.iter().map(|p| p.ground).collect();
     grid.fill_median(&pts);
-    let quality = grid.quality_scaled(&all, s0);
+    let mut quality = grid.quality(&all);
+    let averaging = remove_window_averaging(
+        &mut grid,
+        &mut quality,
+        Kernel::cell_mean(ws / wn.max(1.0), p.cell_m),
+    );
+    tracing::info!(?averaging, "window averaging removed");
+    let orientation_sigma_m = add_orientation_sigma(&grid, &mut quality.sigma_m, plan);
     let (model, reference) = ModelFigures::check(reference_dem, &obs, grid, &quality.sigma_m);
     let write = |source| PipelineError::Write {
         dir: out.to_path_buf(),
@@ -887,6 +1006,8 @@ pub fn finish(
         pairs: reports,
         points: all.len(),
         variance_factor: factor,
+        averaging,
+        orientation_sigma_m,
         model,
     };
     write_model(

@@ -17,6 +17,7 @@ use super::pyramid::{levels_for, pyramid, AtLevel, Textured};
 use crate::coords::PixelXY;
 use crate::geometry::{Crs, Resection, Sensor};
 use crate::matching::accuracy::{analyse, Accuracy};
+use crate::matching::averaging::{remove_window_averaging, AveragingReport, Kernel};
 use crate::matching::block_geometry::{
     block, flying_height, ground_pixel_m, parallax_per_m, references_covering, Block,
 };
@@ -107,6 +108,9 @@ pub struct MgcmReport {
     pub m_per_px: f64,
     pub seconds: f64,
     pub points_per_second: f64,
+    /// The patches' averaging taken out of the nodes (see [`crate::matching::averaging`]).
+    #[serde(default)]
+    pub averaging: Option<AveragingReport>,
     #[serde(flatten)]
     pub model: ModelFigures,
     /// Seed 002's accuracy analysis of the points against the reference model.
@@ -640,7 +644,19 @@ pub fn run(
     } else {
         runs.iter().map(|run| run.cell).max().unwrap_or(1) as f64
     };
-    let quality = grid.fill_scattered(&matched, 1.6 * spacing_m);
+    let radius_m = 1.6 * spacing_m;
+    let mut quality = grid.fill_scattered(&matched, radius_m);
+    // The patches' window on the ground, the widest of the references'.
+    let window_m = runs
+        .iter()
+        .map(|run| cfg.patch as f64 * run.gsd_m)
+        .fold(f64::NAN, f64::max);
+    let averaging = remove_window_averaging(
+        &mut grid,
+        &mut quality,
+        Kernel::scattered(window_m, spacing_m, radius_m),
+    );
+    tracing::info!(?averaging, "window averaging removed");
     let obs = p.observations()?;
     let (model, reference_dem) = ModelFigures::check(reference_dem, &obs, grid, &quality.sigma_m);
     let hg = flying_height(&sensors[r], centre0, mid).unwrap_or(f64::NAN);
@@ -700,6 +716,7 @@ pub fn run(
         m_per_px,
         seconds,
         points_per_second: points.len() as f64 / fine_seconds.max(1e-9),
+        averaging,
         model,
         accuracy,
         warnings,
