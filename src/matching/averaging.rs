@@ -5,8 +5,9 @@
 //! z = z₀ + ½(κₓx² + κᵧy²) and an averaging kernel of variance v in each direction the mean is
 //! z₀ + ½·∇²z·v; a square of side W has v = W²/12, and kernels applied one after the other add
 //! their variances, so a node of cell a from windows W on the ground lies ∇²z·(W² + a²)/24 off
-//! the terrain (above it in a valley, below it on a ridge). On ../shared/validation's steep
-//! scenes this was the largest error left: 2–12 × the matching's σ where |∇²z| is largest.
+//! the terrain (above it in a valley, below it on a ridge). On the independent scenes of
+//! tests/data/validation this was the largest error left: 2–12 × the matching's σ where |∇²z|
+//! is largest.
 //!
 //! [`remove_window_averaging`] estimates that bias from the curvature of the DEM itself (a
 //! quadratic fitted to each node's neighbourhood about a window wide: the curvature at the
@@ -16,14 +17,15 @@
 //! the real-RPC Gizeh crops, 1 m nodes under 5 m windows, the correction raised the RMSE from
 //! 0.18 to 0.25 m): there the bias stays and is counted in σ. Either way the σ states what the
 //! nodes cannot know: terrain finer than the nodes bends the surface too, by an amount of the
-//! same order as the correction, so [`UNRESOLVED`] of it stays in the node's σ (most of it: what the nodes miss is as large as what they see). The
-//! matching's own σ is counted per independent window ([`Kernel::noise_scale`]): points closer
-//! than a window share their pixels and their noise.
+//! same order as the correction, so [`UNRESOLVED`] of it stays in the node's σ (most of it:
+//! what the nodes miss is as large as what they see). The matching's own σ is counted per
+//! independent window ([`Kernel::noise_scale`]): points closer than a window share their pixels
+//! and their noise.
 
 use super::grid::{ElevationGrid, NodeQuality};
 
 /// The share of the curvature correction kept in the σ (terrain the nodes do not resolve).
-/// Measured on ../shared/validation (sweep): 0.75 leaves the 1 m lidar scene's errors 1.25 × σ,
+/// Measured on tests/data/validation (sweep): 0.75 leaves the 1 m lidar scene's errors 1.25 × σ,
 /// 1.0 makes the 12 m scene's 0.73 × σ; 0.9 gives 1.20, 0.83 and 0.91 on its three scenes.
 pub const UNRESOLVED: f64 = 0.9;
 

@@ -107,7 +107,7 @@ pub struct Report2 {
     /// How the pairs' node heights disagree against their σ (from the pairs' redundancy);
     /// `None` where no node was seen by two pairs often enough to estimate it. Reported, not
     /// applied: pairs that share a photo share its noise and the terrain's averaging, which
-    /// their difference cannot show (on ../shared/validation it came out 0.76 where the true
+    /// their difference cannot show (on tests/data/validation it came out 0.76 where the true
     /// errors were 1.9 × σ).
     pub variance_factor: Option<VarianceFactor>,
     /// The window averaging taken out of the nodes (see [`super::averaging`]).
