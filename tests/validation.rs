@@ -1,5 +1,5 @@
-//! The matchers on scenes a renderer that is not ours made (tests/data/validation, copied from
-//! ../shared/validation with their truth), measured as their README defines the goals:
+//! The matchers on scenes a renderer that is not ours made (tests/data/validation, with their
+//! truth and their README's conventions), measured as that README defines the goals:
 //! - the DEM's RMSE at its nodes against the true surface, in pixels of parallax (flying height
 //!   / base × GSD, from scene.json), within 0.1 px;
 //! - covering at least 80 % of the two-photo area (the true DEM's posts that two photos see,
@@ -11,7 +11,6 @@
 
 mod common;
 
-use common::{rig, run_ok};
 use rig::matching::grid::ElevationGrid;
 use rig::matching::output::read_geotiff;
 use serde_json::Value;
@@ -142,14 +141,7 @@ fn measure(name: &str, method: &str) -> Figures {
     let project = project.replace("method = \"sweep\"", &format!("method = \"{method}\""));
     std::fs::write(dir.join("project.toml"), project).unwrap();
     let out = dir.join("out");
-    run_ok(
-        rig()
-            .arg("dtm")
-            .arg(dir.join("project.toml"))
-            .arg("--json")
-            .arg("--out")
-            .arg(&out),
-    );
+    common::dtm_json(&dir.join("project.toml"), &out);
     let scene: Value =
         serde_json::from_str(&std::fs::read_to_string(dir.join("scene.json")).unwrap()).unwrap();
     let px = scene["flying_height_m"].as_f64().unwrap() / scene["base_m"].as_f64().unwrap()
