@@ -4,7 +4,7 @@
 use anyhow::Context;
 use clap::Args;
 use rig::coords::PixelXY;
-use rig::digitise::{estimate_stripes, remove_stripes};
+use rig::digitise::{estimate_stripes, estimate_stripes_where, remove_stripes};
 use rig::targets::lsm::match_work;
 use rig::targets::mark_file::MarkFile;
 use rig::targets::measure::{
@@ -70,11 +70,12 @@ pub struct MeasureArgs {
     pub max_work: f64,
     /// Remove the camera's stripe noise (the shift between the video fields, the periodic
     /// column pattern) as estimated from IMAGE, a flat or a full frame of the same camera with
-    /// the same columns as the images measured: a crop of a few dozen pixels holds too few
-    /// periods to find the pattern in.
+    /// the same columns as the images measured (a crop's own stripes: --destripe).
     #[arg(long, value_name = "IMAGE")]
     pub stripes_from: Option<PathBuf>,
-    /// Remove stripe noise estimated from each image itself (full frames).
+    /// Remove stripe noise estimated from each image itself: the mark is measured, the field
+    /// shift and the column pattern are estimated from the pixels off its footprint (so a
+    /// crop of a few dozen pixels around it serves), removed, and the mark measured again.
     #[arg(long, conflicts_with = "stripes_from")]
     pub destripe: bool,
     /// Print the results as JSON: an object for one image, an array for several.
@@ -260,6 +261,31 @@ pub fn run(a: MeasureArgs) -> anyhow::Result<i32> {
         How::Fixed(t) => (t.whole.size(), t.geometry),
         How::Search(s) => (s.whole().size(), shape.geometry()),
     };
+    // The mark's footprint, for --destripe: where its coarse template (drawn at a blur of
+    // 0.8 px) departs from the background, widened by MASK_GROW px for the blur, rotation and
+    // scale of the mark in the image.
+    const MASK_GROW: i64 = 3;
+    let footprint: Vec<bool> = {
+        let t = match &how {
+            How::Fixed(t) => &t.whole,
+            How::Search(s) => s.whole(),
+        };
+        let n = t.size() as i64;
+        // The background (1 for a dark mark, 0 for a clear one) at the template's corner.
+        let bg = t.image.data[0];
+        let on: Vec<bool> = t.image.data.iter().map(|&v| (v - bg).abs() > 1e-3).collect();
+        (0..n * n)
+            .map(|i| {
+                let (x, y) = (i % n, i / n);
+                (-MASK_GROW..=MASK_GROW).any(|dy| {
+                    (-MASK_GROW..=MASK_GROW).any(|dx| {
+                        let (u, v) = (x + dx, y + dy);
+                        (0..n).contains(&u) && (0..n).contains(&v) && on[(v * n + u) as usize]
+                    })
+                })
+            })
+            .collect()
+    };
     let quality = Quality {
         max_sigma_px: a.max_sigma,
         max_outlier_share: a.max_outliers / 100.0,
@@ -339,9 +365,6 @@ pub fn run(a: MeasureArgs) -> anyhow::Result<i32> {
                 );
             }
             remove_stripes(&mut img, e);
-        } else if a.destripe {
-            let e = estimate_stripes(&img);
-            remove_stripes(&mut img, &e);
         }
         let near = near.map(|p| (p, a.search));
         let (sw, sh) = match near {
@@ -360,13 +383,32 @@ pub fn run(a: MeasureArgs) -> anyhow::Result<i32> {
                 a.max_work
             );
         }
-        let (r, blur) = match &mut how {
-            How::Fixed(t) => (measure_near(&img, t, &quality, near), a.blur),
+        let mut run = |img: &rig::digitise::ImageF32| match &mut how {
+            How::Fixed(t) => (measure_near(img, t, &quality, near), a.blur),
             How::Search(s) => {
-                let (r, b) = s.measure(&img, &quality, near);
+                let (r, b) = s.measure(img, &quality, near);
                 (r, b.is_finite().then_some(b))
             }
         };
+        let (mut r, mut blur) = run(&img);
+        if a.destripe {
+            // The stripes from the image's background: the mark, where the first match put
+            // it, left out (its template's half side around the centre), then measured again.
+            if let Some(c) = r.seen_at() {
+                let n = whole_size as i64;
+                let (c0, r0) = (
+                    (c.col - n as f64 / 2.0).round() as i64,
+                    (c.row - n as f64 / 2.0).round() as i64,
+                );
+                let keep = |x: usize, y: usize| {
+                    let (u, v) = (x as i64 - c0, y as i64 - r0);
+                    !((0..n).contains(&u) && (0..n).contains(&v) && footprint[(v * n + u) as usize])
+                };
+                let e = estimate_stripes_where(&img, &keep);
+                remove_stripes(&mut img, &e);
+                (r, blur) = run(&img);
+            }
+        }
         let m = r.lsm.as_ref();
         let sr = m.and_then(|m| scale_rotation(m, um_per_px));
         rows.push(Row {

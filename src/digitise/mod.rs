@@ -16,7 +16,7 @@ pub use capture::{capture, CaptureError, Captured};
 pub use flat::FlatField;
 pub use lowpass::seed_lowpass;
 pub use stretch::{stretch, Stretch};
-pub use stripes::{estimate_stripes, remove_stripes, StripeEstimate};
+pub use stripes::{estimate_stripes, estimate_stripes_where, remove_stripes, StripeEstimate};
 
 /// Why digitisation could not go on.
 #[derive(Debug, thiserror::Error, PartialEq)]

@@ -13,6 +13,9 @@ use serde::Serialize;
 
 /// Half-width of the horizontal high-pass that separates the column pattern from the scene.
 const HIGHPASS_HALF: usize = 24;
+/// Smallest half-width of that high-pass, at the image's borders: a window of 13 px spans a
+/// whole period of the seed's 12-px pattern on the first pass, before the pattern is known.
+const HIGHPASS_MIN_HALF: usize = 6;
 /// Periods searched for the column pattern, pixels.
 const PERIODS: std::ops::RangeInclusive<usize> = 2..=32;
 
@@ -43,13 +46,15 @@ fn median(v: &mut [f32]) -> f32 {
 
 /// Odd-row shift: the median over the image of each odd-row pixel minus the mean of its two
 /// even neighbours.
-fn field_offset(img: &ImageF32) -> f32 {
+fn field_offset(img: &ImageF32, keep: &dyn Fn(usize, usize) -> bool) -> f32 {
     let (w, h) = (img.width, img.height);
     let mut d = Vec::with_capacity(w * h / 2);
     for r in (1..h.saturating_sub(1)).step_by(2) {
         let (up, mid, down) = (img.row(r - 1), img.row(r), img.row(r + 1));
         for c in 0..w {
-            d.push(mid[c] - 0.5 * (up[c] + down[c]));
+            if keep(c, r - 1) && keep(c, r) && keep(c, r + 1) {
+                d.push(mid[c] - 0.5 * (up[c] + down[c]));
+            }
         }
     }
     if d.is_empty() {
@@ -60,22 +65,40 @@ fn field_offset(img: &ImageF32) -> f32 {
 }
 
 /// Per column, the median over rows of the pixel minus its horizontal neighbourhood mean; NaN
-/// for border columns whose window does not fit. The neighbourhood mean is taken with the
-/// pattern estimated so far (`known`, per column) removed, so the window needs no particular
-/// length to be free of the pattern.
-fn column_profile(img: &ImageF32, field: f32, known: &[f32]) -> Vec<f32> {
+/// for the outermost columns, where not even a window of [`HIGHPASS_MIN_HALF`] fits. The
+/// window is symmetric (so a scene's linear ramp cancels) and shrinks toward the borders:
+/// a crop of a few dozen pixels around a mark (71 px) then still gives most of its columns,
+/// several periods of a 12-px pattern, instead of the 23 a fixed 49-px window leaves. The
+/// neighbourhood mean is taken with the pattern estimated so far (`known`, per column)
+/// removed, so the window needs no particular length to be free of the pattern.
+fn column_profile(
+    img: &ImageF32,
+    field: f32,
+    known: &[f32],
+    keep: &dyn Fn(usize, usize) -> bool,
+) -> Vec<f32> {
     let (w, h) = (img.width, img.height);
-    let half = HIGHPASS_HALF.min(w.saturating_sub(1) / 2);
     let mut per_col: Vec<Vec<f32>> = vec![Vec::with_capacity(h); w];
     let mut prefix = vec![0.0f64; w + 1];
+    let mut count = vec![0usize; w + 1];
     for r in 0..h {
         let row = img.row(r);
         let off = if r % 2 == 1 { field } else { 0.0 };
         for c in 0..w {
-            prefix[c + 1] = prefix[c] + (row[c] - off - known[c]) as f64;
+            let k = keep(c, r);
+            prefix[c + 1] = prefix[c] + if k { (row[c] - off - known[c]) as f64 } else { 0.0 };
+            count[c + 1] = count[c] + k as usize;
         }
-        for c in half..w - half {
-            let mean = (prefix[c + half + 1] - prefix[c - half]) / (2 * half + 1) as f64;
+        for c in 0..w {
+            let half = HIGHPASS_HALF.min(c).min(w - 1 - c);
+            if half < HIGHPASS_MIN_HALF || !keep(c, r) {
+                continue;
+            }
+            let n = count[c + half + 1] - count[c - half];
+            if n < HIGHPASS_MIN_HALF + 1 {
+                continue;
+            }
+            let mean = (prefix[c + half + 1] - prefix[c - half]) / n as f64;
             per_col[c].push((row[c] - off) - mean as f32);
         }
     }
@@ -142,7 +165,19 @@ fn best_period(p: &[f32]) -> Option<usize> {
 /// Estimates the field shift and the column pattern of `img` (best on an average of many
 /// frames, where the random noise is low).
 pub fn estimate_stripes(img: &ImageF32) -> StripeEstimate {
-    let field = field_offset(img);
+    estimate_stripes_where(img, &|_, _| true)
+}
+
+/// [`estimate_stripes`] from the pixels `keep(col, row)` only: on a crop around a mark, its
+/// background, the mark left out. The mark's own pixels would otherwise bias the medians
+/// (a cross's bar fills half of its columns' rows), and a crop has no others to spare. The
+/// stripes are offsets of the sensor's rows and columns (seed 002), so the background
+/// determines them where the mark lies too.
+pub fn estimate_stripes_where(
+    img: &ImageF32,
+    keep: &dyn Fn(usize, usize) -> bool,
+) -> StripeEstimate {
+    let field = field_offset(img, keep);
     let w = img.width;
     let none = StripeEstimate {
         field_offset: field,
@@ -157,7 +192,7 @@ pub fn estimate_stripes(img: &ImageF32) -> StripeEstimate {
     let mut known = vec![0.0f32; w];
     let mut found = None;
     for _ in 0..3 {
-        let p = column_profile(img, field, &known);
+        let p = column_profile(img, field, &known, keep);
         let Some(q) = best_period(&p) else {
             return none;
         };
