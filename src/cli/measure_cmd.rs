@@ -4,11 +4,11 @@
 use anyhow::Context;
 use clap::Args;
 use rig::coords::PixelXY;
-use rig::digitise::{estimate_stripes, estimate_stripes_where, remove_stripes};
+use rig::digitise::estimate_stripes;
 use rig::targets::lsm::match_work;
 use rig::targets::mark_file::MarkFile;
 use rig::targets::measure::{
-    measure_near, scale_rotation, BlurSearch, MarkTemplates, Quality, BLUR_DRAWINGS, BLUR_GRID,
+    scale_rotation, BlurSearch, MarkTemplates, Measurer, Quality, Stripes, BLUR_DRAWINGS, BLUR_GRID,
 };
 use rig::targets::template::render_work;
 use rig::targets::{coarse::locate_work, Geometry};
@@ -70,13 +70,17 @@ pub struct MeasureArgs {
     pub max_work: f64,
     /// Remove the camera's stripe noise (the shift between the video fields, the periodic
     /// column pattern) as estimated from IMAGE, a flat or a full frame of the same camera with
-    /// the same columns as the images measured (a crop's own stripes: --destripe).
+    /// the same columns as the images measured. Without it (and without --keep-stripes) the
+    /// stripes are estimated from each image itself, off the mark's footprint.
     #[arg(long, value_name = "IMAGE")]
     pub stripes_from: Option<PathBuf>,
-    /// Remove stripe noise estimated from each image itself: the mark is measured, the field
-    /// shift and the column pattern are estimated from the pixels off its footprint (so a
-    /// crop of a few dozen pixels around it serves), removed, and the mark measured again.
+    /// Measure the images as they are, their stripes left in: for images already destriped,
+    /// or of a camera without stripes (the estimate from the image costs a second match).
     #[arg(long, conflicts_with = "stripes_from")]
+    pub keep_stripes: bool,
+    /// The default since the stripes are estimated from each image unless --stripes-from or
+    /// --keep-stripes says otherwise; kept so that scripts that give it still run.
+    #[arg(long, hide = true, conflicts_with_all = ["stripes_from", "keep_stripes"])]
     pub destripe: bool,
     /// Print the results as JSON: an object for one image, an array for several.
     #[arg(long)]
@@ -119,12 +123,6 @@ struct Row {
 const MAX_IMAGES: usize = 1_000_000;
 /// Largest list file read.
 const MAX_LIST_BYTES: u64 = 64 << 20;
-
-/// How the templates are had.
-enum How {
-    Fixed(MarkTemplates),
-    Search(BlurSearch),
-}
 
 const CSV_COLUMNS: [&str; 16] = [
     "image",
@@ -246,46 +244,19 @@ pub fn run(a: MeasureArgs) -> anyhow::Result<i32> {
         ));
     }
     let mut how = match a.blur {
-        Some(b) => How::Fixed(
-            MarkTemplates::new(&shape, mark.polarity, um_per_px, patch, b)
+        Some(b) => Measurer::Fixed {
+            templates: MarkTemplates::new(&shape, mark.polarity, um_per_px, patch, b)
                 .map_err(anyhow::Error::msg)
                 .with_context(context)?,
-        ),
-        None => How::Search(
+            blur_px: b,
+        },
+        None => Measurer::Search(
             BlurSearch::new(&shape, mark.polarity, um_per_px, patch)
                 .map_err(anyhow::Error::msg)
                 .with_context(context)?,
         ),
     };
-    let (whole_size, geometry) = match &how {
-        How::Fixed(t) => (t.whole.size(), t.geometry),
-        How::Search(s) => (s.whole().size(), shape.geometry()),
-    };
-    // The mark's footprint, for --destripe: where its coarse template (drawn at a blur of
-    // 0.8 px) departs from the background, widened by MASK_GROW px for the blur, rotation and
-    // scale of the mark in the image.
-    const MASK_GROW: i64 = 3;
-    let footprint: Vec<bool> = {
-        let t = match &how {
-            How::Fixed(t) => &t.whole,
-            How::Search(s) => s.whole(),
-        };
-        let n = t.size() as i64;
-        // The background (1 for a dark mark, 0 for a clear one) at the template's corner.
-        let bg = t.image.data[0];
-        let on: Vec<bool> = t.image.data.iter().map(|&v| (v - bg).abs() > 1e-3).collect();
-        (0..n * n)
-            .map(|i| {
-                let (x, y) = (i % n, i / n);
-                (-MASK_GROW..=MASK_GROW).any(|dy| {
-                    (-MASK_GROW..=MASK_GROW).any(|dx| {
-                        let (u, v) = (x + dx, y + dy);
-                        (0..n).contains(&u) && (0..n).contains(&v) && on[(v * n + u) as usize]
-                    })
-                })
-            })
-            .collect()
-    };
+    let (whole_size, geometry) = (how.whole().size(), how.geometry());
     let quality = Quality {
         max_sigma_px: a.max_sigma,
         max_outlier_share: a.max_outliers / 100.0,
@@ -323,8 +294,9 @@ pub fn run(a: MeasureArgs) -> anyhow::Result<i32> {
     if images.is_empty() {
         return usage("no images: give IMAGE… or a --list that names some".into());
     }
-    let stripes = match &a.stripes_from {
-        None => None,
+    let (stripes, flat_width) = match &a.stripes_from {
+        None if a.keep_stripes => (Stripes::Keep, None),
+        None => (Stripes::FromImage, None),
         Some(p) => {
             let flat = rig::image::load_luma(p, max_bytes)?;
             if flat.data.iter().any(|v| v.is_nan()) {
@@ -341,7 +313,7 @@ pub fn run(a: MeasureArgs) -> anyhow::Result<i32> {
                     e.field_offset
                 );
             }
-            Some((p.clone(), flat.width, e))
+            (Stripes::Known(e), Some((p.clone(), flat.width)))
         }
     };
     let mut rows = Vec::with_capacity(a.images.len());
@@ -354,7 +326,7 @@ pub fn run(a: MeasureArgs) -> anyhow::Result<i32> {
             );
         }
         let mut img = img;
-        if let Some((p, w, e)) = &stripes {
+        if let Some((p, w)) = &flat_width {
             if img.width != *w {
                 anyhow::bail!(
                     "{}: {} px wide, but the stripes were estimated on {} ({w} px wide): give a \
@@ -364,7 +336,6 @@ pub fn run(a: MeasureArgs) -> anyhow::Result<i32> {
                     p.display()
                 );
             }
-            remove_stripes(&mut img, e);
         }
         let near = near.map(|p| (p, a.search));
         let (sw, sh) = match near {
@@ -383,32 +354,7 @@ pub fn run(a: MeasureArgs) -> anyhow::Result<i32> {
                 a.max_work
             );
         }
-        let mut run = |img: &rig::digitise::ImageF32| match &mut how {
-            How::Fixed(t) => (measure_near(img, t, &quality, near), a.blur),
-            How::Search(s) => {
-                let (r, b) = s.measure(img, &quality, near);
-                (r, b.is_finite().then_some(b))
-            }
-        };
-        let (mut r, mut blur) = run(&img);
-        if a.destripe {
-            // The stripes from the image's background: the mark, where the first match put
-            // it, left out (its template's half side around the centre), then measured again.
-            if let Some(c) = r.seen_at() {
-                let n = whole_size as i64;
-                let (c0, r0) = (
-                    (c.col - n as f64 / 2.0).round() as i64,
-                    (c.row - n as f64 / 2.0).round() as i64,
-                );
-                let keep = |x: usize, y: usize| {
-                    let (u, v) = (x as i64 - c0, y as i64 - r0);
-                    !((0..n).contains(&u) && (0..n).contains(&v) && footprint[(v * n + u) as usize])
-                };
-                let e = estimate_stripes_where(&img, &keep);
-                remove_stripes(&mut img, &e);
-                (r, blur) = run(&img);
-            }
-        }
+        let (r, blur, _) = how.measure_destriped(&mut img, &stripes, &quality, near);
         let m = r.lsm.as_ref();
         let sr = m.and_then(|m| scale_rotation(m, um_per_px));
         rows.push(Row {

@@ -251,7 +251,9 @@ pub enum Command {
     /// residuals show damage or a different mark (--max-outliers, --max-outlier-pixels), or
     /// its σ is above --max-sigma. Reasons: not_found, diverged, wandered, singular,
     /// left_window, low_contrast, cut, inverted, damaged, imprecise. Exit 0 whatever the verdicts
-    /// (--strict: 12 when a mark is refused). Stripe noise: --stripes-from FLAT.
+    /// (--strict: 12 when a mark is refused). The camera's stripe noise (field shift, column
+    /// pattern) is estimated from each image off the mark and removed before the final match;
+    /// --stripes-from FLAT takes it from a flat instead, --keep-stripes leaves it.
     ///
     /// Images: PNG or TIFF, grey or colour (turned grey as 0.299 R + 0.587 G + 0.114 B), 8/16-bit
     /// or float.

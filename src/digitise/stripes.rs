@@ -86,7 +86,12 @@ fn column_profile(
         let off = if r % 2 == 1 { field } else { 0.0 };
         for c in 0..w {
             let k = keep(c, r);
-            prefix[c + 1] = prefix[c] + if k { (row[c] - off - known[c]) as f64 } else { 0.0 };
+            prefix[c + 1] = prefix[c]
+                + if k {
+                    (row[c] - off - known[c]) as f64
+                } else {
+                    0.0
+                };
             count[c + 1] = count[c] + k as usize;
         }
         for c in 0..w {

@@ -120,6 +120,14 @@ pub struct LsmMatch {
     /// from the lines counts in neither.
     #[serde(default)]
     pub outlier_pixels: f64,
+    /// How many pixels [`LsmMatch::outlier_pixels`] is a share of: the gate's allowance for
+    /// the outliers noise alone makes depends on it.
+    #[serde(default)]
+    pub mark_pixels: usize,
+    /// The largest share of the evidence one pixel carries: the most that each outlier noise
+    /// makes can add to [`LsmMatch::outlier_share`].
+    #[serde(default)]
+    pub evidence_peak_share: f64,
 }
 
 fn one() -> f64 {
@@ -458,6 +466,8 @@ fn match_sampling_template(
                 inside_share,
                 outlier_share: if e_all > 0.0 { e_out / e_all } else { 0.0 },
                 outlier_pixels: n_out as f64 / n_mark.max(1) as f64,
+                mark_pixels: n_mark,
+                evidence_peak_share: if e_all > 0.0 { e_max / e_all } else { 0.0 },
             });
         }
         if it >= opt.max_iterations {

@@ -4,6 +4,7 @@
 
 pub mod certificate;
 pub mod coarse;
+pub mod crop_stripes;
 pub mod lsm;
 pub mod mark;
 pub mod mark_file;
