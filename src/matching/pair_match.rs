@@ -532,7 +532,9 @@ fn row_matches(x: &Ctx, r: usize, picks: &RowPicks, rb: &[u32], mut out: OutRow)
             match refine(x.left, Window { c, r, k }, x.right, &locate, t0, 1.0) {
                 Ok(f) => {
                     out.d[c] = (p.d_min as f64 + f.t) as f32;
-                    out.sigma[c] = f.sigma_t as f32;
+                    // The residuals of neighbouring pixels are not independent (the photos'
+                    // blur, the bilinear resampling): σ_t² for n_eff observations, not n.
+                    out.sigma[c] = (f.sigma_t * f.dependence.sqrt()) as f32;
                     st.lsm_refined += 1;
                 }
                 Err(e) => *st.lsm_failures.entry(failure_name(e)).or_default() += 1,
