@@ -22,6 +22,7 @@ pub mod ortho;
 pub mod oslsm;
 pub mod output;
 pub mod pair_match;
+pub mod pair_sigma;
 pub mod pair_output;
 pub mod photos;
 pub mod pipeline;

@@ -532,7 +532,9 @@ fn row_matches(x: &Ctx, r: usize, picks: &RowPicks, rb: &[u32], mut out: OutRow)
             match refine(x.left, Window { c, r, k }, x.right, &locate, t0, 1.0) {
                 Ok(f) => {
                     out.d[c] = (p.d_min as f64 + f.t) as f32;
-                    out.sigma[c] = f.sigma_t as f32;
+                    // The residuals of neighbouring pixels are not independent (the photos'
+                    // blur, the bilinear resampling): σ_t² for n_eff observations, not n.
+                    out.sigma[c] = (f.sigma_t * f.dependence.sqrt()) as f32;
                     st.lsm_refined += 1;
                 }
                 Err(e) => *st.lsm_failures.entry(failure_name(e)).or_default() += 1,
@@ -559,8 +561,32 @@ impl PairStats {
     }
 }
 
-/// Matches a rectified pair.
+/// Matches a rectified pair. Each disparity's σ holds the noise's share (from the
+/// correlation's curvature, or least squares' normal matrix) and the sub-pixel estimator's own
+/// error on the left photo's texture ([`super::pair_sigma`]).
 pub fn match_pair(
+    left: &ImageF32,
+    right: &ImageF32,
+    p: &PairParams,
+    max_memory_mb: u64,
+    progress: &dyn super::progress::Progress,
+) -> Result<DisparityMap, PairError> {
+    let mut m = match_pair_alone(left, right, p, max_memory_mb, progress)?;
+    let t0 = std::time::Instant::now();
+    progress.begin("σ (the estimator on its own photo)", 1);
+    let var = super::pair_sigma::estimator_variance(left, p, max_memory_mb)?;
+    progress.end();
+    for (s, &v) in m.sigma.iter_mut().zip(&var) {
+        if s.is_finite() && v.is_finite() {
+            *s = (*s * *s + v).sqrt();
+        }
+    }
+    m.stats.seconds_total += t0.elapsed().as_secs_f64();
+    Ok(m)
+}
+
+/// [`match_pair`] with the σ of the noise alone.
+pub(crate) fn match_pair_alone(
     left: &ImageF32,
     right: &ImageF32,
     p: &PairParams,

@@ -40,6 +40,13 @@ pub struct Refined {
     pub tilt: [f64; 2],
     /// The grey-value residual's standard deviation (σ₀).
     pub sigma0: f64,
+    /// n / n_eff: how many window pixels make one independent observation, from the
+    /// residuals' correlation between neighbours along the rows (r_x) and the columns (r_y),
+    /// n/n_eff = (1 + r_x)/(1 − r_x) · (1 + r_y)/(1 − r_y), at least 1 (the effective number of
+    /// an autocorrelated series, Bayley & Hammersley 1946, J. R. Stat. Soc. Suppl. 8(2), for
+    /// a first-order process in each direction). σ_t leaves it out; a caller whose residuals
+    /// are correlated by blur and resampling scales σ_t² by it.
+    pub dependence: f64,
     pub iterations: usize,
 }
 
@@ -107,6 +114,7 @@ pub fn refine(
     let resampling = ((1.0 - RHO_MAX * RHO_MAX) * (ss_l / n)).sqrt();
     let mut sw = vec![0.0f64; side * side];
     let mut gw = vec![0.0f64; side * side];
+    let mut res = vec![0.0f64; side * side];
     let (mut t, mut tu, mut tv) = (t0, 0.0f64, 0.0f64);
     let mut a = 0.0f64;
     let mut b = 1.0f64;
@@ -138,6 +146,7 @@ pub fn refine(
                 (idx / side) as f64 - k as f64,
             );
             let e = l - (a + b * s);
+            res[idx] = e;
             // ∂/∂(t, t_u, t_v, a, b) of a + b·s(q(u, v)).
             let bg = b * g;
             let d = V5::new(bg, bg * u, bg * v, 1.0, s);
@@ -180,11 +189,38 @@ pub fn refine(
                 sigma_t,
                 tilt: [tu, tv],
                 sigma0,
+                dependence: dependence(&res, side, vv),
                 iterations: it,
             });
         }
     }
     Err(RefineFailure::NoConvergence)
+}
+
+/// n / n_eff of a window's residuals `e` (side × side, Σe² = `vv`): see
+/// [`Refined::dependence`]. Each lag-1 correlation is taken in [0, 0.9] (a negative one, as
+/// often from 25 residuals by chance, is no gain).
+fn dependence(e: &[f64], side: usize, vv: f64) -> f64 {
+    if vv <= 0.0 || side < 2 {
+        return 1.0;
+    }
+    let (mut cx, mut cy) = (0.0, 0.0);
+    for j in 0..side {
+        for i in 0..side {
+            let v = e[j * side + i];
+            if i + 1 < side {
+                cx += v * e[j * side + i + 1];
+            }
+            if j + 1 < side {
+                cy += v * e[(j + 1) * side + i];
+            }
+        }
+    }
+    let f = |c: f64| {
+        let r = (c / vv).clamp(0.0, 0.9);
+        (1.0 + r) / (1.0 - r)
+    };
+    f(cx) * f(cy)
 }
 
 /// The search photo's window of half-size `k` at `q0 + j[0]·u + j[1]·v` (bilinear) into `s`,
