@@ -26,48 +26,9 @@ import numpy as np
 TYPES = ["cross", "corner", "midside"]
 CONDS = ["a_read2", "b_read8", "c_ccd", "d_avg32", "d_avg32_16bit"]
 
-MARKS = {
-    "cross": """units = "px"
-polarity = "dark_on_bright"
-[[part]]
-kind = "bar"
-length = 32.0
-width = 3.0
-angle_deg = 0.0
-[[part]]
-kind = "bar"
-length = 32.0
-width = 3.0
-angle_deg = 90.0
-""",
-    "corner": """units = "px"
-polarity = "dark_on_bright"
-[[part]]
-kind = "dot"
-radius = 2.0
-[[part]]
-kind = "ring"
-radius = 14.0
-width = 2.0
-[[part]]
-kind = "spokes"
-count = 4
-from = 17.0
-to = 22.0
-width = 2.0
-angle0_deg = 0.0
-""",
-    "midside": """units = "px"
-polarity = "dark_on_bright"
-[[part]]
-kind = "dot"
-radius = 2.0
-[[part]]
-kind = "ring"
-radius = 10.0
-width = 2.0
-""",
-}
+# The mark files (the validation README's ideal marks, in px), shared with tests/validation.rs.
+MARK_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "tests", "data", "validation", "marks")
+MARKS = {t: open(os.path.join(MARK_DIR, t + ".toml")).read() for t in TYPES}
 
 
 def write_tiff16(path, img):

@@ -233,8 +233,14 @@ fn sigma_is_an_honest_error_bar() {
         // squares' is 1.2–1.4 on the benchmark and validation pairs. These bounds hold what is
         // reached, so that a σ that falls back towards the old 2–3× too small fails.
         let rms_max = if subpixel == Subpixel::Lsm { 1.5 } else { 1.25 };
-        assert!((0.8..=rms_max).contains(&rms), "{subpixel:?}: RMS(error/σ) {rms:.2}");
-        assert!((50.0..=99.0).contains(&within), "{subpixel:?}: {within:.1} % within 2σ");
+        assert!(
+            (0.8..=rms_max).contains(&rms),
+            "{subpixel:?}: RMS(error/σ) {rms:.2}"
+        );
+        assert!(
+            (50.0..=99.0).contains(&within),
+            "{subpixel:?}: {within:.1} % within 2σ"
+        );
     }
 }
 

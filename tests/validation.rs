@@ -267,7 +267,7 @@ fn mgcm_on_the_noisy_close_scene() {
 }
 
 /// `rig measure` on the validation marks (tests/data/validation/marks, see its README: 4 marks
-/// of each type × condition chosen from the 20 of ../shared/validation, made by an independent
+/// of each type × condition chosen from the 20 of the validation set, made by an independent
 /// renderer with exact centres), measured through the command line as a user would, with no
 /// flat (the stripes are estimated from each crop): the centre's RMSE, RMS(true error / σ), and
 /// a gate that accepts every mark within 3σ of the truth and refuses a scratched, a cut and a
@@ -277,50 +277,13 @@ mod marks {
     use serde_json::Value;
     use std::path::{Path, PathBuf};
 
-    const CROSS: &str = r#"units = "px"
-    polarity = "dark_on_bright"
-    [[part]]
-    kind = "bar"
-    length = 32.0
-    width = 3.0
-    angle_deg = 0.0
-    [[part]]
-    kind = "bar"
-    length = 32.0
-    width = 3.0
-    angle_deg = 90.0
-    "#;
-
-    const CORNER: &str = r#"units = "px"
-    polarity = "dark_on_bright"
-    [[part]]
-    kind = "dot"
-    radius = 2.0
-    [[part]]
-    kind = "ring"
-    radius = 14.0
-    width = 2.0
-    [[part]]
-    kind = "spokes"
-    count = 4
-    from = 17.0
-    to = 22.0
-    width = 2.0
-    angle0_deg = 0.0
-    "#;
-
-    const MIDSIDE: &str = r#"units = "px"
-    polarity = "dark_on_bright"
-    [[part]]
-    kind = "dot"
-    radius = 2.0
-    [[part]]
-    kind = "ring"
-    radius = 10.0
-    width = 2.0
-    "#;
-
     const CONDITIONS: [&str; 5] = ["a_read2", "b_read8", "c_ccd", "d_avg32", "d_avg32_16bit"];
+
+    /// The mark file of a type (the validation README's ideal marks, in px), kept beside the
+    /// images for this test and benches/marks_validation.py alike.
+    fn mark_file(kind: &str) -> String {
+        std::fs::read_to_string(data().join(format!("{kind}.toml"))).unwrap()
+    }
 
     fn data() -> PathBuf {
         Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/validation/marks")
@@ -421,17 +384,17 @@ mod marks {
 
     #[test]
     fn crosses_to_their_goals() {
-        honest("cross", CROSS);
+        honest("cross", &mark_file("cross"));
     }
 
     #[test]
     fn corner_fiducials_to_their_goals() {
-        honest("corner", CORNER);
+        honest("corner", &mark_file("corner"));
     }
 
     #[test]
     fn midside_fiducials_to_their_goals() {
-        honest("midside", MIDSIDE);
+        honest("midside", &mark_file("midside"));
     }
 
     /// One grey image of the validation marks, as stored (8 or 16 bits), as u16 values.
@@ -505,7 +468,7 @@ mod marks {
             p
         });
         let mf = tmp.path().join("corner.toml");
-        std::fs::write(&mf, CORNER).unwrap();
+        std::fs::write(&mf, mark_file("corner")).unwrap();
         let out = run_ok(
             rig()
                 .args(["measure", "--json", "-q", "--mark"])
@@ -525,7 +488,7 @@ mod marks {
         );
         // A cross with the mid-side fiducial's mark file.
         let mf = tmp.path().join("midside.toml");
-        std::fs::write(&mf, MIDSIDE).unwrap();
+        std::fs::write(&mf, mark_file("midside")).unwrap();
         let dir = data().join("cross/a_read2");
         let out = run_ok(
             rig()

@@ -72,17 +72,16 @@ pub fn estimator_variance(
             &shifted
         };
         let m = match_pair_alone(left, right, &q, max_memory_mb, &super::progress::Silent)?;
-        let sq: Vec<f64> = m
-            .d
-            .iter()
-            .map(|&v| {
-                if v.is_finite() {
-                    (v as f64 - phase).powi(2)
-                } else {
-                    f64::NAN
-                }
-            })
-            .collect();
+        let sq: Vec<f64> =
+            m.d.iter()
+                .map(|&v| {
+                    if v.is_finite() {
+                        (v as f64 - phase).powi(2)
+                    } else {
+                        f64::NAN
+                    }
+                })
+                .collect();
         for ((s, c), v) in sum.iter_mut().zip(&mut count).zip(box_mean(&sq, w, h, k)) {
             if v.is_finite() {
                 *s += v as f64;
@@ -93,7 +92,13 @@ pub fn estimator_variance(
     Ok(sum
         .iter()
         .zip(&count)
-        .map(|(&s, &c)| if c > 0 { (s / c as f64) as f32 } else { f32::NAN })
+        .map(|(&s, &c)| {
+            if c > 0 {
+                (s / c as f64) as f32
+            } else {
+                f32::NAN
+            }
+        })
         .collect())
 }
 
@@ -203,7 +208,10 @@ mod tests {
         }
         let out = shift_rows(&img, 0.25);
         for c in 10..54 {
-            assert!((out.data[c] as f64 - f(c as f64 + 0.25)).abs() < 0.05, "{c}");
+            assert!(
+                (out.data[c] as f64 - f(c as f64 + 0.25)).abs() < 0.05,
+                "{c}"
+            );
         }
         assert!(out.data[0].is_nan() && out.data[w - 1].is_nan());
     }
