@@ -57,6 +57,10 @@ pub struct OslsmReport {
     pub config: OslsmConfig,
     /// Posts (the DEM's nodes) and groundels, m; groundels along a post cell's side.
     pub post_m: f64,
+    /// The project's `[dem] cell_m`; `post_m` is a multiple of it where the project's
+    /// posts were too close for the groundels.
+    #[serde(default)]
+    pub asked_post_m: f64,
     pub groundel_m: f64,
     pub groundels_per_cell: usize,
     pub groundels: usize,
@@ -223,15 +227,27 @@ pub fn run(
                 corrected,
                 heights,
                 extent,
+                overlapping,
                 ..
             },
         mid,
         reference: r,
         others,
     } = block(p, photos, cfg.reference.as_deref(), "matching.oslsm")?;
+    // Every photo that overlaps another takes part (the reference's partners first): a patch
+    // beyond the reference's footprint is matched from the photos that see it.
+    let partners = others.clone();
+    let mut others = others;
+    for &(i, j) in &overlapping {
+        for k in [i, j] {
+            if k != r && !others.contains(&k) {
+                others.push(k);
+            }
+        }
+    }
     let (rw, rh) = (photos[r].image.width, photos[r].image.height);
     let centre = PixelXY::new(0.5 * rw as f64, 0.5 * rh as f64);
-    let searches: Vec<&dyn Sensor> = others.iter().map(|&k| &sensors[k] as &dyn Sensor).collect();
+    let searches: Vec<&dyn Sensor> = partners.iter().map(|&k| &sensors[k] as &dyn Sensor).collect();
     let px_per_m = parallax_per_m(&sensors[r], &searches, centre, mid);
     if px_per_m.is_nan() || px_per_m <= 1e-9 {
         return Err(Pipeline2Error::Oslsm(
@@ -246,21 +262,30 @@ pub fn run(
             p.photos[r].id
         ))
     })?;
-    let post_m = p.cell_m;
-    let per_cell = (post_m / (cfg.groundel_px * gsd)).round().max(1.0);
+    // The posts: the project's nodes, or where those are too close for the groundels (fewer
+    // than MIN_PER_CELL to a side: the patches swing without converging) every k-th of them,
+    // the finest multiple of cell_m that holds enough groundels (said in the warnings and
+    // in report.json's `post_m` against `asked_post_m`).
+    let asked_post_m = p.cell_m;
+    let groundel_want = cfg.groundel_px * gsd;
+    let fits = |post: f64| (post / groundel_want).round() >= MIN_PER_CELL as f64;
+    let step = (1..=1024usize)
+        .find(|&k| fits(k as f64 * asked_post_m))
+        .unwrap_or(1);
+    let post_m = step as f64 * asked_post_m;
+    let mut early_warnings = Vec::new();
+    if step > 1 {
+        early_warnings.push(format!(
+            "[dem] cell_m = {asked_post_m} m holds only {:.0} groundel(s) of {groundel_want:.2} m along a side (at least {MIN_PER_CELL}: posts that close are not fixed by the grey values and the patches swing without converging): the object-space matching puts its posts every {post_m} m ({step} × cell_m), the finest multiple of cell_m that holds {MIN_PER_CELL}; dem.tif has that spacing",
+            (asked_post_m / groundel_want).round()
+        ));
+    }
+    let per_cell = (post_m / groundel_want).round().max(1.0);
     if per_cell > 64.0 {
         return Err(Pipeline2Error::Oslsm(format!(
             "{}: [dem] cell_m = {post_m} m holds {per_cell:.0} groundels of {:.2} m along a side (at most 64): use a smaller cell_m or a larger [matching.oslsm] groundel_px",
             p.path.display(),
-            cfg.groundel_px * gsd
-        )));
-    }
-    if per_cell < MIN_PER_CELL as f64 {
-        return Err(Pipeline2Error::Oslsm(format!(
-            "{}: [dem] cell_m = {post_m} m holds only {per_cell:.0} groundel(s) of {:.2} m along a side (at least {MIN_PER_CELL}): posts that close are not fixed by the grey values and the patches swing without converging; use cell_m = {:.0} m or more for the object-space matching",
-            p.path.display(),
-            cfg.groundel_px * gsd,
-            (MIN_PER_CELL as f64 * cfg.groundel_px * gsd).ceil()
+            groundel_want
         )));
     }
     let per_cell = per_cell as usize;
@@ -301,7 +326,7 @@ pub fn run(
     // The coarse model: the sweep's (all its outputs in coarse/), the feature route's (its
     // grid in coarse/dem.tif) or the project's file.
     let mut coarse_features = None;
-    let mut warnings = Vec::new();
+    let mut warnings = early_warnings;
     let (cg, coarse_comparison) = match &cfg.coarse {
         CoarseSource::File(f) => {
             let path = p.path.parent().unwrap_or(Path::new(".")).join(f);
@@ -554,6 +579,7 @@ pub fn run(
         extent,
         config: cfg.clone(),
         post_m,
+        asked_post_m,
         groundel_m,
         groundels_per_cell: per_cell,
         groundels: gu * gv,
