@@ -302,6 +302,7 @@ pub fn refine(
     let mut iterations = Vec::new();
     let mut best_sigma0 = f64::INFINITY;
     let mut last_move = f64::INFINITY;
+    let mut damping = 0.0f64;
     for iteration in 1..=p.max_iterations {
         // Each groundel's observations at the current heights; where it has no adjusted D
         // yet (the first iteration, or newly seen), its indirect back-mapping (seed 001
@@ -475,8 +476,29 @@ pub fn refine(
             });
         }
         best_sigma0 = best_sigma0.min(sigma0);
-        let chol = n_mat
-            .clone()
+        // Step control (Levenberg–Marquardt): while σ₀ falls the steps are Gauss–Newton's;
+        // once it no longer falls (by 0.1 %) the diagonal is raised by μ·Nᵢᵢ, μ doubling
+        // each such iteration, so that a post swinging between the two sides of a kink of the
+        // bilinear slopes (each side's model putting the minimum on the other) closes in on
+        // it instead of cycling. The solution's fixed point is Gauss–Newton's.
+        if let Some(last) = iterations.last() {
+            let last: &Iteration = last;
+            if sigma0 > (1.0 - 1e-3) * last.sigma0 {
+                damping = if damping > 0.0 { 2.0 * damping } else { 1.0 };
+            } else {
+                damping *= 0.5;
+                if damping < 0.1 {
+                    damping = 0.0;
+                }
+            }
+        }
+        let mut solve_mat = n_mat.clone();
+        if damping > 0.0 {
+            for i in 0..nu {
+                solve_mat[(i, i)] *= 1.0 + damping;
+            }
+        }
+        let chol = solve_mat
             .cholesky()
             .ok_or(OslsmError::Singular { iteration })?;
         let dx = chol.solve(&rhs);
@@ -883,10 +905,9 @@ const CONVERGED_SIGMA: f64 = 0.2;
 const FRAME_MARGIN_PX: f64 = 4.0;
 
 /// Whether each photo's image holds each groundel of `g` at least `margin` px inside its
-/// edge; none where the datum photo (0) does not: the model is the datum photo's footprint,
-/// so that its grey values hold the reflectance's scale everywhere (where only the other
-/// photos looked, their gains, from elsewhere, would carry it, and the coarse model is
-/// mostly filled in from the neighbours there).
+/// edge; none where fewer than two photos do (nothing to match). Where the datum photo (0)
+/// does not, the other photos' gains, fixed where they share groundels with it, carry the
+/// reflectance's scale (the patches take as datum the photo that frames most of them).
 fn framed(
     photos: &[PhotoView<'_>],
     g: &Grids,
@@ -909,7 +930,7 @@ fn framed(
                     })
                 })
                 .collect();
-            if v.first() == Some(&true) {
+            if v.iter().filter(|x| **x).count() >= 2 {
                 v
             } else {
                 vec![false; v.len()]
