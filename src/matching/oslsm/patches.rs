@@ -5,7 +5,9 @@
 //! across the overlap, so that no seam shows where one patch hands over to the next.
 
 use super::grids::Grids;
-use super::solve::{refine, Iteration, OslsmError, OslsmParams};
+use super::solve::{
+    patch_coordinates, radiometry_at, refine, Iteration, OslsmError, OslsmParams,
+};
 use super::PhotoView;
 use crate::matching::progress::Progress;
 use rayon::prelude::*;
@@ -132,8 +134,13 @@ fn datum_for(photos: &[PhotoView<'_>], g: &Grids) -> usize {
 /// A patch refined with photo `order[0]` as its datum, its radiometry (per photo of `order`)
 /// put back in the block's order and, where the block's datum (photo 0) sees the patch,
 /// expressed against it: with gₒ = a₀ + b₀·D, D₀ = a₀ + b₀·D and photo k's
-/// gₖ = aₖ + bₖ·D = (aₖ − bₖa₀/b₀) + (bₖ/b₀)·D₀.
-fn to_block_datum(mut r: super::solve::Refinement, order: &[usize]) -> super::solve::Refinement {
+/// gₖ = aₖ + bₖ·D = (aₖ − bₖa₀/b₀) + (bₖ/b₀)·D₀ (the offsets and gains at the patch's centre;
+/// each groundel's D with photo 0's a₀ and b₀ where it lies, `sub` the patch's grids).
+fn to_block_datum(
+    mut r: super::solve::Refinement,
+    order: &[usize],
+    sub: &Grids,
+) -> super::solve::Refinement {
     if order.iter().enumerate().all(|(n, &k)| n == k) {
         return r;
     }
@@ -144,17 +151,24 @@ fn to_block_datum(mut r: super::solve::Refinement, order: &[usize]) -> super::so
     let mut rad = vec![[0.0, 1.0]; kp];
     let mut srad = vec![[0.0, 0.0]; kp];
     let mut seen = vec![false; kp];
+    let mut field = vec![[0.0, 0.0, 0.0, 1.0, 0.0, 0.0]; kp];
     for n in 0..kp {
+        field[order[n]] = r.radiometry_field[n];
         let [a, b] = r.radiometry[n];
         rad[order[n]] = if convert { [a - b * a0 / b0, b / b0] } else { [a, b] };
         srad[order[n]] = r.sigma_radiometry[n];
         seen[order[n]] = r.photo_seen[n];
     }
     if convert {
-        for d in r.d.iter_mut() {
-            *d = a0 + b0 * *d;
+        let datum = r.radiometry_field[at0];
+        let (pu, _) = sub.groundels();
+        for (n, d) in r.d.iter_mut().enumerate() {
+            let gr = sub.groundel(n % pu, n / pu);
+            let [a, b] = radiometry_at(&datum, patch_coordinates(sub, gr.x, gr.y));
+            *d = a + b * *d;
         }
     }
+    r.radiometry_field = field;
     r.radiometry = rad;
     r.sigma_radiometry = srad;
     r.photo_seen = seen;
@@ -233,7 +247,7 @@ pub fn refine_block(
             .chain((0..photos.len()).filter(|&k| k != datum))
             .collect();
         let views: Vec<PhotoView<'_>> = order.iter().map(|&k| photos[k]).collect();
-        let res = refine(&views, &sub, p).map(|r| to_block_datum(r, &order));
+        let res = refine(&views, &sub, p).map(|r| to_block_datum(r, &order, &sub));
         let open = [c0 > 0, c0 + w < coarse.cols, r0 > 0, r0 + h < coarse.rows];
         let mut guard = sums.lock().unwrap_or_else(|e| e.into_inner());
         let s = &mut *guard;

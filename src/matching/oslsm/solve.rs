@@ -4,7 +4,17 @@
 //! Observation per groundel n and photo k that sees it (seed 001 eq. 9, with the reflectance
 //! model of eq. 5, "perfect ambient reflection": the grey value is a linear function of D):
 //!
-//!   gₖ(Fₖ(Xₙ, Yₙ, Z(Xₙ, Yₙ))) = aₖ + bₖ·Dₙ + v,
+//!   gₖ(Fₖ(Xₙ, Yₙ, Z(Xₙ, Yₙ))) = aₖ(s, t) + bₖ(s, t)·Dₙ + v,
+//!
+//! with the offset and the gain linear over the patch, aₖ = aₖ₀ + aₖₛ·s + aₖₜ·t and likewise
+//! bₖ (s, t ∈ [−1, 1] across the patch). Seed 001 (eq. 8 ff.) takes them constant per patch
+//! ("local linear radiometric correction"), and says it does not hold for large-scale photos:
+//! a lens's light fall-off (cos⁴ and vignetting) changes one photo's gain against another's by
+//! several per cent across a patch of a few hundred pixels, and an unmodelled gain difference
+//! Δb leaves residuals Δb·(D − D̄) whose correlation with the texture's slopes moves each post
+//! at random. On the independent jacksboro-close scene (vignetting 15 %), patches of 24 posts
+//! had σ₀ 665 grey values against noise of 200 and posts 0.07 px off at random; patches of 8
+//! posts, σ₀ 360 and 0.037 px (after the facets' curvature bias, `grids::facet_bias`).
 //!
 //! Fₖ the photo's sensor (ground → image), Z bilinear between the posts. Linearised (eq. 13):
 //! ∂gₖ/∂Z = ∇gₖ·∂Fₖ/∂Z (eq. 11: the image gradient times the projection's movement with
@@ -126,9 +136,12 @@ pub struct Refinement {
     pub d: Vec<f64>,
     /// Photos seeing each groundel.
     pub seen_by: Vec<u8>,
-    /// Offset and gain per photo (photo 0's 0 and 1, the datum); a photo that sees none of
-    /// the patch keeps its initial ones (see `photo_seen`).
+    /// Offset and gain per photo at the patch's centre (photo 0's 0 and 1, the datum); a
+    /// photo that sees none of the patch keeps its initial ones (see `photo_seen`).
     pub radiometry: Vec<[f64; 2]>,
+    /// Each photo's whole radiometry across the patch, [a₀, aₛ, aₜ, b₀, bₛ, bₜ]
+    /// ([`radiometry_at`], [`patch_coordinates`] on the patch's grids).
+    pub radiometry_field: Vec<[f64; NR]>,
     /// Whether each photo observed a groundel of the patch.
     pub photo_seen: Vec<bool>,
     /// Whether each post took information from the grey values (a groundel seen by two
@@ -152,6 +165,27 @@ pub struct Refinement {
     pub signal_share: f64,
     pub iterations: Vec<Iteration>,
 }
+
+/// Radiometric unknowns per photo: offset and gain, each a constant and its slopes along s
+/// and t across the patch (the module's documentation).
+pub const NR: usize = 6;
+
+/// Offset and gain of a photo's radiometry `r` ([a₀, aₛ, aₜ, b₀, bₛ, bₜ]) at patch
+/// coordinates (s, t).
+pub fn radiometry_at(r: &[f64; NR], [s, t]: [f64; 2]) -> [f64; 2] {
+    [r[0] + r[1] * s + r[2] * t, r[3] + r[4] * s + r[5] * t]
+}
+
+/// Patch coordinates (s, t) ∈ [−1, 1]² of ground (x, y) on `g`'s posts.
+pub fn patch_coordinates(g: &Grids, x: f64, y: f64) -> [f64; 2] {
+    let w = ((g.cols - 1) as f64 * g.post_m).max(1e-9);
+    let h = ((g.rows - 1) as f64 * g.post_m).max(1e-9);
+    [2.0 * (x - g.x0) / w - 1.0, 2.0 * (y - g.y0) / h - 1.0]
+}
+
+/// The slopes' prior weight against their constant's information: only enough to keep the
+/// normals regular where a photo sees a sliver of the patch (its s or t hardly varying).
+const TREND_PRIOR: f64 = 1e-4;
 
 /// One photo's observation of one groundel at the current linearisation point.
 #[derive(Clone, Copy)]
@@ -232,7 +266,7 @@ pub fn refine(
     // Unknowns: the posts, then offset and gain of photos 1..K; refused before anything is
     // allocated when the dense normal matrix (and one per worker) would be large.
     let n_posts = grids.cols.saturating_mul(grids.rows);
-    let nu = n_posts.saturating_add(2 * (kp - 1));
+    let nu = n_posts.saturating_add(NR * (kp - 1));
     if nu > MAX_UNKNOWNS {
         return Err(OslsmError::TooBig {
             unknowns: nu,
@@ -251,11 +285,15 @@ pub fn refine(
     }
     let mut g = grids.clone();
     let (gu, gv) = g.groundels();
-    let rad = |k: usize| n_posts + 2 * (k - 1);
-    let mut radiometry = vec![[0.0, 1.0]; kp];
+    let rad = |k: usize| n_posts + NR * (k - 1);
+    let mut radiometry = vec![[0.0, 0.0, 0.0, 1.0, 0.0, 0.0]; kp];
     let groundels: Vec<_> = (0..gv)
         .flat_map(|v| (0..gu).map(move |u| (u, v)))
         .map(|(u, v)| g.groundel(u, v))
+        .collect();
+    let st: Vec<[f64; 2]> = groundels
+        .iter()
+        .map(|gr| patch_coordinates(&g, gr.x, gr.y))
         .collect();
     // Which photos frame each groundel is fixed at the start (with a margin for the posts'
     // moves): a groundel whose projection slipped in and out of a photo's edge from one
@@ -294,7 +332,7 @@ pub fn refine(
                 (a.0 + (x - m0).powi(2), a.1 + (y - mk).powi(2))
             });
             let gain = if s0 > 0.0 { (sk / s0).sqrt() } else { 1.0 };
-            radiometry[k] = [mk - gain * m0, gain];
+            radiometry[k] = [mk - gain * m0, 0.0, 0.0, gain, 0.0, 0.0];
         }
     }
     let mut d = vec![f64::NAN; groundels.len()];
@@ -312,7 +350,8 @@ pub fn refine(
             .par_iter()
             .zip(&sees)
             .zip(&d)
-            .map(|((gr, s), dn)| {
+            .zip(&st)
+            .map(|(((gr, s), dn), &pos)| {
                 let mut obs = Vec::new();
                 let z = g.z_at(gr);
                 observe(photos, s, gr, z, &mut obs);
@@ -327,7 +366,7 @@ pub fn refine(
                 }
                 let (mut sw, mut sd) = (0.0, 0.0);
                 for o in &obs {
-                    let [a, b] = radiometry[o.photo];
+                    let [a, b] = radiometry_at(&radiometry[o.photo], pos);
                     let w = steepness(photos[o.photo].sensor, gr, z);
                     sw += w;
                     sd += w * (o.g - a) / b;
@@ -342,7 +381,7 @@ pub fn refine(
             seen_by[n] = *c;
         }
         // Normal equations with D eliminated groundel by groundel.
-        let local = 4 + 2 * (kp - 1);
+        let local = 4 + NR * (kp - 1);
         // (Few accumulators: each is a dense nu × nu matrix.)
         let assembled = per
             .par_iter()
@@ -371,15 +410,20 @@ pub fn refine(
                         .posts
                         .iter()
                         .copied()
-                        .chain((1..kp).flat_map(|k| [rad(k), rad(k) + 1]))
+                        .chain((1..kp).flat_map(|k| (0..NR).map(move |i| rad(k) + i)))
                         .collect();
-                    // Local normals over [posts(4), radiometry(2(K−1)), D].
+                    let pos = st[n];
+                    let [s_, t_] = pos;
+                    // Local normals over [posts(4), radiometry(NR(K−1)), D].
                     let mut nl = DMatrix::<f64>::zeros(local + 1, local + 1);
                     let mut bl = DVector::<f64>::zeros(local + 1);
                     let mut row = DVector::<f64>::zeros(local + 1);
-                    let bb: f64 = obs.iter().map(|o| radiometry[o.photo][1].powi(2)).sum();
+                    let bb: f64 = obs
+                        .iter()
+                        .map(|o| radiometry_at(&radiometry[o.photo], pos)[1].powi(2))
+                        .sum();
                     for o in obs {
-                        let [a, b] = radiometry[o.photo];
+                        let [a, b] = radiometry_at(&radiometry[o.photo], pos);
                         let l = o.g - a - b * d[n];
                         *vv += l * l;
                         *nobs += 1;
@@ -393,15 +437,17 @@ pub fn refine(
                                 w * w * o.noise_dz * free;
                         }
                         row.fill(0.0);
-                        // g(Z + dZ) − (a + da) − (b + db)(D + dD) = 0:
-                        // ∂g/∂Z·dZ − da − D·db − b·dD = −l.
+                        // g(Z + dZ) − (a + da) − (b + db)(D + dD) = 0, a and b linear in s, t:
+                        // ∂g/∂Z·dZ − (da₀ + s·daₛ + t·daₜ) − D·(db₀ + …) − b·dD = −l.
                         for (c, w) in gr.weights.iter().enumerate() {
                             row[c] = o.dg_dz * w;
                         }
                         if o.photo > 0 {
-                            let c = 4 + 2 * (o.photo - 1);
-                            row[c] = -1.0;
-                            row[c + 1] = -d[n];
+                            let c = 4 + NR * (o.photo - 1);
+                            for (i, f) in [1.0, s_, t_].into_iter().enumerate() {
+                                row[c + i] = -f;
+                                row[c + 3 + i] = -d[n] * f;
+                            }
                         }
                         row[local] = -b;
                         nl += &row * row.transpose();
@@ -445,8 +491,16 @@ pub fn refine(
         for k in 1..kp {
             if n_mat[(rad(k), rad(k))] <= 0.0 {
                 photo_seen[k] = false;
-                n_mat[(rad(k), rad(k))] = 1.0;
-                n_mat[(rad(k) + 1, rad(k) + 1)] = 1.0;
+                for i in 0..NR {
+                    n_mat[(rad(k) + i, rad(k) + i)] = 1.0;
+                }
+                continue;
+            }
+            // The slopes held towards none by a weak prior (TREND_PRIOR).
+            for (c, i) in [(0, 1), (0, 2), (3, 4), (3, 5)] {
+                let w = TREND_PRIOR * n_mat[(rad(k) + c, rad(k) + c)];
+                n_mat[(rad(k) + i, rad(k) + i)] += w;
+                rhs[rad(k) + i] -= w * radiometry[k][i];
             }
         }
         let informed: Vec<bool> = (0..n_posts).map(|i| n_mat[(i, i)] > 0.0).collect();
@@ -512,15 +566,22 @@ pub fn refine(
                 }
                 let gr = &groundels[n];
                 let (mut ndd, mut bd) = (0.0, 0.0);
+                let pos = st[n];
                 for o in obs {
-                    let [a, b] = radiometry[o.photo];
+                    let [a, b] = radiometry_at(&radiometry[o.photo], pos);
                     let l = o.g - a - b * d[n];
                     let mut rest = 0.0;
                     for (c, wt) in gr.weights.iter().enumerate() {
                         rest += o.dg_dz * wt * dx[gr.posts[c]];
                     }
                     if o.photo > 0 {
-                        rest += -dx[rad(o.photo)] - d[n] * dx[rad(o.photo) + 1];
+                        let r = rad(o.photo);
+                        let mut dr = [0.0; NR];
+                        for (i, v) in dr.iter_mut().enumerate() {
+                            *v = dx[r + i];
+                        }
+                        let [da, db] = radiometry_at(&dr, pos);
+                        rest += -da - d[n] * db;
                     }
                     // −b·dD = −l − rest  ⇒ least squares over the photos.
                     ndd += b * b;
@@ -535,8 +596,9 @@ pub fn refine(
             }
         }
         for k in 1..kp {
-            radiometry[k][0] += dx[rad(k)];
-            radiometry[k][1] += dx[rad(k) + 1];
+            for i in 0..NR {
+                radiometry[k][i] += dx[rad(k) + i];
+            }
         }
         // Convergence is judged on the posts the grey values inform (the others follow the
         // curvature and settle with them): each moved less than `converged_m`, or less than
@@ -578,7 +640,8 @@ pub fn refine(
                 return Err(OslsmError::Singular { iteration });
             };
             let signal_share = mean_share(&share, &informed);
-            let inflation = correlation_inflation(photos, &sees, &groundels, &g, &d, &radiometry);
+            let inflation =
+                correlation_inflation(photos, &sees, &groundels, &st, &g, &d, &radiometry);
             let sigma_z = (0..n_posts)
                 .map(|i| inflation * sigma0 * inv[(i, i)].max(0.0).sqrt())
                 .collect();
@@ -589,7 +652,7 @@ pub fn refine(
                     } else {
                         [
                             sigma0 * inv[(rad(k), rad(k))].max(0.0).sqrt(),
-                            sigma0 * inv[(rad(k) + 1, rad(k) + 1)].max(0.0).sqrt(),
+                            sigma0 * inv[(rad(k) + 3, rad(k) + 3)].max(0.0).sqrt(),
                         ]
                     }
                 })
@@ -604,7 +667,8 @@ pub fn refine(
                 sigma_z,
                 d,
                 seen_by,
-                radiometry,
+                radiometry: radiometry.iter().map(|r| radiometry_at(r, [0.0, 0.0])).collect(),
+                radiometry_field: radiometry,
                 photo_seen,
                 informed,
                 sigma_radiometry,
@@ -835,9 +899,10 @@ fn correlation_inflation(
     photos: &[PhotoView<'_>],
     sees: &[Vec<bool>],
     groundels: &[Groundel],
+    st: &[[f64; 2]],
     g: &Grids,
     d: &[f64],
-    radiometry: &[[f64; 2]],
+    radiometry: &[[f64; NR]],
 ) -> f64 {
     let (gu, gv) = g.groundels();
     let kp = photos.len();
@@ -853,7 +918,7 @@ fn correlation_inflation(
             let mut v = vec![0.0; kp];
             if obs.len() >= 2 {
                 for o in &obs {
-                    let [a, b] = radiometry[o.photo];
+                    let [a, b] = radiometry_at(&radiometry[o.photo], st[n]);
                     v[o.photo] = o.dg_dz * (o.g - a - b * d[n]);
                 }
             }
