@@ -277,7 +277,10 @@ fn oslsm_on_the_lidar_scene() {
         report["asked_post_m"].as_f64().unwrap(),
     );
     assert_eq!(asked, 1.0, "{report}");
-    assert!(post > asked && (post / asked).fract() == 0.0, "posts every {post} m");
+    assert!(
+        post > asked && (post / asked).fract() == 0.0,
+        "posts every {post} m"
+    );
     let warnings = report["warnings"].as_array().unwrap();
     assert!(
         warnings

@@ -260,7 +260,11 @@ mod tests {
                 let off = bowl(x, y) - z[k];
                 // The rule, and the facets' own offset (sampling at 16 groundels a side).
                 assert!((off - want).abs() < 0.02 * want, "{off} vs {want}");
-                assert!((bias[k] - want).abs() < 0.02 * want, "{} vs {want}", bias[k]);
+                assert!(
+                    (bias[k] - want).abs() < 0.02 * want,
+                    "{} vs {want}",
+                    bias[k]
+                );
             }
         }
     }

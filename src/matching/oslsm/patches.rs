@@ -5,9 +5,7 @@
 //! across the overlap, so that no seam shows where one patch hands over to the next.
 
 use super::grids::Grids;
-use super::solve::{
-    patch_coordinates, radiometry_at, refine, Iteration, OslsmError, OslsmParams,
-};
+use super::solve::{patch_coordinates, radiometry_at, refine, Iteration, OslsmError, OslsmParams};
 use super::PhotoView;
 use crate::matching::progress::Progress;
 use rayon::prelude::*;
@@ -155,7 +153,11 @@ fn to_block_datum(
     for n in 0..kp {
         field[order[n]] = r.radiometry_field[n];
         let [a, b] = r.radiometry[n];
-        rad[order[n]] = if convert { [a - b * a0 / b0, b / b0] } else { [a, b] };
+        rad[order[n]] = if convert {
+            [a - b * a0 / b0, b / b0]
+        } else {
+            [a, b]
+        };
         srad[order[n]] = r.sigma_radiometry[n];
         seen[order[n]] = r.photo_seen[n];
     }

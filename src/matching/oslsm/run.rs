@@ -272,7 +272,10 @@ pub fn run(
     }
     let (rw, rh) = (photos[r].image.width, photos[r].image.height);
     let centre = PixelXY::new(0.5 * rw as f64, 0.5 * rh as f64);
-    let searches: Vec<&dyn Sensor> = partners.iter().map(|&k| &sensors[k] as &dyn Sensor).collect();
+    let searches: Vec<&dyn Sensor> = partners
+        .iter()
+        .map(|&k| &sensors[k] as &dyn Sensor)
+        .collect();
     let px_per_m = parallax_per_m(&sensors[r], &searches, centre, mid);
     if px_per_m.is_nan() || px_per_m <= 1e-9 {
         return Err(Pipeline2Error::Oslsm(

@@ -667,7 +667,10 @@ pub fn refine(
                 sigma_z,
                 d,
                 seen_by,
-                radiometry: radiometry.iter().map(|r| radiometry_at(r, [0.0, 0.0])).collect(),
+                radiometry: radiometry
+                    .iter()
+                    .map(|r| radiometry_at(r, [0.0, 0.0]))
+                    .collect(),
                 radiometry_field: radiometry,
                 photo_seen,
                 informed,
