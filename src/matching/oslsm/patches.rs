@@ -44,10 +44,6 @@ pub struct PatchReport {
     pub stalled: bool,
     /// The factor by which the residuals' correlation widened σ.
     pub inflation: Option<f64>,
-    /// The curvature's weight in σ against its weight in the solution (below 1: the terrain
-    /// bends more than the solution's rule takes it to).
-    #[serde(default)]
-    pub curvature_weight: Option<f64>,
     /// The mean share of the posts' information from the grey values that is the
     /// texture's, not the pixels' noise's.
     #[serde(default)]
@@ -299,7 +295,6 @@ pub fn refine_block(
                     sigma0: Some(r.sigma0),
                     stalled: r.stalled,
                     inflation: Some(r.inflation),
-                    curvature_weight: Some(r.curvature_weight),
                     signal_share: Some(r.signal_share),
                     iterations: r.iterations.len(),
                     history: r.iterations,
@@ -313,7 +308,6 @@ pub fn refine_block(
                 sigma0: None,
                 stalled: false,
                 inflation: None,
-                curvature_weight: None,
                 signal_share: None,
                 iterations: 0,
                 history: Vec::new(),

@@ -210,8 +210,9 @@ pub fn memory_bytes(
 /// The share of the terrain's bending between posts ([`super::grids::representation_sigma`])
 /// kept in a post's σ once the facets' curvature bias is taken out of it
 /// ([`super::grids::facet_bias`]): the bending a quadratic over 3 × 3 posts does not follow.
-/// Measured on tests/data/validation: with all of it RMS(error/σ) was 1.12, 0.92 and 0.78 on
-/// the lidar, wide and close scenes; with half, 1.24, 1.05 and 1.00.
+/// Measured on tests/data/validation (before σ took each post's own variance factor): with
+/// all of it RMS(error/σ) was 1.12, 0.92 and 0.78 on the lidar, wide and close scenes; with
+/// half, 1.24, 1.05 and 1.00; with half and the posts' own factors, 1.14, 1.06 and 1.20.
 pub const FACET_UNRESOLVED: f64 = 0.5;
 
 /// Posts within this many posts (Chebyshev) of one the coarse model has a height for are
