@@ -128,8 +128,9 @@ struct Figures {
     within_2_sigma_percent: f64,
 }
 
-/// Runs `rig dtm` with `method` on a copy of the scene and measures it against the truth.
-fn measure(name: &str, method: &str) -> Figures {
+/// Runs `rig dtm` with `method` on a copy of the scene and measures it against the truth;
+/// the figures and the run's report.json.
+fn measure_with_report(name: &str, method: &str) -> (Figures, Value) {
     let src = scene_dir(name);
     let tmp = tempfile::tempdir().unwrap();
     let dir = tmp.path().join(name);
@@ -143,7 +144,7 @@ fn measure(name: &str, method: &str) -> Figures {
     let project = project.replace("method = \"sweep\"", &format!("method = \"{method}\""));
     std::fs::write(dir.join("project.toml"), project).unwrap();
     let out = dir.join("out");
-    common::dtm_json(&dir.join("project.toml"), &out);
+    let report = common::dtm_json(&dir.join("project.toml"), &out);
     let scene: Value =
         serde_json::from_str(&std::fs::read_to_string(dir.join("scene.json")).unwrap()).unwrap();
     let px = scene["flying_height_m"].as_f64().unwrap() / scene["base_m"].as_f64().unwrap()
@@ -208,7 +209,7 @@ fn measure(name: &str, method: &str) -> Figures {
         f.sigma_ratio,
         f.within_2_sigma_percent
     );
-    f
+    (f, report)
 }
 
 /// Whether the DEM cell (nodes at cell centres) holding ground (x, y) has a height.
@@ -222,8 +223,8 @@ fn has_height(dem: &ElevationGrid, x: f64, y: f64) -> bool {
         && dem.z[r as usize * dem.cols + c as usize].is_finite()
 }
 
-fn assert_goals(name: &str, method: &str) {
-    let f = measure(name, method);
+fn assert_goals(name: &str, method: &str) -> Value {
+    let (f, report) = measure_with_report(name, method);
     assert!(f.rmse_px <= 0.1, "{name} {method}: {f:?}");
     assert!(f.coverage_percent >= 80.0, "{name} {method}: {f:?}");
     assert!(
@@ -234,6 +235,7 @@ fn assert_goals(name: &str, method: &str) {
         (50.0..=98.0).contains(&f.within_2_sigma_percent),
         "{name} {method}: {f:?}"
     );
+    report
 }
 
 #[test]
@@ -264,6 +266,43 @@ fn mgcm_on_the_wide_angle_scene() {
 #[test]
 fn mgcm_on_the_noisy_close_scene() {
     assert_goals("jacksboro-close", "mgcm");
+}
+
+/// The object-space matching (seed 001) on the 1 m lidar scene: the project's 1 m posts hold
+/// fewer than its minimum of groundels (of about a ground pixel, 0.35 m), so it puts its posts
+/// at a multiple of cell_m and says so, in report.json and in a warning, instead of refusing.
+#[test]
+fn oslsm_on_the_lidar_scene() {
+    let report = assert_goals("lidar-banks", "oslsm");
+    let (post, asked) = (
+        report["post_m"].as_f64().unwrap(),
+        report["asked_post_m"].as_f64().unwrap(),
+    );
+    assert_eq!(asked, 1.0, "{report}");
+    assert!(
+        post > asked && (post / asked).fract() == 0.0,
+        "posts every {post} m"
+    );
+    let warnings = report["warnings"].as_array().unwrap();
+    assert!(
+        warnings
+            .iter()
+            .any(|w| w.as_str().unwrap().contains("cell_m = 1 m")
+                && w.as_str().unwrap().contains(&format!("every {post} m"))),
+        "{warnings:?}"
+    );
+}
+
+#[test]
+fn oslsm_on_the_wide_angle_scene() {
+    let report = assert_goals("jacksboro-wide", "oslsm");
+    // The project's 80 m posts hold enough groundels: kept.
+    assert_eq!(report["post_m"], report["asked_post_m"]);
+}
+
+#[test]
+fn oslsm_on_the_noisy_close_scene() {
+    assert_goals("jacksboro-close", "oslsm");
 }
 
 /// `rig measure` on the validation marks (tests/data/validation/marks, see its README: 4 marks

@@ -198,7 +198,7 @@ impl Default for OslsmConfig {
             groundel_px: 1.15,
             patch_posts: 24,
             overlap_posts: 4,
-            max_iterations: 30,
+            max_iterations: 60,
             converged_px: 0.005,
             smoothness: OSLSM_SMOOTHNESS,
             reference: None,

@@ -5,7 +5,7 @@
 //! across the overlap, so that no seam shows where one patch hands over to the next.
 
 use super::grids::Grids;
-use super::solve::{refine, Iteration, OslsmError, OslsmParams};
+use super::solve::{patch_coordinates, radiometry_at, refine, Iteration, OslsmError, OslsmParams};
 use super::PhotoView;
 use crate::matching::progress::Progress;
 use rayon::prelude::*;
@@ -44,10 +44,6 @@ pub struct PatchReport {
     pub stalled: bool,
     /// The factor by which the residuals' correlation widened σ.
     pub inflation: Option<f64>,
-    /// The curvature's weight in σ against its weight in the solution (below 1: the terrain
-    /// bends more than the solution's rule takes it to).
-    #[serde(default)]
-    pub curvature_weight: Option<f64>,
     /// The mean share of the posts' information from the grey values that is the
     /// texture's, not the pixels' noise's.
     #[serde(default)]
@@ -97,6 +93,84 @@ fn ramp(f: f64, n: usize, overlap: usize, open_low: bool, open_high: bool) -> f6
         w = w.min((n as f64 - f) / (o + 1.0));
     }
     w
+}
+
+/// The photo that frames the most posts of `g` (at their heights, 4 px inside its edge);
+/// the first such in `photos` on a tie.
+fn datum_for(photos: &[PhotoView<'_>], g: &Grids) -> usize {
+    let mut count = vec![0usize; photos.len()];
+    for j in 0..g.rows {
+        for i in 0..g.cols {
+            let pt = crate::coords::GroundM::new(
+                g.x0 + i as f64 * g.post_m,
+                g.y0 + j as f64 * g.post_m,
+                g.z[j * g.cols + i],
+            );
+            for (k, v) in photos.iter().enumerate() {
+                let (w, h) = (v.image.width as f64, v.image.height as f64);
+                if v.sensor.ground_to_image(pt).is_some_and(|q| {
+                    q.col >= 4.0 && q.row >= 4.0 && q.col <= w - 4.0 && q.row <= h - 4.0
+                }) {
+                    count[k] += 1;
+                }
+            }
+        }
+    }
+    let mut best = 0;
+    for k in 1..photos.len() {
+        if count[k] > count[best] {
+            best = k;
+        }
+    }
+    best
+}
+
+/// A patch refined with photo `order[0]` as its datum, its radiometry (per photo of `order`)
+/// put back in the block's order and, where the block's datum (photo 0) sees the patch,
+/// expressed against it: with gₒ = a₀ + b₀·D, D₀ = a₀ + b₀·D and photo k's
+/// gₖ = aₖ + bₖ·D = (aₖ − bₖa₀/b₀) + (bₖ/b₀)·D₀ (the offsets and gains at the patch's centre;
+/// each groundel's D with photo 0's a₀ and b₀ where it lies, `sub` the patch's grids).
+fn to_block_datum(
+    mut r: super::solve::Refinement,
+    order: &[usize],
+    sub: &Grids,
+) -> super::solve::Refinement {
+    if order.iter().enumerate().all(|(n, &k)| n == k) {
+        return r;
+    }
+    let kp = order.len();
+    let at0 = order.iter().position(|&k| k == 0).unwrap_or(0);
+    let [a0, b0] = r.radiometry[at0];
+    let convert = r.photo_seen[at0] && b0.is_finite() && b0.abs() > 1e-6;
+    let mut rad = vec![[0.0, 1.0]; kp];
+    let mut srad = vec![[0.0, 0.0]; kp];
+    let mut seen = vec![false; kp];
+    let mut field = vec![[0.0, 0.0, 0.0, 1.0, 0.0, 0.0]; kp];
+    for n in 0..kp {
+        field[order[n]] = r.radiometry_field[n];
+        let [a, b] = r.radiometry[n];
+        rad[order[n]] = if convert {
+            [a - b * a0 / b0, b / b0]
+        } else {
+            [a, b]
+        };
+        srad[order[n]] = r.sigma_radiometry[n];
+        seen[order[n]] = r.photo_seen[n];
+    }
+    if convert {
+        let datum = r.radiometry_field[at0];
+        let (pu, _) = sub.groundels();
+        for (n, d) in r.d.iter_mut().enumerate() {
+            let gr = sub.groundel(n % pu, n / pu);
+            let [a, b] = radiometry_at(&datum, patch_coordinates(sub, gr.x, gr.y));
+            *d = a + b * *d;
+        }
+    }
+    r.radiometry_field = field;
+    r.radiometry = rad;
+    r.sigma_radiometry = srad;
+    r.photo_seen = seen;
+    r
 }
 
 /// Refines the whole of `coarse` patch by patch and merges the patches (a patch that fails
@@ -163,7 +237,15 @@ pub fn refine_block(
                 .collect(),
             per_cell: coarse.per_cell,
         };
-        let res = refine(photos, &sub, p);
+        // The patch's radiometric datum: the photo that frames most of it (the block's
+        // reference where it frames as much), so that a patch beyond the reference's
+        // footprint is matched from the photos that do see it.
+        let datum = datum_for(photos, &sub);
+        let order: Vec<usize> = std::iter::once(datum)
+            .chain((0..photos.len()).filter(|&k| k != datum))
+            .collect();
+        let views: Vec<PhotoView<'_>> = order.iter().map(|&k| photos[k]).collect();
+        let res = refine(&views, &sub, p).map(|r| to_block_datum(r, &order, &sub));
         let open = [c0 > 0, c0 + w < coarse.cols, r0 > 0, r0 + h < coarse.rows];
         let mut guard = sums.lock().unwrap_or_else(|e| e.into_inner());
         let s = &mut *guard;
@@ -213,7 +295,6 @@ pub fn refine_block(
                     sigma0: Some(r.sigma0),
                     stalled: r.stalled,
                     inflation: Some(r.inflation),
-                    curvature_weight: Some(r.curvature_weight),
                     signal_share: Some(r.signal_share),
                     iterations: r.iterations.len(),
                     history: r.iterations,
@@ -227,7 +308,6 @@ pub fn refine_block(
                 sigma0: None,
                 stalled: false,
                 inflation: None,
-                curvature_weight: None,
                 signal_share: None,
                 iterations: 0,
                 history: Vec::new(),
