@@ -23,6 +23,26 @@ def arr(p,b=1):
     ds=gdal.Open(p); band=ds.GetRasterBand(b); a=band.ReadAsArray().astype(float); nd=band.GetNoDataValue()
     if nd is not None: a[a==nd]=np.nan
     return a, ds.GetGeoTransform()
+def seen_by(scene, d, X, Y, Z):
+    """How many photos see each ground point (X, Y, Z): by the scene's own collinearity
+    (scene.json's conventions), inside the frame and on a pixel that is not 0 (a ray that
+    missed the DEM)."""
+    E0=scene['object_system'].get('E0',0); N0=scene['object_system'].get('N0',0)
+    seen=np.zeros(X.shape,int)
+    for ph in scene['photos']:
+        e=ph['exterior']; i=ph['interior']; M=np.array(e['M_object_to_image'])
+        dX=X-E0-e['X0']; dY=Y-N0-e['Y0']; dZ=Z-e['Z0']
+        u=M[0,0]*dX+M[0,1]*dY+M[0,2]*dZ; v=M[1,0]*dX+M[1,1]*dY+M[1,2]*dZ; w=M[2,0]*dX+M[2,1]*dY+M[2,2]*dZ
+        c=i['focal_mm']; xp,yp=i['principal_point_mm']
+        x=xp-c*u/w; y=yp-c*v/w; p=i['pixel_size_um']/1000; W,H=i['image_size_px']
+        col=x/p+(W-1)/2; row=(H-1)/2-y/p
+        img=gdal.Open(f"{d}/{ph['file']}").ReadAsArray()
+        ok=np.isfinite(col)&np.isfinite(row)&(col>=0)&(row>=0)&(col<=W-1)&(row<=H-1)
+        ci=np.clip(np.nan_to_num(np.round(col)).astype(int),0,W-1); ri=np.clip(np.nan_to_num(np.round(row)).astype(int),0,H-1)
+        ok&=img[ri,ci]!=0
+        seen+=ok
+    return seen
+
 for sc in scenes:
     d=os.path.join(args.work, sc)
     if not os.path.exists(d): shutil.copytree(f'{SRC}/{sc}',d)
@@ -37,7 +57,6 @@ for sc in scenes:
     if r.returncode!=0: print(sc,method,'FAILED',r.stderr[-600:]); continue
     truth,tg=arr(f'{d}/truth_dem.tif')
     dem,g=arr(f'{out}/dem.tif'); sig,_=arr(f'{out}/quality.tif',1)
-    E0=s['object_system'].get('E0',0); N0=s['object_system'].get('N0',0)
     rows,cols=dem.shape
     cc,rr=np.meshgrid(np.arange(cols),np.arange(rows))
     X=g[0]+(cc+0.5)*g[1]; Y=g[3]+(rr+0.5)*g[5]
@@ -47,37 +66,13 @@ for sc in scenes:
     def at(A,c,r):
         h,w=A.shape; m=(c>=0)&(r>=0)&(c<w)&(r<h); o=np.full(c.shape,np.nan); o[m]=A[r[m],c[m]]; return o
     Z=(at(truth,c0,r0)*(1-a)*(1-b)+at(truth,c0+1,r0)*a*(1-b)+at(truth,c0,r0+1)*(1-a)*b+at(truth,c0+1,r0+1)*a*b)
-    seen=np.zeros(dem.shape,int)
-    for ph in s['photos']:
-        e=ph['exterior']; i=ph['interior']; M=np.array(e['M_object_to_image'])
-        dX=X-E0-e['X0']; dY=Y-N0-e['Y0']; dZ=Z-e['Z0']
-        u=M[0,0]*dX+M[0,1]*dY+M[0,2]*dZ; v=M[1,0]*dX+M[1,1]*dY+M[1,2]*dZ; w=M[2,0]*dX+M[2,1]*dY+M[2,2]*dZ
-        c=i['focal_mm']; xp,yp=i['principal_point_mm']
-        x=xp-c*u/w; y=yp-c*v/w; p=i['pixel_size_um']/1000; W,H=i['image_size_px']
-        col=x/p+(W-1)/2; row=(H-1)/2-y/p
-        img=gdal.Open(f"{d}/{ph['file']}").ReadAsArray()
-        ok=np.isfinite(col)&np.isfinite(row)&(col>=0)&(row>=0)&(col<=W-1)&(row<=H-1)
-        ci=np.clip(np.nan_to_num(np.round(col)).astype(int),0,W-1); ri=np.clip(np.nan_to_num(np.round(row)).astype(int),0,H-1)
-        ok&=img[ri,ci]!=0
-        seen+=ok
+    seen=seen_by(s,d,X,Y,Z)
     area=(seen>=2)&np.isfinite(Z)
     truth=Z; z=dem; sg=sig
     T,_=arr(f'{d}/truth_dem.tif'); tr,tc=T.shape
     tcc,trr=np.meshgrid(np.arange(tc),np.arange(tr))
     TX=tg[0]+(tcc+0.5)*tg[1]; TY=tg[3]+(trr+0.5)*tg[5]
-    tseen=np.zeros(T.shape,int)
-    for ph in s['photos']:
-        e=ph['exterior']; i=ph['interior']; M=np.array(e['M_object_to_image'])
-        dX=TX-E0-e['X0']; dY=TY-N0-e['Y0']; dZ=T-e['Z0']
-        u=M[0,0]*dX+M[0,1]*dY+M[0,2]*dZ; v=M[1,0]*dX+M[1,1]*dY+M[1,2]*dZ; w=M[2,0]*dX+M[2,1]*dY+M[2,2]*dZ
-        c=i['focal_mm']; xp,yp=i['principal_point_mm']
-        x=xp-c*u/w; y=yp-c*v/w; p=i['pixel_size_um']/1000; W,H=i['image_size_px']
-        col=x/p+(W-1)/2; row=(H-1)/2-y/p
-        img=gdal.Open(f"{d}/{ph['file']}").ReadAsArray()
-        ok=(col>=0)&(row>=0)&(col<=W-1)&(row<=H-1)
-        ci=np.clip(np.round(col).astype(int),0,W-1); ri=np.clip(np.round(row).astype(int),0,H-1)
-        ok&=img[ri,ci]!=0
-        tseen+=ok
+    tseen=seen_by(s,d,TX,TY,T)
     tarea=tseen>=2
     nc=np.floor((TX-g[0])/g[1]).astype(int); nr=np.floor((TY-g[3])/g[5]).astype(int)
     has=np.isfinite(at(dem,nc,nr))
