@@ -6,7 +6,8 @@
 pub const OK: i32 = 0;
 /// Any other error: the message says what and where.
 pub const OTHER: i32 = 1;
-/// Bad usage: a flag, a value or a missing argument.
+/// Bad usage: a flag, a value or a missing argument, refused by the parser or by the
+/// command's own check (`cli::usage`).
 pub const USAGE: i32 = 2;
 /// Refused before anything moved: a target or a scan plan outside the soft limits.
 pub const OUTSIDE_LIMITS: i32 = 3;

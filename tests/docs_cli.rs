@@ -116,3 +116,64 @@ fn version_completions_manual_and_the_exit_table() {
         assert_eq!(o.status.code(), Some(rig::exit::USAGE), "rig {args:?}");
     }
 }
+
+/// A usage error exits 2 whoever rejects it: the parser (a word where a number belongs) or the
+/// command's own check (a number out of range, a flag this case needs), with the flag named,
+/// and nothing written.
+#[test]
+fn every_usage_error_exits_2() {
+    let d = tempfile::tempdir().unwrap();
+    let out = d.path().join("out");
+    let o = out.to_str().unwrap();
+    let tiff = d.path().join("out.tiff");
+    let t = tiff.to_str().unwrap();
+    for (args, flag) in [
+        // The parser's.
+        (
+            vec!["camera", "--sim", "grab", "--exposure", "20ms", "-o", t],
+            "--exposure",
+        ),
+        (vec!["stage", "--sim", "move", "120mm", "80"], "120mm"),
+        // Our own checks'.
+        (
+            vec!["camera", "--sim", "grab", "--frames", "0", "-o", t],
+            "--frames",
+        ),
+        (
+            vec!["camera", "--sim", "grab", "--stretch", "50,10", "-o", t],
+            "--stretch",
+        ),
+        (
+            vec!["camera", "--sim", "grab", "--at", "1", "-o", t],
+            "--at",
+        ),
+        (
+            vec!["stage", "--sim", "--sim-faults", "drop=2", "status"],
+            "--sim-faults",
+        ),
+        (
+            vec!["stage", "--sim", "--sim-faults", "nonsense", "status"],
+            "--sim-faults",
+        ),
+        (
+            vec!["calibrate", "pixel", "--sim", "--frames", "0", "--out", o],
+            "--frames",
+        ),
+        (vec!["calibrate", "pixel", "--out", o], "--plate-cert"),
+        (
+            vec!["sim", "scene", "--noise-dn=-5", "--out", o],
+            "--noise-dn",
+        ),
+        (vec!["sim", "scene", "--area", "1,2", "--out", o], "--area"),
+        (
+            vec!["sim", "scene", "--gains", "1,x", "--out", o],
+            "--gains",
+        ),
+    ] {
+        let r = rig().args(&args).output().unwrap();
+        let err = String::from_utf8_lossy(&r.stderr);
+        assert_eq!(r.status.code(), Some(2), "{args:?}: {err}");
+        assert!(err.contains(flag), "{args:?}: {err}");
+        assert!(!out.exists() && !tiff.exists(), "{args:?} wrote");
+    }
+}

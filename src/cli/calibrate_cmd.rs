@@ -1,6 +1,7 @@
 //! `rig calibrate`: calibration sessions on the rig or on the simulator.
 
 use super::connect::{connect, Hardware};
+use super::usage::usage_bail;
 use anyhow::{bail, Context};
 use clap::{Args, Subcommand};
 use rig::calibrate::documents::{InteriorDescriptor, PixelDescriptor, Results};
@@ -107,7 +108,7 @@ pub enum CalibrateAction {
 fn parse_pair(s: &str, what: &str) -> anyhow::Result<[f64; 2]> {
     match super::camera_cmd::parse_pair(s, what)? {
         (x, y) if x > 0.0 && y > 0.0 => Ok([x, y]),
-        _ => bail!("{what} `{s}`: two positive numbers X,Y"),
+        _ => usage_bail!("{what} `{s}`: two positive numbers X,Y"),
     }
 }
 
@@ -205,7 +206,7 @@ impl Running {
 
 fn check_frames(frames: u32) -> anyhow::Result<()> {
     if frames == 0 || frames > 1024 {
-        bail!("--frames {frames} is out of range: use 1 to 1024");
+        usage_bail!("--frames {frames} is out of range: use 1 to 1024");
     }
     Ok(())
 }
@@ -225,11 +226,11 @@ pub fn run(a: CalibrateArgs) -> anyhow::Result<i32> {
         } => {
             check_frames(*frames)?;
             if !(2..=15).contains(grid) {
-                bail!("--grid {grid} is out of range: use 2 to 15");
+                usage_bail!("--grid {grid} is out of range: use 2 to 15");
             }
             let nominal = parse_pair(pixel_um, "--pixel-um")?;
             if plate_cert.is_none() && !a.conn.sim.on {
-                bail!("--plate-cert FILE is needed (the carriage plate's certificate; the README shows its format)");
+                usage_bail!("--plate-cert FILE is needed (the carriage plate's certificate; the README shows its format)");
             }
             let mut run = Running::begin(&a, out, "pixel", false)?;
             let cert_path = match (plate_cert, &run.hw.sim) {
@@ -289,7 +290,7 @@ pub fn run(a: CalibrateArgs) -> anyhow::Result<i32> {
                 ("--mark-px", mark_px),
             ] {
                 if v.is_nan() || *v <= 0.0 {
-                    bail!("{name} {v}: a positive threshold");
+                    usage_bail!("{name} {v}: a positive threshold");
                 }
             }
             let dirs = rig::calibrate::session::list(&a.store, "pixel")?;
@@ -331,7 +332,7 @@ pub fn run(a: CalibrateArgs) -> anyhow::Result<i32> {
             check_frames(*frames)?;
             let centre = parse_pair(film_centre, "--film-centre")?;
             if camera_cert.is_none() && !a.conn.sim.on {
-                bail!("--camera-cert FILE is needed (the film camera's certificate with its fiducials; the README shows its format)");
+                usage_bail!("--camera-cert FILE is needed (the film camera's certificate with its fiducials; the README shows its format)");
             }
             let pixel_dir = match pixel_session {
                 Some(d) => d.clone(),

@@ -1,5 +1,6 @@
 //! `rig camera`: look at the camera, and grab averaged, stripe-filtered frames.
 
+use super::usage::{usage_bail, OrUsage};
 use anyhow::{bail, Context};
 use clap::{Args, Subcommand};
 use rig::camera::{Camera, SimCamera};
@@ -91,9 +92,9 @@ pub fn parse_pair(s: &str, what: &str) -> anyhow::Result<(f64, f64)> {
         .split(',')
         .map(|x| x.trim().parse::<f64>())
         .collect::<Result<_, _>>()
-        .with_context(|| format!("{what} `{s}`: expected two numbers A,B"))?;
+        .or_usage(|| format!("{what} `{s}`: expected two numbers A,B"))?;
     if v.len() != 2 || !v.iter().all(|x| x.is_finite()) {
-        bail!("{what} `{s}`: expected two numbers A,B");
+        usage_bail!("{what} `{s}`: expected two numbers A,B");
     }
     Ok((v[0], v[1]))
 }
@@ -137,7 +138,7 @@ pub fn run(a: CameraArgs) -> anyhow::Result<i32> {
     }
     let (sim, mut cam): (_, Box<dyn Camera>) = if a.sim.on {
         if !(0.0..=0.5).contains(&a.sim_frame_drop) {
-            bail!(
+            usage_bail!(
                 "--sim-frame-drop {} is out of range: use 0 to 0.5",
                 a.sim_frame_drop
             );
@@ -201,11 +202,11 @@ pub fn run(a: CameraArgs) -> anyhow::Result<i32> {
             output,
         } => {
             if *frames == 0 || *frames > 4096 {
-                bail!("--frames {frames} is out of range: use 1 to 4096");
+                usage_bail!("--frames {frames} is out of range: use 1 to 4096");
             }
             if let Some(ms) = exposure {
                 if !(*ms > 0.0 && *ms < 10_000.0) {
-                    bail!(
+                    usage_bail!(
                         "--exposure {ms} is out of range: use more than 0 and less than 10000 ms"
                     );
                 }
@@ -235,7 +236,7 @@ pub fn run(a: CameraArgs) -> anyhow::Result<i32> {
             };
             if let Some((lo, hi)) = clip {
                 if !(0.0 <= lo && lo < hi && hi <= 100.0) {
-                    bail!("--stretch {lo},{hi}: need 0 ≤ LOW < HIGH ≤ 100");
+                    usage_bail!("--stretch {lo},{hi}: need 0 ≤ LOW < HIGH ≤ 100");
                 }
             }
             // With the simulator, put something under the lens.

@@ -2,6 +2,7 @@
 //! (`rig calibrate`, `rig scan run`): the stage's port and dialect and the camera, or the
 //! built-in simulator and its knobs.
 
+use super::usage::usage_bail;
 use anyhow::{bail, Context};
 use clap::Args;
 use rig::camera::{Camera, SimCamera};
@@ -167,7 +168,7 @@ pub fn connect(
     );
     if a.sim.on {
         if a.sim_time_scale.is_nan() || a.sim_time_scale < 0.0 {
-            bail!("--sim-time-scale must be 0 or more");
+            usage_bail!("--sim-time-scale must be 0 or more");
         }
         let s = rig_sim::EmbeddedSim::start(rig_sim::SimConfig {
             time_scale: a.sim_time_scale,
@@ -201,7 +202,7 @@ pub fn connect(
         });
     }
     let (Some(port), Some(cam)) = (&cfg.stage.value, &cfg.camera.value) else {
-        bail!("name the stage and the camera (--stage PATH --dialect native|grbl --camera DEVICE, or RIG_STAGE, RIG_DIALECT, RIG_CAMERA, or rig.toml: see `rig config show`), or use --sim");
+        usage_bail!("name the stage and the camera (--stage PATH --dialect native|grbl --camera DEVICE, or RIG_STAGE, RIG_DIALECT, RIG_CAMERA, or rig.toml: see `rig config show`), or use --sim");
     };
     let stage = stage::open(port, cfg.dialect(), driver_options(a), link)
         .with_context(|| format!("opening the stage at {}", port.display()))?;

@@ -16,6 +16,7 @@ pub mod scene_cmd;
 pub mod scene_pushbroom;
 pub mod scene_rpc;
 pub mod stage_cmd;
+pub mod usage;
 
 use clap::{Args, Parser, Subcommand};
 
@@ -326,9 +327,13 @@ pub enum ConfigAction {
     Show,
 }
 
-/// The code for an error that ended a command: the stage error's own where one caused it (a
+/// The code for an error that ended a command: [`exit::USAGE`] for a flag or value our own
+/// checks refused ([`usage::UsageError`]), the stage error's own where one caused it (a
 /// timeout during a calibration exits 4 as in `rig stage`), otherwise [`exit::OTHER`].
 pub fn exit_code_of(e: &anyhow::Error) -> i32 {
+    if e.chain().any(|c| c.is::<usage::UsageError>()) {
+        return exit::USAGE;
+    }
     e.chain()
         .find_map(|c| c.downcast_ref::<rig::stage::StageError>())
         .map_or(exit::OTHER, |s| s.exit_code())

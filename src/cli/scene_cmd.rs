@@ -2,7 +2,7 @@
 //! scanning), with control and check points and the true elevation model, as a ready
 //! matching project.
 
-use anyhow::Context;
+use super::usage::{usage_bail, OrUsage};
 use clap::Args;
 use rig::coords::{PhotoMm, PixelXY};
 use rig::matching::grid::ElevationGrid;
@@ -155,15 +155,15 @@ fn per_photo(
         .split(',')
         .map(|x| x.trim().parse::<f64>())
         .collect::<Result<_, _>>()
-        .with_context(|| format!("--{name} `{s}`: numbers separated by commas"))?;
+        .or_usage(|| format!("--{name} `{s}`: numbers separated by commas"))?;
     if v.len() != photos as usize {
-        anyhow::bail!(
+        usage_bail!(
             "--{name} `{s}`: {} values for {photos} photos (one per photo, in photo order)",
             v.len()
         );
     }
     if let Some(bad) = v.iter().find(|x| !range.contains(x)) {
-        anyhow::bail!(
+        usage_bail!(
             "--{name} `{s}`: {bad} is outside {} … {}",
             range.start(),
             range.end()
@@ -177,9 +177,9 @@ fn parse_area(s: &str) -> anyhow::Result<[f64; 4]> {
         .split(',')
         .map(|x| x.trim().parse::<f64>())
         .collect::<Result<_, _>>()
-        .with_context(|| format!("--area `{s}`: four numbers XMIN,YMIN,XMAX,YMAX"))?;
+        .or_usage(|| format!("--area `{s}`: four numbers XMIN,YMIN,XMAX,YMAX"))?;
     if v.len() != 4 || v[2] <= v[0] || v[3] <= v[1] || v.iter().any(|x| x.abs() > 100.0) {
-        anyhow::bail!(
+        usage_bail!(
             "--area `{s}`: XMIN,YMIN,XMAX,YMAX with the maxima above the minima, inside ±100 mm"
         );
     }
@@ -582,11 +582,11 @@ flying_height_m = 6500.0
 /// gains and offsets, an empty --out): the gains and offsets.
 pub(super) fn check_shared(a: &SceneArgs, pictures: u32) -> anyhow::Result<(Vec<f64>, Vec<f64>)> {
     if !(a.noise_dn.is_finite() && (0.0..=10_000.0).contains(&a.noise_dn)) {
-        anyhow::bail!("--noise-dn {}: 0 to 10000 grey values", a.noise_dn);
+        usage_bail!("--noise-dn {}: 0 to 10000 grey values", a.noise_dn);
     }
     if let Some(c) = a.truth_cell_m {
         if !(c.is_finite() && (0.5..=100.0).contains(&c)) {
-            anyhow::bail!("--truth-cell-m {c}: 0.5 to 100 m");
+            usage_bail!("--truth-cell-m {c}: 0.5 to 100 m");
         }
     }
     let gains = per_photo(a.gains.as_deref(), "gains", pictures, 0.2..=5.0, 1.0)?;
@@ -612,7 +612,7 @@ pub fn run(a: &SceneArgs) -> anyhow::Result<i32> {
     let truth_cell_m = a.truth_cell_m.unwrap_or(TRUTH_CELL_M);
     let area = parse_area(&a.area)?;
     if !(1.0..=200.0).contains(&a.resolution_um) {
-        anyhow::bail!("--resolution-um {}: 1 to 200", a.resolution_um);
+        usage_bail!("--resolution-um {}: 1 to 200", a.resolution_um);
     }
     let (gains, offsets) = check_shared(a, a.photos)?;
     let radiometry: Vec<[f64; 2]> = offsets.iter().zip(&gains).map(|(&o, &g)| [o, g]).collect();
@@ -637,7 +637,7 @@ pub fn run(a: &SceneArgs) -> anyhow::Result<i32> {
         let pn = photo(n);
         let an = matching_area(&p1, &pn, area, [hs[0] - 30.0, hs[1] + 30.0]);
         if an.iter().any(|v| v.abs() > 114.0) {
-            anyhow::bail!(
+            usage_bail!(
                 "--area {:?}: photo {n} does not see all of it (it needs photo {n}'s {:.0},{:.0} … {:.0},{:.0} mm, beyond the 230 mm format); photos 3 and 4 see photo 1 below y ≈ −46 mm, e.g. --area 38,-70,50,-58, and all six photos see it beyond x ≈ 70 mm, e.g. --area 78,-68,88,-58",
                 area, an[0], an[1], an[2], an[3]
             );

@@ -6,6 +6,7 @@
 use super::scene_cmd::{
     scene_heights, to_grey, truth_grid_over, truth_reflectance, write_truth_grids, SceneArgs,
 };
+use super::usage::usage_bail;
 use rig::geometry::rpc::{fit_rpc, FitGrid};
 use rig::geometry::Geographic;
 use rig_sim::pushbroom::{PushbroomView, Stereo};
@@ -21,16 +22,16 @@ pub fn run(a: &SceneArgs) -> anyhow::Result<i32> {
     let size = a.size.unwrap_or(super::scene_cmd::PUSHBROOM_SIZE);
     let truth_cell_m = a.truth_cell_m.unwrap_or(super::scene_cmd::TRUTH_CELL_M);
     if !(a.gsd_m.is_finite() && (0.5..=50.0).contains(&a.gsd_m)) {
-        anyhow::bail!("--gsd-m {}: 0.5 to 50 m", a.gsd_m);
+        usage_bail!("--gsd-m {}: 0.5 to 50 m", a.gsd_m);
     }
     if !(200..=6000).contains(&size) {
-        anyhow::bail!("--size {}: 200 to 6000 pixels", size);
+        usage_bail!("--size {}: 200 to 6000 pixels", size);
     }
     let dem = jacksboro();
     let [ex, ey] = dem.extent_m();
     let footprint = size as f64 * a.gsd_m / 20f64.to_radians().cos().powi(2);
     if footprint > 0.9 * ex.min(ey) {
-        anyhow::bail!(
+        usage_bail!(
             "--size {} at --gsd-m {}: the tilted views would cover {:.1} km, more than the simulated terrain's {:.1} km: make the views smaller or their pixels finer",
             size,
             a.gsd_m,
@@ -39,7 +40,7 @@ pub fn run(a: &SceneArgs) -> anyhow::Result<i32> {
         );
     }
     if a.gcps > 10_000 || a.cps > 10_000 {
-        anyhow::bail!("--gcps {} and --cps {}: 0 to 10000 each", a.gcps, a.cps);
+        usage_bail!("--gcps {} and --cps {}: 0 to 10000 each", a.gcps, a.cps);
     }
     let (gains, offsets) = super::scene_cmd::check_shared(a, a.views)?;
     let stereo = match a.stereo {

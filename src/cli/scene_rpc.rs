@@ -7,6 +7,7 @@
 //! names the TIFFs as their own RPC files, with no control points.
 
 use super::scene_cmd::{check_shared, scene_heights, to_grey, SceneArgs};
+use super::usage::usage_bail;
 use rig::geometry::Crs;
 use rig::matching::grid::ElevationGrid;
 use rig_sim::rpc::{Rpc00b, TIFF_TAG};
@@ -24,16 +25,16 @@ const DEM_CELL_M: f64 = 1.0;
 pub fn run(a: &SceneArgs) -> anyhow::Result<i32> {
     let size = a.size.unwrap_or(RPC_SIZE);
     if !(64..=4000).contains(&size) {
-        anyhow::bail!("--size {size}: 64 to 4000 pixels");
+        usage_bail!("--size {size}: 64 to 4000 pixels");
     }
     if !(2..=5).contains(&a.rpc.len()) {
-        anyhow::bail!(
+        usage_bail!(
             "--sensor rpc takes --rpc 2 to 5 times (one product's _RPC.TXT per view), not {}",
             a.rpc.len()
         );
     }
     if a.cps > 10_000 {
-        anyhow::bail!("--cps {}: 0 to 10000", a.cps);
+        usage_bail!("--cps {}: 0 to 10000", a.cps);
     }
     let views = a.rpc.len() as u32;
     let (gains, offsets) = check_shared(a, views)?;

@@ -1,6 +1,7 @@
 //! `rig stage`: drive the X/Y stages.
 
-use anyhow::{bail, Context};
+use super::usage::{usage_bail, OrUsage};
+use anyhow::Context;
 use clap::{Args, Subcommand};
 use rig::coords::CarriageUm;
 use rig::stage::{
@@ -435,13 +436,11 @@ pub fn run(a: StageArgs) -> anyhow::Result<i32> {
     let mut sim = None;
     let port = if a.sim.on {
         let faults = match &a.sim_faults {
-            Some(s) => {
-                rig_sim::FaultSpec::parse(s).with_context(|| format!("--sim-faults `{s}`"))?
-            }
+            Some(s) => rig_sim::FaultSpec::parse(s).or_usage(|| format!("--sim-faults `{s}`"))?,
             None => rig_sim::FaultSpec::default(),
         };
         if a.sim_time_scale.is_nan() || a.sim_time_scale < 0.0 {
-            bail!("--sim-time-scale must be 0 or more");
+            usage_bail!("--sim-time-scale must be 0 or more");
         }
         let cfg = rig_sim::SimConfig {
             dialect: match cfg.dialect() {
