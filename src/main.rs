@@ -18,14 +18,14 @@ fn main() {
         Command::Sim(cli::SimCmd {
             action: Some(cli::SimAction::Scene(a)),
             ..
-        }) => cli::scene_cmd::run(&a),
+        }) => cli::scene::run(&a),
         Command::Sim(a) => rig_sim::cli::run(a.serve)
             .map(|_| 0)
             .map_err(anyhow::Error::from),
         Command::Dtm(a) => cli::dtm_cmd::run(a),
         Command::Match(a) => cli::match_cmd::run(a),
         Command::Measure(a) => cli::measure_cmd::run(a),
-        Command::Demo(a) => cli::demo_cmd::run(&a),
+        Command::Demo(a) => cli::demo::run(&a),
         Command::Config(c) => match c.action {
             cli::ConfigAction::Show => cli::config::show(
                 c.port.stage.as_ref(),

@@ -2,8 +2,8 @@
 
 use anyhow::Context;
 use clap::{Args, Subcommand, ValueEnum};
-use rig::matching::pair_match::{match_pair, Filter, PairParams, Subpixel};
-use rig::matching::pair_output;
+use rig::matching::pair::output as pair_output;
+use rig::matching::pair::{match_pair, Filter, PairParams, Subpixel};
 use rig::matching::regions::RegionParams;
 use rig::matching::sgm::SgmParams;
 use std::path::PathBuf;

@@ -4,17 +4,14 @@ pub mod calibrate_cmd;
 pub mod camera_cmd;
 pub mod config;
 pub mod connect;
-pub mod demo_cmd;
-pub mod demo_pushbroom;
+pub mod demo;
 pub mod dtm_cmd;
 pub mod match_cmd;
 pub mod measure_cmd;
 pub use rig::exit;
 pub mod progress_bar;
 pub mod scan_cmd;
-pub mod scene_cmd;
-pub mod scene_pushbroom;
-pub mod scene_rpc;
+pub mod scene;
 pub mod stage_cmd;
 pub mod usage;
 
@@ -36,7 +33,7 @@ pub enum SimAction {
     /// six) with control and check points, the true elevation model and a matching project;
     /// or, with --sensor pushbroom, two or three SPOT-like satellite views with their
     /// line-scanner models and RPCs.
-    Scene(Box<scene_cmd::SceneArgs>),
+    Scene(Box<scene::SceneArgs>),
 }
 
 /// The version and the features this binary was built with.
@@ -100,7 +97,7 @@ pub enum Command {
     /// Every step is a real `rig` command, printed before it runs; everything lands in --out
     /// (sessions/, scan-photo-1/ … scan-photo-3/, project.toml, dtm/, report.json).
     #[command(verbatim_doc_comment, after_help = exit::TABLE)]
-    Demo(demo_cmd::DemoArgs),
+    Demo(demo::DemoArgs),
     /// Drive the X/Y stages: status, home, move, jog, stop.
     ///
     /// Positions are carriage coordinates in millimetres, 0..travel on both axes, whatever

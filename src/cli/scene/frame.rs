@@ -2,7 +2,7 @@
 //! scanning), with control and check points and the true elevation model, as a ready
 //! matching project.
 
-use super::usage::{usage_bail, OrUsage};
+use crate::cli::usage::{usage_bail, OrUsage};
 use clap::Args;
 use rig::coords::{PhotoMm, PixelXY};
 use rig::matching::grid::ElevationGrid;
@@ -603,12 +603,8 @@ pub(super) fn check_shared(a: &SceneArgs, pictures: u32) -> anyhow::Result<(Vec<
     Ok((gains, offsets))
 }
 
+/// The frame camera's scene (`--sensor frame`; the dispatcher is `crate::cli::run`).
 pub fn run(a: &SceneArgs) -> anyhow::Result<i32> {
-    match a.sensor {
-        SensorArg::Pushbroom => return super::scene_pushbroom::run(a),
-        SensorArg::Rpc => return super::scene_rpc::run(a),
-        SensorArg::Frame => {}
-    }
     let truth_cell_m = a.truth_cell_m.unwrap_or(TRUTH_CELL_M);
     let area = parse_area(&a.area)?;
     if !(1.0..=200.0).contains(&a.resolution_um) {

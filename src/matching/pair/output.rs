@@ -2,7 +2,7 @@
 //! correlation, σ; NaN where there is no match, named in GDAL's nodata tag), a preview PNG
 //! with its colour bar, and the report.
 
-use super::pair_match::{DisparityMap, PairParams, PairStats};
+use super::matcher::{DisparityMap, PairParams, PairStats};
 use crate::picture::{colour_bar, save_png, sequential, text, BLACK};
 use image::{Rgb, RgbImage};
 use serde::Serialize;
@@ -27,7 +27,7 @@ pub fn write_f32_tiff(
     data: &[f32],
     description: &str,
 ) -> std::io::Result<()> {
-    let err = super::output::other::<tiff::TiffError>(path);
+    let err = crate::matching::output::other::<tiff::TiffError>(path);
     if data.len() != width * height {
         return Err(std::io::Error::other(format!(
             "{}: {} values for {width} × {height} px",
@@ -45,7 +45,8 @@ pub fn write_f32_tiff(
         img.encoder()
             .write_tag(Tag::GdalNodata, "nan")
             .map_err(&err)?;
-        super::output::write_band_descriptions(img.encoder(), &[description]).map_err(&err)?;
+        crate::matching::output::write_band_descriptions(img.encoder(), &[description])
+            .map_err(&err)?;
         img.write_data(data).map_err(&err)
     })
 }

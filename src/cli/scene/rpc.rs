@@ -6,8 +6,8 @@
 //! zone), the noise-free points (truth_points.csv) and a format-2 project (block.toml) that
 //! names the TIFFs as their own RPC files, with no control points.
 
-use super::scene_cmd::{check_shared, scene_heights, to_grey, SceneArgs};
-use super::usage::usage_bail;
+use super::frame::{check_shared, scene_heights, to_grey, SceneArgs};
+use crate::cli::usage::usage_bail;
 use rig::geometry::Crs;
 use rig::matching::grid::ElevationGrid;
 use rig_sim::rpc::{Rpc00b, TIFF_TAG};

@@ -20,7 +20,7 @@
 //! textures a window around it takes in), and σ² = σ_noise² + that mean: the two are
 //! independent (the self-offset is a function of the noise-free texture to first order).
 
-use super::pair_match::{match_pair_alone, Filter, PairError, PairParams};
+use super::matcher::{match_pair_alone, Filter, PairError, PairParams};
 use crate::image::ImageF32;
 
 /// Disparities searched in the photo's match against itself: the winner is 0 or 1, and ±2
@@ -71,7 +71,13 @@ pub fn estimator_variance(
             shifted = shift_rows(left, phase);
             &shifted
         };
-        let m = match_pair_alone(left, right, &q, max_memory_mb, &super::progress::Silent)?;
+        let m = match_pair_alone(
+            left,
+            right,
+            &q,
+            max_memory_mb,
+            &crate::matching::progress::Silent,
+        )?;
         let sq: Vec<f64> =
             m.d.iter()
                 .map(|&v| {

@@ -4,15 +4,17 @@
 //! sub-pixel disparity by a parabola (through the aggregated costs with SGM, the correlations
 //! without) or by least-squares matching with its σ.
 
-use super::block_match::{block_match, BlockParams};
-use super::plane_sweep::{sweep_shifts, CellSink, Cells, Planes, Prepared};
-pub use super::refine::Subpixel;
-use super::refine::{refine, RefineFailure, Window, RHO_MAX};
-use super::regions::{remove_wrong_heights, RegionParams};
-use super::sgm::{aggregate_halves, dequantise, quantise, SgmParams, Q_UNSCORED, Q_UNSEEN};
-use super::sweep::{height_sigma_or_nan, HeightMap};
-use super::winner::{parabola, unique, winner, Pick, RightBest, RowPicks, Unseen};
 use crate::image::ImageF32;
+use crate::matching::block_match::{block_match, BlockParams};
+use crate::matching::plane_sweep::{sweep_shifts, CellSink, Cells, Planes, Prepared};
+pub use crate::matching::refine::Subpixel;
+use crate::matching::refine::{refine, RefineFailure, Window, RHO_MAX};
+use crate::matching::regions::{remove_wrong_heights, RegionParams};
+use crate::matching::sgm::{
+    aggregate_halves, dequantise, quantise, SgmParams, Q_UNSCORED, Q_UNSEEN,
+};
+use crate::matching::sweep::{height_sigma_or_nan, HeightMap};
+use crate::matching::winner::{parabola, unique, winner, Pick, RightBest, RowPicks, Unseen};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -180,10 +182,12 @@ pub fn bytes_needed(w: usize, h: usize, wr: usize, p: &PairParams) -> f64 {
             Filter::Sgm => {
                 4.0 * np * (w as f64 + cols) + 40.0 * BAND as f64 * cols + 64.0 * (w + wr) as f64
             }
-            _ => super::block_match::bytes_per_band(w, wr, np as usize, k, BAND),
+            _ => crate::matching::block_match::bytes_per_band(w, wr, np as usize, k, BAND),
         };
     let volume = match p.filter {
-        Filter::Sgm => cols * rows * np * 2.0 + super::sgm::bytes_needed(cols * rows, np, cols),
+        Filter::Sgm => {
+            cols * rows * np * 2.0 + crate::matching::sgm::bytes_needed(cols * rows, np, cols)
+        }
         _ => 0.0,
     };
     images + bands + volume
@@ -561,37 +565,14 @@ impl PairStats {
     }
 }
 
-/// Matches a rectified pair. Each disparity's σ holds the noise's share (from the
-/// correlation's curvature, or least squares' normal matrix) and the sub-pixel estimator's own
-/// error on the left photo's texture ([`super::pair_sigma`]).
-pub fn match_pair(
+/// Matches a rectified pair, with the σ of the noise alone ([`super::match_pair`] adds the
+/// estimator's own error).
+pub fn match_pair_alone(
     left: &ImageF32,
     right: &ImageF32,
     p: &PairParams,
     max_memory_mb: u64,
-    progress: &dyn super::progress::Progress,
-) -> Result<DisparityMap, PairError> {
-    let mut m = match_pair_alone(left, right, p, max_memory_mb, progress)?;
-    let t0 = std::time::Instant::now();
-    progress.begin("σ (the estimator on its own photo)", 1);
-    let var = super::pair_sigma::estimator_variance(left, p, max_memory_mb)?;
-    progress.end();
-    for (s, &v) in m.sigma.iter_mut().zip(&var) {
-        if s.is_finite() && v.is_finite() {
-            *s = (*s * *s + v).sqrt();
-        }
-    }
-    m.stats.seconds_total += t0.elapsed().as_secs_f64();
-    Ok(m)
-}
-
-/// [`match_pair`] with the σ of the noise alone.
-pub(crate) fn match_pair_alone(
-    left: &ImageF32,
-    right: &ImageF32,
-    p: &PairParams,
-    max_memory_mb: u64,
-    progress: &dyn super::progress::Progress,
+    progress: &dyn crate::matching::progress::Progress,
 ) -> Result<DisparityMap, PairError> {
     check(left, right, p)?;
     let need = bytes_needed(left.width, left.height, right.width, p);
@@ -645,7 +626,7 @@ pub(crate) fn match_pair_alone(
         Filter::Sgm => {
             // The whole volume, in 16-bit codes, each band written in place.
             progress.begin("score (rows)", rows.len() as u64);
-            let mut vol: Vec<i16> = super::volume::zeroed(row_len * rows.len());
+            let mut vol: Vec<i16> = crate::matching::volume::zeroed(row_len * rows.len());
             vol.par_chunks_mut(band * row_len)
                 .zip(bands.par_iter())
                 .for_each(|(chunk, b)| {
@@ -810,11 +791,13 @@ mod tests {
             window: 9,
             ..PairParams::default()
         };
-        let e = match_pair(&small, &small, &p, 4096, &super::super::progress::Silent).unwrap_err();
+        let e = match_pair_alone(&small, &small, &p, 4096, &crate::matching::progress::Silent)
+            .unwrap_err();
         assert!(e.to_string().contains("smaller --window"), "{e}");
         let tiny = ImageF32::new(2, 8);
         p.window = 3;
-        let e = match_pair(&tiny, &tiny, &p, 4096, &super::super::progress::Silent).unwrap_err();
+        let e = match_pair_alone(&tiny, &tiny, &p, 4096, &crate::matching::progress::Silent)
+            .unwrap_err();
         assert!(e.to_string().contains("at least 3 × 3"), "{e}");
         let big = ImageF32::new(2000, 2000);
         p.d_max = 255;
@@ -824,7 +807,8 @@ mod tests {
             (Filter::Regions, false),
         ] {
             p.filter = filter;
-            let e = match_pair(&big, &big, &p, 16, &super::super::progress::Silent).unwrap_err();
+            let e = match_pair_alone(&big, &big, &p, 16, &crate::matching::progress::Silent)
+                .unwrap_err();
             let e = e.to_string();
             assert!(e.contains("--max-memory"), "{e}");
             assert_eq!(e.contains("--filter none"), hint, "{filter:?}: {e}");

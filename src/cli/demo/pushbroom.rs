@@ -3,7 +3,7 @@
 //! elevation model from the three views, compared with the true DEM in metres and in pixels
 //! of parallax of the widest pair.
 
-use super::demo_cmd::{run_step, s, DemoArgs, Method, Model};
+use super::frame::{run_step, s, DemoArgs, Method, Model};
 use anyhow::Context;
 use rig::coords::PixelXY;
 use rig::geometry::{Pushbroom, Sensor};

@@ -165,13 +165,8 @@ photo_mm = [{:.3}, {:.3}, {:.3}, {:.3}]
     Ok(())
 }
 
+/// The frame camera's demo (the dispatcher, `crate::cli::run`, has checked `a.out` is new).
 pub fn run(a: &DemoArgs) -> anyhow::Result<i32> {
-    if a.out.exists() && std::fs::read_dir(&a.out)?.next().is_some() {
-        bail!("{} is not empty: give a new directory", a.out.display());
-    }
-    if a.sensor == DemoSensor::Pushbroom {
-        return super::demo_pushbroom::run(a);
-    }
     std::fs::create_dir_all(&a.out)?;
     let out = std::fs::canonicalize(&a.out)?;
     let t0 = Instant::now();
@@ -200,7 +195,7 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<i32> {
         .map(|&k| AerialPhoto::new(dem.clone(), a.seed, k, 110.0))
         .collect();
     let p1 = &block[0];
-    let hs = super::scene_cmd::terrain_range(p1, AREA);
+    let hs = crate::cli::scene::frame::terrain_range(p1, AREA);
     let regions: Vec<[f64; 4]> = block
         .iter()
         .enumerate()
@@ -208,7 +203,7 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<i32> {
             if k == 0 {
                 AREA
             } else {
-                super::scene_cmd::matching_area(p1, b, AREA, [hs[0] - 30.0, hs[1] + 30.0])
+                crate::cli::scene::frame::matching_area(p1, b, AREA, [hs[0] - 30.0, hs[1] + 30.0])
             }
         })
         .collect();
@@ -251,7 +246,7 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<i32> {
     points_csv(&mut csv, &block, &grids, 24, "gcp", &mut rng);
     points_csv(&mut csv, &block, &grids, 30, "cp", &mut rng);
     std::fs::write(out.join("points.csv"), &csv)?;
-    let truth = super::scene_cmd::truth_grid(p1, AREA, 10.0)?;
+    let truth = crate::cli::scene::frame::truth_grid(p1, AREA, 10.0)?;
     rig::matching::output::write_geotiff(&out.join("truth-dem.tif"), &truth, rig::sim_scene::CRS)?;
     let mut project = format!(
         "# Written by `rig demo`: three scanned photos, resected from their control points,\n\

@@ -3,10 +3,10 @@
 //! them (`view-N_RPC.TXT`), the noise-free points (`truth_points.csv`), the true DEM and
 //! reflectance, and format-2 projects for the rigorous models and for the RPCs.
 
-use super::scene_cmd::{
+use super::frame::{
     scene_heights, to_grey, truth_grid_over, truth_reflectance, write_truth_grids, SceneArgs,
 };
-use super::usage::usage_bail;
+use crate::cli::usage::usage_bail;
 use rig::geometry::rpc::{fit_rpc, FitGrid};
 use rig::geometry::Geographic;
 use rig_sim::pushbroom::{PushbroomView, Stereo};
@@ -19,8 +19,8 @@ use std::fmt::Write as _;
 const HEIGHT_MARGIN_M: f64 = 50.0;
 
 pub fn run(a: &SceneArgs) -> anyhow::Result<i32> {
-    let size = a.size.unwrap_or(super::scene_cmd::PUSHBROOM_SIZE);
-    let truth_cell_m = a.truth_cell_m.unwrap_or(super::scene_cmd::TRUTH_CELL_M);
+    let size = a.size.unwrap_or(super::frame::PUSHBROOM_SIZE);
+    let truth_cell_m = a.truth_cell_m.unwrap_or(super::frame::TRUTH_CELL_M);
     if !(a.gsd_m.is_finite() && (0.5..=50.0).contains(&a.gsd_m)) {
         usage_bail!("--gsd-m {}: 0.5 to 50 m", a.gsd_m);
     }
@@ -42,10 +42,10 @@ pub fn run(a: &SceneArgs) -> anyhow::Result<i32> {
     if a.gcps > 10_000 || a.cps > 10_000 {
         usage_bail!("--gcps {} and --cps {}: 0 to 10000 each", a.gcps, a.cps);
     }
-    let (gains, offsets) = super::scene_cmd::check_shared(a, a.views)?;
+    let (gains, offsets) = super::frame::check_shared(a, a.views)?;
     let stereo = match a.stereo {
-        super::scene_cmd::StereoArg::Across => Stereo::Across,
-        super::scene_cmd::StereoArg::Along => Stereo::Along,
+        super::frame::StereoArg::Across => Stereo::Across,
+        super::frame::StereoArg::Along => Stereo::Along,
     };
     let views: Vec<PushbroomView> = (1..=a.views)
         .map(|n| {
