@@ -351,7 +351,7 @@ fn scene_lists_that_start_with_a_minus_reach_their_range_checks() {
         .output()
         .unwrap();
     let err = String::from_utf8_lossy(&out.stderr);
-    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert_eq!(out.status.code(), Some(2), "a usage error: {err}");
     assert!(
         err.contains("--offsets `-30001,0`: -30001 is outside"),
         "{err}"
@@ -362,6 +362,7 @@ fn scene_lists_that_start_with_a_minus_reach_their_range_checks() {
         .output()
         .unwrap();
     let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "a usage error: {err}");
     assert!(err.contains("inside ±100 mm"), "{err}");
     assert!(!d.path().join("s").exists(), "nothing written");
 }

@@ -47,6 +47,15 @@ pub trait Sensor {
         self.try_image_to_ground(q, z).ok()
     }
 
+    /// The ground distance one pixel step along the rows covers at pixel `q` and height `z`,
+    /// m (the ground pixel there).
+    fn ground_pixel_m(&self, q: PixelXY, z: f64) -> Option<f64> {
+        let a = self.image_to_ground(q, z)?;
+        let b = self.image_to_ground(PixelXY::new(q.col + 1.0, q.row), z)?;
+        let d = (a.x - b.x).hypot(a.y - b.y);
+        (d.is_finite() && d > 0.0).then_some(d)
+    }
+
     /// ∂(col, row)/∂(X, Y, Z) at `g`, pixels per metre: by default central differences of
     /// [`Sensor::ground_to_image`] over ±0.5 m (a model with closed forms overrides it).
     fn partials(&self, g: GroundM) -> Option<[[f64; 3]; 2]> {

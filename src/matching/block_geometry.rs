@@ -134,20 +134,12 @@ pub fn parallax_per_m(reference: &dyn Sensor, searches: &[&dyn Sensor], q: Pixel
         .fold(0.0, f64::max)
 }
 
-/// The ground distance one pixel step along the rows covers at pixel `q` and height `z`, m.
-pub fn ground_pixel_m(s: &dyn Sensor, q: PixelXY, z: f64) -> Option<f64> {
-    let a = s.image_to_ground(q, z)?;
-    let b = s.image_to_ground(PixelXY::new(q.col + 1.0, q.row), z)?;
-    let d = (a.x - b.x).hypot(a.y - b.y);
-    (d.is_finite() && d > 0.0).then_some(d)
-}
-
 /// The height of the sensor above the ground at pixel `q` and height `z`, m, from how the
 /// ground footprint of a pixel grows with the distance: for a frame camera d = (Z₀ − z) and a
 /// pixel covers p·d/f, so d = gsd(z)·Δz / (gsd(z) − gsd(z + Δz)).
 pub fn flying_height(s: &dyn Sensor, q: PixelXY, z: f64) -> Option<f64> {
     let dz = 50.0;
-    let (g0, g1) = (ground_pixel_m(s, q, z)?, ground_pixel_m(s, q, z + dz)?);
+    let (g0, g1) = (s.ground_pixel_m(q, z)?, s.ground_pixel_m(q, z + dz)?);
     let d = g0 * dz / (g0 - g1);
     (d.is_finite() && d > 0.0).then_some(d)
 }
@@ -189,7 +181,7 @@ mod tests {
         let b = vertical_sensor(GroundM::new(120.0, 0.0, 1000.0), 153.0, 400, 0.1);
         let q = PixelXY::new(200.0, 200.0);
         let h = 50.0;
-        let gsd = ground_pixel_m(&a, q, h).unwrap();
+        let gsd = a.ground_pixel_m(q, h).unwrap();
         assert!((gsd - 0.1 * 950.0 / 153.0).abs() < 1e-9, "{gsd}");
         let pp = parallax_per_m(&a, &[&b], q, h);
         let want = 153.0 * 120.0 / (950.0f64.powi(2) * 0.1);

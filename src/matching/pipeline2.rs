@@ -4,7 +4,6 @@
 //! and the heights of all pairs are merged into one grid in the project's CRS.
 
 use super::averaging::{remove_window_averaging, AveragingReport, Kernel};
-use super::block_geometry::ground_pixel_m;
 use super::grid::{Comparison, ElevationGrid};
 use super::ortho::View;
 use super::output::read_geotiff;
@@ -975,7 +974,7 @@ pub fn finish(
         let s = &plan.sensors[pair.left];
         let (w, h) = s.image_size();
         let centre = PixelXY::new(0.5 * w as f64, 0.5 * h as f64);
-        if let Some(g) = ground_pixel_m(s, centre, 0.5 * (heights[0] + heights[1])) {
+        if let Some(g) = s.ground_pixel_m(centre, 0.5 * (heights[0] + heights[1])) {
             ws += pts.len() as f64 * g * pair.params.sweep.window as f64;
             wn += pts.len() as f64;
         }

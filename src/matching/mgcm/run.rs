@@ -19,7 +19,7 @@ use crate::geometry::{Crs, Resection, Sensor};
 use crate::matching::accuracy::{analyse, Accuracy};
 use crate::matching::averaging::{remove_window_averaging, AveragingReport, Kernel};
 use crate::matching::block_geometry::{
-    block, flying_height, ground_pixel_m, parallax_per_m, references_covering, Block,
+    block, flying_height, parallax_per_m, references_covering, Block,
 };
 use crate::matching::grid::ElevationGrid;
 use crate::matching::pipeline::{Photo, PipelineError};
@@ -809,7 +809,7 @@ fn match_reference(
         level,
     };
     let centre0 = PixelXY::new(0.5 * rw as f64, 0.5 * rh as f64);
-    let gsd_m = ground_pixel_m(&sensors[r], centre0, mid).unwrap_or(f64::NAN);
+    let gsd_m = sensors[r].ground_pixel_m(centre0, mid).unwrap_or(f64::NAN);
     let cell = cfg.cell.unwrap_or_else(|| auto_cell(cell_m, gsd_m));
     let search_sensors: Vec<&dyn Sensor> =
         others.iter().map(|&k| &sensors[k] as &dyn Sensor).collect();

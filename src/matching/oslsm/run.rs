@@ -15,7 +15,7 @@ use super::plot::convergence_plot;
 use super::PhotoView;
 use crate::coords::PixelXY;
 use crate::geometry::{Crs, Resection, Sensor};
-use crate::matching::block_geometry::{block, ground_pixel_m, parallax_per_m, Block};
+use crate::matching::block_geometry::{block, parallax_per_m, Block};
 use crate::matching::grid::{Comparison, ElevationGrid, NodeQuality};
 use crate::matching::matcher_config::CoarseSource;
 use crate::matching::pipeline::{Photo, PipelineError};
@@ -285,7 +285,7 @@ pub fn run(
         ));
     }
     let m_per_px = 1.0 / px_per_m;
-    let gsd = ground_pixel_m(&sensors[r], centre, mid).ok_or_else(|| {
+    let gsd = sensors[r].ground_pixel_m(centre, mid).ok_or_else(|| {
         Pipeline2Error::Oslsm(format!(
             "photo {}: its centre's ray does not reach {mid:.0} m",
             p.photos[r].id

@@ -1046,3 +1046,31 @@ fn steepness(sensor: &(dyn crate::geometry::Sensor + Sync), gr: &Groundel, z: f6
         _ => 0.0,
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A post whose observations carry the patch's misfit gets a factor above 1, the clean
+    /// ones below; weighted by their observations the factors average 1 (σ₀² is kept as a
+    /// whole); a post with too few observations keeps the patch's.
+    #[test]
+    fn each_post_takes_the_variance_of_its_own_residuals() {
+        // Three posts seen through 100 observations' worth each, the second with 9 × the
+        // others' mean square; a fourth through 4.
+        let local = [[100.0, 100.0], [900.0, 100.0], [100.0, 100.0], [4.0, 4.0]];
+        let f = local_variance(&local);
+        let mean = (100.0 + 900.0 + 100.0 + 4.0) / 304.0;
+        for (i, &want) in [1.0 / mean, 9.0 / mean, 1.0 / mean, 1.0].iter().enumerate() {
+            assert!((f[i] - want).abs() < 1e-12, "post {i}: {} for {want}", f[i]);
+        }
+        assert!(f[1] > 1.0 && f[0] < 1.0);
+        // Among posts that all take their own, the factors weighted by the observations
+        // average 1.
+        let three = local_variance(&local[..3]);
+        let weighted: f64 = three.iter().zip(&local[..3]).map(|(f, l)| f * l[1]).sum();
+        assert!((weighted / 300.0 - 1.0).abs() < 1e-12, "{weighted}");
+        // No residuals at all: every post keeps the patch's σ₀.
+        assert_eq!(local_variance(&[[0.0, 50.0]; 3]), vec![1.0; 3]);
+    }
+}
