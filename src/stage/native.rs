@@ -494,6 +494,22 @@ impl Controller for NativeController {
     fn stop(&mut self) -> Result<StopAction> {
         let first = match self.query(Message::Stop) {
             Ok(Message::Ack) => return Ok(StopAction::Decelerated),
+            Ok(Message::Nak {
+                code: NakCode::Version,
+            }) => {
+                // The controller has reset (its motors stopped, its position lost) and forgot
+                // the handshake: shake hands again and have it confirm the stop, rather than
+                // take the reset's word for it.
+                self.events.push_back(Message::Reset { cause: 0xff });
+                match self.handshake().and_then(|_| self.query(Message::Stop)) {
+                    Ok(Message::Ack) => return Ok(StopAction::Reset),
+                    Ok(other) => format!(
+                        "the controller had reset; after a new handshake, unexpected answer to Stop: {other:?}"
+                    ),
+                    Err(StageError::Disconnected(e)) => return Err(StageError::Disconnected(e)),
+                    Err(e) => format!("the controller had reset; {e}"),
+                }
+            }
             Ok(other) => format!("unexpected answer to Stop: {other:?}"),
             Err(StageError::Disconnected(e)) => return Err(StageError::Disconnected(e)),
             Err(e) => e.to_string(),
