@@ -158,6 +158,14 @@ impl NativeController {
         Ok(c)
     }
 
+    /// `msg` again once the controller has answered Nak(Version): it has reset and forgotten
+    /// the handshake. The reset is queued as an event, hands are shaken again, `msg` is sent.
+    fn after_reset(&mut self, msg: Message) -> Result<Message> {
+        self.events.push_back(Message::Reset { cause: 0xff });
+        self.handshake()?;
+        self.query(msg)
+    }
+
     /// Version handshake, with a purge first so that stale bytes cannot answer it.
     fn handshake(&mut self) -> Result<()> {
         self.port.purge()?;
@@ -259,11 +267,8 @@ impl NativeController {
             Message::Nak {
                 code: NakCode::Version,
             } => {
-                // The controller has reset and forgotten the handshake: shake hands again and
-                // report what it is now (unhomed); a move in progress sees that as a reset.
-                self.events.push_back(Message::Reset { cause: 0xff });
-                self.handshake()?;
-                match self.query(Message::Status)? {
+                // Report what it is now (unhomed); a move in progress sees that as a reset.
+                match self.after_reset(Message::Status)? {
                     Message::StatusReply(s) => Ok(s),
                     other => Err(StageError::Protocol(format!(
                         "unexpected answer to Status: {other:?}"
@@ -497,11 +502,9 @@ impl Controller for NativeController {
             Ok(Message::Nak {
                 code: NakCode::Version,
             }) => {
-                // The controller has reset (its motors stopped, its position lost) and forgot
-                // the handshake: shake hands again and have it confirm the stop, rather than
-                // take the reset's word for it.
-                self.events.push_back(Message::Reset { cause: 0xff });
-                match self.handshake().and_then(|_| self.query(Message::Stop)) {
+                // Its motors stopped and its position was lost: have it confirm the stop rather
+                // than take the reset's word for it.
+                match self.after_reset(Message::Stop) {
                     Ok(Message::Ack) => return Ok(StopAction::Reset),
                     Ok(other) => format!(
                         "the controller had reset; after a new handshake, unexpected answer to Stop: {other:?}"
