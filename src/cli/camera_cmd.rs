@@ -1,7 +1,7 @@
 //! `rig camera`: look at the camera, and grab averaged, stripe-filtered frames.
 
 use super::usage::{usage_bail, OrUsage};
-use anyhow::{bail, Context};
+use anyhow::Context;
 use clap::{Args, Subcommand};
 use rig::camera::{Camera, SimCamera};
 use rig::coords::CarriageUm;
@@ -123,7 +123,7 @@ fn list(as_json: bool) -> anyhow::Result<i32> {
 
 #[cfg(not(feature = "v4l2"))]
 fn list(_as_json: bool) -> anyhow::Result<i32> {
-    bail!("this rig was built without the V4L2 backend; rebuild with `cargo build --release --features v4l2` (needs libclang) to list cameras")
+    anyhow::bail!("this rig was built without the V4L2 backend; rebuild with `cargo build --release --features v4l2` (needs libclang) to list cameras")
 }
 
 /// Runs `rig camera`; returns the exit code.

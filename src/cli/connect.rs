@@ -3,7 +3,7 @@
 //! built-in simulator and its knobs.
 
 use super::usage::usage_bail;
-use anyhow::{bail, Context};
+use anyhow::Context;
 use clap::Args;
 use rig::camera::{Camera, SimCamera};
 use rig::coords::CarriageUm;
@@ -229,7 +229,7 @@ fn open_v4l2(dev: &str) -> anyhow::Result<Box<dyn Camera>> {
 
 #[cfg(not(feature = "v4l2"))]
 fn open_v4l2(dev: &str) -> anyhow::Result<Box<dyn Camera>> {
-    bail!("camera {dev}: this rig was built without the V4L2 backend; rebuild with `cargo build --release --features v4l2` (needs libclang), or use --sim")
+    anyhow::bail!("camera {dev}: this rig was built without the V4L2 backend; rebuild with `cargo build --release --features v4l2` (needs libclang), or use --sim")
 }
 
 pub fn parse_limits(s: &str) -> Result<SoftLimits, String> {
