@@ -403,6 +403,14 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<i32> {
             sv.ratio,
             sv.within_2_sigma_percent
         );
+            if dtm.orientation_sigma_m.is_some() {
+                // The orientations' error moves the whole model at once (a shift, a tilt): a
+                // model holds one draw of it, so one seed's ratio says little of σ.
+                println!(
+                    "    (the orientations' error is one draw for the whole model, here a mean of {:+.2} m: the ratio changes from seed to seed, --seed draws another)",
+                    dtm.model.comparison.as_ref().map_or(f64::NAN, |c| c.mean_m)
+                );
+            }
         }
     }
     println!(

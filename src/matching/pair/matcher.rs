@@ -446,7 +446,7 @@ fn finish_row_body(pk: &RowPicks, rb: &[u32], rules: &Rules, fates: &mut [u8], o
         let rho = rho as f64;
         let (off, den) = place(lo_[i], rho, hi_[i], off_[i]);
         let t = first as f64 + pl as f64 + off;
-        let sd = height_sigma_or_nan(rho, den, 1.0, nw);
+        let sd = height_sigma_or_nan(peak_value(lo_[i], rho, hi_[i]), den, 1.0, nw);
         let ok = f == MATCH;
         d[i] = if ok { t as f32 } else { f32::NAN };
         corr[i] = if ok { rho as f32 } else { f32::NAN };
@@ -490,6 +490,18 @@ fn place(lo: f32, rho: f64, hi: f32, own: f32) -> (f64, f64) {
         0.0
     };
     (off, den)
+}
+
+/// The correlation at the parabola's vertex through `lo`, `rho`, `hi` (ρ where they are no
+/// peak): the decorrelation the noise leaves. At the winning whole disparity ρ is lower by the
+/// sub-pixel phase as well, which the estimator's own error ([`super::sigma`]) already holds.
+fn peak_value(lo: f32, rho: f64, hi: f32) -> f64 {
+    let (off, den) = parabola(lo as f64, rho, hi as f64);
+    if off.is_finite() {
+        (rho - 0.5 * den * off * off).min(1.0)
+    } else {
+        rho
+    }
 }
 
 /// The matches of pixel row `r` from its cells' picks and the right photo's winners
