@@ -427,6 +427,33 @@ fn a_scan_killed_and_resumed_is_byte_identical_to_an_uninterrupted_one() {
     // The log tells the story: two resumes at least, every tile logged once per taking.
     let log = std::fs::read_to_string(cut.join("log.jsonl")).unwrap();
     assert!(log.matches("\"resumed\"").count() >= 2);
+    // The records name their sessions, certificate and script relative to the scan's folder
+    // (it can move): no record holds the folder's absolute path, and each recorded path,
+    // joined to the folder, is the file or session it was made from.
+    let root = d.path().canonicalize().unwrap();
+    for f in [
+        "calibration.json",
+        "manifest.json",
+        "a.json",
+        "b.json",
+        "log.jsonl",
+    ] {
+        let text = std::fs::read_to_string(whole.join(f)).unwrap();
+        assert!(
+            !text.contains(root.to_str().unwrap()) && !text.contains(d.path().to_str().unwrap()),
+            "{f} keeps an absolute path: {text}"
+        );
+    }
+    let side: Value =
+        serde_json::from_slice(&std::fs::read(whole.join("a.json")).unwrap()).unwrap();
+    let at = |v: &Value| whole.join(v.as_str().unwrap()).canonicalize().unwrap();
+    assert_eq!(
+        at(&side["interior_orientation"]["session"]),
+        i1.canonicalize().unwrap()
+    );
+    assert_eq!(at(&side["scan"]["script"]), s.canonicalize().unwrap());
+    assert!(at(&side["camera_certificate"]["path"]).is_file());
+    assert!(at(&side["pixel_to_carriage"]["session"]).is_dir());
     // Starting over in a directory with a scan in it is refused.
     let out = rig()
         .args(["scan", "--sim", "run"])

@@ -6,6 +6,7 @@
 
 use super::manifest::{fnv64, FileRecord, MANIFEST as SCAN_MANIFEST};
 use super::mosaic::Interpolation;
+use super::relative::relative_to;
 use super::run::{mosaic_region, Reopen, ScanDir, ScanError};
 use crate::matching::tiles::{check_shares, TileError, TileSpec};
 use serde::{Deserialize, Serialize};
@@ -306,7 +307,8 @@ pub fn merge_shares(
             sd.log
                 .event(
                     "photo",
-                    json!({"region": p.region, "image": tiff, "sidecar": side, "share": format!("{}/{}", m.tile, m.of)}),
+                    json!({"region": p.region, "image": relative_to(&sd.dir, &tiff),
+                           "sidecar": relative_to(&sd.dir, &side), "share": format!("{}/{}", m.tile, m.of)}),
                 )
                 .map_err(io(&into))?;
             sidecars.push(side);

@@ -8,6 +8,7 @@ use super::calibration::ScanCalibration;
 use super::manifest::{fnv64, intact, FileRecord, Manifest, TileRecord};
 use super::mosaic::{self, Interpolation, TileSource};
 use super::plan::Plan;
+use super::relative::relative_to;
 use super::script::{Filter, ScanScript};
 use super::sidecar;
 use crate::calibrate::Session;
@@ -135,17 +136,24 @@ impl ScanDir {
         }
         std::fs::create_dir_all(dir.join(TILES))?;
         super::manifest::write_atomic(&dir.join(SCRIPT_COPY), script.text.as_bytes())?;
+        // The records name what they came from relative to the scan's directory.
+        let record = ScanCalibration {
+            interior_session: relative_to(dir, &cal.interior_session),
+            pixel_session: relative_to(dir, &cal.pixel_session),
+            camera_certificate: relative_to(dir, &cal.camera_certificate),
+            ..cal.clone()
+        };
         super::manifest::write_atomic(
             &dir.join(CALIBRATION),
-            &serde_json::to_vec_pretty(&cal).map_err(std::io::Error::other)?,
+            &serde_json::to_vec_pretty(&record).map_err(std::io::Error::other)?,
         )?;
         std::fs::copy(&cal.camera_certificate, dir.join(CERTIFICATE))?;
-        let manifest = Manifest::new(&script.path, &script.text, plan);
+        let manifest = Manifest::new(&relative_to(dir, &script.path), &script.text, plan);
         manifest.save(dir)?;
         let mut log = Session::append(dir)?;
         log.start(
             "scan",
-            &json!({"script": script.path, "film": script.film_name, "calibration": cal,
+            &json!({"script": manifest.script, "film": script.film_name, "calibration": record,
                    "capture": script.capture, "resolution_um": script.resolution_um,
                    "regions": script.regions, "tiles": manifest.plan.tiles.len(),
                    "estimate": manifest.plan.estimate}),
@@ -214,6 +222,15 @@ impl ScanDir {
         let cal_path = dir.join(CALIBRATION);
         let mut cal: ScanCalibration = serde_json::from_slice(&std::fs::read(&cal_path)?)
             .map_err(|e| std::io::Error::other(format!("{}: {e}", cal_path.display())))?;
+        // Recorded relative to the scan's directory (an absolute path, as older scans kept,
+        // stays as it is).
+        for p in [
+            &mut cal.interior_session,
+            &mut cal.pixel_session,
+            &mut cal.camera_certificate,
+        ] {
+            *p = dir.join(&*p);
+        }
         cal.certificate =
             crate::targets::certificate::CameraCertificate::load(&dir.join(CERTIFICATE))
                 .map_err(|e| std::io::Error::other(e.to_string()))?;
@@ -542,7 +559,8 @@ pub fn mosaic_all(
         let region = &sd.manifest.plan.regions[ri];
         sd.log.event(
             "photo",
-            json!({"region": region.name, "image": tiff, "sidecar": json_path,
+            json!({"region": region.name, "image": relative_to(&dir, &tiff),
+                   "sidecar": relative_to(&dir, &json_path),
                    "width": region.grid.width, "height": region.grid.height}),
         )?;
         out.push(json_path);
@@ -651,14 +669,14 @@ fn sidecar_for(
             flat_fielded: sd.manifest.flat.is_some(),
         },
         interior_orientation: sidecar::InteriorRecord {
-            session: cal.interior_session.clone(),
+            session: relative_to(&sd.dir, &cal.interior_session),
             version: cal.version.name().into(),
             carriage_to_photo: cal.carriage_to_photo,
             rms_um: cal.rms_um,
             fiducials: cal.fiducials.clone(),
         },
         camera_certificate: sidecar::CertificateRecord {
-            path: cal.camera_certificate.clone(),
+            path: relative_to(&sd.dir, &cal.camera_certificate),
             name: cal.certificate.name.clone(),
             focal_length_mm: cal.certificate.focal_length_mm,
             fiducials: cal
@@ -672,7 +690,7 @@ fn sidecar_for(
                 .collect(),
         },
         pixel_to_carriage: sidecar::PixelRecord {
-            session: cal.pixel_session.clone(),
+            session: relative_to(&sd.dir, &cal.pixel_session),
             params: cal.pixel.params,
         },
         scan: sidecar::ScanRecord {

@@ -132,6 +132,9 @@ pub(super) fn s(p: &Path) -> String {
 }
 
 fn scan_script(path: &Path, interior: &Path, region: [f64; 4], out: &Path) -> anyhow::Result<()> {
+    // Relative to the script's directory (as the script reads them): the demo's folder moves.
+    let base = path.parent().unwrap_or(Path::new("."));
+    let rel = |p: &Path| rig::scan::relative::relative_to(base, p);
     std::fs::write(
         path,
         format!(
@@ -158,8 +161,8 @@ photo_mm = [{:.3}, {:.3}, {:.3}, {:.3}]
             region[2],
             region[3],
             name = path.file_stem().and_then(|n| n.to_str()).unwrap_or("photo"),
-            interior = interior.display(),
-            out = out.display(),
+            interior = rel(interior).display(),
+            out = rel(out).display(),
         ),
     )?;
     Ok(())
