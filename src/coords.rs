@@ -1,4 +1,4 @@
-//! Coordinate types that carry their unit and system (DESIGN.md, "Coordinate systems"), so a
+//! Coordinate types that carry their unit and system (docs/conventions.md), so a
 //! carriage position cannot be passed where a photo coordinate is expected.
 
 use serde::{Deserialize, Serialize};

@@ -1,4 +1,4 @@
-//! The one table of exit codes of the `rig` command, the same for every subcommand (README,
+//! The one table of exit codes of the `rig` command, the same for every subcommand (docs/cli.md,
 //! "Exit codes"; `rig --help`). The stage's errors map onto it (`StageError::exit_code`), and
 //! keep their code whichever command met them (`cli::exit_code_of`).
 

@@ -1,5 +1,5 @@
 //! The rig: digitise and calibrate aerial film with a camera over motorised X/Y stages, and
-//! turn the photos into elevation models. See README.md and DESIGN.md.
+//! turn the photos into elevation models. See README.md and docs/.
 
 #[macro_use]
 pub mod simd;

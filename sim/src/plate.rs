@@ -1,4 +1,4 @@
-//! The carriage plate: 9 engraved calibration crosses on a 3×3 grid (DESIGN.md), each off its
+//! The carriage plate: 9 engraved calibration crosses on a 3×3 grid, each off its
 //! nominal position by a small engraving error, which a plate certificate would list. This is
 //! the world's truth; the host learns it only from a certificate.
 

@@ -37,7 +37,7 @@ pub enum CalibrateAction {
     /// The pixel→carriage transformation: the central cross through a 5×5 grid of image
     /// positions, then every cross under the measuring mark.
     Pixel {
-        /// The carriage plate's certificate (TOML; see the README). With --sim: the
+        /// The carriage plate's certificate (TOML; see docs/calibration.md). With --sim: the
         /// simulator's own, written into the session.
         #[arg(long, value_name = "FILE")]
         plate_cert: Option<PathBuf>,
@@ -81,7 +81,7 @@ pub enum CalibrateAction {
     /// The interior orientation: find and measure the film's fiducials, fit carriage→image
     /// with all fiducials, the corners only and the mid-sides only (seed 002, Table 5).
     Interior {
-        /// The film camera's certificate (TOML; see the README). With --sim: the simulator's
+        /// The film camera's certificate (TOML; see docs/calibration.md). With --sim: the simulator's
         /// own, written into the session.
         #[arg(long, value_name = "FILE")]
         camera_cert: Option<PathBuf>,
@@ -230,7 +230,7 @@ pub fn run(a: CalibrateArgs) -> anyhow::Result<i32> {
             }
             let nominal = parse_pair(pixel_um, "--pixel-um")?;
             if plate_cert.is_none() && !a.conn.sim.on {
-                usage_bail!("--plate-cert FILE is needed (the carriage plate's certificate; the README shows its format)");
+                usage_bail!("--plate-cert FILE is needed (the carriage plate's certificate; docs/calibration.md shows its format)");
             }
             let mut run = Running::begin(&a, out, "pixel", false)?;
             let cert_path = match (plate_cert, &run.hw.sim) {
@@ -332,7 +332,7 @@ pub fn run(a: CalibrateArgs) -> anyhow::Result<i32> {
             check_frames(*frames)?;
             let centre = parse_pair(film_centre, "--film-centre")?;
             if camera_cert.is_none() && !a.conn.sim.on {
-                usage_bail!("--camera-cert FILE is needed (the film camera's certificate with its fiducials; the README shows its format)");
+                usage_bail!("--camera-cert FILE is needed (the film camera's certificate with its fiducials; docs/calibration.md shows its format)");
             }
             let pixel_dir = match pixel_session {
                 Some(d) => d.clone(),

@@ -84,7 +84,7 @@ pub enum DtmAction {
     /// project (max_memory_mb, default 4096; max_candidates_g, default 20) or --max-memory.
     #[command(verbatim_doc_comment)]
     Pmf {
-        /// The project file (TOML; see the README; `rig sim scene` writes one).
+        /// The project file (TOML; see docs/elevation-models.md; `rig sim scene` writes one).
         #[arg(long, value_name = "FILE")]
         project: PathBuf,
         /// Output directory (created; empty, or holding only an earlier run's outputs, which
@@ -524,7 +524,7 @@ pub fn run(a: DtmArgs) -> anyhow::Result<i32> {
                 }
                 (Ok(2), None) => return run_format2(&project, &out, a.run),
                 (Ok(_), Some(_)) => {
-                    eprintln!("rig dtm: --tile splits format-2 projects; {} is format 1 (one scanned pair): run it whole, or write it as format 2 (see the README)", project.display());
+                    eprintln!("rig dtm: --tile splits format-2 projects; {} is format 1 (one scanned pair): run it whole, or write it as format 2 (see docs/elevation-models.md)", project.display());
                     return Ok(rig::exit::USAGE);
                 }
                 (Ok(_), None) => {}

@@ -93,7 +93,7 @@ pub struct MeasureArgs {
     pub strict: bool,
 }
 
-/// One image's result, in the README's pixel convention.
+/// One image's result, in the pixel convention (docs/conventions.md).
 #[derive(Debug, Serialize)]
 struct Row {
     image: String,

@@ -147,7 +147,7 @@ pub enum Command {
     ///   rig scan --sim run scan.toml --resume
     ///   rig scan mosaic scans/photo-1
     ///
-    /// The script (TOML; the README documents it) names the film, the interior-orientation
+    /// The script (TOML; docs/scanning.md documents it) names the film, the interior-orientation
     /// session (default: the newest in --store), the regions in photo mm, the output
     /// resolution, overlap, frames per tile, filter and settle time. The scan directory
     /// holds script.toml, calibration.json, camera-cert.toml, manifest.json (the checkpoint,
@@ -174,7 +174,7 @@ pub enum Command {
     Sim(SimCmd),
     /// Elevation models from photos: `rig dtm PROJECT.toml --out DIR`.
     ///
-    /// A format-2 project (`format = 2`; see the README) names any number of photos as plain
+    /// A format-2 project (`format = 2`; see docs/elevation-models.md) names any number of photos as plain
     /// grey images with their cameras and orientations (or resected from control points, or
     /// the rig's scans), the ground CRS, points and the DEM, and the matcher, `[matching]
     /// method`:

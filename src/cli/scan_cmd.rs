@@ -79,7 +79,7 @@ pub enum ScanAction {
     /// estimate the time and the bytes. Nothing moves; no hardware is needed (the calibration
     /// sessions recorded the rig).
     Plan {
-        /// The scan script (TOML; see the README).
+        /// The scan script (TOML; see docs/scanning.md).
         script: PathBuf,
         /// Also draw the plan (frame, fiducials, tiles, the stage's path, regions, the flat
         /// field's spot) into this PNG.
@@ -90,7 +90,7 @@ pub enum ScanAction {
     /// photos. Ctrl-C pauses at the next tile boundary (a second Ctrl-C quits at once);
     /// --resume continues a paused, crashed or killed scan where it stopped.
     Run {
-        /// The scan script (TOML; see the README).
+        /// The scan script (TOML; see docs/scanning.md).
         script: PathBuf,
         /// Continue the scan already in the output directory.
         #[arg(long)]

@@ -1,7 +1,7 @@
 //! Which photo point (mm) each pixel of an image shows, for any image: an affine from the
 //! core's continuous pixels (corner origin: pixel c covers [c, c + 1)) to photo millimetres,
 //! and the image's size. A scan's [`PhotoGrid`] is the axis-aligned case; a plain image's
-//! `pixel_mm` or `pixel_to_photo` (README convention, centre origin) give the others.
+//! `pixel_mm` or `pixel_to_photo` (docs/conventions.md, centre origin) give the others.
 
 use super::affine::{inv2, linear_part, mul2};
 use super::PhotoGrid;
@@ -17,7 +17,7 @@ pub struct PixelToPhoto {
 }
 
 impl PixelToPhoto {
-    /// From the README's convention (integer values at pixel centres): the same affine moved
+    /// From the convention of docs/conventions.md (integer values at pixel centres): the same affine moved
     /// by half a pixel. `None` when its linear part cannot be inverted.
     pub fn from_centre_origin(p: [f64; 6], width: usize, height: usize) -> Option<PixelToPhoto> {
         inv2(linear_part(&p))?;
@@ -87,7 +87,7 @@ mod tests {
             let back = f.pixel(b);
             assert!((back.col - q.col).abs() < 1e-9 && (back.row - q.row).abs() < 1e-9);
         }
-        // README: x = (col − (W−1)/2)·p, y = ((H−1)/2 − row)·p at pixel centres; the centre of
+        // docs/conventions.md: x = (col − (W−1)/2)·p, y = ((H−1)/2 − row)·p at pixel centres; the centre of
         // pixel (0, 0) is corner-origin (0.5, 0.5).
         let (w, h, p) = (800, 400, 0.025);
         let c = PixelToPhoto::from_centre_origin(

@@ -1,5 +1,5 @@
 //! A matching project: the two photos (scanned-photo sidecars), the control and check points,
-//! and the parameters of seed 000 Tables 3 and 4. TOML; the README documents it. Relative
+//! and the parameters of seed 000 Tables 3 and 4. TOML; docs/elevation-models.md documents it. Relative
 //! paths are taken from the project file's directory; errors name the file and the field.
 
 use super::pmf_set::StereoPoint;

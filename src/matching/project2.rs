@@ -1,9 +1,9 @@
 //! Project format 2: any number of photos as plain images with their cameras and orientations
 //! (or the rig's own scan hand-overs), control and check points in a CSV file, the ground CRS,
-//! the DEM's cell, extent and heights. The README documents every key; the names are the
+//! the DEM's cell, extent and heights. docs/elevation-models.md documents every key; the names are the
 //! contract. Every number is range-checked here with the file and the key named.
 //!
-//! Pixel coordinates in this format (and in the points file) follow the README's convention:
+//! Pixel coordinates in this format (and in the points file) follow the convention of docs/conventions.md:
 //! (col, row) with integer values at pixel centres, (0, 0) the centre of the top-left pixel.
 //! The core's images use the corner origin (pixel c covers [c, c + 1)): `col + 0.5`.
 
@@ -161,7 +161,7 @@ pub struct Camera2 {
     pub principal_point: PhotoMm,
     /// Square pixels, mm: x = (col − (W−1)/2)·p, y = ((H−1)/2 − row)·p.
     pub pixel_mm: f64,
-    /// Or any affine pixel → photo (README convention: integer values at pixel centres):
+    /// Or any affine pixel → photo (docs/conventions.md: integer values at pixel centres):
     /// x = a0 + a1·col + a2·row, y = b0 + b1·col + b2·row; used when given.
     pub pixel_to_photo: Option<[f64; 6]>,
 }
@@ -273,7 +273,7 @@ pub fn format_of(text: &str) -> Result<u32, String> {
             "it has [[photo]] or [camera] tables but no `format = 2` line: add it at the top".into(),
         ),
         None => Err(
-            "not a matching project: a format-2 project starts with `format = 2` and names [[photo]]s (see the README, \"Elevation models\"); a format-1 project has a [photos] table".into(),
+            "not a matching project: a format-2 project starts with `format = 2` and names [[photo]]s (see docs/elevation-models.md); a format-1 project has a [photos] table".into(),
         ),
     }
 }

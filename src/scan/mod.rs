@@ -1,4 +1,4 @@
-//! Scripted film scanning (DESIGN.md §4): a script names the film, its calibration and the
+//! Scripted film scanning (docs/scanning.md): a script names the film, its calibration and the
 //! regions of the photo; the plan tiles them and checks them against the soft limits; the run
 //! takes every tile (averaged, filtered, flat-fielded) with a checkpoint after each and can be
 //! paused and resumed; the mosaic resamples the tiles through pixel→carriage→photo into one

@@ -1,5 +1,5 @@
 //! The scan script: which film, which calibration, which regions of the photo, at what
-//! resolution and how each tile is captured. TOML; the README documents it. Every error names
+//! resolution and how each tile is captured. TOML; docs/scanning.md documents it. Every error names
 //! the file, and where it can the line and the field.
 
 use serde::Deserialize;

@@ -141,7 +141,7 @@ fn unstopped(e: &StageError) -> String {
 }
 
 impl StageError {
-    /// Exit code for the `rig` command (README, "Exit codes").
+    /// Exit code for the `rig` command (docs/cli.md, "Exit codes").
     pub fn exit_code(&self) -> i32 {
         use crate::exit;
         match self {

@@ -1,6 +1,6 @@
 //! Plate and camera certificates: the calibrated coordinates of the carriage plate's crosses
 //! and of a camera's fiducials, with the geometry the templates are drawn from. TOML files;
-//! the README documents the format. Errors name the file and the line or the field.
+//! docs/calibration.md documents the format. Errors name the file and the line or the field.
 
 use super::mark::{MarkShape, Part};
 use super::template::Polarity;

@@ -539,7 +539,7 @@ fn demo_page(
 
 /// Appends `n` points of photo 1's scanned area to the points file: their ground (in the
 /// world's CRS) and their place in every photo that sees them, with measuring noise (5 µm on
-/// the film, 0.5 m on the ground). Pixels in the README's convention (integer values at pixel
+/// the film, 0.5 m on the ground). Pixels in the convention of docs/conventions.md (integer values at pixel
 /// centres; the scans' grids count from the corner). Control points on a jittered grid that
 /// reaches the area's edges, check points anywhere inside.
 fn points_csv(

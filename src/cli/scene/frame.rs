@@ -527,7 +527,7 @@ fn block_toml(seed: u64, photos: &[&AerialPhoto], hs: [f64; 2]) -> String {
         );
     }
     t += &format!(
-        "\n[dem]\ncell_m = 10.0\nheights = [{:.0}, {:.0}]\n\n[matching]\nmethod = \"sweep\"   # or \"mgcm\" (seed 002's multiphoto matching) or \"oslsm\" (seed 001's object-space matching); see the README\n\n[check]\nreference = \"truth-dem.tif\"\n",
+        "\n[dem]\ncell_m = 10.0\nheights = [{:.0}, {:.0}]\n\n[matching]\nmethod = \"sweep\"   # or \"mgcm\" (seed 002's multiphoto matching) or \"oslsm\" (seed 001's object-space matching); see docs/matchers.md\n\n[check]\nreference = \"truth-dem.tif\"\n",
         hs[0] - 30.0,
         hs[1] + 30.0
     );
@@ -539,7 +539,7 @@ fn block_toml(seed: u64, photos: &[&AerialPhoto], hs: [f64; 2]) -> String {
 pub fn project_toml(header: &str, [left, right]: [&Path; 2], hs: [f64; 2]) -> String {
     format!(
         r#"{header}
-crs = "{crs}"              # the simulated world: WGS 84 / UTM zone 16N (see README)
+crs = "{crs}"              # the simulated world: WGS 84 / UTM zone 16N (see docs/conventions.md)
 
 [photos]
 left = "{l}"

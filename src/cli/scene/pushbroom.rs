@@ -127,7 +127,7 @@ pub fn run(a: &SceneArgs) -> anyhow::Result<i32> {
         fits.push(json!({"view": name, "rpc_fit": report}));
     }
     // Noise-free points: ground on the terrain, where every view sees it (by the simulator's
-    // own projection), in the README's pixel convention (0, 0 at the top-left pixel's centre).
+    // own projection), in the pixel convention (docs/conventions.md) (0, 0 at the top-left pixel's centre).
     let mut rng = rig_sim::rng::Rng::new(a.seed ^ 0x6C9);
     let mut csv = String::from("id,kind,x,y,z,photo,col,row\n");
     let (mut made, mut tries) = (0usize, 0usize);

@@ -411,7 +411,7 @@ const PILE_WARNING_PERCENT: f64 = 10.0;
 /// affine follows them) and of resampling, px of parallax, added to every point's σ_Z. The
 /// residuals show it only in part (it is one smooth misfit across the patch, which the
 /// adjustment absorbs as well as it can). Calibrated on simulated blocks: noise-free and
-/// with 100 and 200 grey values of noise, seeds 3 and 5 (see the README).
+/// with 100 and 200 grey values of noise, seeds 3 and 5 (see docs/matchers.md).
 pub const MODEL_FLOOR_PX: f64 = 0.03;
 
 /// A point whose σ₀ is this many times its neighbours' median is refused: its patch is not
