@@ -10,8 +10,6 @@
 mod driver;
 mod error;
 pub mod grbl;
-mod grbl_report;
-pub mod grbl_settings;
 mod limits_check;
 mod motion;
 pub mod native;

@@ -15,7 +15,7 @@
 //! Reports are read here as they come, without the line reply that normally vouches for them
 //! (a held board answers no line); decisions rest on two that agree, and every wait is capped.
 
-use super::grbl_report::{self, Report};
+use super::report::{self as grbl_report, Report};
 use super::{GrblController, POLL, REPLY_TIMEOUT};
 use crate::stage::{Result, StageError, StopAction};
 use std::time::{Duration, Instant};

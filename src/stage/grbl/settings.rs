@@ -2,9 +2,9 @@
 //! would otherwise make every wait infinite, a `$130=1e9` a 1000 km travel), and what the rig
 //! needs of a board's set-up (`rig stage check-setup`).
 
-use super::limits_check::{check, Range};
-use super::{Result, SoftLimits};
 use crate::coords::CarriageUm;
+use crate::stage::limits_check::{check, Range};
+use crate::stage::{Result, SoftLimits};
 use serde::Serialize;
 use std::collections::BTreeMap;
 
