@@ -31,7 +31,7 @@ fn main() {
                 c.port.stage.as_ref(),
                 c.port.dialect,
                 c.camera.device.as_ref(),
-                c.json,
+                c.output.json,
             ),
         },
         c @ (Command::Completions { .. } | Command::Man { .. }) => cli::docs(&c),

@@ -17,17 +17,10 @@ use std::path::PathBuf;
 pub struct CalibrateArgs {
     #[command(flatten)]
     pub conn: super::connect::ConnectArgs,
-    /// Where sessions are kept.
-    #[arg(
-        long,
-        value_name = "DIR",
-        default_value = "rig-sessions",
-        global = true
-    )]
-    pub store: PathBuf,
-    /// Print the results document as JSON on standard output.
-    #[arg(long, global = true)]
-    pub json: bool,
+    #[command(flatten)]
+    pub sessions: super::shared_args::SessionStore,
+    #[command(flatten)]
+    pub output: super::shared_args::JsonOutput,
     #[command(subcommand)]
     pub action: CalibrateAction,
 }
@@ -130,12 +123,12 @@ impl Running {
     ) -> anyhow::Result<Self> {
         let session = match out {
             Some(d) => Session::create(d),
-            None => Session::new_in_store(&a.store, kind),
+            None => Session::new_in_store(&a.sessions.store, kind),
         }
         .with_context(|| {
             format!(
                 "creating the session directory in {}",
-                out.as_deref().unwrap_or(&a.store).display()
+                out.as_deref().unwrap_or(&a.sessions.store).display()
             )
         })?;
         let hw = connect(
@@ -159,7 +152,7 @@ impl Running {
         kind: &str,
         body: impl FnOnce(&mut Rig) -> Result<T, CalibrateError>,
     ) -> anyhow::Result<(T, serde_json::Value, PathBuf)> {
-        let mut steps = super::progress_bar::Steps::new(a.json);
+        let mut steps = super::progress_bar::Steps::new(a.output.json);
         let mut progress = |st: rig::calibrate::pixel::Step<'_>| steps.step(st.what, st.of);
         let r = body(&mut Rig {
             stage: self.hw.stage.as_mut(),
@@ -272,7 +265,7 @@ pub fn run(a: CalibrateArgs) -> anyhow::Result<i32> {
                 },
             )?;
             let (c, doc, dir) = run.run(&a, "pixel", |rig| calibrate_pixel(rig, &plate, &opt))?;
-            if a.json {
+            if a.output.json {
                 println!("{doc}");
             } else {
                 print_pixel(&c, &dir);
@@ -293,11 +286,11 @@ pub fn run(a: CalibrateArgs) -> anyhow::Result<i32> {
                     usage_bail!("{name} {v}: a positive threshold");
                 }
             }
-            let dirs = rig::calibrate::session::list(&a.store, "pixel")?;
+            let dirs = rig::calibrate::session::list(&a.sessions.store, "pixel")?;
             if dirs.is_empty() {
                 bail!(
                     "no pixel sessions in {}: run `rig calibrate pixel` (or give --store DIR)",
-                    a.store.display()
+                    a.sessions.store.display()
                 );
             }
             let h = rig::calibrate::history::history(
@@ -310,7 +303,7 @@ pub fn run(a: CalibrateArgs) -> anyhow::Result<i32> {
             )
             .map_err(anyhow::Error::msg)?;
             let drift = h.newest_vs.first().is_some_and(|c| !c.drift.is_empty());
-            if a.json {
+            if a.output.json {
                 println!("{}", serde_json::to_string(&h)?);
             } else {
                 print_history(&h);
@@ -336,12 +329,12 @@ pub fn run(a: CalibrateArgs) -> anyhow::Result<i32> {
             }
             let pixel_dir = match pixel_session {
                 Some(d) => d.clone(),
-                None => rig::calibrate::session::list(&a.store, "pixel")?
+                None => rig::calibrate::session::list(&a.sessions.store, "pixel")?
                     .pop()
                     .with_context(|| {
                         format!(
                             "no pixel session in {}: run `rig calibrate pixel` first, or name one with --pixel-session DIR",
-                            a.store.display()
+                            a.sessions.store.display()
                         )
                     })?,
             };
@@ -404,7 +397,7 @@ pub fn run(a: CalibrateArgs) -> anyhow::Result<i32> {
                 }
                 calibrate_interior(rig, &cert, &pixel, &opt)
             })?;
-            if a.json {
+            if a.output.json {
                 println!("{doc}");
             } else {
                 print_interior(&c, &dir);

@@ -31,9 +31,8 @@ pub struct CameraArgs {
         global = true
     )]
     pub sim_frame_drop: f64,
-    /// Print one JSON object on standard output instead of text.
-    #[arg(long, global = true)]
-    pub json: bool,
+    #[command(flatten)]
+    pub output: super::shared_args::JsonOutput,
     #[command(subcommand)]
     pub action: CameraAction,
 }
@@ -129,7 +128,7 @@ fn list(_as_json: bool) -> anyhow::Result<i32> {
 /// Runs `rig camera`; returns the exit code.
 pub fn run(a: CameraArgs) -> anyhow::Result<i32> {
     if let CameraAction::List = a.action {
-        return list(a.json);
+        return list(a.output.json);
     }
     let cfg = super::config::resolve(None, None, a.camera.device.as_ref())?;
     if cfg.camera.value.is_none() && !a.sim.on {
@@ -164,7 +163,7 @@ pub fn run(a: CameraArgs) -> anyhow::Result<i32> {
         CameraAction::Info => {
             let info = cam.info();
             let formats = cam.formats()?;
-            if a.json {
+            if a.output.json {
                 println!("{}", json!({"camera": info, "formats": formats}));
             } else {
                 println!(
@@ -259,7 +258,7 @@ pub fn run(a: CameraArgs) -> anyhow::Result<i32> {
                 stage_mm = Some([p.x_mm(), p.y_mm()]);
             }
             let info = cam.info();
-            let tty = !a.json && std::io::IsTerminal::is_terminal(&std::io::stderr());
+            let tty = !a.output.json && std::io::IsTerminal::is_terminal(&std::io::stderr());
             // Frames from before the command (or before the stage stood at --at) are set aside.
             let settled = cam.now()?;
             let cap = capture(
@@ -318,7 +317,7 @@ pub fn run(a: CameraArgs) -> anyhow::Result<i32> {
             let side = output.with_extension("json");
             output::write_json(&side, &sidecar)
                 .with_context(|| format!("writing {}", side.display()))?;
-            if a.json {
+            if a.output.json {
                 println!("{sidecar}");
             } else {
                 println!(

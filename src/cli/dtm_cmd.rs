@@ -1,5 +1,6 @@
 //! `rig dtm`: elevation models from a matching project.
 
+use super::shared_args::JsonOutput;
 use anyhow::Context;
 use clap::{Args, Subcommand};
 use rig::matching::pipeline;
@@ -37,9 +38,8 @@ pub struct RunOptions {
     /// Most memory the run may take, MiB (overrides the project's [limits] max_memory_mb).
     #[arg(long, value_name = "MIB", value_parser = clap::value_parser!(u64).range(16..=1_048_576))]
     pub max_memory: Option<u64>,
-    /// Print the report as JSON.
-    #[arg(long)]
-    pub json: bool,
+    #[command(flatten)]
+    pub output: JsonOutput,
     /// Exit 12 when the run warns (heights piled at a bound of the range tried, few points
     /// matched); the outputs are written all the same.
     #[arg(long)]
@@ -165,7 +165,7 @@ fn run_format2(
     out: &std::path::Path,
     RunOptions {
         max_memory,
-        json,
+        output: JsonOutput { json },
         strict,
     }: RunOptions,
 ) -> anyhow::Result<i32> {
@@ -368,7 +368,7 @@ fn merge(
     out: &std::path::Path,
     RunOptions {
         max_memory,
-        json,
+        output: JsonOutput { json },
         strict,
     }: RunOptions,
 ) -> anyhow::Result<i32> {
@@ -520,7 +520,7 @@ pub fn run(a: DtmArgs) -> anyhow::Result<i32> {
                 .with_context(|| format!("reading {}", project.display()))?;
             match (rig::matching::project2::format_of(&text), a.tile) {
                 (Ok(2), Some(spec)) => {
-                    return run_tile(&project, spec, &out, a.run.max_memory, a.run.json)
+                    return run_tile(&project, spec, &out, a.run.max_memory, a.run.output.json)
                 }
                 (Ok(2), None) => return run_format2(&project, &out, a.run),
                 (Ok(_), Some(_)) => {
@@ -552,7 +552,7 @@ pub fn run(a: DtmArgs) -> anyhow::Result<i32> {
         DtmAction::Pmf { project, out, run } => {
             let RunOptions {
                 max_memory,
-                json,
+                output: JsonOutput { json },
                 strict,
             } = run;
             let p = Project::load(&project)?;

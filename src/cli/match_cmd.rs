@@ -102,9 +102,8 @@ pub enum MatchAction {
         /// Most memory the run may take, MiB.
         #[arg(long, value_name = "MIB", default_value_t = 4096, value_parser = clap::value_parser!(u64).range(16..=1_048_576))]
         max_memory: u64,
-        /// Print the report as JSON.
-        #[arg(long)]
-        json: bool,
+        #[command(flatten)]
+        output: super::shared_args::JsonOutput,
     },
 }
 
@@ -123,7 +122,7 @@ pub fn run(a: MatchArgs) -> anyhow::Result<i32> {
         p1,
         p2,
         max_memory,
-        json,
+        output: super::shared_args::JsonOutput { json },
     } = a.action;
     if !(lr_tolerance.is_finite() && (0.0..=1000.0).contains(&lr_tolerance)) {
         eprintln!("rig match pair: --lr-tolerance {lr_tolerance}: 0 (no check) to 1000 px");

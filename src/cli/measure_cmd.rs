@@ -82,9 +82,8 @@ pub struct MeasureArgs {
     /// --keep-stripes says otherwise; kept so that scripts that give it still run.
     #[arg(long, hide = true, conflicts_with_all = ["stripes_from", "keep_stripes"])]
     pub destripe: bool,
-    /// Print the results as JSON: an object for one image, an array for several.
-    #[arg(long)]
-    pub json: bool,
+    #[command(flatten)]
+    pub output: super::shared_args::JsonOutput,
     /// Also write the results as CSV (one row per image, atomically).
     #[arg(long, value_name = "FILE")]
     pub csv: Option<PathBuf>,
@@ -306,7 +305,7 @@ pub fn run(a: MeasureArgs) -> anyhow::Result<i32> {
                 );
             }
             let e = estimate_stripes(&flat);
-            if e.column_period.is_none() && !a.json {
+            if e.column_period.is_none() && !a.output.json {
                 eprintln!(
                     "rig measure: note: {} shows no column pattern; only the field shift ({:.2} DN) is removed",
                     p.display(),
@@ -380,7 +379,7 @@ pub fn run(a: MeasureArgs) -> anyhow::Result<i32> {
         rig::atomic::write(csv, to_csv(&rows).as_bytes())
             .with_context(|| format!("writing {}", csv.display()))?;
     }
-    if a.json {
+    if a.output.json {
         if rows.len() == 1 {
             println!("{}", serde_json::to_string_pretty(&rows[0])?);
         } else {

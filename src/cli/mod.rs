@@ -8,6 +8,7 @@ pub mod demo;
 pub mod dtm_cmd;
 pub mod match_cmd;
 pub mod measure_cmd;
+pub mod shared_args;
 pub use rig::exit;
 pub mod progress_bar;
 pub mod scan_cmd;
@@ -313,9 +314,8 @@ pub struct ConfigCmd {
     /// With --sim the commands ignore a configured stage and camera (the dialect still holds).
     #[command(flatten)]
     pub sim: connect::Simulated,
-    /// Print one JSON object instead of text.
-    #[arg(long, global = true)]
-    pub json: bool,
+    #[command(flatten)]
+    pub output: shared_args::JsonOutput,
 }
 
 #[derive(Debug, Subcommand)]

@@ -39,7 +39,7 @@ fn resume_command(a: &ScanArgs, script: &std::path::Path, out: Option<&std::path
     }
     c += &format!(
         " --store {} run {} --resume",
-        a.store.display(),
+        a.sessions.store.display(),
         script.display()
     );
     if let Some(o) = out {
@@ -52,18 +52,10 @@ fn resume_command(a: &ScanArgs, script: &std::path::Path, out: Option<&std::path
 pub struct ScanArgs {
     #[command(flatten)]
     pub conn: ConnectArgs,
-    /// Where calibration sessions are kept (for the newest interior session when the script
-    /// names none).
-    #[arg(
-        long,
-        value_name = "DIR",
-        default_value = "rig-sessions",
-        global = true
-    )]
-    pub store: PathBuf,
-    /// Print a JSON document on standard output instead of the human summary.
-    #[arg(long, global = true)]
-    pub json: bool,
+    #[command(flatten)]
+    pub sessions: super::shared_args::SessionStore,
+    #[command(flatten)]
+    pub output: super::shared_args::JsonOutput,
     /// Refuse a region whose mosaic would need more memory than this (MiB): the plan says
     /// how much each needs before anything is allocated.
     #[arg(long, value_name = "MIB", global = true, default_value_t = rig::scan::plan::DEFAULT_MAX_MEMORY_MIB,
@@ -141,7 +133,7 @@ pub enum ScanAction {
 
 /// The script's calibration; the operator's --limits tighten the recorded soft limits.
 fn calibration(a: &ScanArgs, s: &ScanScript) -> anyhow::Result<ScanCalibration> {
-    let store = &a.store;
+    let store = &a.sessions.store;
     let interior = match &s.interior_session {
         Some(d) => d.clone(),
         None => rig::calibrate::session::list(store, "interior")?
@@ -306,7 +298,7 @@ pub fn run(a: ScanArgs) -> anyhow::Result<i32> {
                 rig::scan::plan_plot::plan_plot(&p, &cal, s.capture.flat_photo_mm, f)
                     .with_context(|| format!("writing {}", f.display()))?;
             }
-            if a.json {
+            if a.output.json {
                 println!(
                     "{}",
                     json!({"script": s.path, "out": s.out_dir, "calibration": cal, "plan": p})
@@ -369,7 +361,7 @@ pub fn run(a: ScanArgs) -> anyhow::Result<i32> {
                 &Default::default(),
             )?;
             let tty = std::io::stderr().is_terminal();
-            let mut show = progress_printer(a.json);
+            let mut show = progress_printer(a.output.json);
             let r = rig::scan::run::run(
                 &mut sd,
                 &mut ScanRig {
@@ -405,7 +397,7 @@ pub fn run(a: ScanArgs) -> anyhow::Result<i32> {
             closed?;
             match outcome {
                 Outcome::Complete { photos } => {
-                    if a.json {
+                    if a.output.json {
                         println!(
                             "{}",
                             json!({"status": "complete", "dir": dir, "photos": photos, "tiles": sd.manifest.tiles.len()})
@@ -423,7 +415,7 @@ pub fn run(a: ScanArgs) -> anyhow::Result<i32> {
                     Ok(0)
                 }
                 Outcome::Paused { done, total } => {
-                    if a.json {
+                    if a.output.json {
                         println!(
                             "{}",
                             json!({"status": "paused", "dir": dir, "done": done, "total": total})
@@ -440,7 +432,7 @@ pub fn run(a: ScanArgs) -> anyhow::Result<i32> {
         }
         ScanAction::Merge { shares, into } => {
             let (dir, photos) = rig::scan::mosaic_shares::merge_shares(shares, into.as_deref())?;
-            if a.json {
+            if a.output.json {
                 println!("{}", json!({"dir": dir, "photos": photos}));
             } else {
                 for p in photos {
@@ -455,7 +447,7 @@ pub fn run(a: ScanArgs) -> anyhow::Result<i32> {
             out: Some(out),
         } => {
             let sd = open_for_mosaic(dir, a.max_memory)?;
-            let bar = super::progress_bar::Bar::new(!a.json);
+            let bar = super::progress_bar::Bar::new(!a.output.json);
             let m = rig::scan::mosaic_shares::mosaic_share(
                 &sd,
                 *spec,
@@ -463,7 +455,7 @@ pub fn run(a: ScanArgs) -> anyhow::Result<i32> {
                 rig::scan::mosaic::Interpolation::Bicubic,
                 &|r, b, n| mosaic_progress(&bar, r, b, n),
             )?;
-            if a.json {
+            if a.output.json {
                 println!("{}", serde_json::to_string(&m)?);
             } else {
                 println!(
@@ -486,13 +478,13 @@ pub fn run(a: ScanArgs) -> anyhow::Result<i32> {
         }
         ScanAction::Mosaic { dir, .. } => {
             let mut sd = open_for_mosaic(dir, a.max_memory)?;
-            let bar = super::progress_bar::Bar::new(!a.json);
+            let bar = super::progress_bar::Bar::new(!a.output.json);
             let photos = rig::scan::run::mosaic_all(
                 &mut sd,
                 rig::scan::mosaic::Interpolation::Bicubic,
                 &|r, b, n| mosaic_progress(&bar, r, b, n),
             )?;
-            if a.json {
+            if a.output.json {
                 println!("{}", json!({"dir": dir, "photos": photos}));
             } else {
                 for p in photos {

@@ -45,9 +45,8 @@ pub struct StageArgs {
     /// `MaxSpeed=0`): a misconfigured controller.
     #[arg(long, value_name = "NAME=VALUE", value_parser = rig_sim::cli::parse_native_setting, requires = "sim", global = true)]
     pub sim_native_setting: Vec<(firmware_protocol::SettingId, i32)>,
-    /// Print one JSON object on standard output instead of text.
-    #[arg(long, global = true)]
-    pub json: bool,
+    #[command(flatten)]
+    pub output: super::shared_args::JsonOutput,
     /// Direction every target is finally approached from, to take out backlash: `+`, `-`,
     /// or `none`.
     #[arg(long, default_value = "+", value_parser = ["+", "-", "none"], global = true)]
@@ -476,7 +475,7 @@ pub fn run(a: StageArgs) -> anyhow::Result<i32> {
         wire_log: a.wire_log.clone(),
         cancel: Some(cancel),
     };
-    let progress = Progress::start(label(&a.action), !a.json);
+    let progress = Progress::start(label(&a.action), !a.output.json);
     // Stopping takes a controller as an earlier program left it (held, moving, busy).
     let open = match a.action {
         Action::Stop | Action::Estop => stage::open_to_stop,
@@ -512,7 +511,7 @@ pub fn run(a: StageArgs) -> anyhow::Result<i32> {
     }
     match result {
         Ok(o) => {
-            if a.json {
+            if a.output.json {
                 println!("{}", o.json);
             } else {
                 println!("{}", o.text);
@@ -520,7 +519,7 @@ pub fn run(a: StageArgs) -> anyhow::Result<i32> {
             Ok(0)
         }
         Err(e) => {
-            if a.json {
+            if a.output.json {
                 let mut j = json!({"error": {"kind": e.kind(), "message": e.to_string()}});
                 if let Some(s) = &after_cancel {
                     j["stopped"] = stopped_json(s);
