@@ -1,7 +1,7 @@
 //! The README and the pages under docs/ lead somewhere: every relative link names a file or
 //! directory of the repository (and a heading of it, when it names one), every page under docs/
 //! is linked from the README, and the README stays short enough to read (the reference lives in
-//! docs/).
+//! docs/), and the docs' table of a run's files is the list the rig writes from.
 
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
@@ -151,5 +151,30 @@ fn links_and_anchors_are_read_as_github_does() {
     assert_eq!(
         slug(" How the MGCM's σ was made honest"),
         "how-the-mgcms-σ-was-made-honest"
+    );
+}
+
+/// docs/elevation-models.md's table of a run's files is the list the rig writes from: every
+/// file, in order, with what it holds and which runs write it.
+#[test]
+fn the_docs_list_every_output_file_as_the_rig_writes_them() {
+    use rig::matching::outputs::OUTPUTS;
+    let text = std::fs::read_to_string(Path::new(ROOT).join("docs/elevation-models.md")).unwrap();
+    let rows: Vec<&str> = text
+        .lines()
+        .filter(|l| l.starts_with("| `"))
+        .filter(|l| {
+            OUTPUTS
+                .iter()
+                .any(|f| l.starts_with(&format!("| `{}` |", f.name)))
+        })
+        .collect();
+    let want: Vec<String> = OUTPUTS
+        .iter()
+        .map(|f| format!("| `{}` | {} | {} |", f.name, f.holds, f.writer.said()))
+        .collect();
+    assert_eq!(
+        rows, want,
+        "docs/elevation-models.md's table of output files"
     );
 }

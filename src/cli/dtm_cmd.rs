@@ -3,6 +3,7 @@
 use super::shared_args::JsonOutput;
 use anyhow::Context;
 use clap::{Args, Subcommand};
+use rig::matching::outputs::{self, Writer};
 use rig::matching::pipeline;
 use rig::matching::pmf_dtm::PmfDtm;
 use rig::matching::pmf_set::FitReport;
@@ -229,9 +230,9 @@ fn print_mgcm(
         println!("\n{}", a.table());
     }
     println!(
-        "outputs in {}: dem.tif, quality.tif (σ m, correlation), points.csv (every point, kept or refused, and why), points.ply, points.las, ortho.tif, hillshade.png, quality.png{}, report.json, report.html",
+        "outputs in {}: {}",
         out.display(),
-        if r.accuracy.is_some() { ", error.png, accuracy.txt, accuracy.json" } else { "" }
+        outputs::listed(Some(Writer::Mgcm), r.accuracy.is_some())
     );
     Ok(code)
 }
@@ -258,13 +259,15 @@ fn print_oslsm(
         println!("{k}: {v}");
     }
     println!(
-        "outputs in {}: dem.tif (posts refined from the grey values), quality.tif (σ m), reflectance.tif (the terrain's reflectance in photo {}'s grey values), convergence.png, points.ply, points.las, ortho.tif, hillshade.png, quality.png{}, report.json, report.html{}",
+        "outputs in {}: {} (reflectance.tif in photo {}'s grey values){}",
         out.display(),
+        outputs::listed(Some(Writer::Oslsm), r.model.comparison.is_some()),
         r.reference,
-        if r.model.comparison.is_some() { ", error.png" } else { "" },
         match r.config.coarse {
-            rig::matching::matcher_config::CoarseSource::Sweep => "; the sweep's coarse model in coarse/",
-            rig::matching::matcher_config::CoarseSource::Features => "; the feature route's coarse model in coarse/dem.tif",
+            rig::matching::matcher_config::CoarseSource::Sweep =>
+                "; the sweep's coarse model in coarse/",
+            rig::matching::matcher_config::CoarseSource::Features =>
+                "; the feature route's coarse model in coarse/dem.tif",
             rig::matching::matcher_config::CoarseSource::File(_) => "",
         }
     );
@@ -505,9 +508,9 @@ fn print_format2(
         }
     }
     println!(
-        "written to {}: dem.tif, quality.tif (σ, correlation), ortho.tif, points.ply, points.las, hillshade.png, quality.png{}, report.json, report.html",
+        "written to {}: {}",
         out.display(),
-        if r.model.comparison.is_some() { ", error.png" } else { "" }
+        outputs::listed(None, r.model.comparison.is_some())
     );
     Ok(code)
 }
@@ -578,10 +581,10 @@ pub fn run(a: DtmArgs) -> anyhow::Result<i32> {
                     );
                 }
                 println!(
-                "written to {}: dem.tif, quality.tif, ortho.tif, points.ply, points.las, hillshade.png, quality.png{}, report.json, report.html, pmfs.json",
-                out.display(),
-                if report.dtm.comparison.is_some() { ", error.png" } else { "" }
-            );
+                    "written to {}: {}",
+                    out.display(),
+                    outputs::listed(Some(Writer::Format1), report.dtm.comparison.is_some())
+                );
             }
             Ok(if strict && !warnings.is_empty() {
                 rig::exit::DOUBTFUL

@@ -21,6 +21,7 @@ pub mod orientation_error;
 pub mod ortho;
 pub mod oslsm;
 pub mod output;
+pub mod outputs;
 pub mod pair;
 pub mod photos;
 pub mod pipeline;

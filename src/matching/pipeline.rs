@@ -11,6 +11,7 @@ use super::ortho::{orthophoto, View};
 use super::output::{
     read_geotiff, write_geotiff, write_las, write_ortho, write_ply, write_quality,
 };
+use super::outputs as O;
 use super::pmf::PmfError;
 use super::pmf_dtm::{pmf_dtm, Budget, DtmError, PmfDtm, PmfDtmParams, PmfDtmReport};
 use super::pmf_set::FitReport;
@@ -141,35 +142,12 @@ impl RunReport {
     }
 }
 
-/// The files a run writes into its directory (and their temporary `.part` names meanwhile).
-pub const OUTPUTS: [&str; 17] = [
-    "dem.tif",
-    "report.html",
-    "quality.tif",
-    "quality.png",
-    "ortho.tif",
-    "points.ply",
-    "points.las",
-    "hillshade.png",
-    "error.png",
-    "report.json",
-    "pmfs.json",
-    // The MGCM's.
-    "points.csv",
-    "accuracy.txt",
-    "accuracy.json",
-    // The object-space matching's (its coarse model from the sweep in `coarse/`).
-    "coarse",
-    "reflectance.tif",
-    "convergence.png",
-];
-
 /// An output directory must be new, empty, or hold only an earlier run's outputs (a run that
 /// was killed half way left some of them, or `.part` files): anything else is not ours to
 /// replace.
 pub(crate) fn check_out_dir(out: &Path) -> Result<(), PipelineError> {
     let foreign =
-        crate::atomic::foreign_files(out, |f| OUTPUTS.contains(&f)).map_err(|source| {
+        crate::atomic::foreign_files(out, super::outputs::is_output).map_err(|source| {
             PipelineError::Write {
                 dir: out.to_path_buf(),
                 cause: source,
@@ -393,7 +371,7 @@ pub fn run(
         &report.summary(),
     )
     .map_err(write)?;
-    crate::atomic::write_json(&out.join("pmfs.json"), &pmfs).map_err(write)?;
+    crate::atomic::write_json(&out.join(O::PMFS), &pmfs).map_err(write)?;
     Ok((r, report))
 }
 
@@ -414,8 +392,8 @@ pub(crate) fn write_outputs(
     summary: &[(String, String)],
 ) -> std::io::Result<()> {
     std::fs::create_dir_all(out)?;
-    write_geotiff(&out.join("dem.tif"), grid, crs)?;
-    write_quality(&out.join("quality.tif"), grid, crs, quality)?;
+    write_geotiff(&out.join(O::DEM), grid, crs)?;
+    write_quality(&out.join(O::QUALITY), grid, crs, quality)?;
     let sig: Vec<f32> = quality
         .sigma_m
         .iter()
@@ -425,15 +403,15 @@ pub(crate) fn write_outputs(
     let rms =
         (sig.iter().map(|&v| (v as f64).powi(2)).sum::<f64>() / sig.len().max(1) as f64).sqrt();
     write_sigma_map(
-        &out.join("quality.png"),
+        &out.join(O::QUALITY_MAP),
         grid,
         &quality.sigma_m,
         &format!("{crs}, RMS {rms:.2} m over {} nodes", sig.len()),
     )?;
-    write_ortho(&out.join("ortho.tif"), grid, crs, &orthophoto(grid, views))?;
-    write_ply(&out.join("points.ply"), points, crs)?;
-    write_las(&out.join("points.las"), points, crs)?;
-    write_hillshade(&out.join("hillshade.png"), grid, crs)?;
+    write_ortho(&out.join(O::ORTHO), grid, crs, &orthophoto(grid, views))?;
+    write_ply(&out.join(O::POINTS_PLY), points, crs)?;
+    write_las(&out.join(O::POINTS_LAS), points, crs)?;
+    write_hillshade(&out.join(O::HILLSHADE), grid, crs)?;
     match reference {
         Some((g, c)) => {
             let d = grid.differences(|x, y| g.interpolate(x, y));
@@ -442,30 +420,29 @@ pub(crate) fn write_outputs(
                 c.rmse_m, c.mean_m, c.nodes
             );
             let span = crate::picture::nice((3.0 * c.rmse_m).max(0.1)) * 2.0;
-            write_error_map(&out.join("error.png"), grid, &d, span, &summary)?;
+            write_error_map(&out.join(O::ERROR_MAP), grid, &d, span, &summary)?;
         }
         None => {
-            let _ = std::fs::remove_file(out.join("error.png"));
+            let _ = std::fs::remove_file(out.join(O::ERROR_MAP));
         }
     }
-    crate::atomic::write_json(&out.join("report.json"), report)?;
+    crate::atomic::write_json(&out.join(O::REPORT_JSON), report)?;
     let mut maps = vec![
         (
-            "hillshade.png".to_string(),
+            O::HILLSHADE.to_string(),
             format!("Heights in colour, shaded from the north-west ({crs})"),
         ),
         (
-            "quality.png".to_string(),
+            O::QUALITY_MAP.to_string(),
             "Each node's standard deviation, m".to_string(),
         ),
     ];
     if reference.is_some() {
         maps.push((
-            "error.png".into(),
+            O::ERROR_MAP.into(),
             "The model minus the reference, m".into(),
         ));
     }
-    let file = |f: &str, what: &str| (f.to_string(), what.to_string());
     super::html::Page {
         title: "rig dtm: elevation model".into(),
         intro: format!("Every file of this run is in this folder; the figures below are from report.json. Ground coordinates in {crs}."),
@@ -482,17 +459,10 @@ pub(crate) fn write_outputs(
             },
             super::html::Section {
                 heading: "Data".into(),
-                links: vec![
-                    file("dem.tif", "heights, float32 GeoTIFF, nodata −9999"),
-                    file("quality.tif", "band 1 σ of each height (m), band 2 its correlation"),
-                    file("ortho.tif", "orthophoto on the DEM grid"),
-                    file("points.las", "matched points, LAS 1.2"),
-                    file("points.ply", "matched points with correlation and σ"),
-                    file("report.json", "everything the run found"),
-                ],
+                links: O::data_links(),
                 ..Default::default()
             },
         ],
     }
-    .write(&out.join("report.html"))
+    .write(&out.join(O::REPORT_HTML))
 }

@@ -22,6 +22,7 @@ use crate::matching::block_geometry::{
     block, flying_height, parallax_per_m, references_covering, Block,
 };
 use crate::matching::grid::ElevationGrid;
+use crate::matching::outputs;
 use crate::matching::pipeline::{Photo, PipelineError};
 use crate::matching::pipeline2::{ModelFigures, Oriented, Pipeline2Error};
 use crate::matching::progress::Progress;
@@ -740,15 +741,16 @@ pub fn run(
     .map_err(write)?;
     let ids: Vec<&str> = p.photos.iter().map(|ph| ph.id.as_str()).collect();
     crate::atomic::write(
-        &out.join("points.csv"),
+        &out.join(outputs::POINTS_CSV),
         points_csv(&points, &references, &ids).as_bytes(),
     )
     .map_err(write)?;
     if let Some(a) = &report.accuracy {
-        crate::atomic::write(&out.join("accuracy.txt"), a.table().as_bytes()).map_err(write)?;
-        crate::atomic::write_json(&out.join("accuracy.json"), a).map_err(write)?;
+        crate::atomic::write(&out.join(outputs::ACCURACY_TXT), a.table().as_bytes())
+            .map_err(write)?;
+        crate::atomic::write_json(&out.join(outputs::ACCURACY_JSON), a).map_err(write)?;
     } else {
-        for f in ["accuracy.txt", "accuracy.json"] {
+        for f in [outputs::ACCURACY_TXT, outputs::ACCURACY_JSON] {
             let _ = std::fs::remove_file(out.join(f));
         }
     }

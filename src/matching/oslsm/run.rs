@@ -18,6 +18,7 @@ use crate::geometry::{Crs, Resection, Sensor};
 use crate::matching::block_geometry::{block, parallax_per_m, Block};
 use crate::matching::grid::{Comparison, ElevationGrid, NodeQuality};
 use crate::matching::matcher_config::CoarseSource;
+use crate::matching::outputs;
 use crate::matching::pipeline::{Photo, PipelineError};
 use crate::matching::pipeline2::{ModelFigures, Oriented, Pipeline2Error};
 use crate::matching::progress::Progress;
@@ -396,10 +397,10 @@ pub fn run(
                     rep.pairs.iter().map(|x| x.lines).sum::<usize>()
                 )));
             }
-            let dir = out.join("coarse");
+            let dir = out.join(outputs::COARSE);
             std::fs::create_dir_all(&dir)
                 .and_then(|_| {
-                    crate::matching::output::write_geotiff(&dir.join("dem.tif"), &g, p.crs)
+                    crate::matching::output::write_geotiff(&dir.join(outputs::DEM), &g, p.crs)
                 })
                 .map_err(|source| PipelineError::Write {
                     dir: dir.clone(),
@@ -437,7 +438,7 @@ pub fn run(
             let r = crate::matching::pipeline2::run(
                 p,
                 photos,
-                &out.join("coarse"),
+                &out.join(outputs::COARSE),
                 max_memory_mb,
                 progress,
             )?;
@@ -664,7 +665,7 @@ pub fn run(
     )
     .map_err(write)?;
     crate::matching::output::write_ortho(
-        &out.join("reflectance.tif"),
+        &out.join(outputs::REFLECTANCE),
         &reflectance,
         p.crs,
         &reflectance.z,
@@ -674,7 +675,7 @@ pub fn run(
         &report.patches,
         m_per_px,
         cfg.converged_px,
-        &out.join("convergence.png"),
+        &out.join(outputs::CONVERGENCE),
     )
     .map_err(write)?;
     Ok(report)
