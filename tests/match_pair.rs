@@ -228,13 +228,18 @@ fn sigma_is_an_honest_error_bar() {
         let within = 100.0 * inside as f64 / n as f64;
         eprintln!("{subpixel:?}: RMS(error/σ) {rms:.2}, {within:.1} % within 2σ, {n} pixels");
         assert!(n > 20_000, "{subpixel:?}: {n} pixels");
-        // The goal is 0.8–1.25 and 50–98 %. Not yet met in full (issue 37): the parabola's σ
-        // holds RMS 0.94 with 98.3 % within 2σ here (a little wide in the bulk), least
-        // squares' 0.86 here but 1.22–1.31 on the validation pairs. These bounds hold what is
-        // reached, so that a σ that falls back towards the old 2–3× too small fails.
-        let rms_max = if subpixel == Subpixel::Lsm { 1.5 } else { 1.25 };
+        // The goal is 0.8–1.25 and 50–98 % (on the validation scenes: by default 0.86–1.04
+        // and 94.6–97.8 %, with least squares 1.09–1.18 and 91–93 %). On this pair the σ's
+        // are a little wide: the parabola's 0.96 with 98.2 % within 2σ, least squares' 0.80
+        // with 98.6 %. These bounds hold what is reached, so that a σ that falls back
+        // towards the old 2–3× too small fails, or one grown much too wide.
+        let (rms_min, rms_max) = if subpixel == Subpixel::Lsm {
+            (0.75, 1.5)
+        } else {
+            (0.8, 1.25)
+        };
         assert!(
-            (0.8..=rms_max).contains(&rms),
+            (rms_min..=rms_max).contains(&rms),
             "{subpixel:?}: RMS(error/σ) {rms:.2}"
         );
         assert!(

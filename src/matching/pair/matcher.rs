@@ -446,7 +446,12 @@ fn finish_row_body(pk: &RowPicks, rb: &[u32], rules: &Rules, fates: &mut [u8], o
         let rho = rho as f64;
         let (off, den) = place(lo_[i], rho, hi_[i], off_[i]);
         let t = first as f64 + pl as f64 + off;
-        let sd = height_sigma_or_nan(peak_value(lo_[i], rho, hi_[i]), den, 1.0, nw);
+        let sd = height_sigma_or_nan(
+            peak_value(lo_[i], rho, hi_[i]),
+            peak_curvature(lo_[i], rho, hi_[i], den),
+            1.0,
+            nw,
+        );
         let ok = f == MATCH;
         d[i] = if ok { t as f32 } else { f32::NAN };
         corr[i] = if ok { rho as f32 } else { f32::NAN };
@@ -492,15 +497,44 @@ fn place(lo: f32, rho: f64, hi: f32, own: f32) -> (f64, f64) {
     (off, den)
 }
 
-/// The correlation at the parabola's vertex through `lo`, `rho`, `hi` (ρ where they are no
-/// peak): the decorrelation the noise leaves. At the winning whole disparity ρ is lower by the
-/// sub-pixel phase as well, which the estimator's own error ([`super::sigma`]) already holds.
+/// The Gaussian through three correlations a pixel apart (a parabola through their
+/// logarithms: the three-point Gaussian estimator, Willert & Gharib 1991, "Digital particle
+/// image velocimetry", Exp. Fluids 10, eq. 7): its top and the logarithms' second difference
+/// (negative); `None` unless the three are positive and peak.
+fn gaussian(lo: f32, rho: f64, hi: f32) -> Option<(f64, f64)> {
+    let (lo, hi) = (lo as f64, hi as f64);
+    if !(lo > 0.0 && hi > 0.0 && rho > 0.0) {
+        return None;
+    }
+    let (l0, l1, l2) = (lo.ln(), rho.ln(), hi.ln());
+    let dl = l0 - 2.0 * l1 + l2;
+    (dl < 0.0).then(|| ((l1 - (l2 - l0).powi(2) / (8.0 * dl)).exp().min(1.0), dl))
+}
+
+/// The correlation at the top of the peak through `lo`, `rho`, `hi` (the Gaussian's, else the
+/// parabola's vertex; ρ where they are no peak): the decorrelation the noise leaves. At the
+/// winning whole disparity ρ is lower by the sub-pixel phase as well, which the estimator's
+/// own error ([`super::sigma`]) already holds.
 fn peak_value(lo: f32, rho: f64, hi: f32) -> f64 {
+    if let Some((top, _)) = gaussian(lo, rho, hi) {
+        return top;
+    }
     let (off, den) = parabola(lo as f64, rho, hi as f64);
     if off.is_finite() {
         (rho - 0.5 * den * off * off).min(1.0)
     } else {
         rho
+    }
+}
+
+/// The correlation peak's curvature at its top (negative), for the noise's share of σ. The
+/// second difference `den` of three samples a pixel apart falls short of a narrow peak's
+/// curvature (for a Gaussian peak of width 1 px, by a fifth); the Gaussian through the three
+/// gives its top's, top × the logarithms' second difference. The larger of the two is taken.
+fn peak_curvature(lo: f32, rho: f64, hi: f32, den: f64) -> f64 {
+    match gaussian(lo, rho, hi) {
+        Some((top, dl)) => (top * dl).min(den),
+        None => den,
     }
 }
 
@@ -553,7 +587,13 @@ fn row_matches(x: &Ctx, r: usize, picks: &RowPicks, rb: &[u32], mut out: OutRow)
                     out.sigma[c] = (f.sigma_t * f.dependence.sqrt()) as f32;
                     st.lsm_refined += 1;
                 }
-                Err(e) => *st.lsm_failures.entry(failure_name(e)).or_default() += 1,
+                // No disparity where least squares does not converge (as in the sweep): the
+                // parabola's place left there would carry least squares' estimator σ.
+                Err(e) => {
+                    out.d[c] = f32::NAN;
+                    out.sigma[c] = f32::NAN;
+                    *st.lsm_failures.entry(failure_name(e)).or_default() += 1
+                }
             }
         }
     }
@@ -774,6 +814,27 @@ fn failure_name(e: RefineFailure) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Three samples of a Gaussian peak c(t) = a·exp(−(t − t0)²/2s²): the curvature at its top
+    /// is −a/s² exactly, where the second difference falls short; a peak with a correlation
+    /// at or below 0 beside it keeps the second difference.
+    #[test]
+    fn a_gaussian_peak_s_curvature_at_its_top() {
+        for (a, s, t0) in [(0.95, 1.0, 0.0), (0.9, 0.8, 0.3), (0.99, 1.6, -0.4)] {
+            let c = |t: f64| a * (-(t - t0) * (t - t0) / (2.0 * s * s)).exp();
+            let (lo, rho, hi) = (c(-1.0) as f32, c(0.0), c(1.0) as f32);
+            let den = lo as f64 - 2.0 * rho + hi as f64;
+            let k = peak_curvature(lo, rho, hi, den);
+            assert!(
+                (k + a / (s * s)).abs() < 1e-5 * a / (s * s),
+                "{k} vs {}",
+                -a / (s * s)
+            );
+            assert!(k < den, "the second difference {den} falls short of {k}");
+            assert!((peak_value(lo, rho, hi) - a).abs() < 1e-5, "top {a}");
+        }
+        assert_eq!(peak_curvature(-0.1, 0.9, 0.2, -1.6), -1.6);
+    }
 
     /// Bands never above BAND rows, every row in one, and an even number of them wherever
     /// there are rows enough (so that neither of two threads has an extra band to do).
