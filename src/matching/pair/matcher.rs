@@ -446,12 +446,8 @@ fn finish_row_body(pk: &RowPicks, rb: &[u32], rules: &Rules, fates: &mut [u8], o
         let rho = rho as f64;
         let (off, den) = place(lo_[i], rho, hi_[i], off_[i]);
         let t = first as f64 + pl as f64 + off;
-        let sd = height_sigma_or_nan(
-            peak_value(lo_[i], rho, hi_[i]),
-            peak_curvature(lo_[i], rho, hi_[i], den),
-            1.0,
-            nw,
-        );
+        let (top, curvature) = peak_top(lo_[i], rho, hi_[i], den);
+        let sd = height_sigma_or_nan(top, curvature, 1.0, nw);
         let ok = f == MATCH;
         d[i] = if ok { t as f32 } else { f32::NAN };
         corr[i] = if ok { rho as f32 } else { f32::NAN };
@@ -511,31 +507,28 @@ fn gaussian(lo: f32, rho: f64, hi: f32) -> Option<(f64, f64)> {
     (dl < 0.0).then(|| ((l1 - (l2 - l0).powi(2) / (8.0 * dl)).exp().min(1.0), dl))
 }
 
-/// The correlation at the top of the peak through `lo`, `rho`, `hi` (the Gaussian's, else the
-/// parabola's vertex; ρ where they are no peak): the decorrelation the noise leaves. At the
-/// winning whole disparity ρ is lower by the sub-pixel phase as well, which the estimator's
-/// own error ([`super::sigma`]) already holds.
-fn peak_value(lo: f32, rho: f64, hi: f32) -> f64 {
-    if let Some((top, _)) = gaussian(lo, rho, hi) {
-        return top;
+/// The top of the correlation peak through `lo`, `rho`, `hi` and its curvature there
+/// (negative), for the noise's share of σ; `den` is the three's second difference.
+/// - The top is the decorrelation the noise leaves: at the winning whole disparity ρ is lower
+///   by the sub-pixel phase as well, which the estimator's own error ([`super::sigma`])
+///   already holds.
+/// - The second difference of three samples a pixel apart falls short of a narrow peak's
+///   curvature (for a Gaussian peak of width 1 px, by a fifth).
+///
+/// Both from the Gaussian through the three where it exists (its top, and top × the
+/// logarithms' second difference, the larger curvature of the two taken); else the
+/// parabola's vertex and `den` (ρ where the three are no peak).
+fn peak_top(lo: f32, rho: f64, hi: f32, den: f64) -> (f64, f64) {
+    if let Some((top, dl)) = gaussian(lo, rho, hi) {
+        return (top, (top * dl).min(den));
     }
-    let (off, den) = parabola(lo as f64, rho, hi as f64);
-    if off.is_finite() {
+    let (off, _) = parabola(lo as f64, rho, hi as f64);
+    let top = if off.is_finite() {
         (rho - 0.5 * den * off * off).min(1.0)
     } else {
         rho
-    }
-}
-
-/// The correlation peak's curvature at its top (negative), for the noise's share of σ. The
-/// second difference `den` of three samples a pixel apart falls short of a narrow peak's
-/// curvature (for a Gaussian peak of width 1 px, by a fifth); the Gaussian through the three
-/// gives its top's, top × the logarithms' second difference. The larger of the two is taken.
-fn peak_curvature(lo: f32, rho: f64, hi: f32, den: f64) -> f64 {
-    match gaussian(lo, rho, hi) {
-        Some((top, dl)) => (top * dl).min(den),
-        None => den,
-    }
+    };
+    (top, den)
 }
 
 /// The matches of pixel row `r` from its cells' picks and the right photo's winners
@@ -824,16 +817,16 @@ mod tests {
             let c = |t: f64| a * (-(t - t0) * (t - t0) / (2.0 * s * s)).exp();
             let (lo, rho, hi) = (c(-1.0) as f32, c(0.0), c(1.0) as f32);
             let den = lo as f64 - 2.0 * rho + hi as f64;
-            let k = peak_curvature(lo, rho, hi, den);
+            let (top, k) = peak_top(lo, rho, hi, den);
             assert!(
                 (k + a / (s * s)).abs() < 1e-5 * a / (s * s),
                 "{k} vs {}",
                 -a / (s * s)
             );
             assert!(k < den, "the second difference {den} falls short of {k}");
-            assert!((peak_value(lo, rho, hi) - a).abs() < 1e-5, "top {a}");
+            assert!((top - a).abs() < 1e-5, "top {top} for {a}");
         }
-        assert_eq!(peak_curvature(-0.1, 0.9, 0.2, -1.6), -1.6);
+        assert_eq!(peak_top(-0.1, 0.9, 0.2, -1.6).1, -1.6);
     }
 
     /// Bands never above BAND rows, every row in one, and an even number of them wherever
