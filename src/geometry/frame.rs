@@ -26,6 +26,25 @@ pub struct Exterior {
 }
 
 impl Exterior {
+    /// The central-difference steps for partials by its parameters ω, φ, κ, X0, Y0, Z0: 10
+    /// µrad and 1 cm, well inside the linear range and well above rounding.
+    pub const STEPS: [f64; 6] = [1e-5, 1e-5, 1e-5, 0.01, 0.01, 0.01];
+
+    /// This orientation with its parameter `k` (ω, φ, κ, X0, Y0, Z0 in that order; rad and
+    /// m) moved by `by`.
+    pub fn nudged(&self, k: usize, by: f64) -> Exterior {
+        let mut e = *self;
+        match k {
+            0 => e.omega += by,
+            1 => e.phi += by,
+            2 => e.kappa += by,
+            3 => e.centre.x += by,
+            4 => e.centre.y += by,
+            _ => e.centre.z += by,
+        }
+        e
+    }
+
     pub fn from_degrees(omega: f64, phi: f64, kappa: f64, centre: GroundM) -> Self {
         Exterior {
             omega: omega.to_radians(),

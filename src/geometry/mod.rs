@@ -3,6 +3,7 @@
 //! the matching core and the polynomial mapping functions build on it.
 
 pub mod affine;
+pub mod control_covariance;
 pub mod control_fit;
 pub mod convergence;
 pub mod crs;

@@ -122,26 +122,23 @@ impl Sensor for FrameSensor {
         }
     }
 
-    /// J·Σ·Jᵀ, J = ∂(col, row)/∂(ω, φ, κ, X0, Y0, Z0) by central differences (10 µrad,
-    /// 1 cm: well inside the linear range, well above rounding).
+    /// J·Σ·Jᵀ with J = [`FrameSensor::exterior_partials`].
     fn pointing_covariance(&self, g: GroundM) -> Option<[[f64; 2]; 2]> {
         let cov = self.exterior_cov?;
-        let steps = [1e-5, 1e-5, 1e-5, 0.01, 0.01, 0.01];
+        Some(propagate(&self.exterior_partials(g)?, &cov))
+    }
+}
+
+impl FrameSensor {
+    /// ∂(col, row)/∂(ω, φ, κ, X0, Y0, Z0) at `g`, px per rad and per m, by central
+    /// differences over [`super::Exterior::STEPS`].
+    pub fn exterior_partials(&self, g: GroundM) -> Option<[[f64; 6]; 2]> {
         let mut j = [[0.0; 6]; 2];
-        for (k, step) in steps.iter().enumerate() {
+        for (k, step) in super::Exterior::STEPS.iter().enumerate() {
             let at = |s: f64| {
-                let mut e = self.camera.exterior;
-                match k {
-                    0 => e.omega += s,
-                    1 => e.phi += s,
-                    2 => e.kappa += s,
-                    3 => e.centre.x += s,
-                    4 => e.centre.y += s,
-                    _ => e.centre.z += s,
-                }
                 let cam = FrameCamera {
                     interior: self.camera.interior,
-                    exterior: e,
+                    exterior: self.camera.exterior.nudged(k, s),
                 };
                 cam.project(g).map(|p| self.frame.pixel(p))
             };
@@ -149,7 +146,7 @@ impl Sensor for FrameSensor {
             j[0][k] = (a.col - b.col) / (2.0 * step);
             j[1][k] = (a.row - b.row) / (2.0 * step);
         }
-        Some(propagate(&j, &cov))
+        Some(j)
     }
 }
 

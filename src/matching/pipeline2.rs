@@ -23,6 +23,7 @@ use super::sweep::{
 };
 use super::{MatchedPoint, PmfSet};
 use crate::coords::{GroundM, PixelWindow, PixelXY};
+use crate::geometry::control_covariance::{block_covariance, Cov6, Resected};
 use crate::geometry::control_fit::{
     correct_orbit, correct_rpc_shift, ControlFit, ControlFitError, OrbitPrior,
 };
@@ -188,6 +189,34 @@ impl Report2 {
 /// Adds to each node's σ the orientations' part: the mean over the pairs whose photos both
 /// see the ground there of its variance from their pointing covariances. Returns its RMS over the
 /// nodes, `None` where no photo has a pointing covariance.
+/// Cov(δq_i, δq_j) (px²) at `g` of photos `i` and `j` resected from shared control:
+/// J_i·C_ij·J_jᵀ.
+fn shared_pointing(plan: &Plan, i: usize, j: usize, g: GroundM) -> Option<[[f64; 2]; 2]> {
+    let (c, flip) = plan.shared_orientation.iter().find_map(|(a, b, c)| {
+        if (*a, *b) == (i, j) {
+            Some((c, false))
+        } else if (*a, *b) == (j, i) {
+            Some((c, true))
+        } else {
+            None
+        }
+    })?;
+    let ji = plan.sensors[i].frame()?.exterior_partials(g)?;
+    let jj = plan.sensors[j].frame()?.exterior_partials(g)?;
+    let mut out = [[0.0; 2]; 2];
+    for (r, row) in out.iter_mut().enumerate() {
+        for (s, v) in row.iter_mut().enumerate() {
+            for a in 0..6 {
+                for b in 0..6 {
+                    let cab = if flip { c[b][a] } else { c[a][b] };
+                    *v += ji[r][a] * cab * jj[s][b];
+                }
+            }
+        }
+    }
+    Some(out)
+}
+
 fn add_orientation_sigma(grid: &ElevationGrid, sigma: &mut [f32], plan: &Plan) -> Option<f64> {
     use rayon::prelude::*;
     let inside = |s: &PhotoSensor, g: GroundM| {
@@ -226,18 +255,16 @@ fn add_orientation_sigma(grid: &ElevationGrid, sigma: &mut [f32], plan: &Plan) -
             }
         }
         let g = g?;
-        let (mut sum, mut n) = (0.0, 0usize);
-        for pair in &plan.pairs {
-            let (a, b) = (&plan.sensors[pair.left], &plan.sensors[pair.right]);
-            if !(inside(a, g) && inside(b, g)) {
-                continue;
-            }
-            if let Some(s) = super::orientation_error::height_sigma(a, b, g) {
-                sum += s * s;
-                n += 1;
-            }
-        }
-        (n > 0).then(|| sum / n as f64)
+        let seeing: Vec<(usize, usize)> = plan
+            .pairs
+            .iter()
+            .map(|p| (p.left, p.right))
+            .filter(|&(i, j)| inside(&plan.sensors[i], g) && inside(&plan.sensors[j], g))
+            .collect();
+        super::orientation_error::height_sigma(&plan.sensors, &seeing, g, &|i, j| {
+            shared_pointing(plan, i, j, g)
+        })
+        .map(|s| s * s)
     };
     let lattice: Vec<Option<f64>> = (0..sc * sr)
         .into_par_iter()
@@ -287,12 +314,14 @@ impl ModelFigures {
     }
 
     /// The model `grid` with its σ's `sigma_m` (per node) against the project's reference
-    /// DEM (from [`ModelFigures::read_reference`], handed back) and check points `obs`.
+    /// DEM (from [`ModelFigures::read_reference`], handed back) and check points `obs`
+    /// whose heights were surveyed to `survey_sigma_z_m` (their error and the model's add).
     pub fn check(
         reference: Option<ElevationGrid>,
         obs: &[Observation],
         grid: ElevationGrid,
         sigma_m: &[f32],
+        survey_sigma_z_m: f64,
     ) -> (ModelFigures, Option<ElevationGrid>) {
         let comparison = reference
             .as_ref()
@@ -309,7 +338,7 @@ impl ModelFigures {
             let s = grid
                 .node_index(g.x, g.y)
                 .map_or(f64::NAN, |i| sigma_m[i] as f64);
-            Some((grid.interpolate(g.x, g.y) - g.z, s))
+            Some((grid.interpolate(g.x, g.y) - g.z, s.hypot(survey_sigma_z_m)))
         }));
         let figures = ModelFigures {
             grid_filled: grid.filled(),
@@ -496,6 +525,8 @@ pub struct Plan {
     pub sensors: Vec<PhotoSensor>,
     pub resected: Vec<(String, Resection)>,
     pub corrected: Vec<(String, ControlFit)>,
+    /// As [`Oriented::shared_orientation`].
+    pub shared_orientation: Vec<(usize, usize, Cov6)>,
     pub heights: [f64; 2],
     pub extent: [f64; 4],
     pub pairs: Vec<PlannedPair>,
@@ -552,6 +583,9 @@ pub struct Oriented {
     pub resected: Vec<(String, Resection)>,
     /// Given models (line scanners, RPCs) corrected by their photos' control points.
     pub corrected: Vec<(String, ControlFit)>,
+    /// Cov(δpᵢ, δpⱼ) of resected photos i < j that share control points with a stated
+    /// ground error ([`crate::geometry::control_covariance`]).
+    pub shared_orientation: Vec<(usize, usize, Cov6)>,
     pub heights: [f64; 2],
     pub extent: [f64; 4],
     /// Pairs (i, j), i < j, of photos that overlap on the ground at the middle height.
@@ -566,6 +600,8 @@ pub fn orient(p: &Project2, photos: &[PhotoGeometry]) -> Result<Oriented, Pipeli
     let mut resected = Vec::new();
     let mut corrected = Vec::new();
     let mut sensors = Vec::new();
+    // The resected photos (their index among the sensors) with the control they came from.
+    let mut from_control: Vec<(usize, Resected)> = Vec::new();
     for (ph, input) in p.photos.iter().zip(photos) {
         if let Source::Model { model, .. } = &ph.source {
             // A given model is corrected by the control points on its photo, when there are
@@ -621,19 +657,32 @@ pub fn orient(p: &Project2, photos: &[PhotoGeometry]) -> Result<Oriented, Pipeli
         let (exterior, cov) = match ph.exterior {
             Some(e) => (e, None),
             None => {
-                let pts: Vec<_> = control
+                let named: Vec<_> = control
                     .iter()
                     .filter(|o| o.photo == ph.id)
                     .filter_map(|o| {
-                        Some((input.frame.photo(PixelXY::new(o.col, o.row)), o.ground?))
+                        Some((
+                            o.id.as_str(),
+                            input.frame.photo(PixelXY::new(o.col, o.row)),
+                            o.ground?,
+                        ))
                     })
                     .collect();
+                let pts: Vec<_> = named.iter().map(|(_, q, g)| (*q, *g)).collect();
                 let r =
                     resect(&input.interior, &pts).map_err(|source| Pipeline2Error::Resection {
                         id: ph.id.clone(),
                         points: pts.len(),
                         cause: source,
                     })?;
+                from_control.push((
+                    sensors.len(),
+                    Resected {
+                        interior: input.interior,
+                        exterior: r.exterior,
+                        points: named,
+                    },
+                ));
                 let e = (r.exterior, Some(r.covariance));
                 resected.push((ph.id.clone(), r));
                 e
@@ -647,6 +696,26 @@ pub fn orient(p: &Project2, photos: &[PhotoGeometry]) -> Result<Oriented, Pipeli
             frame: input.frame,
             exterior_cov: cov,
         }));
+    }
+    // Control with a stated ground error: the resected photos share it.
+    let mut shared_orientation = Vec::new();
+    if let (Some([sxy, sz]), false) = (p.control_sigma_m, from_control.is_empty()) {
+        let (at, resected_photos): (Vec<usize>, Vec<Resected>) = from_control.into_iter().unzip();
+        match block_covariance(&resected_photos, sxy, sz) {
+            Some(b) => {
+                for (k, &i) in at.iter().enumerate() {
+                    if let PhotoSensor::Frame(f) = &mut sensors[i] {
+                        f.exterior_cov = Some(b.own[k]);
+                    }
+                }
+                for (k, l, c) in &b.cross {
+                    shared_orientation.push((at[*k], at[*l], *c));
+                }
+            }
+            None => tracing::warn!(
+                "[points] ground_sigma_m: a resected photo has fewer than 4 control points, so its measuring and ground errors cannot be told apart; the orientations' σ takes each photo as independent"
+            ),
+        }
     }
     // Heights: given, or the control and check points' range with a margin.
     let heights = match p.heights {
@@ -729,6 +798,7 @@ pub fn orient(p: &Project2, photos: &[PhotoGeometry]) -> Result<Oriented, Pipeli
         sensors,
         resected,
         corrected,
+        shared_orientation,
         heights,
         extent,
         overlapping,
@@ -746,6 +816,7 @@ pub fn plan(
         sensors,
         resected,
         corrected,
+        shared_orientation,
         heights,
         extent,
         overlapping,
@@ -820,6 +891,7 @@ pub fn plan(
         sensors,
         resected,
         corrected,
+        shared_orientation,
         heights,
         extent,
         pairs,
@@ -990,7 +1062,13 @@ pub fn finish(
     );
     tracing::info!(?averaging, "window averaging removed");
     let orientation_sigma_m = add_orientation_sigma(&grid, &mut quality.sigma_m, plan);
-    let (model, reference) = ModelFigures::check(reference_dem, &obs, grid, &quality.sigma_m);
+    let (model, reference) = ModelFigures::check(
+        reference_dem,
+        &obs,
+        grid,
+        &quality.sigma_m,
+        p.control_sigma_m.map_or(0.0, |s| s[1]),
+    );
     let write = |source| PipelineError::Write {
         dir: out.to_path_buf(),
         cause: source,

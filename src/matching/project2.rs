@@ -52,6 +52,15 @@ struct RawPhoto {
 #[serde(deny_unknown_fields)]
 struct RawPoints {
     file: String,
+    ground_sigma_m: Option<GroundSigma>,
+}
+
+/// `ground_sigma_m = 0.5` (X, Y and Z) or `[0.3, 0.5]` (X and Y, Z).
+#[derive(Debug, Deserialize)]
+#[serde(untagged)]
+enum GroundSigma {
+    All(f64),
+    PlanHeight([f64; 2]),
 }
 
 #[derive(Debug, Deserialize)]
@@ -240,6 +249,11 @@ pub struct Project2 {
     pub crs: Crs,
     pub photos: Vec<Photo2>,
     pub points_file: Option<PathBuf>,
+    /// How well the control and check points' ground was surveyed, σ in m (X and Y, Z),
+    /// when the project states it: the control's error is then shared by every photo
+    /// resected from it ([`crate::geometry::control_covariance`]), and a check point's adds
+    /// to the model's σ where they are compared.
+    pub control_sigma_m: Option<[f64; 2]>,
     pub cell_m: f64,
     pub extent: Option<[f64; 4]>,
     pub heights: Option<[f64; 2]>,
@@ -508,11 +522,30 @@ impl Project2 {
         )
         .map_err(bad)?;
         raw.limits.check().map_err(bad)?;
+        let control_sigma_m = match raw.points.as_ref().and_then(|p| p.ground_sigma_m.as_ref()) {
+            None => None,
+            Some(g) => {
+                let v = match g {
+                    GroundSigma::All(s) => [*s, *s],
+                    GroundSigma::PlanHeight(v) => *v,
+                };
+                if !v
+                    .iter()
+                    .all(|s| s.is_finite() && (0.0..=1000.0).contains(s))
+                {
+                    return Err(bad(format!(
+                        "[points] ground_sigma_m {v:?}: each within 0–1000 m (how well the points' ground was surveyed: one number, or [X and Y, Z])"
+                    )));
+                }
+                Some(v)
+            }
+        };
         Ok(Project2 {
             path: path.to_path_buf(),
             crs: raw.crs,
             photos,
             points_file: raw.points.map(|p| base.join(p.file)),
+            control_sigma_m,
             cell_m: d.cell_m,
             extent: d.extent,
             heights: d.heights,
@@ -629,5 +662,33 @@ mod tests {
         // Not TOML: the named format's loader gives the line.
         assert_eq!(format_of("format = 2\n[[photo]\n"), Ok(2));
         assert_eq!(format_of("[photos\n"), Ok(1));
+    }
+
+    #[test]
+    fn the_controls_ground_sigma_is_one_number_or_plan_and_height_within_range() {
+        let seed = include_str!("../../fuzz/seeds/project/format2.toml");
+        let with = |v: &str| {
+            let t = seed.replace(
+                "file = \"points.csv\"",
+                &format!("file = \"points.csv\"\nground_sigma_m = {v}"),
+            );
+            Project2::parse(&t, Path::new("p.toml")).map(|p| p.control_sigma_m)
+        };
+        assert_eq!(
+            Project2::parse(seed, Path::new("p.toml"))
+                .unwrap()
+                .control_sigma_m,
+            None
+        );
+        assert_eq!(with("0.5").unwrap(), Some([0.5, 0.5]));
+        assert_eq!(with("[0.3, 0.8]").unwrap(), Some([0.3, 0.8]));
+        for bad in ["-0.1", "[0.3, 2000.0]", "nan"] {
+            let e = with(bad).unwrap_err().to_string();
+            assert!(
+                e.contains("ground_sigma_m") && e.contains("0–1000 m"),
+                "{bad}: {e}"
+            );
+        }
+        assert!(with("\"half a metre\"").is_err());
     }
 }

@@ -277,7 +277,7 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<i32> {
         [lo[0], lo[1], hi[0], hi[1]]
     };
     project.push_str(&format!(
-        "\n[points]\nfile = \"points.csv\"\n\n[dem]\ncell_m = 10.0\nextent = [{:.0}, {:.0}, {:.0}, {:.0}]\nheights = [{:.0}, {:.0}]\n\n\
+        "\n[points]\nfile = \"points.csv\"\nground_sigma_m = 0.5 # the control points were surveyed to 0.5 m (the demo adds that noise)\n\n[dem]\ncell_m = 10.0\nextent = [{:.0}, {:.0}, {:.0}, {:.0}]\nheights = [{:.0}, {:.0}]\n\n\
          [matching]\nmethod = \"{}\"\nwindow = 9\nthreshold = 0.5\n\n[check]\nreference = \"truth-dem.tif\"\n",
         e[0],
         e[1],
