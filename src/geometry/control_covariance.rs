@@ -17,7 +17,7 @@
 //! photos see (the general law of error propagation; Mikhail, Bethel & McGlone 2001,
 //! "Introduction to Modern Photogrammetry", §2.7 and App. B).
 //! σ²_img comes from the residuals, less what the ground errors put in them:
-//! E[vᵀv] = σ²_img·(2m − 6) + tr(R·B·Σ_G·Bᵀ), R = I − A(AᵀA)⁻¹Aᵀ.
+//! E(vᵀv) = σ²_img·(2m − 6) + tr(R·B·Σ_G·Bᵀ), R = I − A(AᵀA)⁻¹Aᵀ.
 
 use super::frame::{FrameCamera, Interior};
 use super::Exterior;

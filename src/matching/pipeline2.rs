@@ -186,9 +186,6 @@ impl Report2 {
     }
 }
 
-/// Adds to each node's σ the orientations' part: the mean over the pairs whose photos both
-/// see the ground there of its variance from their pointing covariances. Returns its RMS over the
-/// nodes, `None` where no photo has a pointing covariance.
 /// Cov(δq_i, δq_j) (px²) at `g` of photos `i` and `j` resected from shared control:
 /// J_i·C_ij·J_jᵀ.
 fn shared_pointing(plan: &Plan, i: usize, j: usize, g: GroundM) -> Option<[[f64; 2]; 2]> {
@@ -217,6 +214,11 @@ fn shared_pointing(plan: &Plan, i: usize, j: usize, g: GroundM) -> Option<[[f64;
     Some(out)
 }
 
+/// Adds to each node's σ the orientations' part: the σ of the mean of the heights the pairs
+/// whose photos both see the ground there intersect, from the photos' pointing covariances
+/// and the covariances of photos resected from shared control
+/// ([`super::orientation_error::height_sigma`]). Returns its RMS over the nodes, `None` where
+/// no photo has a pointing covariance.
 fn add_orientation_sigma(grid: &ElevationGrid, sigma: &mut [f32], plan: &Plan) -> Option<f64> {
     use rayon::prelude::*;
     let inside = |s: &PhotoSensor, g: GroundM| {
