@@ -40,28 +40,50 @@ pub struct Resected<'a> {
 pub struct BlockCovariance {
     /// Each photo's own covariance (measuring and ground errors).
     pub own: Vec<Cov6>,
-    /// Cov(δpᵢ, δpⱼ) for i < j where the two share a control point.
-    pub cross: Vec<(usize, usize, Cov6)>,
+    /// Between the photos that share a control point.
+    pub cross: CrossCovariances,
     /// Each photo's measuring error σ_img, mm, once the ground's share is taken out.
     pub sigma_image_mm: Vec<f64>,
 }
 
 impl BlockCovariance {
-    /// Cov(δpᵢ, δpⱼ): the photo's own for i = j, zero for photos that share no point.
+    /// Cov(δpᵢ, δpⱼ): the photo's own for i = j, `None` for photos that share no point.
     pub fn between(&self, i: usize, j: usize) -> Option<Cov6> {
         if i == j {
-            return self.own.get(i).copied();
+            self.own.get(i).copied()
+        } else {
+            self.cross.between(i, j)
         }
-        let (a, b, flip) = if i < j { (i, j, false) } else { (j, i, true) };
-        self.cross
-            .iter()
-            .find(|(x, y, _)| (*x, *y) == (a, b))
-            .map(|(_, _, c)| if flip { transpose(c) } else { *c })
     }
 }
 
-fn transpose(c: &Cov6) -> Cov6 {
-    std::array::from_fn(|r| std::array::from_fn(|s| c[s][r]))
+/// Cov(δpᵢ, δpⱼ) of the photos i < j whose orientations covary, each pair once.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct CrossCovariances(pub Vec<(usize, usize, Cov6)>);
+
+impl CrossCovariances {
+    /// Cov(δpᵢ, δpⱼ) for i ≠ j (the stored one's transpose for i > j); `None` where the two
+    /// do not covary.
+    pub fn between(&self, i: usize, j: usize) -> Option<Cov6> {
+        let (a, b) = (i.min(j), i.max(j));
+        let c = self.0.iter().find(|(x, y, _)| (*x, *y) == (a, b))?.2;
+        Some(if i < j {
+            c
+        } else {
+            std::array::from_fn(|r| std::array::from_fn(|s| c[s][r]))
+        })
+    }
+
+    /// The same covariances with each photo's index `i` renamed `to[i]` (increasing, so that
+    /// i < j stays so).
+    pub fn renamed(&self, to: &[usize]) -> CrossCovariances {
+        CrossCovariances(
+            self.0
+                .iter()
+                .map(|(i, j, c)| (to[*i], to[*j], *c))
+                .collect(),
+        )
+    }
 }
 
 /// Per point: ∂(photo x, y)/∂(ω, φ, κ, X0, Y0, Z0) and ∂(photo x, y)/∂(X, Y, Z) (mm per
@@ -171,7 +193,7 @@ pub fn block_covariance(
     let own = (0..per.len())
         .map(|i| to_array(&(per[i].0 * per[i].1 + share(i, i))))
         .collect();
-    let mut cross = Vec::new();
+    let mut cross = CrossCovariances::default();
     for i in 0..per.len() {
         for j in i + 1..per.len() {
             let shared = per[i]
@@ -179,7 +201,7 @@ pub fn block_covariance(
                 .iter()
                 .any(|(a, _)| per[j].2.iter().any(|(b, _)| a == b));
             if shared {
-                cross.push((i, j, to_array(&share(i, j))));
+                cross.0.push((i, j, to_array(&share(i, j))));
             }
         }
     }

@@ -48,11 +48,11 @@ pub fn height_sigma<S: Sensor>(
 ) -> Option<f64> {
     let cov: Vec<Option<[[f64; 2]; 2]>> =
         sensors.iter().map(|s| s.pointing_covariance(g)).collect();
-    // Each photo's weight in the mean: Σ over its pairs of its two elements of the row, / n.
-    let mut w: Vec<Option<[f64; 2]>> = vec![None; sensors.len()];
     if cov.iter().all(Option::is_none) {
         return None;
     }
+    // Each photo's weight in the mean: Σ over its pairs of its two elements of the row, / n.
+    let mut w: Vec<Option<[f64; 2]>> = vec![None; sensors.len()];
     let mut n = 0usize;
     for &(i, j) in pairs {
         let Some(r) = z_row(&sensors[i], &sensors[j], g) else {

@@ -23,7 +23,7 @@ use super::sweep::{
 };
 use super::{MatchedPoint, PmfSet};
 use crate::coords::{GroundM, PixelWindow, PixelXY};
-use crate::geometry::control_covariance::{block_covariance, Cov6, Resected};
+use crate::geometry::control_covariance::{block_covariance, CrossCovariances, Resected};
 use crate::geometry::control_fit::{
     correct_orbit, correct_rpc_shift, ControlFit, ControlFitError, OrbitPrior,
 };
@@ -189,15 +189,7 @@ impl Report2 {
 /// Cov(δq_i, δq_j) (px²) at `g` of photos `i` and `j` resected from shared control:
 /// J_i·C_ij·J_jᵀ.
 fn shared_pointing(plan: &Plan, i: usize, j: usize, g: GroundM) -> Option<[[f64; 2]; 2]> {
-    let (c, flip) = plan.shared_orientation.iter().find_map(|(a, b, c)| {
-        if (*a, *b) == (i, j) {
-            Some((c, false))
-        } else if (*a, *b) == (j, i) {
-            Some((c, true))
-        } else {
-            None
-        }
-    })?;
+    let c = plan.shared_orientation.between(i, j)?;
     let ji = plan.sensors[i].frame()?.exterior_partials(g)?;
     let jj = plan.sensors[j].frame()?.exterior_partials(g)?;
     let mut out = [[0.0; 2]; 2];
@@ -205,8 +197,7 @@ fn shared_pointing(plan: &Plan, i: usize, j: usize, g: GroundM) -> Option<[[f64;
         for (s, v) in row.iter_mut().enumerate() {
             for a in 0..6 {
                 for b in 0..6 {
-                    let cab = if flip { c[b][a] } else { c[a][b] };
-                    *v += ji[r][a] * cab * jj[s][b];
+                    *v += ji[r][a] * c[a][b] * jj[s][b];
                 }
             }
         }
@@ -315,16 +306,17 @@ impl ModelFigures {
         })
     }
 
-    /// The model `grid` with its σ's `sigma_m` (per node) against the project's reference
+    /// The model `grid` with its σ's `sigma_m` (per node) against project `p`'s reference
     /// DEM (from [`ModelFigures::read_reference`], handed back) and check points `obs`
-    /// whose heights were surveyed to `survey_sigma_z_m` (their error and the model's add).
+    /// (their survey error, `[points] ground_sigma_m`, adds to the model's).
     pub fn check(
+        p: &Project2,
         reference: Option<ElevationGrid>,
         obs: &[Observation],
         grid: ElevationGrid,
         sigma_m: &[f32],
-        survey_sigma_z_m: f64,
     ) -> (ModelFigures, Option<ElevationGrid>) {
+        let survey_sigma_z_m = p.control_sigma_m.map_or(0.0, |[_, z]| z);
         let comparison = reference
             .as_ref()
             .map(|g| grid.compare(|x, y| g.interpolate(x, y)));
@@ -528,7 +520,7 @@ pub struct Plan {
     pub resected: Vec<(String, Resection)>,
     pub corrected: Vec<(String, ControlFit)>,
     /// As [`Oriented::shared_orientation`].
-    pub shared_orientation: Vec<(usize, usize, Cov6)>,
+    pub shared_orientation: CrossCovariances,
     pub heights: [f64; 2],
     pub extent: [f64; 4],
     pub pairs: Vec<PlannedPair>,
@@ -587,7 +579,7 @@ pub struct Oriented {
     pub corrected: Vec<(String, ControlFit)>,
     /// Cov(δpᵢ, δpⱼ) of resected photos i < j that share control points with a stated
     /// ground error ([`crate::geometry::control_covariance`]).
-    pub shared_orientation: Vec<(usize, usize, Cov6)>,
+    pub shared_orientation: CrossCovariances,
     pub heights: [f64; 2],
     pub extent: [f64; 4],
     /// Pairs (i, j), i < j, of photos that overlap on the ground at the middle height.
@@ -700,7 +692,7 @@ pub fn orient(p: &Project2, photos: &[PhotoGeometry]) -> Result<Oriented, Pipeli
         }));
     }
     // Control with a stated ground error: the resected photos share it.
-    let mut shared_orientation = Vec::new();
+    let mut shared_orientation = CrossCovariances::default();
     if let (Some([sxy, sz]), false) = (p.control_sigma_m, from_control.is_empty()) {
         let (at, resected_photos): (Vec<usize>, Vec<Resected>) = from_control.into_iter().unzip();
         match block_covariance(&resected_photos, sxy, sz) {
@@ -710,9 +702,7 @@ pub fn orient(p: &Project2, photos: &[PhotoGeometry]) -> Result<Oriented, Pipeli
                         f.exterior_cov = Some(b.own[k]);
                     }
                 }
-                for (k, l, c) in &b.cross {
-                    shared_orientation.push((at[*k], at[*l], *c));
-                }
+                shared_orientation = b.cross.renamed(&at);
             }
             None => tracing::warn!(
                 "[points] ground_sigma_m: a resected photo has fewer than 4 control points, so its measuring and ground errors cannot be told apart; the orientations' σ takes each photo as independent"
@@ -1064,13 +1054,7 @@ pub fn finish(
     );
     tracing::info!(?averaging, "window averaging removed");
     let orientation_sigma_m = add_orientation_sigma(&grid, &mut quality.sigma_m, plan);
-    let (model, reference) = ModelFigures::check(
-        reference_dem,
-        &obs,
-        grid,
-        &quality.sigma_m,
-        p.control_sigma_m.map_or(0.0, |s| s[1]),
-    );
+    let (model, reference) = ModelFigures::check(p, reference_dem, &obs, grid, &quality.sigma_m);
     let write = |source| PipelineError::Write {
         dir: out.to_path_buf(),
         cause: source,

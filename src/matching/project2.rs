@@ -57,7 +57,10 @@ struct RawPoints {
 
 /// `ground_sigma_m = 0.5` (X, Y and Z) or `[0.3, 0.5]` (X and Y, Z).
 #[derive(Debug, Deserialize)]
-#[serde(untagged)]
+#[serde(
+    untagged,
+    expecting = "ground_sigma_m: one number (m) or two, [X and Y, Z]"
+)]
 enum GroundSigma {
     All(f64),
     PlanHeight([f64; 2]),
@@ -689,6 +692,9 @@ mod tests {
                 "{bad}: {e}"
             );
         }
-        assert!(with("\"half a metre\"").is_err());
+        for bad in ["\"half a metre\"", "[1, 2, 3]"] {
+            let e = with(bad).unwrap_err().to_string();
+            assert!(e.contains("one number (m) or two"), "{bad}: {e}");
+        }
     }
 }

@@ -659,13 +659,8 @@ pub fn run(
     );
     tracing::info!(?averaging, "window averaging removed");
     let obs = p.observations()?;
-    let (model, reference_dem) = ModelFigures::check(
-        reference_dem,
-        &obs,
-        grid,
-        &quality.sigma_m,
-        p.control_sigma_m.map_or(0.0, |s| s[1]),
-    );
+    let (model, reference_dem) =
+        ModelFigures::check(p, reference_dem, &obs, grid, &quality.sigma_m);
     let hg = flying_height(&sensors[r], centre0, mid).unwrap_or(f64::NAN);
     // Blunders the matcher detected: points its tests refused (not those it could not try:
     // a flat template, one at the edge, a ray that cannot reach the height).

@@ -612,13 +612,7 @@ pub fn run(
         ));
     }
     let obs = p.observations()?;
-    let (model, reference_dem) = ModelFigures::check(
-        reference,
-        &obs,
-        grid,
-        &quality.sigma_m,
-        p.control_sigma_m.map_or(0.0, |s| s[1]),
-    );
+    let (model, reference_dem) = ModelFigures::check(p, reference, &obs, grid, &quality.sigma_m);
     let report = OslsmReport {
         project: p.path.clone(),
         method: "oslsm".into(),
