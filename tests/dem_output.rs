@@ -7,7 +7,7 @@ mod common;
 use common::gdal_tools as gdal;
 use rig::geometry::Crs;
 use rig::matching::grid::ElevationGrid;
-use rig::matching::output::{read_geotiff, write_geotiff};
+use rig::matching::products::files::{read_geotiff, write_geotiff};
 use std::process::Command;
 
 #[test]

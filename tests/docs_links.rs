@@ -158,7 +158,7 @@ fn links_and_anchors_are_read_as_github_does() {
 /// file, in order, with what it holds and which runs write it.
 #[test]
 fn the_docs_list_every_output_file_as_the_rig_writes_them() {
-    use rig::matching::outputs::OUTPUTS;
+    use rig::matching::products::outputs::OUTPUTS;
     let text = std::fs::read_to_string(Path::new(ROOT).join("docs/elevation-models.md")).unwrap();
     let rows: Vec<&str> = text
         .lines()

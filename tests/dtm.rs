@@ -72,7 +72,7 @@ fn elevation_model_from_a_rendered_pair_meets_half_the_height_step() {
         ] {
             assert!(out.join(f).is_file(), "{f}");
         }
-        let g = rig::matching::output::read_geotiff(&out.join("dem.tif")).unwrap();
+        let g = rig::matching::products::files::read_geotiff(&out.join("dem.tif")).unwrap();
         assert!(g.filled() > 1000);
     }
     // The mappings given directly (the first run's pmfs.json): the same model, byte for byte.

@@ -113,8 +113,12 @@ fn three_plain_photos_give_a_dem_a_gis_can_place() {
         }
         rig::sim_scene::grid_to_crs(t)
     };
-    rig::matching::output::write_geotiff(&d.path().join("truth.tif"), &truth, Crs::Epsg(32616))
-        .unwrap();
+    rig::matching::products::files::write_geotiff(
+        &d.path().join("truth.tif"),
+        &truth,
+        Crs::Epsg(32616),
+    )
+    .unwrap();
     let mut project = String::from(
         "format = 2\ncrs = \"EPSG:32616\"\n\n[camera.rc10]\nfocal_mm = 153.0\npixel_mm = 0.1\n",
     );
@@ -337,7 +341,7 @@ fn check_quality_and_ortho(out: &Path, r: &serde_json::Value, a: &AerialPhoto) {
     let ratio = c["ratio"].as_f64().unwrap();
     assert!(ratio > 0.3 && ratio < 5.0, "σ off by {ratio}: {c}");
     // The orthophoto against the ground's reflectance at each node (simulator coordinates).
-    let o = rig::matching::output::read_geotiff(&out.join("ortho.tif")).unwrap();
+    let o = rig::matching::products::files::read_geotiff(&out.join("ortho.tif")).unwrap();
     let terrain = jacksboro();
     let corr_at = |dc: i64| {
         let (mut v, mut t) = (Vec::new(), Vec::new());
@@ -370,7 +374,7 @@ fn check_quality_and_ortho(out: &Path, r: &serde_json::Value, a: &AerialPhoto) {
     assert!(n > 1000 && here > 0.8 && here > off + 0.1, "{here} {off}");
     // quality.tif: two float bands per pixel (σ ≥ 0, correlation within the threshold … 1) on
     // the DEM's grid, nodata where the DEM has none — read by the TIFF layout, not our reader.
-    let dem = rig::matching::output::read_geotiff(&out.join("dem.tif")).unwrap();
+    let dem = rig::matching::products::files::read_geotiff(&out.join("dem.tif")).unwrap();
     let mut d = tiff::decoder::Decoder::new(std::io::BufReader::new(
         std::fs::File::open(out.join("quality.tif")).unwrap(),
     ))

@@ -218,7 +218,7 @@ fn a_one_node_reference_model_does_not_crash_the_comparison() {
         z: vec![450.0],
     };
     let f = scene().join("one-node.tif");
-    rig::matching::output::write_geotiff(&f, &g, rig::geometry::Crs::Local).unwrap();
+    rig::matching::products::files::write_geotiff(&f, &g, rig::geometry::Crs::Local).unwrap();
     let text = with("grid", "reference", "\"one-node.tif\"");
     let (code, said) = dtm(&text, &[]);
     let _ = std::fs::remove_file(&f);

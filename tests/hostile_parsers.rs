@@ -207,13 +207,13 @@ fn matching_projects_survive_mutation() {
     let f = "fuzz/seeds/project/project.toml";
     let seed = std::fs::read_to_string(root.join(f)).unwrap();
     survive(f, seed, 3000, |t| {
-        rig::matching::project::Project::parse(t, Path::new("hostile.toml")).is_ok()
+        rig::matching::project::pair::Project::parse(t, Path::new("hostile.toml")).is_ok()
     });
 }
 
 #[test]
 fn format2_projects_and_points_files_survive_mutation() {
-    use rig::matching::project2::{parse_points, Project2};
+    use rig::matching::project::{parse_points, Project2};
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let f = "fuzz/seeds/project/format2.toml";
     let seed = std::fs::read_to_string(root.join(f)).unwrap();

@@ -277,7 +277,7 @@ fn a_small_extent_of_two_40000_px_scenes_runs_within_1_gb_and_gives_the_small_vi
     assert!(cl["rmse_m"].as_f64().unwrap() < 2.0, "{cl}");
     // The same pixels through the same geometry: the same model, node by node (the scenes'
     // line times are counted from another origin, so the last bits of the geometry differ).
-    let dem = |o: &Path| rig::matching::output::read_geotiff(&o.join("dem.tif")).unwrap();
+    let dem = |o: &Path| rig::matching::products::files::read_geotiff(&o.join("dem.tif")).unwrap();
     let (a, b) = (dem(&out_small), dem(&out_large));
     assert_eq!((a.x0, a.y0, a.cols, a.rows), (b.x0, b.y0, b.cols, b.rows));
     let mut worst: f32 = 0.0;

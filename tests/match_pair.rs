@@ -4,7 +4,7 @@
 //! across each pixel, with noise; d = x_left − x_right.
 
 use rig::image::ImageF32;
-use rig::matching::pair::{match_pair, Filter, PairParams, Subpixel};
+use rig::matching::methods::pair::{match_pair, Filter, PairParams, Subpixel};
 use rig::matching::progress::Silent;
 use std::process::Command;
 

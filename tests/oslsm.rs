@@ -8,7 +8,7 @@
 mod common;
 
 use common::{dtm_json, rig, sim_scene};
-use rig::matching::output::{read_geotiff, write_geotiff};
+use rig::matching::products::files::{read_geotiff, write_geotiff};
 use serde_json::Value;
 use std::path::{Path, PathBuf};
 
@@ -57,7 +57,7 @@ fn check_goals(what: &str, v: &Value, out: &Path, scene: &Path) -> f64 {
         rmse / m_per_px
     );
     assert!(rmse / m_per_px <= 0.1, "{what}: {:.3} px", rmse / m_per_px);
-    // Since the sweep takes its windows' averaging out of its nodes (src/matching/averaging.rs)
+    // Since the sweep takes its windows' averaging out of its nodes (src/matching/accuracy/averaging.rs)
     // its model is the better one on this block (0.05 against 0.08 px): the refinement must
     // not lose what its start had by more than half again (open in issue 37).
     assert!(rmse < 1.8 * coarse, "{what}: worse than the coarse model");

@@ -233,7 +233,7 @@ fn rig_dtm_on_the_crops_as_they_come_writes_the_dsm_within_a_quarter_pixel() {
         let c = &r["comparison"];
         let rmse = c["rmse_m"].as_f64().unwrap();
         let nodes = c["nodes"].as_u64().unwrap();
-        let dem = rig::matching::output::read_geotiff(&out.join("dem.tif")).unwrap();
+        let dem = rig::matching::products::files::read_geotiff(&out.join("dem.tif")).unwrap();
         let pts = points(&scene);
         let first = &pts[0].photo;
         let ground: Vec<[f64; 3]> = pts

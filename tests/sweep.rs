@@ -4,7 +4,7 @@
 use rig::coords::PixelXY;
 use rig::digitise::ImageF32;
 use rig::geometry::FrameSensor;
-use rig::matching::sweep::{sweep, SweepParams};
+use rig::matching::methods::sweep::height_sweep::{sweep, SweepParams};
 use rig::matching::PmfSet;
 use rig::scan::PhotoGrid;
 use rig_sim::scene::{jacksboro, AerialPhoto};

@@ -14,7 +14,7 @@
 mod common;
 
 use rig::matching::grid::ElevationGrid;
-use rig::matching::output::read_geotiff;
+use rig::matching::products::files::read_geotiff;
 use serde_json::Value;
 use std::path::{Path, PathBuf};
 

@@ -2,8 +2,8 @@
 //! number range-checked) or is a typed error, never a panic.
 #![no_main]
 use libfuzzer_sys::fuzz_target;
-use rig::matching::project::Project;
-use rig::matching::project2::{parse_points, Project2};
+use rig::matching::project::pair::Project;
+use rig::matching::project::{parse_points, Project2};
 use std::path::Path;
 
 fuzz_target!(|data: &[u8]| {

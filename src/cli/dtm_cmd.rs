@@ -3,12 +3,12 @@
 use super::shared_args::JsonOutput;
 use anyhow::Context;
 use clap::{Args, Subcommand};
-use rig::matching::outputs::{self, Writer};
-use rig::matching::pipeline;
-use rig::matching::pmf_dtm::PmfDtm;
-use rig::matching::pmf_set::FitReport;
-use rig::matching::project::Project;
-use rig::matching::regions::RegionStats;
+use rig::matching::mapping::pmf_set::FitReport;
+use rig::matching::methods::sweep::pair_model::PmfDtm;
+use rig::matching::methods::sweep::regions::RegionStats;
+use rig::matching::methods::sweep::scanned_pair;
+use rig::matching::products::outputs::{self, Writer};
+use rig::matching::project::pair::Project;
 use rig::scan::ScannedPhoto;
 use std::path::PathBuf;
 
@@ -30,7 +30,7 @@ pub struct DtmArgs {
     /// Sweep only share I of N of the work (I counts from 1) into --out, for a cluster or
     /// several machines; `rig dtm merge` joins the shares (format-2 projects).
     #[arg(long, value_name = "I/N")]
-    pub tile: Option<rig::matching::tiles::TileSpec>,
+    pub tile: Option<rig::matching::block::tiles::TileSpec>,
 }
 
 /// What every `rig dtm` run takes: its memory limit and the report's form.
@@ -114,8 +114,8 @@ pub fn print_report(pmf: &[FitReport], r: &PmfDtm) {
         s.h_step,
         s.threshold,
         match s.subpixel {
-            rig::matching::refine::Subpixel::Lsm => "least squares",
-            rig::matching::refine::Subpixel::Parabola => "parabola",
+            rig::matching::plane_sweep::refine::Subpixel::Lsm => "least squares",
+            rig::matching::plane_sweep::refine::Subpixel::Parabola => "parabola",
         },
         w = s.window
     );
@@ -156,7 +156,9 @@ pub fn print_report(pmf: &[FitReport], r: &PmfDtm) {
 }
 
 /// The rig's own scans come through the scan's hand-over.
-fn scan_photo(sidecar: &std::path::Path) -> Result<rig::matching::pipeline::Photo, String> {
+fn scan_photo(
+    sidecar: &std::path::Path,
+) -> Result<rig::matching::methods::sweep::scanned_pair::Photo, String> {
     ScannedPhoto::load_photo(sidecar).map_err(|e| e.to_string())
 }
 
@@ -170,20 +172,20 @@ fn run_format2(
         strict,
     }: RunOptions,
 ) -> anyhow::Result<i32> {
-    use rig::matching::pipeline2;
-    use rig::matching::project2::Project2;
+    use rig::matching::methods::sweep;
+    use rig::matching::project::Project2;
     let p = Project2::load(project)?;
-    let photos = rig::matching::photos::load_photos(&p, &scan_photo)?;
+    let photos = rig::matching::block::photos::load_photos(&p, &scan_photo)?;
     let bar = super::progress_bar::Bar::new(!json);
     if p.matching.method == "mgcm" {
-        let r = rig::matching::mgcm::run::run(&p, &photos, out, max_memory, &bar)?;
+        let r = rig::matching::methods::mgcm::run::run(&p, &photos, out, max_memory, &bar)?;
         return print_mgcm(&r, out, json, strict);
     }
     if p.matching.method == "oslsm" {
-        let r = rig::matching::oslsm::run::run(&p, &photos, out, max_memory, &bar)?;
+        let r = rig::matching::methods::oslsm::run::run(&p, &photos, out, max_memory, &bar)?;
         return print_oslsm(&r, out, json, strict);
     }
-    let r = pipeline2::run(&p, &photos, out, max_memory, &bar)?;
+    let r = sweep::run(&p, &photos, out, max_memory, &bar)?;
     print_format2(&p, &r, out, json, strict)
 }
 
@@ -198,7 +200,7 @@ fn exit_code(doubtful: bool, strict: bool) -> i32 {
 
 /// The report of an MGCM run.
 fn print_mgcm(
-    r: &rig::matching::mgcm::run::MgcmReport,
+    r: &rig::matching::methods::mgcm::run::MgcmReport,
     out: &std::path::Path,
     json: bool,
     strict: bool,
@@ -239,7 +241,7 @@ fn print_mgcm(
 
 /// The report of an object-space run.
 fn print_oslsm(
-    r: &rig::matching::oslsm::run::OslsmReport,
+    r: &rig::matching::methods::oslsm::run::OslsmReport,
     out: &std::path::Path,
     json: bool,
     strict: bool,
@@ -264,11 +266,11 @@ fn print_oslsm(
         outputs::listed(Some(Writer::Oslsm), r.model.comparison.is_some()),
         r.reference,
         match r.config.coarse {
-            rig::matching::matcher_config::CoarseSource::Sweep =>
+            rig::matching::project::matchers::CoarseSource::Sweep =>
                 "; the sweep's coarse model in coarse/",
-            rig::matching::matcher_config::CoarseSource::Features =>
+            rig::matching::project::matchers::CoarseSource::Features =>
                 "; the feature route's coarse model in coarse/dem.tif",
-            rig::matching::matcher_config::CoarseSource::File(_) => "",
+            rig::matching::project::matchers::CoarseSource::File(_) => "",
         }
     );
     Ok(code)
@@ -279,14 +281,14 @@ fn print_oslsm(
 /// their pairs in memory.
 fn run_tile(
     project: &std::path::Path,
-    spec: rig::matching::tiles::TileSpec,
+    spec: rig::matching::block::tiles::TileSpec,
     out: &std::path::Path,
     max_memory: Option<u64>,
     json: bool,
 ) -> anyhow::Result<i32> {
-    use rig::matching::pipeline2;
-    use rig::matching::project2::Project2;
-    use rig::matching::tiles;
+    use rig::matching::block::tiles;
+    use rig::matching::methods::sweep;
+    use rig::matching::project::Project2;
     let bytes = std::fs::read(project).with_context(|| format!("reading {}", project.display()))?;
     let p = Project2::load(project)?;
     if p.matching.method != "sweep" {
@@ -300,21 +302,21 @@ fn run_tile(
     tiles::prepare_dir(out)?;
     let mut geometry = Vec::new();
     let mut pixels = Vec::new();
-    let windows = rig::matching::photos::windows(&p, &scan_photo)?;
+    let windows = rig::matching::block::photos::windows(&p, &scan_photo)?;
     for k in 0..p.photos.len() {
-        let ph = rig::matching::photos::load_photo(&p, k, &scan_photo, windows[k])?;
+        let ph = rig::matching::block::photos::load_photo(&p, k, &scan_photo, windows[k])?;
         geometry.push(ph.geometry());
         pixels.push(tiles::pixels_fnv64(&ph.image));
     }
-    let plan = pipeline2::plan(&p, &geometry, max_memory)?;
+    let plan = sweep::plan(&p, &geometry, max_memory)?;
     let units = spec.units(plan.units());
     let shares = plan.bands_of(units.clone());
-    let mut loaded: Vec<Option<rig::matching::pipeline::Photo>> =
+    let mut loaded: Vec<Option<rig::matching::methods::sweep::scanned_pair::Photo>> =
         (0..p.photos.len()).map(|_| None).collect();
     for &(k, _) in &shares {
         for i in [plan.pairs[k].left, plan.pairs[k].right] {
             if loaded[i].is_none() {
-                loaded[i] = Some(rig::matching::photos::load_photo(
+                loaded[i] = Some(rig::matching::block::photos::load_photo(
                     &p,
                     i,
                     &scan_photo,
@@ -323,10 +325,10 @@ fn run_tile(
             }
         }
     }
-    let refs: Vec<Option<&rig::matching::pipeline::Photo>> =
+    let refs: Vec<Option<&rig::matching::methods::sweep::scanned_pair::Photo>> =
         loaded.iter().map(|o| o.as_ref()).collect();
     let bar = super::progress_bar::Bar::new(!json);
-    let parts = pipeline2::sweep_units(&p, &plan, units.clone(), &refs, &bar)?;
+    let parts = sweep::sweep_units(&p, &plan, units.clone(), &refs, &bar)?;
     let absolute = std::fs::canonicalize(project)
         .with_context(|| format!("resolving {}", project.display()))?;
     let ids: Vec<String> = p.photos.iter().map(|ph| ph.id.clone()).collect();
@@ -375,9 +377,9 @@ fn merge(
         strict,
     }: RunOptions,
 ) -> anyhow::Result<i32> {
-    use rig::matching::pipeline2;
-    use rig::matching::project2::Project2;
-    use rig::matching::tiles;
+    use rig::matching::block::tiles;
+    use rig::matching::methods::sweep;
+    use rig::matching::project::Project2;
     let mut set = Vec::new();
     for d in dirs {
         set.push((d.clone(), tiles::read_manifest(d)?));
@@ -404,9 +406,9 @@ fn merge(
         );
     }
     let p = Project2::load(&m0.project)?;
-    let photos = rig::matching::photos::load_photos(&p, &scan_photo)?;
+    let photos = rig::matching::block::photos::load_photos(&p, &scan_photo)?;
     let geometry: Vec<_> = photos.iter().map(|ph| ph.geometry()).collect();
-    let plan = pipeline2::plan(&p, &geometry, max_memory)?;
+    let plan = sweep::plan(&p, &geometry, max_memory)?;
     let pixels: Vec<String> = photos
         .iter()
         .map(|ph| tiles::pixels_fnv64(&ph.image))
@@ -430,14 +432,14 @@ fn merge(
     for (d, m) in &set {
         parts.extend(tiles::read_parts(d, m, &plan)?);
     }
-    let r = pipeline2::finish(&p, &plan, parts, &photos, out)?;
+    let r = sweep::finish(&p, &plan, parts, &photos, out)?;
     print_format2(&p, &r, out, json, strict)
 }
 
 /// The report of a format-2 run (single or merged).
 fn print_format2(
-    p: &rig::matching::project2::Project2,
-    r: &rig::matching::pipeline2::Report2,
+    p: &rig::matching::project::Project2,
+    r: &rig::matching::methods::sweep::Report2,
     out: &std::path::Path,
     json: bool,
     strict: bool,
@@ -462,7 +464,7 @@ fn print_format2(
         r.heights_m[1],
         r.crs
     );
-    for (what, line) in rig::matching::pipeline2::corrected_lines(&r.corrected) {
+    for (what, line) in rig::matching::methods::sweep::corrected_lines(&r.corrected) {
         println!("  {what}: {line}");
     }
     for pr in &r.pairs {
@@ -521,7 +523,7 @@ pub fn run(a: DtmArgs) -> anyhow::Result<i32> {
         (None, Some(project), Some(out)) => {
             let text = std::fs::read_to_string(&project)
                 .with_context(|| format!("reading {}", project.display()))?;
-            match (rig::matching::project2::format_of(&text), a.tile) {
+            match (rig::matching::project::format_of(&text), a.tile) {
                 (Ok(2), Some(spec)) => {
                     return run_tile(&project, spec, &out, a.run.max_memory, a.run.output.json)
                 }
@@ -565,7 +567,7 @@ pub fn run(a: DtmArgs) -> anyhow::Result<i32> {
             };
             let (left, right) = (load(&p.photos.left)?, load(&p.photos.right)?);
             let bar = super::progress_bar::Bar::new(!json);
-            let (r, report) = pipeline::run(&p, [&left, &right], &out, max_memory, &bar)?;
+            let (r, report) = scanned_pair::run(&p, [&left, &right], &out, max_memory, &bar)?;
             let warnings = r.report.warnings();
             for w in &warnings {
                 eprintln!("rig dtm: warning: {w}");

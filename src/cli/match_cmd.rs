@@ -2,10 +2,10 @@
 
 use anyhow::Context;
 use clap::{Args, Subcommand, ValueEnum};
-use rig::matching::pair::output as pair_output;
-use rig::matching::pair::{match_pair, Filter, PairParams, Subpixel};
-use rig::matching::regions::RegionParams;
-use rig::matching::sgm::SgmParams;
+use rig::matching::methods::pair::output as pair_output;
+use rig::matching::methods::pair::sgm::SgmParams;
+use rig::matching::methods::pair::{match_pair, Filter, PairParams, Subpixel};
+use rig::matching::methods::sweep::regions::RegionParams;
 use std::path::PathBuf;
 
 #[derive(Debug, Args)]

@@ -3,8 +3,8 @@
 //! the plane through them is taken out), nodes no point reached are nodata. And the comparison with a reference model in the figures of seed 000
 //! Table 5: largest positive and negative difference, mean, mean absolute, RMSE.
 
-use super::point::MatchedPoint;
 use crate::coords::GroundM;
+use crate::matching::point::MatchedPoint;
 use serde::{Deserialize, Serialize};
 
 /// Heights on a north-up grid: node (c, r) at (x0 + c·cell, y0 − r·cell).
@@ -287,7 +287,7 @@ impl ElevationGrid {
     }
 
     /// [`ElevationGrid::quality`] with every standard deviation multiplied by `scale` (the
-    /// variance factor of [`super::precision`]).
+    /// variance factor of [`crate::matching::accuracy::precision`]).
     pub fn quality_scaled(&self, pts: &[MatchedPoint], scale: f64) -> NodeQuality {
         let n = self.z.len();
         let (mut ss, mut ns) = (vec![0.0f64; n], vec![0u32; n]);

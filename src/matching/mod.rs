@@ -1,43 +1,26 @@
-//! The matching core: elevation models from two or more photos. Here: polynomial mapping
-//! functions and the height sweep along their epipolar lines (seeds 000 and 004).
+//! The matching core: elevation models from two or more photos, with no hardware in it.
+//!
+//! - [`project`]: what a run is asked (the project file: photos, points, heights, method).
+//! - [`block`]: the photos and their geometry (read, oriented, paired, split into tiles).
+//! - [`mapping`]: polynomial mapping functions between the photos and the ground
+//!   (Ackermann 1984 after Kratky; seed 000 and seed 004).
+//! - [`plane_sweep`]: the search over heights or disparities that the sweep and the pair
+//!   matcher share.
+//! - [`methods`]: the matchers — the height sweep, multiphoto geometrically constrained
+//!   matching, object-space least-squares matching, and the rectified-pair matcher.
+//! - [`accuracy`]: how far to trust a model (σ, variance factors, tables against truth).
+//! - [`products`]: the files a run leaves (GeoTIFF, LAS, PLY, maps, the report).
 
-pub mod pmf;
-pub mod pmf_set;
-
-pub use pmf_set::{PmfSet, SampleGrid, StereoPoint, TermSet};
-pub use point::MatchedPoint;
 pub mod accuracy;
-pub mod averaging;
-pub mod block_geometry;
-pub mod block_match;
-pub mod coverage;
-pub mod edge_strings;
+pub mod block;
 pub mod grid;
-pub mod html;
-pub mod maps;
-pub mod matcher_config;
-pub mod mgcm;
-pub mod orientation_error;
-pub mod ortho;
-pub mod oslsm;
-pub mod output;
-pub mod outputs;
-pub mod pair;
-pub mod photos;
-pub mod pipeline;
-pub mod pipeline2;
+pub mod mapping;
+pub mod methods;
 pub mod plane_sweep;
-pub mod pmf_dtm;
 pub mod point;
-pub mod precision;
+pub mod products;
 pub mod progress;
 pub mod project;
-pub mod project2;
-pub mod refine;
-pub mod regions;
-pub mod sgm;
-pub mod sweep;
-pub mod tiles;
-pub mod triplets;
-pub mod volume;
-pub mod winner;
+
+pub use mapping::pmf_set::{PmfSet, SampleGrid, StereoPoint, TermSet};
+pub use point::MatchedPoint;

@@ -9,8 +9,8 @@ use anyhow::{bail, Context};
 use clap::Args;
 use rig::calibrate::documents::{InteriorResults, PixelResults};
 use rig::coords::PhotoMm;
-use rig::matching::mgcm::run::MgcmReport;
-use rig::matching::pipeline2::Report2;
+use rig::matching::methods::mgcm::run::MgcmReport;
+use rig::matching::methods::sweep::Report2;
 use rig::scan::ScannedPhoto;
 use rig_sim::scene::{jacksboro, AerialPhoto};
 use serde_json::json;
@@ -250,7 +250,11 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<i32> {
     points_csv(&mut csv, &block, &grids, 30, "cp", &mut rng);
     std::fs::write(out.join("points.csv"), &csv)?;
     let truth = crate::cli::scene::frame::truth_grid(p1, AREA, 10.0)?;
-    rig::matching::output::write_geotiff(&out.join("truth-dem.tif"), &truth, rig::sim_scene::CRS)?;
+    rig::matching::products::files::write_geotiff(
+        &out.join("truth-dem.tif"),
+        &truth,
+        rig::sim_scene::CRS,
+    )?;
     let mut project = format!(
         "# Written by `rig demo`: three scanned photos, resected from their control points,\n\
          # every pair swept (seed 000), in the simulated world's CRS.\nformat = 2\ncrs = \"{}\"\n",
@@ -444,8 +448,8 @@ fn demo_page(
     interiors: &[InteriorResults],
     sidecars: &[PathBuf],
     dtm: &Model,
-) -> rig::matching::html::Page {
-    use rig::matching::html::{Page, Section};
+) -> rig::matching::products::html::Page {
+    use rig::matching::products::html::{Page, Section};
     let rel = |p: &std::path::Path| {
         p.strip_prefix(out)
             .unwrap_or(p)

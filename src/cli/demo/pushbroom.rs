@@ -7,7 +7,7 @@ use super::frame::{run_step, s, DemoArgs, Method, Model};
 use anyhow::Context;
 use rig::coords::PixelXY;
 use rig::geometry::{Pushbroom, Sensor};
-use rig::matching::block_geometry::parallax_per_m;
+use rig::matching::block::geometry::parallax_per_m;
 use serde_json::json;
 use std::path::Path;
 use std::time::Instant;
@@ -165,11 +165,11 @@ fn widest_pair_triplets(
     v1: &Pushbroom,
     v3: &Pushbroom,
     heights: [Option<f64>; 2],
-) -> anyhow::Result<Vec<rig::matching::triplets::TripletReport>> {
+) -> anyhow::Result<Vec<rig::matching::mapping::triplets::TripletReport>> {
     let [Some(lo), Some(hi)] = heights else {
         anyhow::bail!("truth.json has no heights_m");
     };
-    let maps = rig::matching::triplets::ImageToImage::from_sensors(v1, v3, [lo, hi], 3)?;
+    let maps = rig::matching::mapping::triplets::ImageToImage::from_sensors(v1, v3, [lo, hi], 3)?;
     let path = out.join("truth_points.csv");
     let text =
         std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
@@ -193,5 +193,5 @@ fn widest_pair_triplets(
         .iter()
         .filter_map(|(id, [a, b])| Some(((*a)?, (*b)?, *z.get(id)?)))
         .collect();
-    Ok(rig::matching::triplets::assess(&maps, &points))
+    Ok(rig::matching::mapping::triplets::assess(&maps, &points))
 }

@@ -419,7 +419,7 @@ pub fn truth_grid_over(
     let mut grid = ElevationGrid::covering(
         [ground[0] - m, ground[1] - m, ground[2] + m, ground[3] + m],
         cell_m,
-        rig::matching::project::default_memory_mb(),
+        rig::matching::project::pair::default_memory_mb(),
     )?;
     for r in 0..grid.rows {
         for c in 0..grid.cols {
@@ -454,8 +454,8 @@ pub fn write_truth_grids(
     reflectance: &ElevationGrid,
 ) -> anyhow::Result<()> {
     let crs = rig::sim_scene::CRS;
-    rig::matching::output::write_geotiff(&dir.join("truth-dem.tif"), truth, crs)?;
-    rig::matching::output::write_ortho(
+    rig::matching::products::files::write_geotiff(&dir.join("truth-dem.tif"), truth, crs)?;
+    rig::matching::products::files::write_ortho(
         &dir.join("truth-reflectance.tif"),
         reflectance,
         crs,
@@ -491,8 +491,11 @@ pub fn truth_reflectance(
     while area_m2 / (cell_m * cell_m) > REFLECTANCE_MAX_NODES && cell_m < 1e4 {
         cell_m *= 2.0;
     }
-    let mut grid =
-        ElevationGrid::covering(extent, cell_m, rig::matching::project::default_memory_mb())?;
+    let mut grid = ElevationGrid::covering(
+        extent,
+        cell_m,
+        rig::matching::project::pair::default_memory_mb(),
+    )?;
     let cols = grid.cols;
     let nodes: Vec<[f64; 2]> = (0..grid.z.len())
         .map(|k| grid.node(k % cols, k / cols))

@@ -120,7 +120,7 @@ pub fn run(a: &SceneArgs) -> anyhow::Result<i32> {
         }
     }
     rig::atomic::write(&a.out.join("truth_points.csv"), csv.as_bytes())?;
-    rig::matching::output::write_geotiff(&a.out.join("truth-dem.tif"), &truth, crs)?;
+    rig::matching::products::files::write_geotiff(&a.out.join("truth-dem.tif"), &truth, crs)?;
     let mut parallax = Vec::new();
     for i in 0..scene.views.len() {
         for j in i + 1..scene.views.len() {
@@ -172,7 +172,7 @@ fn truth_grid(scene: &RpcScene, ground: [f64; 4], cell_m: f64) -> anyhow::Result
     let mut grid = ElevationGrid::covering(
         [x0, y0, x1, y1],
         cell_m,
-        rig::matching::project::default_memory_mb(),
+        rig::matching::project::pair::default_memory_mb(),
     )?;
     for r in 0..grid.rows {
         for c in 0..grid.cols {

@@ -1,0 +1,230 @@
+//! A project's photos read for the matching: whole, or, when the project gives its `[dem]
+//! extent`, only the window of each image that sees that area. A full satellite scene is
+//! 40 000 × 40 000 px; a DEM of a square kilometre needs a few thousand pixels of it, and only
+//! those are read (strip- or tile-wise, [`crate::image::load_grey_window`]). The window is
+//! where the extent's ground projects through the photo's sensor at every height searched,
+//! with a margin for the matchers' templates; each photo's sensor is then seen through the
+//! same window ([`crate::geometry::PhotoSensor::windowed`]), so pixels and geometry agree.
+
+use crate::coords::{GroundM, PixelWindow};
+use crate::geometry::{Interior, Sensor};
+use crate::matching::methods::sweep::scanned_pair::Photo;
+use crate::matching::methods::sweep::{
+    centred_grid, frame_of, orient, PhotoGeometry, Pipeline2Error,
+};
+use crate::matching::project::{GivenModel, Project2, Source};
+use std::path::Path;
+
+/// Pixels read beyond where the extent projects, for the matchers' templates and search
+/// windows at the edge of the area (the sweep's and the least-squares patches' few tens of
+/// pixels, a pyramid's coarse levels).
+pub const MARGIN_PX: usize = 96;
+
+/// Points along each side of the extent projected to find its window.
+const SAMPLES: usize = 9;
+
+/// A photo not seeing the extent at all is read as a patch this many pixels wide at the image's
+/// corner: it takes part in no pair (its footprint misses the extent).
+const UNSEEN_SIDE: usize = 64;
+
+/// Loads the project's photos (scans come through `scan`, the hardware side's hand-over), each
+/// within the project's memory limit: the windows of [`windows`].
+pub fn load_photos(
+    p: &Project2,
+    scan: &dyn Fn(&Path) -> Result<Photo, String>,
+) -> Result<Vec<Photo>, Pipeline2Error> {
+    let wins = windows(p, scan)?;
+    for (ph, w) in p.photos.iter().zip(&wins) {
+        if let Some(w) = w {
+            tracing::info!(
+                photo = %ph.id,
+                columns = %format!("{} … {}", w.col0, w.col0 + w.width),
+                rows = %format!("{} … {}", w.row0, w.row0 + w.height),
+                "reading the window that sees the extent"
+            );
+        }
+    }
+    (0..p.photos.len())
+        .map(|k| load_photo(p, k, scan, wins[k]))
+        .collect()
+}
+
+/// The window of each photo to read: the whole image where the project gives no `[dem]
+/// extent` (or the photo is one of the rig's scans, read whole), else the part that sees the
+/// extent at the heights searched, with [`MARGIN_PX`].
+pub fn windows(
+    p: &Project2,
+    scan: &dyn Fn(&Path) -> Result<Photo, String>,
+) -> Result<Vec<Option<PixelWindow>>, Pipeline2Error> {
+    let Some(extent) = p.extent else {
+        return Ok(vec![None; p.photos.len()]);
+    };
+    let whole = (0..p.photos.len())
+        .map(|k| whole_geometry(p, k, scan))
+        .collect::<Result<Vec<_>, _>>()?;
+    let oriented = orient(p, &whole)?;
+    Ok(oriented
+        .sensors
+        .iter()
+        .zip(&p.photos)
+        .map(|(s, ph)| match ph.source {
+            Source::Scan { .. } => None,
+            _ => Some(window_seeing(s, extent, oriented.heights)),
+        })
+        .collect())
+}
+
+/// The pixels of sensor `s` that see `extent` (xmin, ymin, xmax, ymax) at the heights
+/// `heights`, with [`MARGIN_PX`], within its image.
+pub fn window_seeing(s: &dyn Sensor, extent: [f64; 4], heights: [f64; 2]) -> PixelWindow {
+    let (w, h) = s.image_size();
+    let mut b = [f64::MAX, f64::MAX, f64::MIN, f64::MIN];
+    let zs = [heights[0], 0.5 * (heights[0] + heights[1]), heights[1]];
+    for i in 0..SAMPLES {
+        for j in 0..SAMPLES {
+            let f = |k: usize| k as f64 / (SAMPLES - 1) as f64;
+            let x = extent[0] + f(i) * (extent[2] - extent[0]);
+            let y = extent[1] + f(j) * (extent[3] - extent[1]);
+            for z in zs {
+                if let Ok(q) = s.try_ground_to_image(GroundM::new(x, y, z)) {
+                    b = [
+                        b[0].min(q.col),
+                        b[1].min(q.row),
+                        b[2].max(q.col),
+                        b[3].max(q.row),
+                    ];
+                }
+            }
+        }
+    }
+    let m = MARGIN_PX as f64;
+    let clip = |v: f64, n: usize| v.clamp(0.0, n as f64) as usize;
+    let (c0, r0) = (clip(b[0] - m, w), clip(b[1] - m, h));
+    let (c1, r1) = (clip((b[2] + m).ceil(), w), clip((b[3] + m).ceil(), h));
+    if c1 <= c0 || r1 <= r0 {
+        return PixelWindow {
+            col0: 0,
+            row0: 0,
+            width: w.min(UNSEEN_SIDE),
+            height: h.min(UNSEEN_SIDE),
+        };
+    }
+    PixelWindow {
+        col0: c0,
+        row0: r0,
+        width: c1 - c0,
+        height: r1 - r0,
+    }
+}
+
+/// Photo `k`'s geometry over its whole image, from the image's header alone (a scan is
+/// loaded: the rig's scans are read whole).
+fn whole_geometry(
+    p: &Project2,
+    k: usize,
+    scan: &dyn Fn(&Path) -> Result<Photo, String>,
+) -> Result<PhotoGeometry, Pipeline2Error> {
+    let ph = &p.photos[k];
+    let err = |message: String| Pipeline2Error::Photo {
+        id: ph.id.clone(),
+        message,
+    };
+    match &ph.source {
+        Source::Scan { sidecar } => Ok(scan(sidecar).map_err(err)?.geometry()),
+        Source::Image { path, .. } | Source::Model { path, .. } => {
+            let (w, h) = crate::image::grey_size(path).map_err(|e| err(e.to_string()))?;
+            let (frame, interior) = frame_and_interior(p, k, w, h)?;
+            Ok(PhotoGeometry {
+                frame,
+                interior,
+                width: w,
+                height: h,
+                window: PixelWindow::whole(w, h),
+            })
+        }
+    }
+}
+
+/// Which photo point each pixel of photo `k`'s whole `w × h` image shows, and its camera's
+/// interior orientation (a unit grid for a photo with its own model, whose sensor is the
+/// model: the type is kept whole).
+fn frame_and_interior(
+    p: &Project2,
+    k: usize,
+    w: usize,
+    h: usize,
+) -> Result<(crate::geometry::PixelToPhoto, Interior), Pipeline2Error> {
+    let ph = &p.photos[k];
+    let err = |message: String| Pipeline2Error::Photo {
+        id: ph.id.clone(),
+        message,
+    };
+    match &ph.source {
+        Source::Image { camera, .. } => Ok((
+            frame_of(camera, w, h)
+                .ok_or_else(|| err("its camera's pixel_to_photo is singular".into()))?,
+            Interior {
+                focal_mm: camera.focal_mm,
+                principal_point: camera.principal_point,
+            },
+        )),
+        Source::Model { path, model } => {
+            if let GivenModel::Pushbroom(m) = model.as_ref() {
+                if (m.columns, m.lines) != (w, h) {
+                    return Err(err(format!(
+                        "its line-scanner model is for {} × {} pixels, its image {} has {w} × {h}",
+                        m.columns,
+                        m.lines,
+                        path.display(),
+                    )));
+                }
+            }
+            Ok((
+                centred_grid(w, h, 1.0).into(),
+                Interior {
+                    focal_mm: 1.0,
+                    principal_point: crate::coords::PhotoMm::new(0.0, 0.0),
+                },
+            ))
+        }
+        Source::Scan { .. } => Err(err(
+            "a scan's geometry comes with its pixels (a defect of the caller)".into(),
+        )),
+    }
+}
+
+/// Loads photo `k` of the project: `window` of its image (`None`: the whole image).
+pub fn load_photo(
+    p: &Project2,
+    k: usize,
+    scan: &dyn Fn(&Path) -> Result<Photo, String>,
+    window: Option<PixelWindow>,
+) -> Result<Photo, Pipeline2Error> {
+    let max = p.limits.max_memory_mb << 20;
+    let ph = &p.photos[k];
+    let err = |message: String| Pipeline2Error::Photo {
+        id: ph.id.clone(),
+        message,
+    };
+    let path = match &ph.source {
+        Source::Scan { sidecar } => return scan(sidecar).map_err(err),
+        Source::Image { path, .. } | Source::Model { path, .. } => path,
+    };
+    let (w, h) = crate::image::grey_size(path).map_err(|e| err(e.to_string()))?;
+    let window = window.unwrap_or(PixelWindow::whole(w, h));
+    let image = crate::image::load_grey_window(path, window, max).map_err(|e| {
+        let hint = if p.extent.is_none() && e.to_string().contains("the limit is") {
+            ": give the project's [dem] extent to read only the part of each image that sees it, or raise --max-memory"
+        } else {
+            ""
+        };
+        err(format!("{e}{hint}"))
+    })?;
+    let (frame, interior) = frame_and_interior(p, k, w, h)?;
+    Ok(Photo {
+        image,
+        frame,
+        interior,
+        window,
+    })
+}

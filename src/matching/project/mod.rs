@@ -1,0 +1,703 @@
+//! Project format 2: any number of photos as plain images with their cameras and orientations
+//! (or the rig's own scan hand-overs), control and check points in a CSV file, the ground CRS,
+//! the DEM's cell, extent and heights. docs/elevation-models.md documents every key; the names are the
+//! contract. Every number is range-checked here with the file and the key named.
+//!
+//! Pixel coordinates in this format (and in the points file) follow the convention of docs/conventions.md:
+//! (col, row) with integer values at pixel centres, (0, 0) the centre of the top-left pixel.
+//! The core's images use the corner origin (pixel c covers [c, c + 1)): `col + 0.5`.
+
+pub mod matchers;
+pub mod pair;
+
+use crate::coords::{GroundM, PhotoMm};
+use crate::geometry::{Crs, Exterior};
+use crate::matching::project::pair::{check_sweep, Limits};
+use serde::Deserialize;
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+#[derive(Debug, thiserror::Error)]
+pub enum Project2Error {
+    #[error("cannot read {path}: {cause}")]
+    Read {
+        path: PathBuf,
+        cause: std::io::Error,
+    },
+    #[error("{path}: {message}")]
+    Invalid { path: PathBuf, message: String },
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawCamera {
+    focal_mm: f64,
+    #[serde(default)]
+    principal_point_mm: [f64; 2],
+    pixel_mm: Option<f64>,
+    pixel_to_photo: Option<[f64; 6]>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawPhoto {
+    id: String,
+    image: Option<String>,
+    camera: Option<String>,
+    position: Option<[f64; 3]>,
+    angles_deg: Option<[f64; 3]>,
+    scan: Option<String>,
+    pushbroom: Option<String>,
+    rpc: Option<String>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawPoints {
+    file: String,
+    ground_sigma_m: Option<GroundSigma>,
+}
+
+/// `ground_sigma_m = 0.5` (X, Y and Z) or `[0.3, 0.5]` (X and Y, Z).
+#[derive(Debug, Deserialize)]
+#[serde(
+    untagged,
+    expecting = "ground_sigma_m: one number (m) or two, [X and Y, Z]"
+)]
+enum GroundSigma {
+    All(f64),
+    PlanHeight([f64; 2]),
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawDem {
+    cell_m: f64,
+    extent: Option<[f64; 4]>,
+    heights: Option<[f64; 2]>,
+}
+
+fn d_window() -> usize {
+    9
+}
+fn d_threshold() -> f64 {
+    0.5
+}
+fn d_stride() -> usize {
+    1
+}
+fn d_order() -> u8 {
+    3
+}
+fn d_true() -> bool {
+    true
+}
+fn d_search() -> usize {
+    2
+}
+fn d_population() -> usize {
+    200
+}
+fn d_method() -> String {
+    "sweep".into()
+}
+
+/// `[matching]`: the method and its parameters (seed 000 Table 3, with defaults).
+#[derive(Debug, Clone, Deserialize, serde::Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct Matching2 {
+    #[serde(default = "d_method")]
+    pub method: String,
+    #[serde(default = "d_window")]
+    pub window: usize,
+    #[serde(default = "d_threshold")]
+    pub threshold: f64,
+    /// Below the height step: "lsm" (least squares on a plane tilted across the window;
+    /// pixels where it fails get no height) or "parabola".
+    #[serde(default = "crate::matching::methods::sweep::height_sweep::default_subpixel")]
+    pub subpixel: crate::matching::plane_sweep::refine::Subpixel,
+    /// Height step of the sweep, m; default: half a pixel of parallax in each pair.
+    pub h_step: Option<f64>,
+    #[serde(default = "d_stride")]
+    pub stride: usize,
+    /// Obsolete: the plane sweep scores every height at every pixel, so there is no range to
+    /// narrow. Accepted (and ignored) so that older projects still load.
+    #[serde(default = "d_true")]
+    pub neighbours: bool,
+    /// Order of the mapping functions derived from the sensors (seed 004: 3); "auto": chosen
+    /// by the check points among 1 … 3.
+    #[serde(
+        default = "d_order",
+        deserialize_with = "crate::matching::project::pair::order_or_auto"
+    )]
+    pub order: u8,
+    /// The grid the mapping functions sample the sensors on, [n, heights]: n × n image
+    /// points at that many heights (seed 004: [5, 3]; default [5, 5]).
+    pub pmf_grid: Option<[usize; 2]>,
+    #[serde(default = "d_search")]
+    pub search_distance: usize,
+    pub height_threshold: Option<f64>,
+    #[serde(default = "d_population")]
+    pub population_threshold: usize,
+    /// `[matching.mgcm]`: the multiphoto matching's parameters (method = "mgcm").
+    #[serde(default)]
+    pub mgcm: crate::matching::project::matchers::MgcmConfig,
+    /// `[matching.oslsm]`: the object-space matching's parameters (method = "oslsm").
+    #[serde(default)]
+    pub oslsm: crate::matching::project::matchers::OslsmConfig,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawCheck {
+    reference: String,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct Raw {
+    format: u32,
+    crs: Crs,
+    #[serde(default)]
+    camera: BTreeMap<String, RawCamera>,
+    photo: Vec<RawPhoto>,
+    points: Option<RawPoints>,
+    dem: RawDem,
+    matching: Option<Matching2>,
+    check: Option<RawCheck>,
+    #[serde(default)]
+    limits: Limits,
+}
+
+/// A camera as the project gives it.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct Camera2 {
+    pub focal_mm: f64,
+    pub principal_point: PhotoMm,
+    /// Square pixels, mm: x = (col − (W−1)/2)·p, y = ((H−1)/2 − row)·p.
+    pub pixel_mm: f64,
+    /// Or any affine pixel → photo (docs/conventions.md: integer values at pixel centres):
+    /// x = a0 + a1·col + a2·row, y = b0 + b1·col + b2·row; used when given.
+    pub pixel_to_photo: Option<[f64; 6]>,
+}
+
+/// Where a photo comes from.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub enum Source {
+    /// A plain image and its camera.
+    Image { path: PathBuf, camera: Camera2 },
+    /// The rig's own scanned photo (its sidecar): image, grid and focal length from the scan.
+    Scan { sidecar: PathBuf },
+    /// A plain image with its own geometry: a line scanner's rigorous model or RPCs (read
+    /// and checked when the project is read).
+    Model {
+        path: PathBuf,
+        model: Box<GivenModel>,
+    },
+}
+
+/// A photo's geometry given with it, not a frame camera's.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub enum GivenModel {
+    /// The rig's line-scanner model (JSON, as `rig sim scene --sensor pushbroom` writes it).
+    Pushbroom(crate::geometry::Pushbroom),
+    /// RPC00B in any form [`crate::geometry::Rpc::read`] takes: GDAL's `_RPC.TXT`, a
+    /// DigitalGlobe `.RPB`, an Airbus DIMAP `RPC_*.XML`, or a TIFF with the RPC tag (50844).
+    Rpc(Box<crate::geometry::Rpc>),
+}
+
+/// Reads a photo's pushbroom model or RPC file, every number checked with the file named.
+fn read_model(path: &Path, rpc: bool) -> Result<GivenModel, String> {
+    if rpc {
+        return crate::geometry::Rpc::read(path)
+            .map(|r| GivenModel::Rpc(Box::new(r)))
+            .map_err(|e| e.to_string());
+    }
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| format!("cannot read {}: {e}", path.display()))?;
+    let m: crate::geometry::Pushbroom = serde_json::from_str(&text)
+        .map_err(|e| format!("{}: not a line-scanner model: {e}", path.display()))?;
+    m.check().map_err(|e| format!("{}: {e}", path.display()))?;
+    Ok(GivenModel::Pushbroom(m))
+}
+
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct Photo2 {
+    pub id: String,
+    pub source: Source,
+    /// Given, or `None`: resected from the control points.
+    pub exterior: Option<Exterior>,
+}
+
+/// What a point observation is for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+pub enum Kind {
+    Gcp,
+    Cp,
+    Tie,
+}
+
+/// One line of the points file: a point seen in one photo.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct Observation {
+    pub id: String,
+    pub kind: Kind,
+    pub ground: Option<GroundM>,
+    pub photo: String,
+    /// Corner-origin continuous pixel (the core's): the file's centre-origin value + 0.5.
+    pub col: f64,
+    pub row: f64,
+}
+
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct Project2 {
+    pub path: PathBuf,
+    pub crs: Crs,
+    pub photos: Vec<Photo2>,
+    pub points_file: Option<PathBuf>,
+    /// How well the control and check points' ground was surveyed, σ in m (X and Y, Z),
+    /// when the project states it: the control's error is then shared by every photo
+    /// resected from it ([`crate::geometry::control_covariance`]), and a check point's adds
+    /// to the model's σ where they are compared.
+    pub control_sigma_m: Option<[f64; 2]>,
+    pub cell_m: f64,
+    pub extent: Option<[f64; 4]>,
+    pub heights: Option<[f64; 2]>,
+    pub matching: Matching2,
+    pub reference: Option<PathBuf>,
+    pub limits: Limits,
+}
+
+/// Whether `text` is a format-2 project (a top-level `format = 2`).
+/// Which project format `text` is (1 or 2), or what it lacks to be either: a file that parses
+/// as TOML but names no format and has neither format's tables is not taken for format 1 (whose
+/// first complaint, a missing `photos`, would mislead). Text that is not TOML is left to the
+/// loaders, whose errors give the line.
+pub fn format_of(text: &str) -> Result<u32, String> {
+    let Ok(t) = text.parse::<toml::Table>() else {
+        return Ok(if text.contains("format") && text.contains('2') {
+            2
+        } else {
+            1
+        });
+    };
+    match t.get("format") {
+        Some(v) if v.as_integer() == Some(2) => Ok(2),
+        Some(v) => Err(format!(
+            "format = {}: this rig reads format 2 (`format = 2`) and format 1 (no `format` key, a [photos] table)",
+            v.as_integer()
+                .map_or_else(|| format!("(a {})", v.type_str()), |i| i.to_string())
+        )),
+        None if t.contains_key("photos") => Ok(1),
+        None if t.contains_key("photo") || t.contains_key("camera") => Err(
+            "it has [[photo]] or [camera] tables but no `format = 2` line: add it at the top".into(),
+        ),
+        None => Err(
+            "not a matching project: a format-2 project starts with `format = 2` and names [[photo]]s (see docs/elevation-models.md); a format-1 project has a [photos] table".into(),
+        ),
+    }
+}
+
+const MAX_PHOTOS: usize = 64;
+/// Coordinates of ground points and projection centres, m (any projected CRS fits).
+const MAX_GROUND_M: f64 = 1e8;
+
+impl Project2 {
+    pub fn load(path: &Path) -> Result<Project2, Project2Error> {
+        let text = std::fs::read_to_string(path).map_err(|source| Project2Error::Read {
+            path: path.to_path_buf(),
+            cause: source,
+        })?;
+        Self::parse(&text, path)
+    }
+
+    /// The project in `text`, as if read from `path` (relative paths resolved against its
+    /// directory; nothing else is read).
+    pub fn parse(text: &str, path: &Path) -> Result<Project2, Project2Error> {
+        let bad = |message: String| Project2Error::Invalid {
+            path: path.to_path_buf(),
+            message,
+        };
+        let raw: Raw =
+            toml::from_str(text).map_err(|e| bad(e.to_string().trim_end().to_string()))?;
+        if raw.format != 2 {
+            return Err(bad(format!(
+                "format = {}: this reader takes format 2",
+                raw.format
+            )));
+        }
+        let base = path.parent().unwrap_or(Path::new("."));
+        let finite = |v: &[f64], max: f64| v.iter().all(|x| x.is_finite() && x.abs() <= max);
+        let mut cameras = BTreeMap::new();
+        for (name, c) in &raw.camera {
+            if !(c.focal_mm.is_finite() && (1.0..=5000.0).contains(&c.focal_mm)) {
+                return Err(bad(format!(
+                    "[camera.{name}] focal_mm {}: 1 to 5000 mm",
+                    c.focal_mm
+                )));
+            }
+            if !finite(&c.principal_point_mm, 100.0) {
+                return Err(bad(format!(
+                    "[camera.{name}] principal_point_mm {:?}: two numbers within ±100 mm",
+                    c.principal_point_mm
+                )));
+            }
+            let (pixel_mm, pixel_to_photo) = match (c.pixel_mm, c.pixel_to_photo) {
+                (Some(p), None) if p.is_finite() && (1e-4..=1.0).contains(&p) => (p, None),
+                (Some(p), None) => {
+                    return Err(bad(format!(
+                        "[camera.{name}] pixel_mm {p}: 0.0001 to 1 mm"
+                    )))
+                }
+                (None, Some(a)) => {
+                    let shift_ok = finite(&[a[0], a[3]], 1000.0);
+                    let lin = [a[1], a[2], a[4], a[5]];
+                    let det = a[1] * a[5] - a[2] * a[4];
+                    let size = det.abs().sqrt();
+                    if !shift_ok || !finite(&lin, 1.0) || !(1e-4..=1.0).contains(&size) {
+                        return Err(bad(format!(
+                            "[camera.{name}] pixel_to_photo {a:?}: [a0, a1, a2, b0, b1, b2] in mm, shifts within ±1000 mm, a pixel of 0.0001 to 1 mm (not singular)"
+                        )));
+                    }
+                    (size, Some(a))
+                }
+                (Some(_), Some(_)) => {
+                    return Err(bad(format!(
+                        "[camera.{name}]: give pixel_mm or pixel_to_photo, not both"
+                    )))
+                }
+                (None, None) => {
+                    return Err(bad(format!(
+                        "[camera.{name}]: give pixel_mm (square pixels, mm) or pixel_to_photo (an affine)"
+                    )))
+                }
+            };
+            cameras.insert(
+                name.clone(),
+                Camera2 {
+                    focal_mm: c.focal_mm,
+                    principal_point: PhotoMm::new(c.principal_point_mm[0], c.principal_point_mm[1]),
+                    pixel_mm,
+                    pixel_to_photo,
+                },
+            );
+        }
+        if raw.photo.len() < 2 || raw.photo.len() > MAX_PHOTOS {
+            return Err(bad(format!(
+                "{} [[photo]] entries: 2 to {MAX_PHOTOS}",
+                raw.photo.len()
+            )));
+        }
+        let mut photos: Vec<Photo2> = Vec::new();
+        for (k, p) in raw.photo.iter().enumerate() {
+            let at = format!("[[photo]] {} (`{}`)", k + 1, p.id);
+            if p.id.trim().is_empty() || photos.iter().any(|q| q.id == p.id) {
+                return Err(bad(format!("{at}: id empty or used twice")));
+            }
+            let given = match (&p.pushbroom, &p.rpc) {
+                (None, None) => None,
+                (Some(m), None) => Some(read_model(&base.join(m), false)),
+                (None, Some(r)) => Some(read_model(&base.join(r), true)),
+                (Some(_), Some(_)) => {
+                    return Err(bad(format!("{at}: give pushbroom or rpc, not both")))
+                }
+            };
+            if let Some(model) = given {
+                let model = model.map_err(|e| bad(format!("{at}: {e}")))?;
+                let (Some(img), None, None, None, None) =
+                    (&p.image, &p.camera, &p.scan, &p.position, &p.angles_deg)
+                else {
+                    return Err(bad(format!(
+                        "{at}: a photo with its pushbroom model or RPCs takes image (and no camera, scan, position or angles_deg: the model is its orientation)"
+                    )));
+                };
+                photos.push(Photo2 {
+                    id: p.id.clone(),
+                    source: Source::Model {
+                        path: base.join(img),
+                        model: Box::new(model),
+                    },
+                    exterior: None,
+                });
+                continue;
+            }
+            let source = match (&p.image, &p.camera, &p.scan) {
+                (Some(img), Some(cam), None) => Source::Image {
+                    path: base.join(img),
+                    camera: *cameras.get(cam).ok_or_else(|| {
+                        bad(format!(
+                            "{at}: camera `{cam}` is not among [camera.*] ({})",
+                            cameras.keys().cloned().collect::<Vec<_>>().join(", ")
+                        ))
+                    })?,
+                },
+                (None, None, Some(s)) => Source::Scan {
+                    sidecar: base.join(s),
+                },
+                _ => {
+                    return Err(bad(format!(
+                        "{at}: give image and camera, or scan (the rig's scanned-photo sidecar), or image and pushbroom (a line-scanner model) or rpc (GDAL's _RPC.TXT)"
+                    )))
+                }
+            };
+            let exterior = match (p.position, p.angles_deg) {
+                (Some(c), Some(a)) => {
+                    if !finite(&c, MAX_GROUND_M) || !finite(&a, 360.0) {
+                        return Err(bad(format!(
+                            "{at}: position within ±1e8 m and angles_deg within ±360°"
+                        )));
+                    }
+                    Some(Exterior::from_degrees(
+                        a[0],
+                        a[1],
+                        a[2],
+                        GroundM::new(c[0], c[1], c[2]),
+                    ))
+                }
+                (None, None) => None,
+                _ => {
+                    return Err(bad(format!(
+                        "{at}: give both position and angles_deg, or neither (resected from the control points)"
+                    )))
+                }
+            };
+            photos.push(Photo2 {
+                id: p.id.clone(),
+                source,
+                exterior,
+            });
+        }
+        let d = &raw.dem;
+        if !(d.cell_m.is_finite() && (0.01..=10_000.0).contains(&d.cell_m)) {
+            return Err(bad(format!("[dem] cell_m {}: 0.01 to 10000 m", d.cell_m)));
+        }
+        if let Some(e) = d.extent {
+            if !finite(&e, MAX_GROUND_M) || e[2] <= e[0] || e[3] <= e[1] {
+                return Err(bad(format!(
+                    "[dem] extent {e:?}: [xmin, ymin, xmax, ymax], increasing, within ±1e8 m"
+                )));
+            }
+        }
+        if let Some(h) = d.heights {
+            let r = crate::matching::project::pair::HEIGHT_RANGE;
+            if !(r.contains(&h[0]) && r.contains(&h[1]) && h[1] > h[0]) {
+                return Err(bad(format!(
+                    "[dem] heights {h:?}: [min, max], increasing, within {} … {} m",
+                    r.start(),
+                    r.end()
+                )));
+            }
+        }
+        let m = raw
+            .matching
+            .unwrap_or_else(|| toml::from_str("").expect("every [matching] key has a default"));
+        if !["sweep", "mgcm", "oslsm"].contains(&m.method.as_str()) {
+            return Err(bad(format!(
+                "[matching] method `{}`: \"sweep\" (seed 000's height sweep), \"mgcm\" (seed 002's multiphoto geometrically constrained matching) or \"oslsm\" (seed 001's object-space least-squares matching)",
+                m.method
+            )));
+        }
+        m.mgcm.check().map_err(bad)?;
+        m.oslsm.check().map_err(bad)?;
+        if let Some(s) = m.h_step {
+            if !(s.is_finite() && (0.001..=1000.0).contains(&s)) {
+                return Err(bad(format!("[matching] h_step {s}: 0.001 to 1000 m")));
+            }
+        }
+        if let Some([n, levels]) = m.pmf_grid {
+            if !(2..=50).contains(&n) || !(2..=20).contains(&levels) {
+                return Err(bad(format!(
+                    "[matching] pmf_grid = [{n}, {levels}]: 2 … 50 image points across, 2 … 20 heights (seed 004: [5, 3])"
+                )));
+            }
+        }
+        if !(0..=3).contains(&m.order) {
+            return Err(bad(format!(
+                "[matching] order {}: 1, 2, 3, or \"auto\" (the check points choose)",
+                m.order
+            )));
+        }
+        check_sweep(
+            ("[matching]", "[matching]"),
+            (m.window, m.threshold, m.stride),
+            (
+                m.search_distance,
+                m.population_threshold,
+                m.height_threshold,
+            ),
+        )
+        .map_err(bad)?;
+        raw.limits.check().map_err(bad)?;
+        let control_sigma_m = match raw.points.as_ref().and_then(|p| p.ground_sigma_m.as_ref()) {
+            None => None,
+            Some(g) => {
+                let v = match g {
+                    GroundSigma::All(s) => [*s, *s],
+                    GroundSigma::PlanHeight(v) => *v,
+                };
+                if !v
+                    .iter()
+                    .all(|s| s.is_finite() && (0.0..=1000.0).contains(s))
+                {
+                    return Err(bad(format!(
+                        "[points] ground_sigma_m {v:?}: each within 0–1000 m (how well the points' ground was surveyed: one number, or [X and Y, Z])"
+                    )));
+                }
+                Some(v)
+            }
+        };
+        Ok(Project2 {
+            path: path.to_path_buf(),
+            crs: raw.crs,
+            photos,
+            points_file: raw.points.map(|p| base.join(p.file)),
+            control_sigma_m,
+            cell_m: d.cell_m,
+            extent: d.extent,
+            heights: d.heights,
+            matching: m,
+            reference: raw.check.map(|c| base.join(c.reference)),
+            limits: raw.limits,
+        })
+    }
+
+    /// The points file's observations (`id,kind,x,y,z,photo,col,row`, a header line first;
+    /// x, y, z empty for tie points), every number range-checked with its line.
+    pub fn observations(&self) -> Result<Vec<Observation>, Project2Error> {
+        let Some(f) = &self.points_file else {
+            return Ok(Vec::new());
+        };
+        let text = std::fs::read_to_string(f).map_err(|source| Project2Error::Read {
+            path: f.clone(),
+            cause: source,
+        })?;
+        parse_points(&text, f, &self.photos)
+    }
+}
+
+/// The points file's text (see [`Project2::observations`]).
+pub fn parse_points(
+    text: &str,
+    f: &Path,
+    photos: &[Photo2],
+) -> Result<Vec<Observation>, Project2Error> {
+    let bad = |line: usize, message: String| Project2Error::Invalid {
+        path: f.to_path_buf(),
+        message: format!("line {line}: {message}"),
+    };
+    let mut out = Vec::new();
+    let mut lines = text
+        .lines()
+        .enumerate()
+        .filter(|(_, l)| !l.trim().is_empty());
+    match lines.next() {
+        Some((_, h)) if h.replace(' ', "") == "id,kind,x,y,z,photo,col,row" => {}
+        _ => {
+            return Err(bad(
+                1,
+                "the header must be `id,kind,x,y,z,photo,col,row`".into(),
+            ))
+        }
+    }
+    for (i, l) in lines {
+        let n = i + 1;
+        if out.len() >= 1_000_000 {
+            return Err(bad(n, "more than 1000000 observations".into()));
+        }
+        let c: Vec<&str> = l.split(',').map(str::trim).collect();
+        if c.len() != 8 {
+            return Err(bad(n, format!("{} fields, 8 expected", c.len())));
+        }
+        let num = |s: &str, what: &str, max: f64| {
+            s.parse::<f64>()
+                .ok()
+                .filter(|v| v.is_finite() && v.abs() <= max)
+                .ok_or_else(|| bad(n, format!("{what} `{s}`: a number within ±{max}")))
+        };
+        let kind = match c[1] {
+            "gcp" => Kind::Gcp,
+            "cp" => Kind::Cp,
+            "tie" => Kind::Tie,
+            k => return Err(bad(n, format!("kind `{k}`: gcp, cp or tie"))),
+        };
+        let ground = if kind == Kind::Tie && c[2..5].iter().all(|s| s.is_empty()) {
+            None
+        } else {
+            Some(GroundM::new(
+                num(c[2], "x", MAX_GROUND_M)?,
+                num(c[3], "y", MAX_GROUND_M)?,
+                num(c[4], "z", 100_000.0)?,
+            ))
+        };
+        if !photos.iter().any(|p| p.id == c[5]) {
+            return Err(bad(
+                n,
+                format!("photo `{}` is not among the [[photo]] ids", c[5]),
+            ));
+        }
+        out.push(Observation {
+            id: c[0].to_string(),
+            kind,
+            ground,
+            photo: c[5].to_string(),
+            col: num(c[6], "col", 1e6)? + 0.5,
+            row: num(c[7], "row", 1e6)? + 0.5,
+        });
+    }
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_format_is_told_or_what_is_missing_said() {
+        assert_eq!(format_of("format = 2\n[[photo]]\nid = \"1\"\n"), Ok(2));
+        assert_eq!(format_of("[photos]\nleft = \"a.json\"\n"), Ok(1));
+        assert!(format_of("")
+            .unwrap_err()
+            .contains("not a matching project"));
+        assert!(format_of("format = 3").unwrap_err().contains("format = 3"));
+        assert!(format_of("format = \"2\"")
+            .unwrap_err()
+            .contains("a string"));
+        assert!(format_of("[camera.a]\nfocal_mm = 1\n")
+            .unwrap_err()
+            .contains("format = 2"));
+        // Not TOML: the named format's loader gives the line.
+        assert_eq!(format_of("format = 2\n[[photo]\n"), Ok(2));
+        assert_eq!(format_of("[photos\n"), Ok(1));
+    }
+
+    #[test]
+    fn the_controls_ground_sigma_is_one_number_or_plan_and_height_within_range() {
+        let seed = include_str!("../../../fuzz/seeds/project/format2.toml");
+        let with = |v: &str| {
+            let t = seed.replace(
+                "file = \"points.csv\"",
+                &format!("file = \"points.csv\"\nground_sigma_m = {v}"),
+            );
+            Project2::parse(&t, Path::new("p.toml")).map(|p| p.control_sigma_m)
+        };
+        assert_eq!(
+            Project2::parse(seed, Path::new("p.toml"))
+                .unwrap()
+                .control_sigma_m,
+            None
+        );
+        assert_eq!(with("0.5").unwrap(), Some([0.5, 0.5]));
+        assert_eq!(with("[0.3, 0.8]").unwrap(), Some([0.3, 0.8]));
+        for bad in ["-0.1", "[0.3, 2000.0]", "nan"] {
+            let e = with(bad).unwrap_err().to_string();
+            assert!(
+                e.contains("ground_sigma_m") && e.contains("0–1000 m"),
+                "{bad}: {e}"
+            );
+        }
+        for bad in ["\"half a metre\"", "[1, 2, 3]"] {
+            let e = with(bad).unwrap_err().to_string();
+            assert!(e.contains("one number (m) or two"), "{bad}: {e}");
+        }
+    }
+}
