@@ -15,9 +15,9 @@ use nalgebra::DMatrix;
 use rig::coords::{GroundM, PixelXY};
 use rig::geometry::{FrameSensor, Sensor};
 use rig::image::ImageF32;
+use rig::matching::block::orient::vertical_sensor;
 use rig::matching::methods::oslsm::run::memory_bytes;
 use rig::matching::methods::oslsm::{refine_block, Grids, OslsmParams, PatchLayout, PhotoView};
-use rig::matching::methods::sweep::vertical_sensor;
 use rig::matching::progress::Silent;
 use std::time::Instant;
 

@@ -207,22 +207,22 @@ fn matching_projects_survive_mutation() {
     let f = "fuzz/seeds/project/project.toml";
     let seed = std::fs::read_to_string(root.join(f)).unwrap();
     survive(f, seed, 3000, |t| {
-        rig::matching::project::pair::Project::parse(t, Path::new("hostile.toml")).is_ok()
+        rig::matching::project::pair::PairProject::parse(t, Path::new("hostile.toml")).is_ok()
     });
 }
 
 #[test]
 fn format2_projects_and_points_files_survive_mutation() {
-    use rig::matching::project::{parse_points, Project2};
+    use rig::matching::project::{parse_points, Project};
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let f = "fuzz/seeds/project/format2.toml";
     let seed = std::fs::read_to_string(root.join(f)).unwrap();
     survive(f, seed.clone(), 3000, |t| {
-        Project2::parse(t, Path::new("hostile.toml")).is_ok()
+        Project::parse(t, Path::new("hostile.toml")).is_ok()
     });
     let csv = "id,kind,x,y,z,photo,col,row\np1,gcp,15100.5,13200.25,512.5,1,1200.5,1500.25\np1,gcp,15100.5,13200.25,512.5,2,340.0,1490.75\nt1,tie,,,,3,800.0,900.0\np2,cp,15400.0,13300.0,530.0,1,1300.0,1400.0\n".to_string();
     survive("points.csv", csv, 3000, |t| {
-        let photos = Project2::parse(
+        let photos = Project::parse(
             &std::fs::read_to_string(
                 Path::new(env!("CARGO_MANIFEST_DIR")).join("fuzz/seeds/project/format2.toml"),
             )

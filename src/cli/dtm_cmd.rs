@@ -7,8 +7,11 @@ use rig::matching::mapping::pmf_set::FitReport;
 use rig::matching::methods::sweep::pair_model::PmfDtm;
 use rig::matching::methods::sweep::regions::RegionStats;
 use rig::matching::methods::sweep::scanned_pair;
+use rig::matching::methods::sweep::tiles::{self, TileError, TileSpec};
+use rig::matching::methods::sweep::SweepReport;
 use rig::matching::products::outputs::{self, Writer};
-use rig::matching::project::pair::Project;
+use rig::matching::project::pair::PairProject;
+use rig::matching::project::{AnyProject, Project};
 use rig::scan::ScannedPhoto;
 use std::path::PathBuf;
 
@@ -30,7 +33,7 @@ pub struct DtmArgs {
     /// Sweep only share I of N of the work (I counts from 1) into --out, for a cluster or
     /// several machines; `rig dtm merge` joins the shares (format-2 projects).
     #[arg(long, value_name = "I/N")]
-    pub tile: Option<rig::matching::block::tiles::TileSpec>,
+    pub tile: Option<TileSpec>,
 }
 
 /// What every `rig dtm` run takes: its memory limit and the report's form.
@@ -156,15 +159,13 @@ pub fn print_report(pmf: &[FitReport], r: &PmfDtm) {
 }
 
 /// The rig's own scans come through the scan's hand-over.
-fn scan_photo(
-    sidecar: &std::path::Path,
-) -> Result<rig::matching::methods::sweep::scanned_pair::Photo, String> {
+fn scan_photo(sidecar: &std::path::Path) -> Result<rig::matching::block::photo::Photo, String> {
     ScannedPhoto::load_photo(sidecar).map_err(|e| e.to_string())
 }
 
-/// A format-2 project: photos loaded (scans through the scan's hand-over), the N-photo sweep.
+/// A format-2 project: photos loaded (scans through the scan's hand-over), its method run.
 fn run_format2(
-    project: &std::path::Path,
+    p: &Project,
     out: &std::path::Path,
     RunOptions {
         max_memory,
@@ -172,21 +173,14 @@ fn run_format2(
         strict,
     }: RunOptions,
 ) -> anyhow::Result<i32> {
-    use rig::matching::methods::sweep;
-    use rig::matching::project::Project2;
-    let p = Project2::load(project)?;
-    let photos = rig::matching::block::photos::load_photos(&p, &scan_photo)?;
+    use rig::matching::run::Report;
+    let photos = rig::matching::block::photos::load_photos(p, &scan_photo)?;
     let bar = super::progress_bar::Bar::new(!json);
-    if p.matching.method == "mgcm" {
-        let r = rig::matching::methods::mgcm::run::run(&p, &photos, out, max_memory, &bar)?;
-        return print_mgcm(&r, out, json, strict);
+    match rig::matching::run::run(p, &photos, out, max_memory, &bar)? {
+        Report::Mgcm(r) => print_mgcm(&r, out, json, strict),
+        Report::Oslsm(r) => print_oslsm(&r, out, json, strict),
+        Report::Sweep(r) => print_format2(p, &r, out, json, strict),
     }
-    if p.matching.method == "oslsm" {
-        let r = rig::matching::methods::oslsm::run::run(&p, &photos, out, max_memory, &bar)?;
-        return print_oslsm(&r, out, json, strict);
-    }
-    let r = sweep::run(&p, &photos, out, max_memory, &bar)?;
-    print_format2(&p, &r, out, json, strict)
 }
 
 /// A run's exit code: `DOUBTFUL` when it warned and `--strict` asks scripts to stop there.
@@ -276,98 +270,52 @@ fn print_oslsm(
     Ok(code)
 }
 
-/// Share `spec` of a format-2 run into `out`: the plan from every photo's geometry (each
-/// photo read once and let go), then the sweep of this share's bands with only the photos of
-/// their pairs in memory.
+/// Share `spec` of a format-2 run into `out`.
 fn run_tile(
-    project: &std::path::Path,
-    spec: rig::matching::block::tiles::TileSpec,
+    p: &Project,
+    spec: TileSpec,
     out: &std::path::Path,
     max_memory: Option<u64>,
     json: bool,
 ) -> anyhow::Result<i32> {
-    use rig::matching::block::tiles;
-    use rig::matching::methods::sweep;
-    use rig::matching::project::Project2;
-    let bytes = std::fs::read(project).with_context(|| format!("reading {}", project.display()))?;
-    let p = Project2::load(project)?;
-    if p.matching.method != "sweep" {
-        eprintln!(
-            "rig dtm: --tile splits the sweep's work; {} uses method \"{}\": run it whole",
-            project.display(),
-            p.matching.method
-        );
-        return Ok(rig::exit::USAGE);
-    }
-    tiles::prepare_dir(out)?;
-    let mut geometry = Vec::new();
-    let mut pixels = Vec::new();
-    let windows = rig::matching::block::photos::windows(&p, &scan_photo)?;
-    for k in 0..p.photos.len() {
-        let ph = rig::matching::block::photos::load_photo(&p, k, &scan_photo, windows[k])?;
-        geometry.push(ph.geometry());
-        pixels.push(tiles::pixels_fnv64(&ph.image));
-    }
-    let plan = sweep::plan(&p, &geometry, max_memory)?;
-    let units = spec.units(plan.units());
-    let shares = plan.bands_of(units.clone());
-    let mut loaded: Vec<Option<rig::matching::methods::sweep::scanned_pair::Photo>> =
-        (0..p.photos.len()).map(|_| None).collect();
-    for &(k, _) in &shares {
-        for i in [plan.pairs[k].left, plan.pairs[k].right] {
-            if loaded[i].is_none() {
-                loaded[i] = Some(rig::matching::block::photos::load_photo(
-                    &p,
-                    i,
-                    &scan_photo,
-                    windows[i],
-                )?);
-            }
-        }
-    }
-    let refs: Vec<Option<&rig::matching::methods::sweep::scanned_pair::Photo>> =
-        loaded.iter().map(|o| o.as_ref()).collect();
     let bar = super::progress_bar::Bar::new(!json);
-    let parts = sweep::sweep_units(&p, &plan, units.clone(), &refs, &bar)?;
-    let absolute = std::fs::canonicalize(project)
-        .with_context(|| format!("resolving {}", project.display()))?;
-    let ids: Vec<String> = p.photos.iter().map(|ph| ph.id.clone()).collect();
-    let source = tiles::Inputs {
-        project: &absolute,
-        project_bytes: &bytes,
-        inputs_fnv64: tiles::inputs_fingerprint(&plan, &pixels),
-    };
-    let m = tiles::write_tile(out, &source, spec, &plan, &ids, &parts)?;
-    if json {
-        println!("{}", serde_json::to_string(&m)?);
-    } else {
-        println!(
-            "share {spec}: units {}…{} of {} ({} pairs of {} photos), {} part{} written to {}",
-            units.start,
-            units.end,
-            plan.units(),
-            plan.pairs.len(),
-            p.photos.len(),
-            m.parts.len(),
-            if m.parts.len() == 1 { "" } else { "s" },
-            out.display()
-        );
-        for e in &m.parts {
-            println!(
-                "  {} × {}: rows {}…{} in {:.1} s",
-                e.left, e.right, e.rows[0], e.rows[1], e.seconds
-            );
+    let s = match tiles::sweep_share(p, spec, out, max_memory, &scan_photo, &bar) {
+        Err(e @ TileError::NotSweep { .. }) => {
+            eprintln!("rig dtm: {e}");
+            return Ok(rig::exit::USAGE);
         }
+        r => r?,
+    };
+    let m = &s.manifest;
+    if json {
+        println!("{}", serde_json::to_string(m)?);
+        return Ok(rig::exit::OK);
+    }
+    println!(
+        "share {spec}: units {}…{} of {} ({} pairs of {} photos), {} part{} written to {}",
+        s.units.start,
+        s.units.end,
+        s.total_units,
+        s.pairs,
+        s.photos,
+        m.parts.len(),
+        if m.parts.len() == 1 { "" } else { "s" },
+        out.display()
+    );
+    for e in &m.parts {
         println!(
-            "when all {} shares are done: rig dtm merge TILE_DIR… --out DIR",
-            spec.count
+            "  {} × {}: rows {}…{} in {:.1} s",
+            e.left, e.right, e.rows[0], e.rows[1], e.seconds
         );
     }
-    Ok(0)
+    println!(
+        "when all {} shares are done: rig dtm merge TILE_DIR… --out DIR",
+        spec.count
+    );
+    Ok(rig::exit::OK)
 }
 
-/// `rig dtm merge`: the shares checked to belong together, their heights joined, the run
-/// finished as a single run would.
+/// `rig dtm merge`: the shares joined and the run finished as a single run would.
 fn merge(
     dirs: &[PathBuf],
     out: &std::path::Path,
@@ -377,69 +325,16 @@ fn merge(
         strict,
     }: RunOptions,
 ) -> anyhow::Result<i32> {
-    use rig::matching::block::tiles;
-    use rig::matching::methods::sweep;
-    use rig::matching::project::Project2;
-    let mut set = Vec::new();
-    for d in dirs {
-        set.push((d.clone(), tiles::read_manifest(d)?));
-    }
-    let set = tiles::check_set(set)?;
-    let m0 = &set[0].1;
-    eprintln!(
-        "rig dtm merge: {} shares of {}",
-        set.len(),
-        m0.project.display()
-    );
-    let bytes = std::fs::read(&m0.project).with_context(|| {
-        format!(
-            "reading the project the tiles name, {}",
-            m0.project.display()
-        )
-    })?;
-    if rig::atomic::fnv64(&bytes) != m0.project_fnv64 {
-        anyhow::bail!(
-            "{} changed since the tiles were swept (hash {} then, {} now): sweep the tiles again",
-            m0.project.display(),
-            m0.project_fnv64,
-            rig::atomic::fnv64(&bytes)
-        );
-    }
-    let p = Project2::load(&m0.project)?;
-    let photos = rig::matching::block::photos::load_photos(&p, &scan_photo)?;
-    let geometry: Vec<_> = photos.iter().map(|ph| ph.geometry()).collect();
-    let plan = sweep::plan(&p, &geometry, max_memory)?;
-    let pixels: Vec<String> = photos
-        .iter()
-        .map(|ph| tiles::pixels_fnv64(&ph.image))
-        .collect();
-    let now = tiles::inputs_fingerprint(&plan, &pixels);
-    if now != m0.inputs_fnv64 {
-        anyhow::bail!(
-            "the photos, points or orientations of {} changed since the tiles were swept (their hash was {}, it is {now}): sweep the tiles again",
-            m0.project.display(),
-            m0.inputs_fnv64
-        );
-    }
-    if plan.units() != m0.total_units {
-        anyhow::bail!(
-            "the tiles split {} units of work, the project now gives {}: sweep the tiles again",
-            m0.total_units,
-            plan.units()
-        );
-    }
-    let mut parts = Vec::new();
-    for (d, m) in &set {
-        parts.extend(tiles::read_parts(d, m, &plan)?);
-    }
-    let r = sweep::finish(&p, &plan, parts, &photos, out)?;
+    eprintln!("rig dtm merge: {} shares", dirs.len());
+    let bar = super::progress_bar::Bar::new(!json);
+    let (p, r) = tiles::merge(dirs, out, max_memory, &scan_photo, &bar)?;
     print_format2(&p, &r, out, json, strict)
 }
 
 /// The report of a format-2 run (single or merged).
 fn print_format2(
-    p: &rig::matching::project::Project2,
-    r: &rig::matching::methods::sweep::Report2,
+    p: &Project,
+    r: &SweepReport,
     out: &std::path::Path,
     json: bool,
     strict: bool,
@@ -464,7 +359,7 @@ fn print_format2(
         r.heights_m[1],
         r.crs
     );
-    for (what, line) in rig::matching::methods::sweep::corrected_lines(&r.corrected) {
+    for (what, line) in rig::matching::block::orient::corrected_lines(&r.corrected) {
         println!("  {what}: {line}");
     }
     for pr in &r.pairs {
@@ -518,29 +413,12 @@ fn print_format2(
 }
 
 pub fn run(a: DtmArgs) -> anyhow::Result<i32> {
-    let action = match (a.action, a.project, a.out) {
-        (Some(act), _, _) => act,
-        (None, Some(project), Some(out)) => {
-            let text = std::fs::read_to_string(&project)
-                .with_context(|| format!("reading {}", project.display()))?;
-            match (rig::matching::project::format_of(&text), a.tile) {
-                (Ok(2), Some(spec)) => {
-                    return run_tile(&project, spec, &out, a.run.max_memory, a.run.output.json)
-                }
-                (Ok(2), None) => return run_format2(&project, &out, a.run),
-                (Ok(_), Some(_)) => {
-                    eprintln!("rig dtm: --tile splits format-2 projects; {} is format 1 (one scanned pair): run it whole, or write it as format 2 (see docs/elevation-models.md)", project.display());
-                    return Ok(rig::exit::USAGE);
-                }
-                (Ok(_), None) => {}
-                (Err(e), _) => anyhow::bail!("{}: {e}", project.display()),
-            }
-            DtmAction::Pmf {
-                project,
-                out,
-                run: a.run,
-            }
+    let (project, out) = match (a.action, a.project, a.out) {
+        (Some(DtmAction::Merge { tiles, out, run }), _, _) => return merge(&tiles, &out, run),
+        (Some(DtmAction::Pmf { project, out, run }), _, _) => {
+            return run_pair(&PairProject::load(&project)?, &out, run)
         }
+        (None, Some(project), Some(out)) => (project, out),
         (None, None, _) => {
             eprintln!(
                 "rig dtm: give the project: rig dtm PROJECT.toml --out DIR (see rig dtm --help)"
@@ -552,47 +430,52 @@ pub fn run(a: DtmArgs) -> anyhow::Result<i32> {
             return Ok(rig::exit::USAGE);
         }
     };
-    match action {
-        DtmAction::Merge { tiles, out, run } => merge(&tiles, &out, run),
-        DtmAction::Pmf { project, out, run } => {
-            let RunOptions {
-                max_memory,
-                output: JsonOutput { json },
-                strict,
-            } = run;
-            let p = Project::load(&project)?;
-            let load = |f: &PathBuf| {
-                ScannedPhoto::load_photo(f)
-                    .with_context(|| format!("project {}: photo {}", p.path.display(), f.display()))
-            };
-            let (left, right) = (load(&p.photos.left)?, load(&p.photos.right)?);
-            let bar = super::progress_bar::Bar::new(!json);
-            let (r, report) = scanned_pair::run(&p, [&left, &right], &out, max_memory, &bar)?;
-            let warnings = r.report.warnings();
-            for w in &warnings {
-                eprintln!("rig dtm: warning: {w}");
-            }
-            if json {
-                println!("{}", serde_json::to_string(&report)?);
-            } else {
-                print_report(&report.pmf, &r);
-                if let Some(c) = &report.sigma_vs_reference {
-                    println!(
-                        "standard deviations (quality.tif, the matching's own: one pair cannot scale them): RMS {:.2} m; against the reference the errors are {:.1} × them, {:.0} % within 2σ",
-                        c.rms_sigma_m, c.ratio, c.within_2_sigma_percent
-                    );
-                }
-                println!(
-                    "written to {}: {}",
-                    out.display(),
-                    outputs::listed(Some(Writer::Format1), report.dtm.comparison.is_some())
-                );
-            }
-            Ok(if strict && !warnings.is_empty() {
-                rig::exit::DOUBTFUL
-            } else {
-                rig::exit::OK
-            })
+    match (AnyProject::load(&project)?, a.tile) {
+        (AnyProject::Block(p), Some(spec)) => {
+            run_tile(&p, spec, &out, a.run.max_memory, a.run.output.json)
         }
+        (AnyProject::Block(p), None) => run_format2(&p, &out, a.run),
+        (AnyProject::Pair(_), Some(_)) => {
+            eprintln!("rig dtm: --tile splits format-2 projects; {} is format 1 (one scanned pair): run it whole, or write it as format 2 (see docs/elevation-models.md)", project.display());
+            Ok(rig::exit::USAGE)
+        }
+        (AnyProject::Pair(p), None) => run_pair(&p, &out, a.run),
     }
+}
+
+/// A format-1 project: its scanned pair through seed 000's method.
+fn run_pair(p: &PairProject, out: &std::path::Path, run: RunOptions) -> anyhow::Result<i32> {
+    let RunOptions {
+        max_memory,
+        output: JsonOutput { json },
+        strict,
+    } = run;
+    let load = |f: &PathBuf| {
+        ScannedPhoto::load_photo(f)
+            .with_context(|| format!("project {}: photo {}", p.path.display(), f.display()))
+    };
+    let (left, right) = (load(&p.photos.left)?, load(&p.photos.right)?);
+    let bar = super::progress_bar::Bar::new(!json);
+    let (r, report) = scanned_pair::run(p, [&left, &right], out, max_memory, &bar)?;
+    let warnings = r.report.warnings();
+    for w in &warnings {
+        eprintln!("rig dtm: warning: {w}");
+    }
+    if json {
+        println!("{}", serde_json::to_string(&report)?);
+    } else {
+        print_report(&report.pmf, &r);
+        if let Some(c) = &report.sigma_vs_reference {
+            println!(
+                "standard deviations (quality.tif, the matching's own: one pair cannot scale them): RMS {:.2} m; against the reference the errors are {:.1} × them, {:.0} % within 2σ",
+                c.rms_sigma_m, c.ratio, c.within_2_sigma_percent
+            );
+        }
+        println!(
+            "written to {}: {}",
+            out.display(),
+            outputs::listed(Some(Writer::Format1), report.dtm.comparison.is_some())
+        );
+    }
+    Ok(exit_code(!warnings.is_empty(), strict))
 }

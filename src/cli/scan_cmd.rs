@@ -110,7 +110,7 @@ pub enum ScanAction {
         dir: PathBuf,
         /// Mosaic only share I of N of the photos (I counts from 1); needs --out.
         #[arg(long, value_name = "I/N", requires = "out")]
-        tile: Option<rig::matching::block::tiles::TileSpec>,
+        tile: Option<rig::matching::methods::sweep::tiles::TileSpec>,
         /// The share's directory (with --tile).
         #[arg(long, value_name = "SHARE_DIR", requires = "tile")]
         out: Option<PathBuf>,

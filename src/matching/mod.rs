@@ -10,9 +10,11 @@
 //!   matching, object-space least-squares matching, and the rectified-pair matcher.
 //! - [`accuracy`]: how far to trust a model (σ, variance factors, tables against truth).
 //! - [`products`]: the files a run leaves (GeoTIFF, LAS, PLY, maps, the report).
+//! - [`run`]: the one driver: a project's photos through its method to its files.
 
 pub mod accuracy;
 pub mod block;
+pub mod error;
 pub mod grid;
 pub mod mapping;
 pub mod methods;
@@ -21,6 +23,8 @@ pub mod point;
 pub mod products;
 pub mod progress;
 pub mod project;
+pub mod run;
 
+pub use error::MatchingError;
 pub use mapping::pmf_set::{PmfSet, SampleGrid, StereoPoint, TermSet};
 pub use point::MatchedPoint;

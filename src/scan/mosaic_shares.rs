@@ -8,7 +8,7 @@ use super::manifest::{fnv64, FileRecord, MANIFEST as SCAN_MANIFEST};
 use super::mosaic::Interpolation;
 use super::relative::relative_to;
 use super::run::{mosaic_region, Reopen, ScanDir, ScanError};
-use crate::matching::block::tiles::{check_shares, TileError, TileSpec};
+use crate::matching::methods::sweep::tiles::{check_shares, TileError, TileSpec};
 use serde::{Deserialize, Serialize};
 use serde_json::json;
 use std::path::{Path, PathBuf};

@@ -120,11 +120,9 @@ impl ScannedPhoto {
 
     /// The photo as the matching core takes it (the hand-over): the image in its grey counts,
     /// its photo grid and the camera's interior orientation.
-    pub fn load_photo(
-        json: &Path,
-    ) -> Result<crate::matching::methods::sweep::scanned_pair::Photo, SidecarError> {
+    pub fn load_photo(json: &Path) -> Result<crate::matching::block::photo::Photo, SidecarError> {
         let (s, px) = Self::load(json)?;
-        Ok(crate::matching::methods::sweep::scanned_pair::Photo {
+        Ok(crate::matching::block::photo::Photo {
             image: crate::image::ImageF32::from_u16(s.grid.width, s.grid.height, &px),
             frame: s.grid.into(),
             // The certificate gives the focal length; the principal point is taken at the

@@ -10,7 +10,7 @@ use clap::Args;
 use rig::calibrate::documents::{InteriorResults, PixelResults};
 use rig::coords::PhotoMm;
 use rig::matching::methods::mgcm::run::MgcmReport;
-use rig::matching::methods::sweep::Report2;
+use rig::matching::methods::sweep::SweepReport;
 use rig::scan::ScannedPhoto;
 use rig_sim::scene::{jacksboro, AerialPhoto};
 use serde_json::json;
@@ -58,7 +58,7 @@ pub enum Method {
 #[derive(serde::Serialize)]
 #[serde(untagged)]
 pub(super) enum Model {
-    Sweep(Box<Report2>),
+    Sweep(Box<SweepReport>),
     Mgcm(Box<MgcmReport>),
 }
 

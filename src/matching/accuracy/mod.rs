@@ -3,6 +3,7 @@
 //! tables.
 
 pub mod averaging;
+pub mod figures;
 pub mod orientation_error;
 pub mod precision;
 pub mod tables;

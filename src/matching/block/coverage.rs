@@ -111,7 +111,7 @@ fn fullest_rectangle(covered: &[[bool; CELLS]], fill: f64) -> Option<[usize; 4]>
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::matching::methods::sweep::vertical_sensor;
+    use crate::matching::block::orient::vertical_sensor;
 
     /// A parallelogram of covered cells (a sheared overlap): the rectangle found holds at
     /// least the required share, and no rectangle of that share holds more (checked against

@@ -5,9 +5,11 @@
 
 use crate::coords::PixelXY;
 use crate::geometry::Sensor;
-use crate::matching::methods::sweep::scanned_pair::Photo;
-use crate::matching::methods::sweep::{orient, Oriented, Pipeline2Error};
-use crate::matching::project::Project2;
+use crate::matching::block::orient::orient;
+use crate::matching::block::orient::Oriented;
+use crate::matching::block::photo::Photo;
+use crate::matching::error::MatchingError;
+use crate::matching::project::Project;
 
 /// The photos that overlap photo `k` (`overlapping`: the pairs whose footprints overlap).
 pub fn partners(overlapping: &[(usize, usize)], k: usize) -> Vec<usize> {
@@ -57,15 +59,15 @@ pub fn references_covering(
 /// project `p`) if given, else the photo overlapping most others (the first of those);
 /// `overlapping` are the pairs whose footprints overlap, `z` the height they were found at.
 pub fn choose_reference(
-    p: &Project2,
+    p: &Project,
     overlapping: &[(usize, usize)],
     named: Option<&str>,
     section: &str,
     z: f64,
-) -> Result<(usize, Vec<usize>), Pipeline2Error> {
+) -> Result<(usize, Vec<usize>), MatchingError> {
     let r = match named {
         Some(id) => p.photos.iter().position(|ph| ph.id == id).ok_or_else(|| {
-            Pipeline2Error::Heights(format!(
+            MatchingError::Heights(format!(
                 "{}: [{section}] reference = \"{id}\": no photo of that id in the project (its photos: {})",
                 p.path.display(),
                 p.photos.iter().map(|ph| ph.id.as_str()).collect::<Vec<_>>().join(", ")
@@ -77,7 +79,7 @@ pub fn choose_reference(
     };
     let others = partners(overlapping, r);
     if others.is_empty() {
-        return Err(Pipeline2Error::Heights(format!(
+        return Err(MatchingError::Heights(format!(
             "{}: [{section}] reference = \"{}\" overlaps no other photo at {z:.0} m: name another",
             p.path.display(),
             p.photos[r].id,
@@ -98,11 +100,11 @@ pub struct Block {
 
 /// [`Block`] of project `p` for `photos`, the reference `named` in `[section]` (or chosen).
 pub fn block(
-    p: &Project2,
+    p: &Project,
     photos: &[Photo],
     named: Option<&str>,
     section: &str,
-) -> Result<Block, Pipeline2Error> {
+) -> Result<Block, MatchingError> {
     let geometry: Vec<_> = photos.iter().map(Photo::geometry).collect();
     let oriented = orient(p, &geometry)?;
     let mid = 0.5 * (oriented.heights[0] + oriented.heights[1]);
@@ -170,7 +172,7 @@ mod tests {
         );
     }
     use crate::coords::GroundM;
-    use crate::matching::methods::sweep::vertical_sensor;
+    use crate::matching::block::orient::vertical_sensor;
 
     /// Vertical photos, f = 153 mm, 0.1 mm pixels, 1000 m above a datum, base 120 m: at
     /// height h a pixel covers 0.1·(1000 − h)/153 m, the parallax is f·B/((Z₀ − h)·s) px and

@@ -1,8 +1,9 @@
-//! A project's photos as a block: read (whole or the part the model needs), their geometry
-//! for the multiphoto matchers, the ground a height can be computed on, and the work split
-//! into tiles for several machines.
+//! A project's photos as a block: read (whole or the part the model needs), oriented as
+//! sensors, their geometry for the multiphoto matchers, and the ground a height can be
+//! computed on.
 
 pub mod coverage;
 pub mod geometry;
+pub mod orient;
+pub mod photo;
 pub mod photos;
-pub mod tiles;

@@ -8,11 +8,13 @@
 
 use crate::coords::{GroundM, PixelWindow};
 use crate::geometry::{Interior, Sensor};
-use crate::matching::methods::sweep::scanned_pair::Photo;
-use crate::matching::methods::sweep::{
-    centred_grid, frame_of, orient, PhotoGeometry, Pipeline2Error,
-};
-use crate::matching::project::{GivenModel, Project2, Source};
+use crate::matching::block::orient::orient;
+use crate::matching::block::photo::centred_grid;
+use crate::matching::block::photo::frame_of;
+use crate::matching::block::photo::Photo;
+use crate::matching::block::photo::PhotoGeometry;
+use crate::matching::error::MatchingError;
+use crate::matching::project::{GivenModel, Project, Source};
 use std::path::Path;
 
 /// Pixels read beyond where the extent projects, for the matchers' templates and search
@@ -30,9 +32,9 @@ const UNSEEN_SIDE: usize = 64;
 /// Loads the project's photos (scans come through `scan`, the hardware side's hand-over), each
 /// within the project's memory limit: the windows of [`windows`].
 pub fn load_photos(
-    p: &Project2,
+    p: &Project,
     scan: &dyn Fn(&Path) -> Result<Photo, String>,
-) -> Result<Vec<Photo>, Pipeline2Error> {
+) -> Result<Vec<Photo>, MatchingError> {
     let wins = windows(p, scan)?;
     for (ph, w) in p.photos.iter().zip(&wins) {
         if let Some(w) = w {
@@ -53,9 +55,9 @@ pub fn load_photos(
 /// extent` (or the photo is one of the rig's scans, read whole), else the part that sees the
 /// extent at the heights searched, with [`MARGIN_PX`].
 pub fn windows(
-    p: &Project2,
+    p: &Project,
     scan: &dyn Fn(&Path) -> Result<Photo, String>,
-) -> Result<Vec<Option<PixelWindow>>, Pipeline2Error> {
+) -> Result<Vec<Option<PixelWindow>>, MatchingError> {
     let Some(extent) = p.extent else {
         return Ok(vec![None; p.photos.len()]);
     };
@@ -120,12 +122,12 @@ pub fn window_seeing(s: &dyn Sensor, extent: [f64; 4], heights: [f64; 2]) -> Pix
 /// Photo `k`'s geometry over its whole image, from the image's header alone (a scan is
 /// loaded: the rig's scans are read whole).
 fn whole_geometry(
-    p: &Project2,
+    p: &Project,
     k: usize,
     scan: &dyn Fn(&Path) -> Result<Photo, String>,
-) -> Result<PhotoGeometry, Pipeline2Error> {
+) -> Result<PhotoGeometry, MatchingError> {
     let ph = &p.photos[k];
-    let err = |message: String| Pipeline2Error::Photo {
+    let err = |message: String| MatchingError::Photo {
         id: ph.id.clone(),
         message,
     };
@@ -149,13 +151,13 @@ fn whole_geometry(
 /// interior orientation (a unit grid for a photo with its own model, whose sensor is the
 /// model: the type is kept whole).
 fn frame_and_interior(
-    p: &Project2,
+    p: &Project,
     k: usize,
     w: usize,
     h: usize,
-) -> Result<(crate::geometry::PixelToPhoto, Interior), Pipeline2Error> {
+) -> Result<(crate::geometry::PixelToPhoto, Interior), MatchingError> {
     let ph = &p.photos[k];
-    let err = |message: String| Pipeline2Error::Photo {
+    let err = |message: String| MatchingError::Photo {
         id: ph.id.clone(),
         message,
     };
@@ -195,14 +197,14 @@ fn frame_and_interior(
 
 /// Loads photo `k` of the project: `window` of its image (`None`: the whole image).
 pub fn load_photo(
-    p: &Project2,
+    p: &Project,
     k: usize,
     scan: &dyn Fn(&Path) -> Result<Photo, String>,
     window: Option<PixelWindow>,
-) -> Result<Photo, Pipeline2Error> {
+) -> Result<Photo, MatchingError> {
     let max = p.limits.max_memory_mb << 20;
     let ph = &p.photos[k];
-    let err = |message: String| Pipeline2Error::Photo {
+    let err = |message: String| MatchingError::Photo {
         id: ph.id.clone(),
         message,
     };

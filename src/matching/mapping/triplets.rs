@@ -9,7 +9,7 @@
 use crate::coords::PixelXY;
 use crate::geometry::Sensor;
 use crate::matching::mapping::pmf::{Mapping, PmfError};
-use crate::matching::PmfSet;
+use crate::matching::mapping::pmf_set::PmfSet;
 use serde::{Deserialize, Serialize};
 
 /// Which three coordinates.

@@ -2,6 +2,7 @@
 //! geometrically constrained matching (seed 002), object-space least-squares matching
 //! (seed 001), and the rectified-pair matcher of `rig match pair`.
 
+pub mod context;
 pub mod mgcm;
 pub mod oslsm;
 pub mod pair;

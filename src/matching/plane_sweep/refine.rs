@@ -18,6 +18,11 @@ type V5 = SVector<f64, 5>;
 /// uniqueness test tells apart.
 pub const RHO_MAX: f64 = 0.999;
 
+/// The projects' default refinement: least squares.
+pub fn default_subpixel() -> Subpixel {
+    Subpixel::Lsm
+}
+
 /// How a sweep's winner is refined below the plane step.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]

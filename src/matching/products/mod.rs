@@ -6,3 +6,4 @@ pub mod html;
 pub mod maps;
 pub mod ortho;
 pub mod outputs;
+pub mod write;

@@ -18,7 +18,7 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 #[derive(Debug, thiserror::Error)]
-pub enum Project2Error {
+pub enum ProjectError {
     #[error("cannot read {path}: {cause}")]
     Read {
         path: PathBuf,
@@ -26,6 +26,9 @@ pub enum Project2Error {
     },
     #[error("{path}: {message}")]
     Invalid { path: PathBuf, message: String },
+    /// A format-1 project's own error.
+    #[error(transparent)]
+    Pair(Box<pair::PairProjectError>),
 }
 
 #[derive(Debug, Deserialize)]
@@ -98,23 +101,68 @@ fn d_search() -> usize {
 fn d_population() -> usize {
     200
 }
-fn d_method() -> String {
-    "sweep".into()
+/// `[matching] method`: which matcher makes the model.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Method {
+    /// Every overlapping pair swept along its epipolar lines, the heights merged (seed 000).
+    #[default]
+    Sweep,
+    /// Multiphoto geometrically constrained matching (seed 002).
+    Mgcm,
+    /// Object-space least-squares matching (seed 001).
+    Oslsm,
+}
+
+impl Method {
+    pub fn name(self) -> &'static str {
+        match self {
+            Method::Sweep => "sweep",
+            Method::Mgcm => "mgcm",
+            Method::Oslsm => "oslsm",
+        }
+    }
+}
+
+impl std::fmt::Display for Method {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl std::str::FromStr for Method {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        [Method::Sweep, Method::Mgcm, Method::Oslsm]
+            .into_iter()
+            .find(|m| m.name() == s)
+            .ok_or_else(|| format!(
+                "[matching] method `{s}`: \"sweep\" (seed 000's height sweep), \"mgcm\" (seed 002's multiphoto geometrically constrained matching) or \"oslsm\" (seed 001's object-space least-squares matching)"
+            ))
+    }
+}
+
+impl<'de> Deserialize<'de> for Method {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        String::deserialize(d)?
+            .parse()
+            .map_err(serde::de::Error::custom)
+    }
 }
 
 /// `[matching]`: the method and its parameters (seed 000 Table 3, with defaults).
 #[derive(Debug, Clone, Deserialize, serde::Serialize)]
 #[serde(deny_unknown_fields)]
-pub struct Matching2 {
-    #[serde(default = "d_method")]
-    pub method: String,
+pub struct Matching {
+    #[serde(default)]
+    pub method: Method,
     #[serde(default = "d_window")]
     pub window: usize,
     #[serde(default = "d_threshold")]
     pub threshold: f64,
     /// Below the height step: "lsm" (least squares on a plane tilted across the window;
     /// pixels where it fails get no height) or "parabola".
-    #[serde(default = "crate::matching::methods::sweep::height_sweep::default_subpixel")]
+    #[serde(default = "crate::matching::plane_sweep::refine::default_subpixel")]
     pub subpixel: crate::matching::plane_sweep::refine::Subpixel,
     /// Height step of the sweep, m; default: half a pixel of parallax in each pair.
     pub h_step: Option<f64>,
@@ -163,7 +211,7 @@ struct Raw {
     photo: Vec<RawPhoto>,
     points: Option<RawPoints>,
     dem: RawDem,
-    matching: Option<Matching2>,
+    matching: Option<Matching>,
     check: Option<RawCheck>,
     #[serde(default)]
     limits: Limits,
@@ -171,7 +219,7 @@ struct Raw {
 
 /// A camera as the project gives it.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
-pub struct Camera2 {
+pub struct Camera {
     pub focal_mm: f64,
     pub principal_point: PhotoMm,
     /// Square pixels, mm: x = (col − (W−1)/2)·p, y = ((H−1)/2 − row)·p.
@@ -185,7 +233,7 @@ pub struct Camera2 {
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub enum Source {
     /// A plain image and its camera.
-    Image { path: PathBuf, camera: Camera2 },
+    Image { path: PathBuf, camera: Camera },
     /// The rig's own scanned photo (its sidecar): image, grid and focal length from the scan.
     Scan { sidecar: PathBuf },
     /// A plain image with its own geometry: a line scanner's rigorous model or RPCs (read
@@ -222,7 +270,7 @@ fn read_model(path: &Path, rpc: bool) -> Result<GivenModel, String> {
 }
 
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
-pub struct Photo2 {
+pub struct PhotoEntry {
     pub id: String,
     pub source: Source,
     /// Given, or `None`: resected from the control points.
@@ -250,10 +298,10 @@ pub struct Observation {
 }
 
 #[derive(Debug, Clone, serde::Serialize)]
-pub struct Project2 {
+pub struct Project {
     pub path: PathBuf,
     pub crs: Crs,
-    pub photos: Vec<Photo2>,
+    pub photos: Vec<PhotoEntry>,
     pub points_file: Option<PathBuf>,
     /// How well the control and check points' ground was surveyed, σ in m (X and Y, Z),
     /// when the project states it: the control's error is then shared by every photo
@@ -263,7 +311,7 @@ pub struct Project2 {
     pub cell_m: f64,
     pub extent: Option<[f64; 4]>,
     pub heights: Option<[f64; 2]>,
-    pub matching: Matching2,
+    pub matching: Matching,
     pub reference: Option<PathBuf>,
     pub limits: Limits,
 }
@@ -298,13 +346,42 @@ pub fn format_of(text: &str) -> Result<u32, String> {
     }
 }
 
+/// A project file read once, in whichever format it is.
+#[derive(Debug, Clone)]
+pub enum AnyProject {
+    /// Format 2: any number of photos, any sensor, any method.
+    Block(Project),
+    /// Format 1: one scanned pair, seed 000's method.
+    Pair(pair::PairProject),
+}
+
+impl AnyProject {
+    /// Reads `path` once and parses it as the format it declares.
+    pub fn load(path: &Path) -> Result<AnyProject, ProjectError> {
+        let text = std::fs::read_to_string(path).map_err(|source| ProjectError::Read {
+            path: path.to_path_buf(),
+            cause: source,
+        })?;
+        match format_of(&text) {
+            Ok(2) => Ok(AnyProject::Block(Project::parse(&text, path)?)),
+            Ok(_) => pair::PairProject::parse(&text, path)
+                .map(AnyProject::Pair)
+                .map_err(|e| ProjectError::Pair(Box::new(e))),
+            Err(message) => Err(ProjectError::Invalid {
+                path: path.to_path_buf(),
+                message,
+            }),
+        }
+    }
+}
+
 const MAX_PHOTOS: usize = 64;
 /// Coordinates of ground points and projection centres, m (any projected CRS fits).
 const MAX_GROUND_M: f64 = 1e8;
 
-impl Project2 {
-    pub fn load(path: &Path) -> Result<Project2, Project2Error> {
-        let text = std::fs::read_to_string(path).map_err(|source| Project2Error::Read {
+impl Project {
+    pub fn load(path: &Path) -> Result<Project, ProjectError> {
+        let text = std::fs::read_to_string(path).map_err(|source| ProjectError::Read {
             path: path.to_path_buf(),
             cause: source,
         })?;
@@ -313,8 +390,8 @@ impl Project2 {
 
     /// The project in `text`, as if read from `path` (relative paths resolved against its
     /// directory; nothing else is read).
-    pub fn parse(text: &str, path: &Path) -> Result<Project2, Project2Error> {
-        let bad = |message: String| Project2Error::Invalid {
+    pub fn parse(text: &str, path: &Path) -> Result<Project, ProjectError> {
+        let bad = |message: String| ProjectError::Invalid {
             path: path.to_path_buf(),
             message,
         };
@@ -374,7 +451,7 @@ impl Project2 {
             };
             cameras.insert(
                 name.clone(),
-                Camera2 {
+                Camera {
                     focal_mm: c.focal_mm,
                     principal_point: PhotoMm::new(c.principal_point_mm[0], c.principal_point_mm[1]),
                     pixel_mm,
@@ -388,7 +465,7 @@ impl Project2 {
                 raw.photo.len()
             )));
         }
-        let mut photos: Vec<Photo2> = Vec::new();
+        let mut photos: Vec<PhotoEntry> = Vec::new();
         for (k, p) in raw.photo.iter().enumerate() {
             let at = format!("[[photo]] {} (`{}`)", k + 1, p.id);
             if p.id.trim().is_empty() || photos.iter().any(|q| q.id == p.id) {
@@ -411,7 +488,7 @@ impl Project2 {
                         "{at}: a photo with its pushbroom model or RPCs takes image (and no camera, scan, position or angles_deg: the model is its orientation)"
                     )));
                 };
-                photos.push(Photo2 {
+                photos.push(PhotoEntry {
                     id: p.id.clone(),
                     source: Source::Model {
                         path: base.join(img),
@@ -461,7 +538,7 @@ impl Project2 {
                     )))
                 }
             };
-            photos.push(Photo2 {
+            photos.push(PhotoEntry {
                 id: p.id.clone(),
                 source,
                 exterior,
@@ -491,12 +568,6 @@ impl Project2 {
         let m = raw
             .matching
             .unwrap_or_else(|| toml::from_str("").expect("every [matching] key has a default"));
-        if !["sweep", "mgcm", "oslsm"].contains(&m.method.as_str()) {
-            return Err(bad(format!(
-                "[matching] method `{}`: \"sweep\" (seed 000's height sweep), \"mgcm\" (seed 002's multiphoto geometrically constrained matching) or \"oslsm\" (seed 001's object-space least-squares matching)",
-                m.method
-            )));
-        }
         m.mgcm.check().map_err(bad)?;
         m.oslsm.check().map_err(bad)?;
         if let Some(s) = m.h_step {
@@ -546,7 +617,7 @@ impl Project2 {
                 Some(v)
             }
         };
-        Ok(Project2 {
+        Ok(Project {
             path: path.to_path_buf(),
             crs: raw.crs,
             photos,
@@ -563,11 +634,11 @@ impl Project2 {
 
     /// The points file's observations (`id,kind,x,y,z,photo,col,row`, a header line first;
     /// x, y, z empty for tie points), every number range-checked with its line.
-    pub fn observations(&self) -> Result<Vec<Observation>, Project2Error> {
+    pub fn observations(&self) -> Result<Vec<Observation>, ProjectError> {
         let Some(f) = &self.points_file else {
             return Ok(Vec::new());
         };
-        let text = std::fs::read_to_string(f).map_err(|source| Project2Error::Read {
+        let text = std::fs::read_to_string(f).map_err(|source| ProjectError::Read {
             path: f.clone(),
             cause: source,
         })?;
@@ -575,13 +646,13 @@ impl Project2 {
     }
 }
 
-/// The points file's text (see [`Project2::observations`]).
+/// The points file's text (see [`Project::observations`]).
 pub fn parse_points(
     text: &str,
     f: &Path,
-    photos: &[Photo2],
-) -> Result<Vec<Observation>, Project2Error> {
-    let bad = |line: usize, message: String| Project2Error::Invalid {
+    photos: &[PhotoEntry],
+) -> Result<Vec<Observation>, ProjectError> {
+    let bad = |line: usize, message: String| ProjectError::Invalid {
         path: f.to_path_buf(),
         message: format!("line {line}: {message}"),
     };
@@ -678,10 +749,10 @@ mod tests {
                 "file = \"points.csv\"",
                 &format!("file = \"points.csv\"\nground_sigma_m = {v}"),
             );
-            Project2::parse(&t, Path::new("p.toml")).map(|p| p.control_sigma_m)
+            Project::parse(&t, Path::new("p.toml")).map(|p| p.control_sigma_m)
         };
         assert_eq!(
-            Project2::parse(seed, Path::new("p.toml"))
+            Project::parse(seed, Path::new("p.toml"))
                 .unwrap()
                 .control_sigma_m,
             None

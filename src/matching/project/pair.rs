@@ -7,7 +7,7 @@ use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
 #[derive(Debug, thiserror::Error)]
-pub enum ProjectError {
+pub enum PairProjectError {
     #[error("cannot read {path}: {source}")]
     Read {
         path: PathBuf,
@@ -82,7 +82,7 @@ fn two() -> u8 {
 
 #[derive(Debug, Clone, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
-pub struct Matching {
+pub struct PairMatching {
     pub h_min: f64,
     pub h_max: f64,
     /// Height step, m; default: half a pixel of parallax where it is largest (derived from
@@ -95,7 +95,7 @@ pub struct Matching {
     pub threshold: f64,
     /// Below the height step: "lsm" (least squares on a plane tilted across the window;
     /// pixels where it fails get no height) or "parabola".
-    #[serde(default = "crate::matching::methods::sweep::height_sweep::default_subpixel")]
+    #[serde(default = "crate::matching::plane_sweep::refine::default_subpixel")]
     pub subpixel: crate::matching::plane_sweep::refine::Subpixel,
     /// Obsolete: the plane sweep scores every height at every pixel, so there is no range to
     /// narrow. Accepted (and ignored) so that older projects still load.
@@ -233,7 +233,7 @@ impl Default for Limits {
 
 #[derive(Debug, Clone, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
-pub struct Project {
+pub struct PairProject {
     /// The ground coordinates' system, written into every output (default "local").
     #[serde(default)]
     pub crs: crate::geometry::Crs,
@@ -241,7 +241,7 @@ pub struct Project {
     pub points: Points,
     #[serde(default = "default_pmf")]
     pub pmf: PmfSection,
-    pub matching: Matching,
+    pub matching: PairMatching,
     pub regions: Regions,
     pub grid: GridSection,
     #[serde(default)]
@@ -269,9 +269,9 @@ pub struct PointFile {
     pub cps: Vec<StereoPoint>,
 }
 
-impl Project {
-    pub fn load(path: &Path) -> Result<Project, ProjectError> {
-        let text = std::fs::read_to_string(path).map_err(|source| ProjectError::Read {
+impl PairProject {
+    pub fn load(path: &Path) -> Result<PairProject, PairProjectError> {
+        let text = std::fs::read_to_string(path).map_err(|source| PairProjectError::Read {
             path: path.to_path_buf(),
             source,
         })?;
@@ -280,12 +280,12 @@ impl Project {
 
     /// The project in `text`, as if read from `path` (its relative paths are resolved against
     /// `path`'s directory; nothing is read).
-    pub fn parse(text: &str, path: &Path) -> Result<Project, ProjectError> {
-        let bad = |message: String| ProjectError::Invalid {
+    pub fn parse(text: &str, path: &Path) -> Result<PairProject, PairProjectError> {
+        let bad = |message: String| PairProjectError::Invalid {
             path: path.to_path_buf(),
             message,
         };
-        let mut p: Project =
+        let mut p: PairProject =
             toml::from_str(text).map_err(|e| bad(e.to_string().trim_end().to_string()))?;
         p.check().map_err(bad)?;
         let base = path.parent().unwrap_or(Path::new("."));
@@ -355,13 +355,13 @@ impl Project {
     }
 
     /// The control and check points; every number finite, ids given.
-    pub fn points(&self) -> Result<PointFile, ProjectError> {
+    pub fn points(&self) -> Result<PointFile, PairProjectError> {
         let f = &self.points.file;
-        let text = std::fs::read_to_string(f).map_err(|source| ProjectError::Read {
+        let text = std::fs::read_to_string(f).map_err(|source| PairProjectError::Read {
             path: f.clone(),
             source,
         })?;
-        let bad = |message: String| ProjectError::Invalid {
+        let bad = |message: String| PairProjectError::Invalid {
             path: f.clone(),
             message,
         };

@@ -12,11 +12,15 @@
 use crate::coords::PixelXY;
 use crate::geometry::{Crs, Resection, Sensor};
 use crate::matching::accuracy::averaging::{remove_window_averaging, AveragingReport, Kernel};
+use crate::matching::accuracy::figures::ModelFigures;
 use crate::matching::accuracy::tables::{analyse, Accuracy};
 use crate::matching::block::geometry::{
     block, flying_height, parallax_per_m, references_covering, Block,
 };
+use crate::matching::block::orient::Oriented;
+use crate::matching::error::MatchingError;
 use crate::matching::grid::ElevationGrid;
+use crate::matching::methods::context::Run;
 use crate::matching::methods::mgcm::adjust::{
     local_shape, template, AdjustParams, PointFailure, View,
 };
@@ -24,15 +28,12 @@ use crate::matching::methods::mgcm::config::{auto_cell, MgcmConfig};
 use crate::matching::methods::mgcm::interest::{epipolar_direction, select};
 use crate::matching::methods::mgcm::point::{match_point, PointResult, RayTests};
 use crate::matching::methods::mgcm::pyramid::{levels_for, pyramid, AtLevel, Textured};
-use crate::matching::methods::sweep::scanned_pair::{Photo, PipelineError};
-use crate::matching::methods::sweep::{ModelFigures, Oriented, Pipeline2Error};
 use crate::matching::products::outputs;
 use crate::matching::progress::Progress;
-use crate::matching::project::Project2;
 use crate::matching::MatchedPoint;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 /// One pyramid level's part of the run.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -150,7 +151,7 @@ impl MgcmReport {
                 format!("{:.1} … {:.1} m", self.heights_m[0], self.heights_m[1]),
             ),
         ];
-        v.extend(crate::matching::methods::sweep::corrected_lines(
+        v.extend(crate::matching::block::orient::corrected_lines(
             &self.corrected,
         ));
         for l in &self.levels {
@@ -515,16 +516,16 @@ fn neighbourhood_tests(points: &mut [FinePoint], radius_px: f64, m_per_px: f64) 
     }
 }
 
-/// Runs the MGCM of project `p` on its loaded photos into `out`.
-pub fn run(
-    p: &Project2,
-    photos: &[Photo],
-    out: &Path,
-    max_memory_mb: Option<u64>,
-    progress: &dyn Progress,
-) -> Result<MgcmReport, Pipeline2Error> {
-    crate::matching::methods::sweep::scanned_pair::check_out_dir(out)?;
-    let reference_dem = ModelFigures::read_reference(p)?;
+/// Runs the MGCM of of `run`'s project on its photos.
+pub fn run(run: &Run) -> Result<MgcmReport, MatchingError> {
+    let Run {
+        project: p,
+        photos,
+        out,
+        max_memory_mb,
+        progress,
+        ..
+    } = *run;
     let started = std::time::Instant::now();
     let cfg = p.matching.mgcm.clone();
     let Block {
@@ -561,7 +562,7 @@ pub fn run(
         .sum();
     let limit = max_memory_mb.unwrap_or(p.limits.max_memory_mb) << 20;
     if bytes > limit {
-        return Err(Pipeline2Error::Grid(format!(
+        return Err(MatchingError::Memory(format!(
             "the pyramids of {} photos need {} MiB; the limit is {} MiB ([limits] max_memory_mb or --max-memory)",
             used.len(),
             bytes >> 20,
@@ -637,7 +638,7 @@ pub fn run(
     // The DEM from the points.
     let budget = max_memory_mb.unwrap_or(p.limits.max_memory_mb);
     let mut grid = ElevationGrid::covering(extent, p.cell_m, budget)
-        .map_err(|e| Pipeline2Error::Grid(e.to_string()))?;
+        .map_err(|e| MatchingError::Grid(e.to_string()))?;
     // The points' spacing on the ground, the widest of the references'.
     let spacing_m = runs
         .iter()
@@ -663,8 +664,8 @@ pub fn run(
     );
     tracing::info!(?averaging, "window averaging removed");
     let obs = p.observations()?;
-    let (model, reference_dem) =
-        ModelFigures::check(p, reference_dem, &obs, grid, &quality.sigma_m);
+    let reference_dem = run.reference.as_ref();
+    let model = ModelFigures::check(p, reference_dem, &obs, grid, &quality.sigma_m);
     let hg = flying_height(&sensors[r], centre0, mid).unwrap_or(f64::NAN);
     // Blunders the matcher detected: points its tests refused (not those it could not try:
     // a flat template, one at the edge, a ray that cannot reach the height).
@@ -679,7 +680,7 @@ pub fn run(
             Some(_) => true,
         })
         .count();
-    let accuracy = reference_dem.as_ref().map(|g| {
+    let accuracy = reference_dem.map(|g| {
         let d: Vec<(f64, f64)> = matched
             .iter()
             .filter_map(|m| {
@@ -727,23 +728,18 @@ pub fn run(
         accuracy,
         warnings,
     };
-    let write = |source| PipelineError::Write {
+    let write = |source| MatchingError::Write {
         dir: out.to_path_buf(),
         cause: source,
     };
-    crate::matching::methods::sweep::write_model(
-        out,
-        &report.model.grid,
+    run.write_model(
+        &report.model,
         &matched,
         &quality,
-        photos,
         &sensors,
-        reference_dem.as_ref().zip(report.model.comparison.as_ref()),
-        p.crs,
         &report,
         &report.summary(),
-    )
-    .map_err(write)?;
+    )?;
     let ids: Vec<&str> = p.photos.iter().map(|ph| ph.id.as_str()).collect();
     crate::atomic::write(
         &out.join(outputs::POINTS_CSV),
@@ -796,7 +792,7 @@ fn match_reference(
     at: &Shared<'_>,
     r: usize,
     others: &[usize],
-) -> Result<ReferenceRun, Pipeline2Error> {
+) -> Result<ReferenceRun, MatchingError> {
     let Shared {
         sensors,
         pyr,
@@ -822,7 +818,7 @@ fn match_reference(
         others.iter().map(|&k| &sensors[k] as &dyn Sensor).collect();
     let px_per_m0 = parallax_per_m(&sensors[r], &search_sensors, centre0, mid);
     if px_per_m0.is_nan() || px_per_m0 <= 1e-9 {
-        return Err(Pipeline2Error::Grid(
+        return Err(MatchingError::NoMatch(
             "the photos show no parallax with height (no base between them): nothing to match"
                 .into(),
         ));
@@ -896,7 +892,7 @@ fn match_reference(
             blunders,
         });
         if !grid.fill_holes() {
-            return Err(Pipeline2Error::Grid(format!(
+            return Err(MatchingError::NoMatch(format!(
                 "no point of pyramid level {level} matched: do the photos overlap within [dem] heights {heights:?}?"
             )));
         }

@@ -5,10 +5,10 @@
 use crate::coords::{GroundM, PixelXY};
 use crate::geometry::{FrameSensor, Sensor};
 use crate::image::ImageF32;
+use crate::matching::block::orient::vertical_sensor;
 use crate::matching::methods::mgcm::adjust::{solve, AdjustParams, Constraint, View};
 use crate::matching::methods::mgcm::point::{match_point, RayRejection, RayTests};
 use crate::matching::methods::mgcm::pyramid::Textured;
-use crate::matching::methods::sweep::vertical_sensor;
 
 const F_MM: f64 = 153.0;
 const PIX_MM: f64 = 0.1;

@@ -203,8 +203,10 @@ pub fn refine_block(
         .flat_map(|&r| cs.iter().map(move |&c| (c, r)))
         .collect();
     progress.begin("patches", jobs.len() as u64);
-    // Each patch is merged as soon as it is done (no patch's groundels are kept beyond its
-    // merge): the block holds only the sums, in f32 (a grey value to 7 digits).
+    // Patches are solved a few at a time in parallel and merged in the block's order, so that
+    // the sums (float additions do not commute in their rounding) are the same from run to
+    // run whichever patch finishes first; no patch's groundels are kept beyond its chunk's
+    // merge: the block holds only the sums, in f32 (a grey value to 7 digits).
     let n = coarse.z.len();
     let (gu, gv) = coarse.groundels();
     let m = coarse.per_cell;
@@ -216,15 +218,7 @@ pub fn refine_block(
         dw: Vec<f32>,
         patches: Vec<PatchReport>,
     }
-    let sums = std::sync::Mutex::new(Sums {
-        zs: vec![0.0; n],
-        ss: vec![0.0; n],
-        ws: vec![0.0; n],
-        ds: vec![0.0; gu * gv],
-        dw: vec![0.0; gu * gv],
-        patches: Vec::with_capacity(jobs.len()),
-    });
-    jobs.par_iter().for_each(|&(c0, r0)| {
+    let solve = |&(c0, r0): &(usize, usize)| {
         let w = size.min(coarse.cols - c0);
         let h = size.min(coarse.rows - r0);
         let sub = Grids {
@@ -249,76 +243,88 @@ pub fn refine_block(
         let views: Vec<PhotoView<'_>> = order.iter().map(|&k| photos[k]).collect();
         let res = refine(&views, &sub, p).map(|r| to_block_datum(r, &order, &sub));
         let open = [c0 > 0, c0 + w < coarse.cols, r0 > 0, r0 + h < coarse.rows];
-        let mut guard = sums.lock().unwrap_or_else(|e| e.into_inner());
-        let s = &mut *guard;
-        match res {
-            Ok(r) => {
-                for j in 0..h {
-                    for i in 0..w {
-                        let l = j * w + i;
-                        if !r.informed[l] {
-                            continue;
+        (c0, r0, w, h, open, res)
+    };
+    let mut sums = Sums {
+        zs: vec![0.0; n],
+        ss: vec![0.0; n],
+        ws: vec![0.0; n],
+        ds: vec![0.0; gu * gv],
+        dw: vec![0.0; gu * gv],
+        patches: Vec::with_capacity(jobs.len()),
+    };
+    for chunk in jobs.chunks(4 * rayon::current_num_threads().max(1)) {
+        let done: Vec<_> = chunk.par_iter().map(solve).collect();
+        for (c0, r0, w, h, open, res) in done {
+            let s = &mut sums;
+            match res {
+                Ok(r) => {
+                    for j in 0..h {
+                        for i in 0..w {
+                            let l = j * w + i;
+                            if !r.informed[l] {
+                                continue;
+                            }
+                            let wt = ramp(i as f64, w, overlap, open[0], open[1])
+                                * ramp(j as f64, h, overlap, open[2], open[3]);
+                            let k = (r0 + j) * coarse.cols + c0 + i;
+                            s.zs[k] += wt * r.z[l];
+                            s.ss[k] += wt * r.sigma_z[l];
+                            s.ws[k] += wt;
                         }
-                        let wt = ramp(i as f64, w, overlap, open[0], open[1])
-                            * ramp(j as f64, h, overlap, open[2], open[3]);
-                        let k = (r0 + j) * coarse.cols + c0 + i;
-                        s.zs[k] += wt * r.z[l];
-                        s.ss[k] += wt * r.sigma_z[l];
-                        s.ws[k] += wt;
                     }
-                }
-                // Groundels: the weight of the post cell they lie in, by their place in it.
-                let (pu, pv) = ((w - 1) * m, (h - 1) * m);
-                for v in 0..pv {
-                    for u in 0..pu {
-                        let d = r.d[v * pu + u];
-                        if !d.is_finite() {
-                            continue;
+                    // Groundels: the weight of the post cell they lie in, by their place in it.
+                    let (pu, pv) = ((w - 1) * m, (h - 1) * m);
+                    for v in 0..pv {
+                        for u in 0..pu {
+                            let d = r.d[v * pu + u];
+                            if !d.is_finite() {
+                                continue;
+                            }
+                            let fi = (u as f64 + 0.5) / m as f64;
+                            let fj = (v as f64 + 0.5) / m as f64;
+                            let wt = ramp(fi, w, overlap, open[0], open[1])
+                                * ramp(fj, h, overlap, open[2], open[3]);
+                            let k = (r0 * m + v) * gu + c0 * m + u;
+                            s.ds[k] += (wt * d) as f32;
+                            s.dw[k] += wt as f32;
                         }
-                        let fi = (u as f64 + 0.5) / m as f64;
-                        let fj = (v as f64 + 0.5) / m as f64;
-                        let wt = ramp(fi, w, overlap, open[0], open[1])
-                            * ramp(fj, h, overlap, open[2], open[3]);
-                        let k = (r0 * m + v) * gu + c0 * m + u;
-                        s.ds[k] += (wt * d) as f32;
-                        s.dw[k] += wt as f32;
                     }
+                    s.patches.push(PatchReport {
+                        first: [c0, r0],
+                        size: [w, h],
+                        radiometry: Some(
+                            r.radiometry
+                                .iter()
+                                .zip(&r.photo_seen)
+                                .map(|(v, &seen)| seen.then_some(*v))
+                                .collect(),
+                        ),
+                        sigma0: Some(r.sigma0),
+                        stalled: r.stalled,
+                        inflation: Some(r.inflation),
+                        signal_share: Some(r.signal_share),
+                        iterations: r.iterations.len(),
+                        history: r.iterations,
+                        failure: None,
+                    });
                 }
-                s.patches.push(PatchReport {
+                Err(e) => s.patches.push(PatchReport {
                     first: [c0, r0],
                     size: [w, h],
-                    radiometry: Some(
-                        r.radiometry
-                            .iter()
-                            .zip(&r.photo_seen)
-                            .map(|(v, &seen)| seen.then_some(*v))
-                            .collect(),
-                    ),
-                    sigma0: Some(r.sigma0),
-                    stalled: r.stalled,
-                    inflation: Some(r.inflation),
-                    signal_share: Some(r.signal_share),
-                    iterations: r.iterations.len(),
-                    history: r.iterations,
-                    failure: None,
-                });
+                    radiometry: None,
+                    sigma0: None,
+                    stalled: false,
+                    inflation: None,
+                    signal_share: None,
+                    iterations: 0,
+                    history: Vec::new(),
+                    failure: Some(e),
+                }),
             }
-            Err(e) => s.patches.push(PatchReport {
-                first: [c0, r0],
-                size: [w, h],
-                radiometry: None,
-                sigma0: None,
-                stalled: false,
-                inflation: None,
-                signal_share: None,
-                iterations: 0,
-                history: Vec::new(),
-                failure: Some(e),
-            }),
+            progress.advance(1);
         }
-        drop(guard);
-        progress.advance(1);
-    });
+    }
     progress.end();
     let Sums {
         zs,
@@ -327,8 +333,8 @@ pub fn refine_block(
         mut ds,
         dw,
         mut patches,
-    } = sums.into_inner().unwrap_or_else(|e| e.into_inner());
-    // In the block's order, whichever finished first.
+    } = sums;
+    // In the block's order.
     patches.sort_by_key(|pr| (pr.first[1], pr.first[0]));
     let z = (0..n)
         .map(|k| {

@@ -9,8 +9,12 @@
 
 use crate::coords::PixelXY;
 use crate::geometry::{Crs, Resection, Sensor};
+use crate::matching::accuracy::figures::ModelFigures;
 use crate::matching::block::geometry::{block, parallax_per_m, Block};
+use crate::matching::block::orient::Oriented;
+use crate::matching::error::MatchingError;
 use crate::matching::grid::{Comparison, ElevationGrid, NodeQuality};
+use crate::matching::methods::context::Run;
 use crate::matching::methods::oslsm::coarse_features::{
     feature_grid, FeatureReport, LINE_SPACING_PX,
 };
@@ -19,12 +23,9 @@ use crate::matching::methods::oslsm::grids::Grids;
 use crate::matching::methods::oslsm::patches::{refine_block, PatchReport};
 use crate::matching::methods::oslsm::plot::convergence_plot;
 use crate::matching::methods::oslsm::PhotoView;
-use crate::matching::methods::sweep::scanned_pair::{Photo, PipelineError};
-use crate::matching::methods::sweep::{ModelFigures, Oriented, Pipeline2Error};
 use crate::matching::products::outputs;
-use crate::matching::progress::Progress;
+use crate::matching::products::write::check_out_dir;
 use crate::matching::project::matchers::CoarseSource;
-use crate::matching::project::Project2;
 use crate::matching::MatchedPoint;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
@@ -118,7 +119,7 @@ impl OslsmReport {
                 ),
             ),
         ];
-        v.extend(crate::matching::methods::sweep::corrected_lines(
+        v.extend(crate::matching::block::orient::corrected_lines(
             &self.corrected,
         ));
         if let Some(c) = &self.coarse_comparison {
@@ -238,16 +239,16 @@ fn near_a_height(z: &[f64], cols: usize, rows: usize, reach: usize) -> Vec<bool>
         .collect()
 }
 
-/// Runs the object-space matching of project `p` on its loaded photos into `out`.
-pub fn run(
-    p: &Project2,
-    photos: &[Photo],
-    out: &Path,
-    max_memory_mb: Option<u64>,
-    progress: &dyn Progress,
-) -> Result<OslsmReport, Pipeline2Error> {
-    crate::matching::methods::sweep::scanned_pair::check_out_dir(out)?;
-    let reference = ModelFigures::read_reference(p)?;
+/// Runs the object-space matching of of `run`'s project on its photos.
+pub fn run(run: &Run) -> Result<OslsmReport, MatchingError> {
+    let Run {
+        project: p,
+        photos,
+        out,
+        max_memory_mb,
+        progress,
+        ..
+    } = *run;
     let started = std::time::Instant::now();
     let cfg = p.matching.oslsm.clone();
     let Block {
@@ -284,14 +285,14 @@ pub fn run(
         .collect();
     let px_per_m = parallax_per_m(&sensors[r], &searches, centre, mid);
     if px_per_m.is_nan() || px_per_m <= 1e-9 {
-        return Err(Pipeline2Error::Oslsm(
+        return Err(MatchingError::Oslsm(
             "the photos show no parallax with height (no base between them): nothing to match"
                 .into(),
         ));
     }
     let m_per_px = 1.0 / px_per_m;
     let gsd = sensors[r].ground_pixel_m(centre, mid).ok_or_else(|| {
-        Pipeline2Error::Oslsm(format!(
+        MatchingError::Oslsm(format!(
             "photo {}: its centre's ray does not reach {mid:.0} m",
             p.photos[r].id
         ))
@@ -316,7 +317,7 @@ pub fn run(
     }
     let per_cell = (post_m / groundel_want).round().max(1.0);
     if per_cell > 64.0 {
-        return Err(Pipeline2Error::Oslsm(format!(
+        return Err(MatchingError::Oslsm(format!(
             "{}: [dem] cell_m = {post_m} m holds {per_cell:.0} groundels of {:.2} m along a side (at most 64): use a smaller cell_m or a larger [matching.oslsm] groundel_px",
             p.path.display(),
             groundel_want
@@ -327,7 +328,7 @@ pub fn run(
     // The posts: the model's nodes. Memory before anything large is made.
     let budget = max_memory_mb.unwrap_or(p.limits.max_memory_mb);
     let mut grid = ElevationGrid::covering(extent, post_m, budget)
-        .map_err(|e| Pipeline2Error::Grid(e.to_string()))?;
+        .map_err(|e| MatchingError::Grid(e.to_string()))?;
     let (cols, rows) = (grid.cols, grid.rows);
     let groundels = (cols.saturating_sub(1) as u64)
         * (rows.saturating_sub(1) as u64)
@@ -343,7 +344,7 @@ pub fn run(
     );
     let limit = budget << 20;
     if bytes > limit {
-        return Err(Pipeline2Error::Oslsm(format!(
+        return Err(MatchingError::Oslsm(format!(
             "{groundels} groundels of {groundel_m:.2} m need about {} MiB; the limit is {} MiB ([limits] max_memory_mb or --max-memory; or a larger [matching.oslsm] groundel_px)",
             bytes >> 20,
             budget
@@ -365,13 +366,14 @@ pub fn run(
         CoarseSource::File(f) => {
             let path = p.path.parent().unwrap_or(Path::new(".")).join(f);
             let g = crate::matching::products::files::read_geotiff(&path).map_err(|e| {
-                Pipeline2Error::Oslsm(format!(
+                MatchingError::Oslsm(format!(
                     "{}: [matching.oslsm] coarse = \"{}\": {e}",
                     p.path.display(),
                     f.display()
                 ))
             })?;
-            let c = reference
+            let c = run
+                .reference
                 .as_ref()
                 .map(|r| g.compare(|x, y| r.interpolate(x, y)));
             (g, c)
@@ -383,7 +385,7 @@ pub fn run(
             // Nodes a few lines apart on the ground, so that most hold several points.
             let cell = post_m.max(4.0 * LINE_SPACING_PX * gsd);
             let mut g = ElevationGrid::covering(extent, cell, budget)
-                .map_err(|e| Pipeline2Error::Grid(e.to_string()))?;
+                .map_err(|e| MatchingError::Grid(e.to_string()))?;
             let rep = feature_grid(
                 views[0],
                 &others_v,
@@ -393,7 +395,7 @@ pub fn run(
                 progress,
             );
             if rep.nodes == 0 {
-                return Err(Pipeline2Error::Oslsm(format!(
+                return Err(MatchingError::Oslsm(format!(
                     "the feature route matched no edges into heights within [dem] heights {:.0} … {:.0} m ({} points, {} line pairs): do the heights bracket the terrain, and do the photos show edges?",
                     heights[0],
                     heights[1],
@@ -410,12 +412,13 @@ pub fn run(
                         p.crs,
                     )
                 })
-                .map_err(|source| PipelineError::Write {
+                .map_err(|source| MatchingError::Write {
                     dir: dir.clone(),
                     cause: source,
                 })?;
             // Compared where the edges gave heights; then filled for the posts.
-            let c = reference
+            let c = run
+                .reference
                 .as_ref()
                 .map(|r| g.compare(|x, y| r.interpolate(x, y)));
             let mut z: Vec<f64> = g.z.iter().map(|&v| v as f64).collect();
@@ -435,7 +438,7 @@ pub fn run(
                     "comparison": c,
                 }),
             )
-            .map_err(|source| PipelineError::Write {
+            .map_err(|source| MatchingError::Write {
                 dir: dir.clone(),
                 cause: source,
             })?;
@@ -443,13 +446,9 @@ pub fn run(
             (g, c)
         }
         CoarseSource::Sweep => {
-            let r = crate::matching::methods::sweep::run(
-                p,
-                photos,
-                &out.join(outputs::COARSE),
-                max_memory_mb,
-                progress,
-            )?;
+            let coarse = out.join(outputs::COARSE);
+            check_out_dir(&coarse)?;
+            let r = crate::matching::methods::sweep::run(&run.into_dir(&coarse))?;
             for pr in &r.pairs {
                 for w in pr.dtm.warnings() {
                     warnings.push(format!(
@@ -475,7 +474,7 @@ pub fn run(
     // reported.
     let supported = near_a_height(&zc, cols, rows, COARSE_REACH);
     let holes = crate::matching::grid::fill_holes(&mut zc, cols, rows).ok_or_else(|| {
-        Pipeline2Error::Oslsm(
+        MatchingError::Oslsm(
             "the coarse model has no height over the photos: nothing to refine (the sweep's: see coarse/report.html; a [matching.oslsm] coarse file: is it in the project's CRS?)".into(),
         )
     })?;
@@ -500,7 +499,7 @@ pub fn run(
         &cfg.params(m_per_px),
         progress,
     )
-    .map_err(|e| Pipeline2Error::Oslsm(e.to_string()))?;
+    .map_err(|e| MatchingError::Oslsm(e.to_string()))?;
     let adjust_seconds = adjust_started.elapsed().as_secs_f64();
     // The model: posts refined from the grey values, with their σ: the adjustment's and
     // the terrain's bending between posts that the bilinear surface cannot follow.
@@ -542,7 +541,7 @@ pub fn run(
     };
     let refined_posts = points.len();
     if refined_posts == 0 {
-        return Err(Pipeline2Error::Oslsm(format!(
+        return Err(MatchingError::Oslsm(format!(
             "it refined no post: all {} patches failed (first: {}){}{}; is the coarse model within a pixel or two of parallax of the terrain, and do [dem] heights bracket it?",
             merged.patches.len(),
             merged
@@ -620,7 +619,7 @@ pub fn run(
         ));
     }
     let obs = p.observations()?;
-    let (model, reference_dem) = ModelFigures::check(p, reference, &obs, grid, &quality.sigma_m);
+    let model = ModelFigures::check(p, run.reference.as_ref(), &obs, grid, &quality.sigma_m);
     let report = OslsmReport {
         project: p.path.clone(),
         method: "oslsm".into(),
@@ -655,23 +654,18 @@ pub fn run(
         model,
         warnings,
     };
-    let write = |source| PipelineError::Write {
+    let write = |source| MatchingError::Write {
         dir: out.to_path_buf(),
         cause: source,
     };
-    crate::matching::methods::sweep::write_model(
-        out,
-        &report.model.grid,
+    run.write_model(
+        &report.model,
         &points,
         &quality,
-        photos,
         &sensors,
-        reference_dem.as_ref().zip(report.model.comparison.as_ref()),
-        p.crs,
         &report,
         &report.summary(),
-    )
-    .map_err(write)?;
+    )?;
     crate::matching::products::files::write_ortho(
         &out.join(outputs::REFLECTANCE),
         &reflectance,

@@ -6,8 +6,8 @@ use super::*;
 use crate::coords::{GroundM, PixelXY};
 use crate::geometry::{FrameSensor, Sensor};
 use crate::image::ImageF32;
+use crate::matching::block::orient::vertical_sensor;
 use crate::matching::methods::oslsm::solve::MAX_UNKNOWNS;
-use crate::matching::methods::sweep::vertical_sensor;
 
 const F_MM: f64 = 153.0;
 const PIX_MM: f64 = 0.1;

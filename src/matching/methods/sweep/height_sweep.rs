@@ -48,11 +48,6 @@ impl Default for SweepParams {
     }
 }
 
-/// The projects' default refinement: least squares.
-pub fn default_subpixel() -> Subpixel {
-    Subpixel::Lsm
-}
-
 /// Heights per matched reference pixel: `h[i + j·cols]` belongs to reference pixel
 /// (`col0 + i·stride`, `row0 + j·stride`); NaN where no height passed the threshold.
 #[derive(Debug, Clone, PartialEq)]

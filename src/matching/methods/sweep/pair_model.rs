@@ -4,7 +4,8 @@
 
 use crate::coords::GroundM;
 use crate::image::ImageF32;
-use crate::matching::grid::{Comparison, ElevationGrid, GridError};
+use crate::matching::error::DtmError;
+use crate::matching::grid::{Comparison, ElevationGrid};
 use crate::matching::mapping::pmf_set::PmfSet;
 use crate::matching::methods::sweep::height_sweep::{sweep_with, HeightMap, SweepParams};
 use crate::matching::methods::sweep::regions::{remove_wrong_heights, RegionParams, RegionStats};
@@ -26,21 +27,6 @@ pub struct Budget {
     pub max_memory_mb: u64,
     /// Candidate heights the sweep may try.
     pub max_candidates: f64,
-}
-
-#[derive(Debug, thiserror::Error)]
-pub enum DtmError {
-    #[error("the sweep would try up to {candidates:.3e} candidate heights ({pixels} pixels × {heights} heights); the limit is {limit:.3e}: narrow h_min … h_max, take a larger h_step or stride, or raise [limits] max_candidates_g")]
-    TooMuchWork {
-        candidates: f64,
-        pixels: u64,
-        heights: u64,
-        limit: f64,
-    },
-    #[error("the run would hold about {mib:.0} MiB (photos, height map, points); the limit is {limit_mib} MiB: take a larger stride, or raise [limits] max_memory_mb (or --max-memory)")]
-    TooMuchMemory { mib: f64, limit_mib: u64 },
-    #[error(transparent)]
-    Grid(#[from] GridError),
 }
 
 /// The sweep's worst-case candidates and the run's memory, from the photos' sizes and the

@@ -5,76 +5,25 @@
 //! whoever made them — the rig's scans or anyone's — hands them over as [`Photo`]s.
 
 use crate::coords::{GroundM, PixelXY};
-use crate::geometry::Crs;
-use crate::geometry::{
-    resect, FrameCamera, FrameSensor, Interior, PixelToPhoto, Resection, ResectionError,
-};
-use crate::image::ImageF32;
+use crate::geometry::{resect, FrameCamera, FrameSensor, Resection};
 use crate::matching::accuracy::averaging::{remove_window_averaging, AveragingReport, Kernel};
 use crate::matching::accuracy::precision::{sigma_vs_reference, SigmaCheck};
-use crate::matching::grid::{Comparison, ElevationGrid, NodeQuality};
-use crate::matching::mapping::pmf::PmfError;
+use crate::matching::block::photo::Photo;
+use crate::matching::error::MatchingError;
 use crate::matching::mapping::pmf_set::FitReport;
 use crate::matching::methods::sweep::height_sweep::{step_for_parallax, SweepParams};
 use crate::matching::methods::sweep::pair_model::{
-    pmf_dtm, Budget, DtmError, PmfDtm, PmfDtmParams, PmfDtmReport,
+    pmf_dtm, Budget, PmfDtm, PmfDtmParams, PmfDtmReport,
 };
 use crate::matching::methods::sweep::regions::RegionParams;
-use crate::matching::products::files::{
-    read_geotiff, write_geotiff, write_las, write_ortho, write_ply, write_quality,
-};
-use crate::matching::products::maps::{write_error_map, write_hillshade, write_sigma_map};
-use crate::matching::products::ortho::{orthophoto, View};
+use crate::matching::products::files::read_geotiff;
+use crate::matching::products::ortho::View;
 use crate::matching::products::outputs as O;
-use crate::matching::project::pair::{PmfSource, Project, ProjectError};
-use crate::matching::{MatchedPoint, PmfSet, StereoPoint};
+use crate::matching::products::write::{check_out_dir, write_outputs};
+use crate::matching::project::pair::{PairProject, PmfSource};
+use crate::matching::{PmfSet, StereoPoint};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
-
-/// A photo as the core takes it, from whoever made it: the image in grey values, which photo
-/// point (mm) each pixel shows, and the camera's interior orientation.
-#[derive(Debug, Clone)]
-pub struct Photo {
-    /// The pixels read: the whole image, or [`Photo::window`] of it.
-    pub image: ImageF32,
-    /// Which photo point each pixel of the whole image shows (its size is the whole image's).
-    pub frame: PixelToPhoto,
-    pub interior: Interior,
-    /// Where `image` lies in the whole image.
-    pub window: crate::coords::PixelWindow,
-}
-
-#[derive(Debug, thiserror::Error)]
-pub enum PipelineError {
-    #[error(transparent)]
-    Project(#[from] ProjectError),
-    #[error("the mapping functions show no parallax (the photos have no base?): no height step can be derived; give [matching] h_step")]
-    NoParallax,
-    #[error("fitting the mapping functions to {path}: {cause}")]
-    Fit { path: PathBuf, cause: PmfError },
-    #[error("the mappings {path}: {message}")]
-    Mappings { path: PathBuf, message: String },
-    #[error("resection of the {which} photo: {cause}")]
-    Resection {
-        which: &'static str,
-        cause: ResectionError,
-    },
-    #[error("deriving the mapping functions from the resected photos: {0}")]
-    Derive(PmfError),
-    #[error("reading the reference model {path}: {cause}")]
-    Reference {
-        path: PathBuf,
-        cause: std::io::Error,
-    },
-    #[error("project {path}: {cause}")]
-    Dtm { path: PathBuf, cause: DtmError },
-    #[error(
-        "{dir} holds files that are not a `rig dtm` run's ({files}): give a new or empty directory"
-    )]
-    Foreign { dir: PathBuf, files: String },
-    #[error("writing into {dir}: {cause}")]
-    Write { dir: PathBuf, cause: std::io::Error },
-}
 
 /// The resected photos, when the mappings were derived from them.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -85,7 +34,7 @@ pub struct Orientation {
 
 /// `report.json`: what a run did and found (seed 000 Tables 2–5), written and read as this type.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct RunReport {
+pub struct ScannedPairReport {
     pub project: PathBuf,
     pub pmf_from: PmfSource,
     pub orientation: Option<Orientation>,
@@ -101,7 +50,7 @@ pub struct RunReport {
     pub averaging: Option<AveragingReport>,
 }
 
-impl RunReport {
+impl ScannedPairReport {
     /// The figures a person looks at first, for report.html.
     pub fn summary(&self) -> Vec<(String, String)> {
         let d = &self.dtm;
@@ -144,51 +93,33 @@ impl RunReport {
     }
 }
 
-/// An output directory must be new, empty, or hold only an earlier run's outputs (a run that
-/// was killed half way left some of them, or `.part` files): anything else is not ours to
-/// replace.
-pub(crate) fn check_out_dir(out: &Path) -> Result<(), PipelineError> {
-    let foreign = crate::atomic::foreign_files(out, crate::matching::products::outputs::is_output)
-        .map_err(|source| PipelineError::Write {
-            dir: out.to_path_buf(),
-            cause: source,
-        })?;
-    if foreign.is_empty() {
-        return Ok(());
-    }
-    Err(PipelineError::Foreign {
-        dir: out.to_path_buf(),
-        files: foreign.join(", "),
-    })
-}
-
 /// The mapping functions the project asks for, and the resected photos when they were derived.
 fn mappings(
-    p: &Project,
+    p: &PairProject,
     [left, right]: [&Photo; 2],
     pts: &crate::matching::project::pair::PointFile,
-) -> Result<(PmfSet, Option<Orientation>), PipelineError> {
+) -> Result<(PmfSet, Option<Orientation>), MatchingError> {
     match p.pmf.from {
         PmfSource::Points => PmfSet::from_points(p.pmf.order, &pts.gcps, &pts.cps)
             .map(|m| (m, None))
-            .map_err(|source| PipelineError::Fit {
+            .map_err(|source| MatchingError::Fit {
                 path: p.points.file.clone(),
                 cause: source,
             }),
         PmfSource::File => {
             let Some(path) = p.pmf.file.clone() else {
-                return Err(PipelineError::Mappings {
+                return Err(MatchingError::PairMappings {
                     path: p.path.clone(),
                     message: "[pmf] from = \"file\" names no file".into(),
                 });
             };
-            let text = std::fs::read_to_string(&path).map_err(|e| PipelineError::Mappings {
+            let text = std::fs::read_to_string(&path).map_err(|e| MatchingError::PairMappings {
                 path: path.clone(),
                 message: e.to_string(),
             })?;
             serde_json::from_str::<PmfSet>(&text)
                 .map(|m| (m, None))
-                .map_err(|e| PipelineError::Mappings {
+                .map_err(|e| MatchingError::PairMappings {
                     path,
                     message: format!("not a set of mapping functions ({e})"),
                 })
@@ -205,7 +136,7 @@ fn mappings(
                     .collect();
                 resect(&ph.interior, &obs)
                     .map(|r| (ph.interior, r))
-                    .map_err(|source| PipelineError::Resection {
+                    .map_err(|source| MatchingError::PairResection {
                         which,
                         cause: source,
                     })
@@ -222,7 +153,7 @@ fn mappings(
             };
             let (l, r) = (photo(il, &rl, left.frame), photo(ir, &rr, right.frame));
             let m = PmfSet::from_sensors(&l, &r, [p.matching.h_min, p.matching.h_max], p.pmf.order)
-                .map_err(PipelineError::Derive)?;
+                .map_err(MatchingError::Derive)?;
             Ok((
                 m,
                 Some(Orientation {
@@ -239,12 +170,12 @@ fn mappings(
 /// `report.json` and `pmfs.json`, each written whole or not at all. `max_memory_mb` overrides
 /// the project's limit.
 pub fn run(
-    p: &Project,
+    p: &PairProject,
     photos: [&Photo; 2],
     out: &Path,
     max_memory_mb: Option<u64>,
     progress: &dyn crate::matching::progress::Progress,
-) -> Result<(PmfDtm, RunReport), PipelineError> {
+) -> Result<(PmfDtm, ScannedPairReport), MatchingError> {
     check_out_dir(out)?;
     let pts = p.points()?;
     let (pmfs, orientation) = mappings(p, photos, &pts)?;
@@ -254,7 +185,7 @@ pub fn run(
         .matching
         .h_step
         .or_else(|| step_for_parallax(&pmfs.left_to_right, w, h, heights, 0.5))
-        .ok_or(PipelineError::NoParallax)?;
+        .ok_or(MatchingError::NoParallax)?;
     let params = PmfDtmParams {
         sweep: SweepParams {
             h_min: p.matching.h_min,
@@ -274,7 +205,7 @@ pub fn run(
         cell_m: p.grid.cell_m,
     };
     let reference = match &p.grid.reference {
-        Some(r) => Some(read_geotiff(r).map_err(|source| PipelineError::Reference {
+        Some(r) => Some(read_geotiff(r).map_err(|source| MatchingError::Reference {
             path: r.clone(),
             cause: source,
         })?),
@@ -297,7 +228,7 @@ pub fn run(
         p.grid.flying_height_m,
         progress,
     )
-    .map_err(|source| PipelineError::Dtm {
+    .map_err(|source| MatchingError::Dtm {
         path: p.path.clone(),
         cause: source,
     })?;
@@ -328,7 +259,7 @@ pub fn run(
     let sigma_vs_reference = reference
         .as_ref()
         .and_then(|g| sigma_vs_reference(&r.grid, &quality.sigma_m, g));
-    let report = RunReport {
+    let report = ScannedPairReport {
         project: p.path.clone(),
         pmf_from: p.pmf.from,
         orientation,
@@ -337,7 +268,7 @@ pub fn run(
         sigma_vs_reference,
         averaging,
     };
-    let write = |source| PipelineError::Write {
+    let write = |source| MatchingError::Write {
         dir: out.to_path_buf(),
         cause: source,
     };
@@ -373,96 +304,4 @@ pub fn run(
     .map_err(write)?;
     crate::atomic::write_json(&out.join(O::PMFS), &pmfs).map_err(write)?;
     Ok((r, report))
-}
-
-/// The files every run leaves in `out`: the model in `crs` with its quality and the
-/// orthophoto from `views`, its points (PLY and LAS), the hillshade, the error map against the
-/// reference (removed when there is none, so that a rerun leaves no old one) and the report.
-/// Each written whole or not at all.
-#[allow(clippy::too_many_arguments)] // the run's products, each a different thing to write
-pub(crate) fn write_outputs(
-    out: &Path,
-    grid: &ElevationGrid,
-    points: &[MatchedPoint],
-    quality: &NodeQuality,
-    views: &[View<'_>],
-    reference: Option<(&ElevationGrid, &Comparison)>,
-    crs: Crs,
-    report: &impl Serialize,
-    summary: &[(String, String)],
-) -> std::io::Result<()> {
-    std::fs::create_dir_all(out)?;
-    write_geotiff(&out.join(O::DEM), grid, crs)?;
-    write_quality(&out.join(O::QUALITY), grid, crs, quality)?;
-    let sig: Vec<f32> = quality
-        .sigma_m
-        .iter()
-        .copied()
-        .filter(|v| v.is_finite())
-        .collect();
-    let rms =
-        (sig.iter().map(|&v| (v as f64).powi(2)).sum::<f64>() / sig.len().max(1) as f64).sqrt();
-    write_sigma_map(
-        &out.join(O::QUALITY_MAP),
-        grid,
-        &quality.sigma_m,
-        &format!("{crs}, RMS {rms:.2} m over {} nodes", sig.len()),
-    )?;
-    write_ortho(&out.join(O::ORTHO), grid, crs, &orthophoto(grid, views))?;
-    write_ply(&out.join(O::POINTS_PLY), points, crs)?;
-    write_las(&out.join(O::POINTS_LAS), points, crs)?;
-    write_hillshade(&out.join(O::HILLSHADE), grid, crs)?;
-    match reference {
-        Some((g, c)) => {
-            let d = grid.differences(|x, y| g.interpolate(x, y));
-            let summary = format!(
-                "RMSE {:.2} m, mean {:+.2} m, over {} nodes",
-                c.rmse_m, c.mean_m, c.nodes
-            );
-            let span = crate::picture::nice((3.0 * c.rmse_m).max(0.1)) * 2.0;
-            write_error_map(&out.join(O::ERROR_MAP), grid, &d, span, &summary)?;
-        }
-        None => {
-            let _ = std::fs::remove_file(out.join(O::ERROR_MAP));
-        }
-    }
-    crate::atomic::write_json(&out.join(O::REPORT_JSON), report)?;
-    let mut maps = vec![
-        (
-            O::HILLSHADE.to_string(),
-            format!("Heights in colour, shaded from the north-west ({crs})"),
-        ),
-        (
-            O::QUALITY_MAP.to_string(),
-            "Each node's standard deviation, m".to_string(),
-        ),
-    ];
-    if reference.is_some() {
-        maps.push((
-            O::ERROR_MAP.into(),
-            "The model minus the reference, m".into(),
-        ));
-    }
-    crate::matching::products::html::Page {
-        title: "rig dtm: elevation model".into(),
-        intro: format!("Every file of this run is in this folder; the figures below are from report.json. Ground coordinates in {crs}."),
-        sections: vec![
-            crate::matching::products::html::Section {
-                heading: "Figures".into(),
-                rows: summary.to_vec(),
-                ..Default::default()
-            },
-            crate::matching::products::html::Section {
-                heading: "Maps".into(),
-                pictures: maps,
-                ..Default::default()
-            },
-            crate::matching::products::html::Section {
-                heading: "Data".into(),
-                links: O::data_links(),
-                ..Default::default()
-            },
-        ],
-    }
-    .write(&out.join(O::REPORT_HTML))
 }

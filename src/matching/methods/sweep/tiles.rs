@@ -9,8 +9,18 @@
 //! factor, the orthophoto — runs in the merge, on the joined heights, the same code as a
 //! single run: the merged outputs are the single run's, byte for byte.
 
+use crate::matching::block::photo::Photo;
+use crate::matching::block::photos::{load_photo, load_photos, windows};
+use crate::matching::methods::context::Run;
 use crate::matching::methods::sweep::height_sweep::SweptBands;
-use crate::matching::methods::sweep::{PairPart, Plan};
+use crate::matching::methods::sweep::plan::plan;
+use crate::matching::methods::sweep::plan::Plan;
+use crate::matching::methods::sweep::PairPart;
+use crate::matching::methods::sweep::{finish, sweep_units, SweepReport};
+use crate::matching::products::write::check_out_dir;
+use crate::matching::progress::Progress;
+use crate::matching::project::{Method, Project};
+use crate::matching::MatchingError;
 use serde::{Deserialize, Serialize};
 use std::ops::Range;
 use std::path::{Path, PathBuf};
@@ -113,6 +123,13 @@ pub enum TileError {
     Damaged { path: PathBuf, message: String },
     #[error("the tiles do not belong together: {0}")]
     Mismatch(String),
+    #[error("--tile splits the sweep's work; {project} uses method \"{method}\": run it whole")]
+    NotSweep { project: PathBuf, method: Method },
+    /// The project or its inputs changed between the shares' sweep and the merge.
+    #[error("{0}: sweep the tiles again")]
+    Changed(String),
+    #[error(transparent)]
+    Matching(#[from] MatchingError),
 }
 
 fn io(path: &Path) -> impl FnOnce(std::io::Error) -> TileError + '_ {
@@ -535,4 +552,134 @@ mod tests {
             assert!(e.contains("1 ≤ I ≤ N"), "{bad}: {e}");
         }
     }
+}
+
+/// What a share swept, for its summary.
+#[derive(Debug, Clone)]
+pub struct Share {
+    pub manifest: TileManifest,
+    /// The units of work it swept, of `total_units`.
+    pub units: Range<usize>,
+    pub total_units: usize,
+    pub pairs: usize,
+    pub photos: usize,
+}
+
+/// Share `spec` of project `p`'s sweep into `out`: the plan from every photo's geometry
+/// (each photo read once and let go), then the sweep of this share's bands with only the
+/// photos of their pairs in memory. `scan` reads the rig's own scans.
+pub fn sweep_share(
+    p: &Project,
+    spec: TileSpec,
+    out: &Path,
+    max_memory_mb: Option<u64>,
+    scan: &dyn Fn(&Path) -> Result<Photo, String>,
+    progress: &dyn Progress,
+) -> Result<Share, TileError> {
+    let project = p.path.as_path();
+    let bytes = std::fs::read(project).map_err(io(project))?;
+    if p.matching.method != Method::Sweep {
+        return Err(TileError::NotSweep {
+            project: project.to_path_buf(),
+            method: p.matching.method,
+        });
+    }
+    prepare_dir(out)?;
+    let mut geometry = Vec::new();
+    let mut pixels = Vec::new();
+    let wins = windows(p, scan)?;
+    for (k, &w) in wins.iter().enumerate() {
+        let ph = load_photo(p, k, scan, w)?;
+        geometry.push(ph.geometry());
+        pixels.push(pixels_fnv64(&ph.image));
+    }
+    let plan = plan(p, &geometry, max_memory_mb)?;
+    let units = spec.units(plan.units());
+    let mut loaded: Vec<Option<Photo>> = (0..p.photos.len()).map(|_| None).collect();
+    for (k, _) in plan.bands_of(units.clone()) {
+        for i in [plan.pairs[k].left, plan.pairs[k].right] {
+            if loaded[i].is_none() {
+                loaded[i] = Some(load_photo(p, i, scan, wins[i])?);
+            }
+        }
+    }
+    let refs: Vec<Option<&Photo>> = loaded.iter().map(|o| o.as_ref()).collect();
+    let parts = sweep_units(p, &plan, units.clone(), &refs, progress)?;
+    let absolute = std::fs::canonicalize(project).map_err(io(project))?;
+    let ids: Vec<String> = p.photos.iter().map(|ph| ph.id.clone()).collect();
+    let source = Inputs {
+        project: &absolute,
+        project_bytes: &bytes,
+        inputs_fnv64: inputs_fingerprint(&plan, &pixels),
+    };
+    let manifest = write_tile(out, &source, spec, &plan, &ids, &parts)?;
+    Ok(Share {
+        manifest,
+        units,
+        total_units: plan.units(),
+        pairs: plan.pairs.len(),
+        photos: p.photos.len(),
+    })
+}
+
+/// `rig dtm merge`: the shares in `dirs` checked to belong together and to the project as it
+/// is now, their heights joined, the run finished into `out` as a single run would.
+pub fn merge(
+    dirs: &[PathBuf],
+    out: &Path,
+    max_memory_mb: Option<u64>,
+    scan: &dyn Fn(&Path) -> Result<Photo, String>,
+    progress: &dyn Progress,
+) -> Result<(Project, SweepReport), TileError> {
+    let mut set = Vec::new();
+    for d in dirs {
+        set.push((d.clone(), read_manifest(d)?));
+    }
+    let set = check_set(set)?;
+    let m0 = &set[0].1;
+    tracing::info!(shares = set.len(), project = %m0.project.display(), "merging");
+    let bytes = std::fs::read(&m0.project).map_err(io(&m0.project))?;
+    let now = crate::atomic::fnv64(&bytes);
+    if now != m0.project_fnv64 {
+        return Err(TileError::Changed(format!(
+            "{} changed since the tiles were swept (hash {} then, {now} now)",
+            m0.project.display(),
+            m0.project_fnv64
+        )));
+    }
+    let p = Project::load(&m0.project).map_err(MatchingError::from)?;
+    check_out_dir(out)?;
+    let photos = load_photos(&p, scan)?;
+    let geometry: Vec<_> = photos.iter().map(|ph| ph.geometry()).collect();
+    let plan = plan(&p, &geometry, max_memory_mb)?;
+    let pixels: Vec<String> = photos.iter().map(|ph| pixels_fnv64(&ph.image)).collect();
+    let now = inputs_fingerprint(&plan, &pixels);
+    if now != m0.inputs_fnv64 {
+        return Err(TileError::Changed(format!(
+            "the photos, points or orientations of {} changed since the tiles were swept (their hash was {}, it is {now})",
+            m0.project.display(),
+            m0.inputs_fnv64
+        )));
+    }
+    if plan.units() != m0.total_units {
+        return Err(TileError::Changed(format!(
+            "the tiles split {} units of work, the project now gives {}",
+            m0.total_units,
+            plan.units()
+        )));
+    }
+    let mut parts = Vec::new();
+    for (d, m) in &set {
+        parts.extend(read_parts(d, m, &plan)?);
+    }
+    let run = Run {
+        project: &p,
+        photos: &photos,
+        out,
+        reference: crate::matching::accuracy::figures::ModelFigures::read_reference(&p)?,
+        max_memory_mb,
+        progress,
+    };
+    let report = finish(&run, &plan, parts)?;
+    Ok((p, report))
 }

@@ -1,0 +1,102 @@
+//! The one error of a matching run, whichever method and project format: the project, the
+//! photos and their orientation, the plan, the matching and the files written.
+
+use crate::geometry::ResectionError;
+use crate::matching::grid::GridError;
+use crate::matching::mapping::pmf::PmfError;
+use crate::matching::project::pair::PairProjectError;
+use crate::matching::project::ProjectError;
+use std::path::PathBuf;
+
+#[derive(Debug, thiserror::Error)]
+pub enum MatchingError {
+    #[error(transparent)]
+    Project(#[from] ProjectError),
+    #[error(transparent)]
+    PairProject(#[from] PairProjectError),
+    #[error("photo `{id}`: {message}")]
+    Photo { id: String, message: String },
+    #[error("photo `{id}`: resection from {points} control points: {cause}")]
+    Resection {
+        id: String,
+        points: usize,
+        cause: ResectionError,
+    },
+    #[error("{0}")]
+    Heights(String),
+    #[error("no two photos overlap on the ground at {z:.0} m (the middle of the heights tried){within}: {prints}; check [dem] heights (do they bracket the terrain?), [dem] extent and the photos' orientations")]
+    NoOverlap {
+        z: f64,
+        /// Each photo's footprint at `z`, in the project's CRS.
+        prints: String,
+        /// " within [dem] extent …" when the project gives one.
+        within: String,
+    },
+    #[error("photos `{left}` and `{right}`: {cause}")]
+    Pair {
+        left: String,
+        right: String,
+        cause: DtmError,
+    },
+    #[error("photos `{left}` and `{right}`: mapping functions from the sensors: {message}")]
+    Mappings {
+        left: String,
+        right: String,
+        message: String,
+    },
+    #[error("the DEM grid: {0}")]
+    Grid(String),
+    /// Memory a method would take beyond the limit, with what it is for.
+    #[error("{0}")]
+    Memory(String),
+    /// Nothing to match, or nothing matched, with why.
+    #[error("{0}")]
+    NoMatch(String),
+    #[error("the object-space matching: {0}")]
+    Oslsm(String),
+    // A scanned pair's (project format 1) own steps.
+    #[error("the mapping functions show no parallax (the photos have no base?): no height step can be derived; give [matching] h_step")]
+    NoParallax,
+    #[error("fitting the mapping functions to {path}: {cause}")]
+    Fit { path: PathBuf, cause: PmfError },
+    #[error("the mappings {path}: {message}")]
+    PairMappings { path: PathBuf, message: String },
+    #[error("resection of the {which} photo: {cause}")]
+    PairResection {
+        which: &'static str,
+        cause: ResectionError,
+    },
+    #[error("deriving the mapping functions from the resected photos: {0}")]
+    Derive(PmfError),
+    #[error("project {path}: {cause}")]
+    Dtm { path: PathBuf, cause: DtmError },
+    // The reference model and the output directory.
+    #[error("reading the reference model {path}: {cause}")]
+    Reference {
+        path: PathBuf,
+        cause: std::io::Error,
+    },
+    #[error(
+        "{dir} holds files that are not a `rig dtm` run's ({files}): give a new or empty directory"
+    )]
+    Foreign { dir: PathBuf, files: String },
+    #[error("writing into {dir}: {cause}")]
+    Write { dir: PathBuf, cause: std::io::Error },
+}
+
+/// A pair's sweep refused before it starts (its work or memory beyond the budget), or its
+/// grid.
+#[derive(Debug, thiserror::Error)]
+pub enum DtmError {
+    #[error("the sweep would try up to {candidates:.3e} candidate heights ({pixels} pixels × {heights} heights); the limit is {limit:.3e}: narrow h_min … h_max, take a larger h_step or stride, or raise [limits] max_candidates_g")]
+    TooMuchWork {
+        candidates: f64,
+        pixels: u64,
+        heights: u64,
+        limit: f64,
+    },
+    #[error("the run would hold about {mib:.0} MiB (photos, height map, points); the limit is {limit_mib} MiB: take a larger stride, or raise [limits] max_memory_mb (or --max-memory)")]
+    TooMuchMemory { mib: f64, limit_mib: u64 },
+    #[error(transparent)]
+    Grid(#[from] GridError),
+}

@@ -1,0 +1,70 @@
+//! What every method is handed by the driver ([`crate::matching::run`]): the project, its
+//! photos, the output directory, the reference DEM read beforehand, the memory limit and
+//! where to report progress; and the one writer of a model's files.
+
+use crate::geometry::PhotoSensor;
+use crate::matching::accuracy::figures::ModelFigures;
+use crate::matching::block::photo::Photo;
+use crate::matching::grid::{ElevationGrid, NodeQuality};
+use crate::matching::products::write::write_model;
+use crate::matching::progress::Progress;
+use crate::matching::project::Project;
+use crate::matching::{MatchedPoint, MatchingError};
+use serde::Serialize;
+use std::path::Path;
+
+/// What every method is handed: the project, its photos, where to write, the reference DEM
+/// read beforehand, the memory limit and where to report progress.
+pub struct Run<'a> {
+    pub project: &'a Project,
+    pub photos: &'a [Photo],
+    pub out: &'a Path,
+    /// The project's `[check] reference`, read before the matching.
+    pub reference: Option<ElevationGrid>,
+    /// `--max-memory`, over the project's `[limits] max_memory_mb`.
+    pub max_memory_mb: Option<u64>,
+    pub progress: &'a dyn Progress,
+}
+
+impl Run<'_> {
+    /// The same run into another directory (the object-space matching's coarse model).
+    pub fn into_dir<'b>(&'b self, out: &'b Path) -> Run<'b> {
+        Run {
+            project: self.project,
+            photos: self.photos,
+            out,
+            reference: self.reference.clone(),
+            max_memory_mb: self.max_memory_mb,
+            progress: self.progress,
+        }
+    }
+
+    /// The model's files (dem.tif, quality.tif, ortho.tif, the point clouds, the maps,
+    /// report.json and report.html) from any method.
+    pub fn write_model(
+        &self,
+        figures: &ModelFigures,
+        points: &[MatchedPoint],
+        quality: &NodeQuality,
+        sensors: &[PhotoSensor],
+        report: &impl Serialize,
+        summary: &[(String, String)],
+    ) -> Result<(), MatchingError> {
+        write_model(
+            self.out,
+            &figures.grid,
+            points,
+            quality,
+            self.photos,
+            sensors,
+            self.reference.as_ref().zip(figures.comparison.as_ref()),
+            self.project.crs,
+            report,
+            summary,
+        )
+        .map_err(|cause| MatchingError::Write {
+            dir: self.out.to_path_buf(),
+            cause,
+        })
+    }
+}

@@ -1,0 +1,62 @@
+//! The one driver of the matchers: a project's loaded photos to a model in an output
+//! directory. It checks the directory and reads the reference DEM before the long work (a bad
+//! path fails first), hands the method named by `[matching] method` one [`Run`], and returns
+//! its report; every method writes its model through [`Run::write_model`].
+
+use crate::matching::accuracy::figures::ModelFigures;
+use crate::matching::block::photo::Photo;
+use crate::matching::methods::context::Run;
+use crate::matching::methods::mgcm::run::MgcmReport;
+use crate::matching::methods::oslsm::run::OslsmReport;
+use crate::matching::methods::sweep::SweepReport;
+use crate::matching::products::write::check_out_dir;
+use crate::matching::progress::Progress;
+use crate::matching::project::{Method, Project};
+use crate::matching::MatchingError;
+use serde::Serialize;
+use std::path::Path;
+
+/// A run's report, as its method wrote it into report.json.
+#[derive(Debug, Clone, Serialize)]
+#[serde(untagged)]
+pub enum Report {
+    Sweep(SweepReport),
+    Mgcm(MgcmReport),
+    Oslsm(OslsmReport),
+}
+
+impl Report {
+    /// The model, whichever method made it.
+    pub fn model(&self) -> &ModelFigures {
+        match self {
+            Report::Sweep(r) => &r.model,
+            Report::Mgcm(r) => &r.model,
+            Report::Oslsm(r) => &r.model,
+        }
+    }
+}
+
+/// Runs project `p`'s method on its loaded `photos` into `out`.
+pub fn run(
+    p: &Project,
+    photos: &[Photo],
+    out: &Path,
+    max_memory_mb: Option<u64>,
+    progress: &dyn Progress,
+) -> Result<Report, MatchingError> {
+    check_out_dir(out)?;
+    let run = Run {
+        project: p,
+        photos,
+        out,
+        reference: ModelFigures::read_reference(p)?,
+        max_memory_mb,
+        progress,
+    };
+    use crate::matching::methods::{mgcm, oslsm, sweep};
+    Ok(match p.matching.method {
+        Method::Sweep => Report::Sweep(sweep::run(&run)?),
+        Method::Mgcm => Report::Mgcm(mgcm::run::run(&run)?),
+        Method::Oslsm => Report::Oslsm(oslsm::run::run(&run)?),
+    })
+}
