@@ -257,8 +257,11 @@ pub fn render_scene(
 
 /// Turns a noiseless image into one frame from the sensor: gain, dust, shot and read noise
 /// (more on the top rows), the field shift, the stripes, quantisation. `seq` is the frame
-/// number (it drives the gain flicker and seeds the noise with `seed`).
+/// number (it drives the gain flicker and seeds the noise with `seed`). Rows are exposed in
+/// parallel, each from its place in the one noise stream (every pixel takes one normal of a
+/// Box–Muller pair, two draws a pair): the frame is the same, to the bit, as drawn in order.
 pub fn expose(cfg: &CameraConfig, ideal: &[f32], seed: u64, seq: u64) -> Vec<u16> {
+    use rayon::prelude::*;
     let (w, h) = (cfg.width, cfg.height);
     let mut rng = Rng::new(seed ^ seq.wrapping_mul(0x2545_F491_4F6C_DD1D) ^ 0x00CA_3E5A);
     let sc = cfg.scale();
@@ -271,53 +274,140 @@ pub fn expose(cfg: &CameraConfig, ideal: &[f32], seed: u64, seq: u64) -> Vec<u16
     let level = cfg.white_dn8 * cfg.gain * flicker * cfg.exposure_ms / 20.0;
     let field = cfg.field_shift_dn8 + cfg.field_jitter_dn8 * rng.normal();
     let mut out = vec![0u16; w * h];
-    let mut t = vec![0f64; w];
-    let mut spare = None;
-    for row in 0..h {
-        let top = 1.0 + cfg.top_noise_factor * (-(row as f64) / cfg.top_noise_rows).exp();
-        let read = cfg.read_noise_dn8 * top;
-        let field_dn = if row % 2 == 1 { field } else { 0.0 };
-        for (tv, &iv) in t.iter_mut().zip(&ideal[row * w..(row + 1) * w]) {
-            *tv = iv as f64;
-        }
-        // Dust darkens within three radii of its centre (beyond, exp(−9) is nothing).
-        for &(dc, dr, r, depth) in &cfg.dust {
-            let dy = row as f64 - dr;
-            if dy.abs() >= 3.0 * r {
-                continue;
-            }
-            let c0 = (dc - 3.0 * r).floor().max(0.0) as usize;
-            let c1 = ((dc + 3.0 * r).ceil().max(0.0) as usize).min(w);
-            for (col, tv) in t.iter_mut().enumerate().take(c1).skip(c0) {
-                let q = ((col as f64 - dc).powi(2) + dy * dy) / (r * r);
-                if q < 9.0 {
-                    *tv *= 1.0 - (1.0 - depth) * (-q).exp();
-                }
-            }
-        }
-        for (col, &tv) in t.iter().enumerate() {
-            let s = level * tv;
-            let sigma = (cfg.shot_dn8 * s * top * top + read * read).sqrt();
-            // Box–Muller gives normals in pairs: both are used.
-            let z = match spare.take() {
-                Some(z) => z,
-                None => {
-                    let [a, b] = rng.normal_pair();
-                    spare = Some(b);
-                    a
-                }
-            };
-            let v = s + sigma * z + field_dn + cfg.stripe_dn8(col);
-            // Rounded half up (non-negative after the clamp); NaN becomes 0.
-            out[row * w + col] = ((v * sc).clamp(0.0, max) + 0.5) as u16;
-        }
+    if w == 0 {
+        return out;
     }
+    out.par_chunks_mut(w)
+        .enumerate()
+        .for_each(|(row, out_row)| {
+            // Pixel p takes component p % 2 of pair p / 2, drawn from the stream's draws
+            // 2·(p / 2) and one more (after the field's two).
+            let first = (row * w) as u64;
+            let mut rng = rng.jumped(2 * (first / 2));
+            let mut spare = None;
+            if first % 2 == 1 {
+                spare = Some(rng.normal_pair()[1]);
+            }
+            let mut t: Vec<f64> = ideal[row * w..(row + 1) * w]
+                .iter()
+                .map(|&v| v as f64)
+                .collect();
+            let top = 1.0 + cfg.top_noise_factor * (-(row as f64) / cfg.top_noise_rows).exp();
+            let read = cfg.read_noise_dn8 * top;
+            let field_dn = if row % 2 == 1 { field } else { 0.0 };
+            // Dust darkens within three radii of its centre (beyond, exp(−9) is nothing).
+            for &(dc, dr, r, depth) in &cfg.dust {
+                let dy = row as f64 - dr;
+                if dy.abs() >= 3.0 * r {
+                    continue;
+                }
+                let c0 = (dc - 3.0 * r).floor().max(0.0) as usize;
+                let c1 = ((dc + 3.0 * r).ceil().max(0.0) as usize).min(w);
+                for (col, tv) in t.iter_mut().enumerate().take(c1).skip(c0) {
+                    let q = ((col as f64 - dc).powi(2) + dy * dy) / (r * r);
+                    if q < 9.0 {
+                        *tv *= 1.0 - (1.0 - depth) * (-q).exp();
+                    }
+                }
+            }
+            for (col, (&tv, o)) in t.iter().zip(out_row.iter_mut()).enumerate() {
+                let s = level * tv;
+                let sigma = (cfg.shot_dn8 * s * top * top + read * read).sqrt();
+                // Box–Muller gives normals in pairs: both are used.
+                let z = match spare.take() {
+                    Some(z) => z,
+                    None => {
+                        let [a, b] = rng.normal_pair();
+                        spare = Some(b);
+                        a
+                    }
+                };
+                let v = s + sigma * z + field_dn + cfg.stripe_dn8(col);
+                // Rounded half up (non-negative after the clamp); NaN becomes 0.
+                *o = ((v * sc).clamp(0.0, max) + 0.5) as u16;
+            }
+        });
     out
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The frame as drawn pixel after pixel in one stream (the exposure before its rows went
+    /// parallel), for an odd and an even width and with dust.
+    #[test]
+    fn parallel_rows_draw_the_same_frame() {
+        fn in_order(cfg: &CameraConfig, ideal: &[f32], seed: u64, seq: u64) -> Vec<u16> {
+            let (w, h) = (cfg.width, cfg.height);
+            let mut rng = Rng::new(seed ^ seq.wrapping_mul(0x2545_F491_4F6C_DD1D) ^ 0x00CA_3E5A);
+            let sc = cfg.scale();
+            let max = ((1u64 << cfg.bit_depth) - 1) as f64;
+            let flicker = if cfg.auto_gain {
+                1.0 + 0.003 * (seq as f64 * 0.7).sin()
+            } else {
+                1.0
+            };
+            let level = cfg.white_dn8 * cfg.gain * flicker * cfg.exposure_ms / 20.0;
+            let field = cfg.field_shift_dn8 + cfg.field_jitter_dn8 * rng.normal();
+            let mut out = vec![0u16; w * h];
+            let mut spare = None;
+            for row in 0..h {
+                let top = 1.0 + cfg.top_noise_factor * (-(row as f64) / cfg.top_noise_rows).exp();
+                let read = cfg.read_noise_dn8 * top;
+                let field_dn = if row % 2 == 1 { field } else { 0.0 };
+                let mut t: Vec<f64> = ideal[row * w..(row + 1) * w]
+                    .iter()
+                    .map(|&v| v as f64)
+                    .collect();
+                for &(dc, dr, r, depth) in &cfg.dust {
+                    let dy = row as f64 - dr;
+                    if dy.abs() >= 3.0 * r {
+                        continue;
+                    }
+                    let c0 = (dc - 3.0 * r).floor().max(0.0) as usize;
+                    let c1 = ((dc + 3.0 * r).ceil().max(0.0) as usize).min(w);
+                    for (col, tv) in t.iter_mut().enumerate().take(c1).skip(c0) {
+                        let q = ((col as f64 - dc).powi(2) + dy * dy) / (r * r);
+                        if q < 9.0 {
+                            *tv *= 1.0 - (1.0 - depth) * (-q).exp();
+                        }
+                    }
+                }
+                for (col, &tv) in t.iter().enumerate() {
+                    let s = level * tv;
+                    let sigma = (cfg.shot_dn8 * s * top * top + read * read).sqrt();
+                    let z = match spare.take() {
+                        Some(z) => z,
+                        None => {
+                            let [a, b] = rng.normal_pair();
+                            spare = Some(b);
+                            a
+                        }
+                    };
+                    let v = s + sigma * z + field_dn + cfg.stripe_dn8(col);
+                    out[row * w + col] = ((v * sc).clamp(0.0, max) + 0.5) as u16;
+                }
+            }
+            out
+        }
+        for width in [37, 40] {
+            let mut cfg = CameraConfig::new(&mut Rng::new(3));
+            cfg.width = width;
+            cfg.height = 23;
+            cfg.dust = vec![(10.0, 8.0, 2.5, 0.6), (30.0, 20.0, 1.5, 0.3)];
+            let ideal: Vec<f32> = (0..width * 23)
+                .map(|k| 0.2 + 0.6 * ((k % 17) as f32 / 17.0))
+                .collect();
+            for seq in [0, 1, 5] {
+                assert_eq!(
+                    expose(&cfg, &ideal, 9, seq),
+                    in_order(&cfg, &ideal, 9, seq),
+                    "width {width}, frame {seq}"
+                );
+            }
+        }
+    }
 
     #[test]
     fn erf_matches_known_values() {

@@ -9,6 +9,12 @@ impl Rng {
         Rng(seed ^ 0x9E37_79B9_7F4A_7C15)
     }
 
+    /// The generator `n` draws further on (SplitMix64's state advances by a constant a draw),
+    /// so that parts of one stream can be drawn in parallel and still give the same numbers.
+    pub fn jumped(&self, n: u64) -> Rng {
+        Rng(self.0.wrapping_add(n.wrapping_mul(0x9E37_79B9_7F4A_7C15)))
+    }
+
     pub fn next_u64(&mut self) -> u64 {
         self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
         let mut z = self.0;
