@@ -87,7 +87,7 @@ impl Model {
     fn crs(&self) -> rig::geometry::Crs {
         match self {
             Model::Sweep(r) => r.crs,
-            Model::Mgcm(r) => r.crs,
+            Model::Mgcm(r) => r.head.crs,
         }
     }
 }

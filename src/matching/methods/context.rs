@@ -2,7 +2,8 @@
 //! photos, the output directory, the reference DEM read beforehand, the memory limit and
 //! where to report progress; and the one writer of a model's files.
 
-use crate::geometry::PhotoSensor;
+use crate::geometry::control_fit::ControlFit;
+use crate::geometry::{Crs, PhotoSensor, Resection};
 use crate::matching::accuracy::figures::ModelFigures;
 use crate::matching::block::photo::Photo;
 use crate::matching::grid::{ElevationGrid, NodeQuality};
@@ -10,8 +11,8 @@ use crate::matching::products::write::write_model;
 use crate::matching::progress::Progress;
 use crate::matching::project::Project;
 use crate::matching::{MatchedPoint, MatchingError};
-use serde::Serialize;
-use std::path::Path;
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
 
 /// What every method is handed: the project, its photos, where to write, the reference DEM
 /// read beforehand, the memory limit and where to report progress.
@@ -67,4 +68,17 @@ impl Run<'_> {
             cause,
         })
     }
+}
+
+/// The head of a multiphoto method's report.json (flattened into its top level): what was
+/// run on what, and the orientations the model took.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ReportHead {
+    pub project: PathBuf,
+    pub method: String,
+    pub crs: Crs,
+    pub resected: Vec<(String, Resection)>,
+    /// Given models corrected by their control points.
+    #[serde(default)]
+    pub corrected: Vec<(String, ControlFit)>,
 }

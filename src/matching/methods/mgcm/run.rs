@@ -10,17 +10,15 @@
 //! accuracy analysis against the reference are written as the sweep's outputs are.
 
 use crate::coords::PixelXY;
-use crate::geometry::{Crs, Resection, Sensor};
+use crate::geometry::Sensor;
 use crate::matching::accuracy::averaging::{remove_window_averaging, AveragingReport, Kernel};
 use crate::matching::accuracy::figures::ModelFigures;
 use crate::matching::accuracy::tables::{analyse, Accuracy};
-use crate::matching::block::geometry::{
-    block, flying_height, parallax_per_m, references_covering, Block,
-};
+use crate::matching::block::geometry::{block, flying_height, parallax_per_m, references_covering};
 use crate::matching::block::orient::Oriented;
 use crate::matching::error::MatchingError;
 use crate::matching::grid::ElevationGrid;
-use crate::matching::methods::context::Run;
+use crate::matching::methods::context::{ReportHead, Run};
 use crate::matching::methods::mgcm::adjust::{
     local_shape, template, AdjustParams, PointFailure, View,
 };
@@ -33,7 +31,6 @@ use crate::matching::progress::Progress;
 use crate::matching::MatchedPoint;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
-use std::path::PathBuf;
 
 /// One pyramid level's part of the run.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -85,13 +82,9 @@ pub struct FinePoint {
 /// `report.json` of an MGCM run.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct MgcmReport {
-    pub project: PathBuf,
-    pub method: String,
-    pub crs: Crs,
-    pub resected: Vec<(String, Resection)>,
-    /// Given models corrected by their control points.
-    #[serde(default)]
-    pub corrected: Vec<(String, crate::geometry::control_fit::ControlFit)>,
+    /// The project, the method, the CRS and the orientations the model took.
+    #[serde(flatten)]
+    pub head: ReportHead,
     /// The photo carrying the templates, and the photos searched.
     pub reference: String,
     pub searched: Vec<String>,
@@ -152,7 +145,7 @@ impl MgcmReport {
             ),
         ];
         v.extend(crate::matching::block::orient::corrected_lines(
-            &self.corrected,
+            &self.head.corrected,
         ));
         for l in &self.levels {
             v.push((
@@ -516,33 +509,23 @@ fn neighbourhood_tests(points: &mut [FinePoint], radius_px: f64, m_per_px: f64) 
     }
 }
 
-/// Runs the MGCM of of `run`'s project on its photos.
+/// Runs the MGCM of `run`'s project on its photos.
 pub fn run(run: &Run) -> Result<MgcmReport, MatchingError> {
-    let Run {
-        project: p,
-        photos,
-        out,
-        max_memory_mb,
-        progress,
-        ..
-    } = *run;
     let started = std::time::Instant::now();
+    let (p, photos, out) = (run.project, run.photos, run.out);
+    let (max_memory_mb, progress) = (run.max_memory_mb, run.progress);
     let cfg = p.matching.mgcm.clone();
-    let Block {
-        oriented:
-            Oriented {
-                sensors,
-                resected,
-                corrected,
-                heights,
-                extent,
-                overlapping,
-                ..
-            },
-        mid,
-        reference: r,
-        others,
-    } = block(p, photos, cfg.reference.as_deref(), "matching.mgcm")?;
+    let b = block(p, photos, cfg.reference.as_deref(), "matching.mgcm")?;
+    let (mid, r, others) = (b.mid, b.reference, b.others);
+    let Oriented {
+        sensors,
+        resected,
+        corrected,
+        heights,
+        extent,
+        overlapping,
+        ..
+    } = b.oriented;
     // The references: the one named, or enough of them that every overlapping pair has one
     // (a strip's first photo sees only its half of the second's overlap with the third).
     let references = match cfg.reference {
@@ -693,11 +676,13 @@ pub fn run(run: &Run) -> Result<MgcmReport, MatchingError> {
     });
     let seconds = started.elapsed().as_secs_f64();
     let report = MgcmReport {
-        project: p.path.clone(),
-        method: "mgcm".into(),
-        crs: p.crs,
-        resected,
-        corrected,
+        head: ReportHead {
+            project: p.path.clone(),
+            method: "mgcm".into(),
+            crs: p.crs,
+            resected,
+            corrected,
+        },
         reference: p.photos[r].id.clone(),
         searched: references[0]
             .1

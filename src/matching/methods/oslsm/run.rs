@@ -8,13 +8,13 @@
 //! (reflectance.tif, the reference photo's grey values) and the convergence plot.
 
 use crate::coords::PixelXY;
-use crate::geometry::{Crs, Resection, Sensor};
+use crate::geometry::Sensor;
 use crate::matching::accuracy::figures::ModelFigures;
-use crate::matching::block::geometry::{block, parallax_per_m, Block};
+use crate::matching::block::geometry::{block, parallax_per_m};
 use crate::matching::block::orient::Oriented;
 use crate::matching::error::MatchingError;
 use crate::matching::grid::{Comparison, ElevationGrid, NodeQuality};
-use crate::matching::methods::context::Run;
+use crate::matching::methods::context::{ReportHead, Run};
 use crate::matching::methods::oslsm::coarse_features::{
     feature_grid, FeatureReport, LINE_SPACING_PX,
 };
@@ -28,7 +28,7 @@ use crate::matching::products::write::check_out_dir;
 use crate::matching::project::matchers::CoarseSource;
 use crate::matching::MatchedPoint;
 use serde::{Deserialize, Serialize};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 /// A photo's offset and gain over the patches that see it (each patch has its own: seed
 /// 001's local radiometric correction), against the reference photo's grey values.
@@ -45,13 +45,9 @@ pub struct PhotoRadiometry {
 /// `report.json` of an object-space run.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct OslsmReport {
-    pub project: PathBuf,
-    pub method: String,
-    pub crs: Crs,
-    pub resected: Vec<(String, Resection)>,
-    /// Given models corrected by their control points.
-    #[serde(default)]
-    pub corrected: Vec<(String, crate::geometry::control_fit::ControlFit)>,
+    /// The project, the method, the CRS and the orientations the model took.
+    #[serde(flatten)]
+    pub head: ReportHead,
     /// The radiometric datum and the photo whose footprint is modelled.
     pub reference: String,
     /// The photos adjusted with it.
@@ -120,7 +116,7 @@ impl OslsmReport {
             ),
         ];
         v.extend(crate::matching::block::orient::corrected_lines(
-            &self.corrected,
+            &self.head.corrected,
         ));
         if let Some(c) = &self.coarse_comparison {
             v.push((
@@ -239,33 +235,24 @@ fn near_a_height(z: &[f64], cols: usize, rows: usize, reach: usize) -> Vec<bool>
         .collect()
 }
 
-/// Runs the object-space matching of of `run`'s project on its photos.
+/// Runs the object-space matching of `run`'s project on its photos.
 pub fn run(run: &Run) -> Result<OslsmReport, MatchingError> {
-    let Run {
-        project: p,
-        photos,
-        out,
-        max_memory_mb,
-        progress,
-        ..
-    } = *run;
-    let started = std::time::Instant::now();
+    let p = run.project;
     let cfg = p.matching.oslsm.clone();
-    let Block {
-        oriented:
-            Oriented {
-                sensors,
-                resected,
-                corrected,
-                heights,
-                extent,
-                overlapping,
-                ..
-            },
-        mid,
-        reference: r,
-        others,
-    } = block(p, photos, cfg.reference.as_deref(), "matching.oslsm")?;
+    let started = std::time::Instant::now();
+    let b = block(p, run.photos, cfg.reference.as_deref(), "matching.oslsm")?;
+    let Oriented {
+        sensors,
+        resected,
+        corrected,
+        heights,
+        extent,
+        overlapping,
+        ..
+    } = b.oriented;
+    let (mid, r, others) = (b.mid, b.reference, b.others);
+    let (photos, out, max_memory_mb, progress) =
+        (run.photos, run.out, run.max_memory_mb, run.progress);
     // Every photo that overlaps another takes part (the reference's partners first): a patch
     // beyond the reference's footprint is matched from the photos that see it.
     let partners = others.clone();
@@ -621,11 +608,13 @@ pub fn run(run: &Run) -> Result<OslsmReport, MatchingError> {
     let obs = p.observations()?;
     let model = ModelFigures::check(p, run.reference.as_ref(), &obs, grid, &quality.sigma_m);
     let report = OslsmReport {
-        project: p.path.clone(),
-        method: "oslsm".into(),
-        crs: p.crs,
-        resected,
-        corrected,
+        head: ReportHead {
+            project: p.path.clone(),
+            method: "oslsm".into(),
+            crs: p.crs,
+            resected,
+            corrected,
+        },
         reference: p.photos[r].id.clone(),
         others: others.iter().map(|&k| p.photos[k].id.clone()).collect(),
         heights_m: heights,
