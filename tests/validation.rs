@@ -162,7 +162,7 @@ fn measure(name: &str, method: &str, dir: &Path, out: &Path) -> Figures {
     let dem = read_geotiff(&out.join("dem.tif")).unwrap();
     let sigma = first_of_two_bands(&out.join("quality.tif"));
     assert_eq!(sigma.len(), dem.z.len());
-    let views = views(&dir, &scene);
+    let views = views(dir, &scene);
     let seen_twice = |x: f64, y: f64, z: f64| views.iter().filter(|v| v.sees(x, y, z)).count() >= 2;
     // Errors at the DEM's nodes where two photos see the true surface.
     let (mut ee, mut rr, mut n, mut inside) = (0.0, 0.0, 0usize, 0usize);

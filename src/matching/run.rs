@@ -20,9 +20,9 @@ use std::path::Path;
 #[derive(Debug, Clone, Serialize)]
 #[serde(untagged)]
 pub enum Report {
-    Sweep(SweepReport),
-    Mgcm(MgcmReport),
-    Oslsm(OslsmReport),
+    Sweep(Box<SweepReport>),
+    Mgcm(Box<MgcmReport>),
+    Oslsm(Box<OslsmReport>),
 }
 
 impl Report {
@@ -55,8 +55,8 @@ pub fn run(
     };
     use crate::matching::methods::{mgcm, oslsm, sweep};
     Ok(match p.matching.method {
-        Method::Sweep => Report::Sweep(sweep::run(&run)?),
-        Method::Mgcm => Report::Mgcm(mgcm::run::run(&run)?),
-        Method::Oslsm => Report::Oslsm(oslsm::run::run(&run)?),
+        Method::Sweep => Report::Sweep(Box::new(sweep::run(&run)?)),
+        Method::Mgcm => Report::Mgcm(Box::new(mgcm::run::run(&run)?)),
+        Method::Oslsm => Report::Oslsm(Box::new(oslsm::run::run(&run)?)),
     })
 }

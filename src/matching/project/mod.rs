@@ -350,9 +350,9 @@ pub fn format_of(text: &str) -> Result<u32, String> {
 #[derive(Debug, Clone)]
 pub enum AnyProject {
     /// Format 2: any number of photos, any sensor, any method.
-    Block(Project),
+    Block(Box<Project>),
     /// Format 1: one scanned pair, seed 000's method.
-    Pair(pair::PairProject),
+    Pair(Box<pair::PairProject>),
 }
 
 impl AnyProject {
@@ -363,9 +363,9 @@ impl AnyProject {
             cause: source,
         })?;
         match format_of(&text) {
-            Ok(2) => Ok(AnyProject::Block(Project::parse(&text, path)?)),
+            Ok(2) => Ok(AnyProject::Block(Box::new(Project::parse(&text, path)?))),
             Ok(_) => pair::PairProject::parse(&text, path)
-                .map(AnyProject::Pair)
+                .map(|p| AnyProject::Pair(Box::new(p)))
                 .map_err(|e| ProjectError::Pair(Box::new(e))),
             Err(message) => Err(ProjectError::Invalid {
                 path: path.to_path_buf(),
