@@ -3,13 +3,11 @@
 //! path fails first), hands the method named by `[matching] method` one [`Run`], and returns
 //! its report; every method writes its model through [`Run::write_model`].
 
-use crate::matching::accuracy::figures::ModelFigures;
 use crate::matching::block::photo::Photo;
-use crate::matching::methods::context::Run;
+use crate::matching::methods::context::{prepare, Run};
 use crate::matching::methods::mgcm::run::MgcmReport;
 use crate::matching::methods::oslsm::run::OslsmReport;
 use crate::matching::methods::sweep::SweepReport;
-use crate::matching::products::write::check_out_dir;
 use crate::matching::progress::Progress;
 use crate::matching::project::{Method, Project};
 use crate::matching::MatchingError;
@@ -25,17 +23,6 @@ pub enum Report {
     Oslsm(Box<OslsmReport>),
 }
 
-impl Report {
-    /// The model, whichever method made it.
-    pub fn model(&self) -> &ModelFigures {
-        match self {
-            Report::Sweep(r) => &r.model,
-            Report::Mgcm(r) => &r.model,
-            Report::Oslsm(r) => &r.model,
-        }
-    }
-}
-
 /// Runs project `p`'s method on its loaded `photos` into `out`.
 pub fn run(
     p: &Project,
@@ -44,12 +31,12 @@ pub fn run(
     max_memory_mb: Option<u64>,
     progress: &dyn Progress,
 ) -> Result<Report, MatchingError> {
-    check_out_dir(out)?;
+    let reference = prepare(p, out)?;
     let run = Run {
         project: p,
         photos,
         out,
-        reference: ModelFigures::read_reference(p)?,
+        reference: reference.as_ref(),
         max_memory_mb,
         progress,
     };

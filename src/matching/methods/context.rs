@@ -7,12 +7,19 @@ use crate::geometry::{Crs, PhotoSensor, Resection};
 use crate::matching::accuracy::figures::ModelFigures;
 use crate::matching::block::photo::Photo;
 use crate::matching::grid::{ElevationGrid, NodeQuality};
-use crate::matching::products::write::write_model;
+use crate::matching::products::write::{check_out_dir, write_model};
 use crate::matching::progress::Progress;
 use crate::matching::project::Project;
 use crate::matching::{MatchedPoint, MatchingError};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
+
+/// What a run must know before its long work, so that a bad path fails first: that `out`
+/// can take its files, and the project's reference DEM.
+pub fn prepare(p: &Project, out: &Path) -> Result<Option<ElevationGrid>, MatchingError> {
+    check_out_dir(out)?;
+    ModelFigures::read_reference(p)
+}
 
 /// What every method is handed: the project, its photos, where to write, the reference DEM
 /// read beforehand, the memory limit and where to report progress.
@@ -20,8 +27,8 @@ pub struct Run<'a> {
     pub project: &'a Project,
     pub photos: &'a [Photo],
     pub out: &'a Path,
-    /// The project's `[check] reference`, read before the matching.
-    pub reference: Option<ElevationGrid>,
+    /// The project's `[check] reference`, read before the matching ([`prepare`]).
+    pub reference: Option<&'a ElevationGrid>,
     /// `--max-memory`, over the project's `[limits] max_memory_mb`.
     pub max_memory_mb: Option<u64>,
     pub progress: &'a dyn Progress,
@@ -34,7 +41,7 @@ impl Run<'_> {
             project: self.project,
             photos: self.photos,
             out,
-            reference: self.reference.clone(),
+            reference: self.reference,
             max_memory_mb: self.max_memory_mb,
             progress: self.progress,
         }
@@ -58,7 +65,7 @@ impl Run<'_> {
             quality,
             self.photos,
             sensors,
-            self.reference.as_ref().zip(figures.comparison.as_ref()),
+            self.reference.zip(figures.comparison.as_ref()),
             self.project.crs,
             report,
             summary,

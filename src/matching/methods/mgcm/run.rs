@@ -647,7 +647,7 @@ pub fn run(run: &Run) -> Result<MgcmReport, MatchingError> {
     );
     tracing::info!(?averaging, "window averaging removed");
     let obs = p.observations()?;
-    let reference_dem = run.reference.as_ref();
+    let reference_dem = run.reference;
     let model = ModelFigures::check(p, reference_dem, &obs, grid, &quality.sigma_m);
     let hg = flying_height(&sensors[r], centre0, mid).unwrap_or(f64::NAN);
     // Blunders the matcher detected: points its tests refused (not those it could not try:

@@ -359,10 +359,7 @@ pub fn run(run: &Run) -> Result<OslsmReport, MatchingError> {
                     f.display()
                 ))
             })?;
-            let c = run
-                .reference
-                .as_ref()
-                .map(|r| g.compare(|x, y| r.interpolate(x, y)));
+            let c = run.reference.map(|r| g.compare(|x, y| r.interpolate(x, y)));
             (g, c)
         }
         CoarseSource::Features => {
@@ -404,10 +401,7 @@ pub fn run(run: &Run) -> Result<OslsmReport, MatchingError> {
                     cause: source,
                 })?;
             // Compared where the edges gave heights; then filled for the posts.
-            let c = run
-                .reference
-                .as_ref()
-                .map(|r| g.compare(|x, y| r.interpolate(x, y)));
+            let c = run.reference.map(|r| g.compare(|x, y| r.interpolate(x, y)));
             let mut z: Vec<f64> = g.z.iter().map(|&v| v as f64).collect();
             let mut rep = rep;
             rep.holes_filled =
@@ -606,7 +600,7 @@ pub fn run(run: &Run) -> Result<OslsmReport, MatchingError> {
         ));
     }
     let obs = p.observations()?;
-    let model = ModelFigures::check(p, run.reference.as_ref(), &obs, grid, &quality.sigma_m);
+    let model = ModelFigures::check(p, run.reference, &obs, grid, &quality.sigma_m);
     let report = OslsmReport {
         head: ReportHead {
             project: p.path.clone(),

@@ -384,7 +384,7 @@ pub fn finish(run: &Run, plan: &Plan, parts: Vec<PairPart>) -> Result<SweepRepor
     );
     tracing::info!(?averaging, "window averaging removed");
     let orientation_sigma_m = add_orientation_sigma(&grid, &mut quality.sigma_m, plan);
-    let model = ModelFigures::check(p, run.reference.as_ref(), &obs, grid, &quality.sigma_m);
+    let model = ModelFigures::check(p, run.reference, &obs, grid, &quality.sigma_m);
     let report = SweepReport {
         project: p.path.clone(),
         crs: p.crs,

@@ -11,13 +11,12 @@
 
 use crate::matching::block::photo::Photo;
 use crate::matching::block::photos::{load_photo, load_photos, windows};
-use crate::matching::methods::context::Run;
+use crate::matching::methods::context::{prepare, Run};
 use crate::matching::methods::sweep::height_sweep::SweptBands;
 use crate::matching::methods::sweep::plan::plan;
 use crate::matching::methods::sweep::plan::Plan;
 use crate::matching::methods::sweep::PairPart;
 use crate::matching::methods::sweep::{finish, sweep_units, SweepReport};
-use crate::matching::products::write::check_out_dir;
 use crate::matching::progress::Progress;
 use crate::matching::project::{Method, Project};
 use crate::matching::MatchingError;
@@ -648,7 +647,7 @@ pub fn merge(
         )));
     }
     let p = Project::load(&m0.project).map_err(MatchingError::from)?;
-    check_out_dir(out)?;
+    let reference = prepare(&p, out)?;
     let photos = load_photos(&p, scan)?;
     let geometry: Vec<_> = photos.iter().map(|ph| ph.geometry()).collect();
     let plan = plan(&p, &geometry, max_memory_mb)?;
@@ -676,7 +675,7 @@ pub fn merge(
         project: &p,
         photos: &photos,
         out,
-        reference: crate::matching::accuracy::figures::ModelFigures::read_reference(&p)?,
+        reference: reference.as_ref(),
         max_memory_mb,
         progress,
     };
