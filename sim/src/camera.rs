@@ -9,6 +9,7 @@
 use crate::edges::{band, erf};
 use crate::plate::Plate;
 use crate::rng::Rng;
+use rayon::prelude::*;
 use serde::Serialize;
 
 /// Pixel → local carriage coordinates (µm, origin at the measuring mark):
@@ -170,40 +171,43 @@ pub fn render_plate(cfg: &CameraConfig, plate: &Plate, mark_um: [f64; 2]) -> Vec
     let centre = [mark_um[0] + centre[0], mark_um[1] + centre[1]];
     let dark = 1.0 - plate.line / plate.clear;
     let half = plate.line_um / 2.0;
-    for c in plate.crosses_near(centre, view_r) {
-        for row in 0..h {
-            for col in 0..w {
-                let l = af.local_um(col as f64 + 0.5, row as f64 + 0.5);
-                let d = [
-                    mark_um[0] + l[0] - c.true_um[0],
-                    mark_um[1] + l[1] - c.true_um[1],
-                ];
-                if d[0].abs() > plate.arm_um + 5.0 * sx && d[1].abs() > plate.arm_um + 5.0 * sy {
-                    continue;
+    let crosses: Vec<_> = plate.crosses_near(centre, view_r).collect();
+    let s = 0.5 * (sx + sy);
+    // Rows in parallel; each pixel takes the crosses, then the dirt, in the order the plate
+    // lists them (the same products, to the bit, as one row after another).
+    img.par_chunks_mut(w.max(1))
+        .enumerate()
+        .for_each(|(row, img_row)| {
+            for c in &crosses {
+                for (col, px_v) in img_row.iter_mut().enumerate() {
+                    let l = af.local_um(col as f64 + 0.5, row as f64 + 0.5);
+                    let d = [
+                        mark_um[0] + l[0] - c.true_um[0],
+                        mark_um[1] + l[1] - c.true_um[1],
+                    ];
+                    if d[0].abs() > plate.arm_um + 5.0 * sx && d[1].abs() > plate.arm_um + 5.0 * sy
+                    {
+                        continue;
+                    }
+                    // Horizontal bar (along x) and vertical bar (along y).
+                    let hb = band(d[1], half, sy) * band(d[0], plate.arm_um, sx);
+                    let vb = band(d[0], half, sx) * band(d[1], plate.arm_um, sy);
+                    let cov = hb + vb - hb * vb;
+                    *px_v *= (1.0 - dark * cov) as f32;
                 }
-                // Horizontal bar (along x) and vertical bar (along y).
-                let hb = band(d[1], half, sy) * band(d[0], plate.arm_um, sx);
-                let vb = band(d[0], half, sx) * band(d[1], plate.arm_um, sy);
-                let cov = hb + vb - hb * vb;
-                let i = row * w + col;
-                img[i] *= (1.0 - dark * cov) as f32;
             }
-        }
-    }
-    for d in &plate.dirt {
-        let s = 0.5 * (sx + sy);
-        for row in 0..h {
-            for col in 0..w {
-                let l = af.local_um(col as f64 + 0.5, row as f64 + 0.5);
-                let r = (mark_um[0] + l[0] - d[0]).hypot(mark_um[1] + l[1] - d[1]);
-                if r > d[2] + 5.0 * s {
-                    continue;
+            for d in &plate.dirt {
+                for (col, px_v) in img_row.iter_mut().enumerate() {
+                    let l = af.local_um(col as f64 + 0.5, row as f64 + 0.5);
+                    let r = (mark_um[0] + l[0] - d[0]).hypot(mark_um[1] + l[1] - d[1]);
+                    if r > d[2] + 5.0 * s {
+                        continue;
+                    }
+                    let cov = 0.5 * (1.0 - erf((r - d[2]) / (std::f64::consts::SQRT_2 * s)));
+                    *px_v *= (1.0 - (1.0 - d[3]) * cov) as f32;
                 }
-                let cov = 0.5 * (1.0 - erf((r - d[2]) / (std::f64::consts::SQRT_2 * s)));
-                img[row * w + col] *= (1.0 - (1.0 - d[3]) * cov) as f32;
             }
-        }
-    }
+        });
     img
 }
 
@@ -243,13 +247,16 @@ pub fn render_scene(
         // One blur for the film: the mean of the two axes'.
         let [bx, by] = blur_um(cfg);
         let s = 0.5 * (bx + by);
-        for row in 0..cfg.height {
-            for col in 0..cfg.width {
-                let l = af.local_um(col as f64 + 0.5, row as f64 + 0.5);
-                let t = f.transmittance([mark_um[0] + l[0], mark_um[1] + l[1]], s);
-                img[row * cfg.width + col] *= t as f32;
-            }
-        }
+        // Rows in parallel: every pixel is its own.
+        img.par_chunks_mut(cfg.width.max(1))
+            .enumerate()
+            .for_each(|(row, img_row)| {
+                for (col, px_v) in img_row.iter_mut().enumerate() {
+                    let l = af.local_um(col as f64 + 0.5, row as f64 + 0.5);
+                    let t = f.transmittance([mark_um[0] + l[0], mark_um[1] + l[1]], s);
+                    *px_v *= t as f32;
+                }
+            });
     }
     draw_measuring_mark(cfg, &mut img);
     img
@@ -261,7 +268,6 @@ pub fn render_scene(
 /// parallel, each from its place in the one noise stream (every pixel takes one normal of a
 /// Box–Muller pair, two draws a pair): the frame is the same, to the bit, as drawn in order.
 pub fn expose(cfg: &CameraConfig, ideal: &[f32], seed: u64, seq: u64) -> Vec<u16> {
-    use rayon::prelude::*;
     let (w, h) = (cfg.width, cfg.height);
     let mut rng = Rng::new(seed ^ seq.wrapping_mul(0x2545_F491_4F6C_DD1D) ^ 0x00CA_3E5A);
     let sc = cfg.scale();

@@ -9,6 +9,7 @@ use super::affine_fit::{fit, Fit, Model};
 use super::pixel::{CalibrateError, Rig};
 use crate::coords::{CarriageUm, PixelXY};
 use crate::targets::certificate::{CameraCertificate, FiducialGroup};
+use crate::targets::mark::MarkShape;
 use crate::targets::measure::{measure, MarkResult, MarkTemplates, Quality};
 use serde::{Deserialize, Serialize};
 use serde_json::json;
@@ -191,9 +192,19 @@ pub fn calibrate_interior(
     order.sort_by_key(|f| (f.group, f.id));
     let mut found: Vec<(CarriageUm, [f64; 2])> = Vec::new();
     let mut obs = Vec::new();
+    // Fiducials of one shape share their templates (drawing them is most of a mark's work).
+    let mut drawn: Vec<(&MarkShape, MarkTemplates)> = Vec::new();
     for (k, f) in order.iter().enumerate() {
-        let tpl = MarkTemplates::new(&f.shape, cert.polarity, a, opt.patch, opt.blur_px)
-            .map_err(|e| CalibrateError::NotFound(format!("fiducial {}: {e}", f.id)))?;
+        let i = match drawn.iter().position(|(s, _)| **s == f.shape) {
+            Some(i) => i,
+            None => {
+                let t = MarkTemplates::new(&f.shape, cert.polarity, a, opt.patch, opt.blur_px)
+                    .map_err(|e| CalibrateError::NotFound(format!("fiducial {}: {e}", f.id)))?;
+                drawn.push((&f.shape, t));
+                drawn.len() - 1
+            }
+        };
+        let tpl = &drawn[i].1;
         let pred = predictor(&found, opt.film_centre)([f.photo.x, f.photo.y]);
         let rings = if found.len() < 2 { opt.search_rings } else { 1 };
         let mut hit = None;
@@ -245,7 +256,7 @@ pub fn calibrate_interior(
             order.len(),
         ));
         let (s, img) = rig.look(rough, opt.frames)?;
-        let r = measure(&img, &tpl, q);
+        let r = measure(&img, tpl, q);
         let id = format!("fiducial-{}", f.id);
         let p = r.seen_at().unwrap_or(mark);
         rig.session.save_crop(&id, &img, p, opt.patch / 2 + 10)?;

@@ -5,6 +5,7 @@
 
 use super::mark::MarkShape;
 use crate::digitise::ImageF32;
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 /// How a mark appears: dark on clear (a diapositive, the plate in transmitted light) or clear
@@ -111,20 +112,23 @@ fn draw(shape: &MarkShape, spec: &TemplateSpec, size: usize) -> ImageF32 {
     let c = big as f64 / 2.0;
     let m = spec.um_per_px;
     let mut cov = vec![0f64; big * big];
-    for r in 0..big {
-        for col in 0..big {
-            let mut n = 0;
-            for sj in 0..SUB {
-                for si in 0..SUB {
-                    let x = col as f64 + (si as f64 + 0.5) / SUB as f64 - c;
-                    let y = r as f64 + (sj as f64 + 0.5) / SUB as f64 - c;
-                    let p = [m[0][0] * x + m[0][1] * y, m[1][0] * x + m[1][1] * y];
-                    n += shape.contains(p) as usize;
+    // Rows in parallel: every pixel's coverage is its own.
+    cov.par_chunks_mut(big.max(1))
+        .enumerate()
+        .for_each(|(r, row)| {
+            for (col, v) in row.iter_mut().enumerate() {
+                let mut n = 0;
+                for sj in 0..SUB {
+                    for si in 0..SUB {
+                        let x = col as f64 + (si as f64 + 0.5) / SUB as f64 - c;
+                        let y = r as f64 + (sj as f64 + 0.5) / SUB as f64 - c;
+                        let p = [m[0][0] * x + m[0][1] * y, m[1][0] * x + m[1][1] * y];
+                        n += shape.contains(p) as usize;
+                    }
                 }
+                *v = n as f64 / (SUB * SUB) as f64;
             }
-            cov[r * big + col] = n as f64 / (SUB * SUB) as f64;
-        }
-    }
+        });
     let cov = gaussian_blur(&cov, big, spec.blur_px);
     let mut image = ImageF32::new(size, size);
     for r in 0..size {

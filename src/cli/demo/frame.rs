@@ -102,6 +102,10 @@ const PHOTOS: [u32; 3] = [1, 2, 3];
 /// wrote it with).
 fn step<T: serde::de::DeserializeOwned>(title: &str, args: &[String]) -> anyhow::Result<T> {
     let text = run_step(title, args)?;
+    read_report(title, &text)
+}
+
+fn read_report<T: serde::de::DeserializeOwned>(title: &str, text: &str) -> anyhow::Result<T> {
     serde_json::from_str(text.trim())
         .with_context(|| format!("step `{title}` printed no report the demo can read"))
 }
@@ -124,6 +128,40 @@ pub(super) fn run_step(title: &str, args: &[String]) -> anyhow::Result<String> {
         );
     }
     eprintln!("   ({:.1} s)", t.elapsed().as_secs_f64());
+    Ok(String::from_utf8_lossy(&out.stdout).into_owned())
+}
+
+/// Runs `rig ARGS` beside other steps: what it says on standard error is held and printed with
+/// its title when it ends (under `print`, so that the steps' lines do not interleave); what it
+/// printed on its standard output.
+fn run_step_beside(
+    title: &str,
+    args: &[String],
+    print: &std::sync::Mutex<()>,
+) -> anyhow::Result<String> {
+    let exe = std::env::current_exe().context("finding the rig executable")?;
+    let t = Instant::now();
+    let out = Command::new(exe)
+        .args(args)
+        .output()
+        .with_context(|| format!("running rig {}", args.join(" ")))?;
+    {
+        let _one_at_a_time = print.lock().unwrap_or_else(|e| e.into_inner());
+        eprint!(
+            "\n== {title}\n$ rig {}\n{}",
+            args.join(" "),
+            String::from_utf8_lossy(&out.stderr)
+        );
+        if out.status.success() {
+            eprintln!("   ({:.1} s)", t.elapsed().as_secs_f64());
+        }
+    }
+    if !out.status.success() {
+        bail!(
+            "step `{title}` failed ({}); what it made so far is kept",
+            out.status
+        );
+    }
     Ok(String::from_utf8_lossy(&out.stdout).into_owned())
 }
 
@@ -210,32 +248,55 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<i32> {
             }
         })
         .collect();
-    let mut sidecars = Vec::new();
-    let mut interiors: Vec<InteriorResults> = Vec::new();
-    for (&photo, &region) in PHOTOS.iter().zip(&regions) {
-        // 2. Interior orientation of the film on the carriage.
+    // 2–3. Each photo's interior orientation on the carriage, then the scan of its part of the
+    // overlap: the three photos at once (each step its own simulator, as three rigs would be;
+    // a step's lines are printed whole when it ends).
+    eprintln!(
+        "\n== the {} photos' interior orientations and scans, the photos at once",
+        PHOTOS.len()
+    );
+    let print = std::sync::Mutex::new(());
+    let chain = |photo: u32, region: [f64; 4]| -> anyhow::Result<(InteriorResults, PathBuf)> {
         let dir = store.join(format!("interior-photo-{photo}"));
         let mut args: Vec<String> = vec!["calibrate".into(), "interior".into()];
         args.extend(sim(photo));
         args.extend(["--frames", frames, "--json", "--store"].map(String::from));
         args.push(s(&store));
         args.extend(["--out".into(), s(&dir)]);
-        interiors.push(step(
-            &format!("interior orientation of photo {photo} (fiducials, seed 002 Table 5)"),
-            &args,
-        )?);
-        // 3. The scan of its part of the overlap.
+        let title = format!("interior orientation of photo {photo} (fiducials, seed 002 Table 5)");
+        let interior: InteriorResults =
+            read_report(&title, &run_step_beside(&title, &args, &print)?)?;
         let script = out.join(format!("scan-photo-{photo}.toml"));
         let scan_dir = out.join(format!("scan-photo-{photo}"));
         scan_script(&script, &dir, region, &scan_dir)?;
         let mut args: Vec<String> = vec!["scan".into()];
         args.extend(sim(photo));
         args.extend(["--json".into(), "run".into(), s(&script)]);
-        step::<serde_json::Value>(
-            &format!("scan of photo {photo}, region {region:.1?} mm"),
-            &args,
-        )?;
-        sidecars.push(scan_dir.join("stereo.json"));
+        let title = format!("scan of photo {photo}, region {region:.1?} mm");
+        read_report::<serde_json::Value>(&title, &run_step_beside(&title, &args, &print)?)?;
+        Ok((interior, scan_dir.join("stereo.json")))
+    };
+    let chains: Vec<anyhow::Result<(InteriorResults, PathBuf)>> = std::thread::scope(|sc| {
+        let running: Vec<_> = PHOTOS
+            .iter()
+            .zip(&regions)
+            .map(|(&photo, &region)| sc.spawn(move || chain(photo, region)))
+            .collect();
+        running
+            .into_iter()
+            .zip(PHOTOS)
+            .map(|(h, photo)| {
+                h.join()
+                    .unwrap_or_else(|_| bail!("photo {photo}'s steps stopped unexpectedly"))
+            })
+            .collect()
+    });
+    let mut sidecars = Vec::new();
+    let mut interiors: Vec<InteriorResults> = Vec::new();
+    for c in chains {
+        let (interior, sidecar) = c?;
+        interiors.push(interior);
+        sidecars.push(sidecar);
     }
     // 4. Control and check points in the scanned photos (an operator would measure them; here
     // the simulator's truth plus measuring noise), the true DEM, the project.
@@ -282,7 +343,7 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<i32> {
     };
     project.push_str(&format!(
         "\n[points]\nfile = \"points.csv\"\nground_sigma_m = 0.5 # the control points were surveyed to 0.5 m (the demo adds that noise)\n\n[dem]\ncell_m = 10.0\nextent = [{:.0}, {:.0}, {:.0}, {:.0}]\nheights = [{:.0}, {:.0}]\n\n\
-         [matching]\nmethod = \"{}\"\nwindow = 9\nthreshold = 0.5\n\n[check]\nreference = \"truth-dem.tif\"\n",
+         [matching]\nmethod = \"{}\"\nwindow = 9\nthreshold = 0.5\nstride = 2 # every second pixel of the 1 m scans: still some 25 points a 10 m node\n\n[check]\nreference = \"truth-dem.tif\"\n",
         e[0],
         e[1],
         e[2],
