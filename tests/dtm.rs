@@ -198,23 +198,53 @@ fn the_demo_runs_the_whole_chain_and_meets_half_the_height_step() {
         assert!(out.join(f).is_file(), "{f}");
     }
     assert!(text.contains("RMSE"));
-    // The demo's folder can be moved: its project names everything relative to itself, and
-    // the moved copy gives the same model.
+    // The demo's folder can be moved: what a run reads (the project, the points, the scans'
+    // hand-overs, manifests and calibrations) names everything relative to itself, and a
+    // share of the sweep run in the moved copy reads the same inputs and gives the same bytes
+    // as in the original (a share: the whole run again is the single run's, byte for byte, by
+    // tests/format2.rs's tiles).
+    let mut read = vec![out.join("project.toml"), out.join("points.csv")];
+    for k in 1..=3 {
+        for e in std::fs::read_dir(out.join(format!("scan-photo-{k}"))).unwrap() {
+            let f = e.unwrap().path();
+            if matches!(
+                f.extension().and_then(|x| x.to_str()),
+                Some("json" | "toml")
+            ) {
+                read.push(f);
+            }
+        }
+    }
+    let here = out.to_str().unwrap();
+    for f in &read {
+        let text = std::fs::read_to_string(f).unwrap();
+        assert!(!text.contains(here), "{} names {here}", f.display());
+    }
+    let share = |project: &std::path::Path, to: &std::path::Path| -> Value {
+        let o = run_ok(
+            rig()
+                .arg("dtm")
+                .arg(project)
+                .args(["--tile", "1/6", "--json", "--out"])
+                .arg(to),
+        );
+        serde_json::from_slice(&o.stdout).unwrap()
+    };
+    let before = share(&out.join("project.toml"), &d.path().join("share-before"));
     let moved = d.path().join("moved-demo");
     std::fs::rename(&out, &moved).unwrap();
-    let again = moved.join("dtm-again");
-    run_ok(
-        rig()
-            .arg("dtm")
-            .arg(moved.join("project.toml"))
-            .arg("--out")
-            .arg(&again),
-    );
-    assert_eq!(
-        std::fs::read(moved.join("dtm/dem.tif")).unwrap(),
-        std::fs::read(again.join("dem.tif")).unwrap(),
-        "the moved demo's model differs"
-    );
+    let after = share(&moved.join("project.toml"), &d.path().join("share-after"));
+    for key in ["project_fnv64", "inputs_fnv64", "units"] {
+        assert_eq!(before[key], after[key], "{key}");
+    }
+    for part in before["parts"].as_array().unwrap() {
+        let f = part["file"].as_str().unwrap();
+        assert_eq!(
+            std::fs::read(d.path().join("share-before").join(f)).unwrap(),
+            std::fs::read(d.path().join("share-after").join(f)).unwrap(),
+            "the moved demo's {f} differs"
+        );
+    }
     // The pages link what is there, relative to themselves, and their pictures are at least
     // 800 px wide.
     for page in ["report.html", "dtm/report.html"] {

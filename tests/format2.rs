@@ -14,9 +14,10 @@ use rig_sim::scene::{jacksboro, AerialPhoto};
 use std::fmt::Write as _;
 use std::path::Path;
 
-/// Film pixel of the plain images, mm, and their half-size: 2000 × 2000 px over ±100 mm.
-const PIXEL_MM: f64 = 0.1;
-const N: usize = 2000;
+/// Film pixel of the plain images, mm, and their size: 1000 × 1000 px over ±100 mm (a
+/// 200 µm scan: coarse, so that the test is quick; the accuracy is held in pixels).
+const PIXEL_MM: f64 = 0.2;
+const N: usize = 1000;
 /// Where each image's window lies along x from the centred one, mm: photo 2's is a crop 15 mm
 /// toward photo 1 (its camera says so by pixel_to_photo).
 const SHIFT: [f64; 3] = [0.0, -15.0, 0.0];
@@ -120,7 +121,7 @@ fn three_plain_photos_give_a_dem_a_gis_can_place() {
     )
     .unwrap();
     let mut project = String::from(
-        "format = 2\ncrs = \"EPSG:32616\"\n\n[camera.rc10]\nfocal_mm = 153.0\npixel_mm = 0.1\n",
+        format!("format = 2\ncrs = \"EPSG:32616\"\n\n[camera.rc10]\nfocal_mm = 153.0\npixel_mm = {PIXEL_MM}\n"),
     );
     // Photo 2's image is a crop shifted along x: x = SHIFT − (N−1)/2·p + col·p.
     let c = (N as f64 - 1.0) / 2.0 * PIXEL_MM;
@@ -153,7 +154,7 @@ fn three_plain_photos_give_a_dem_a_gis_can_place() {
         }
     }
     project.push_str(
-        "\n[points]\nfile = \"points.csv\"\n\n[dem]\ncell_m = 20.0\n\n[matching]\nstride = 4\n\n[check]\nreference = \"truth.tif\"\n",
+        "\n[points]\nfile = \"points.csv\"\n\n[dem]\ncell_m = 20.0\n\n[matching]\nstride = 2\n\n[check]\nreference = \"truth.tif\"\n",
     );
     let pf = d.path().join("project.toml");
     std::fs::write(&pf, &project).unwrap();
@@ -195,10 +196,12 @@ fn three_plain_photos_give_a_dem_a_gis_can_place() {
     }
     assert_eq!(r["resected"][0][0], "3");
     let rmse = r["comparison"]["rmse_m"].as_f64().unwrap();
-    // One pixel of parallax here: 0.1 mm on the film × 42 500 (4.25 m on the ground) over a
-    // base-to-height ratio of about 0.6 along the strip: about 7 m of height. The scan path
+    // One pixel of parallax here: 0.2 mm on the film × 42 500 (8.5 m on the ground) over a
+    // base-to-height ratio of about 0.6 along the strip: about 14 m of height. The scan path
     // reaches 0.35 px (0.61 m at 25 µm in `rig demo`); allow 0.5 px.
-    assert!(rmse < 3.5, "RMSE {rmse} m");
+    let px_m = PIXEL_MM * 1e-3 * 42_500.0 / 0.6;
+    eprintln!("RMSE {rmse:.2} m = {:.3} px of parallax", rmse / px_m);
+    assert!(rmse < 0.5 * px_m, "RMSE {rmse} m ({:.3} px)", rmse / px_m);
     assert!(r["grid_filled"].as_u64().unwrap() > 1000);
     let _ = zs;
     check_quality_and_ortho(&out, &r, &photos[0]);
@@ -371,7 +374,9 @@ fn check_quality_and_ortho(out: &Path, r: &serde_json::Value, a: &AerialPhoto) {
     let (here, n) = corr_at(0);
     let (off, _) = corr_at(1);
     eprintln!("ortho vs the ground's reflectance: correlation {here:.3} over {n} nodes, {off:.3} one cell east");
-    assert!(n > 1000 && here > 0.8 && here > off + 0.1, "{here} {off}");
+    // (A cell is 2.4 of the photos' 8.5 m ground pixels: one cell off still correlates
+    // 0.89, the placed ortho 0.97.)
+    assert!(n > 1000 && here > 0.8 && here > off + 0.05, "{here} {off}");
     // quality.tif: two float bands per pixel (σ ≥ 0, correlation within the threshold … 1) on
     // the DEM's grid, nodata where the DEM has none — read by the TIFF layout, not our reader.
     let dem = rig::matching::products::files::read_geotiff(&out.join("dem.tif")).unwrap();

@@ -257,6 +257,48 @@ fn bad_usage_is_exit_code_2_with_help() {
     assert!(String::from_utf8_lossy(&out.stderr).contains("melt"));
 }
 
+/// One move with one fault through the binary: what was wrong with how it ended.
+fn fault_case(d: &str, spec: &str) -> Vec<String> {
+    let mut failures = vec![];
+    let dir = tempfile::tempdir().unwrap();
+    let truth = dir.path().join("truth.json");
+    let out = embedded("0", d, &truth)
+        .args(["--sim-faults", spec, "--json", "move", "60", "40"])
+        .output()
+        .unwrap();
+    let (code, j, err) = parse(out);
+    let t = read_truth(&truth);
+    let (tx, ty) = carriage_um(&t);
+    match code {
+        0 => {
+            let (x, y) = xy(&j);
+            if (x * 1000.0 - tx).abs() > 1.5 || (y * 1000.0 - ty).abs() > 1.5 {
+                failures.push(format!(
+                    "{d} {spec}: accepted {x},{y} mm but truth {tx},{ty} µm"
+                ));
+            }
+        }
+        4..=8 => {
+            if j["error"]["kind"].as_str().is_none() {
+                failures.push(format!(
+                    "{d} {spec}: exit {code} without a JSON error: {err}"
+                ));
+            }
+            if t["busy"] != false && t["disconnected"] != true {
+                failures.push(format!(
+                    "{d} {spec}: exit {code} but the stage is still moving"
+                ));
+            }
+        }
+        _ => failures.push(format!("{d} {spec}: exit {code}: {err}")),
+    }
+    // Move faults must show up as errors, never as a verified move.
+    if spec.ends_with("=1") && code == 0 {
+        failures.push(format!("{d} {spec}: a faulted move was reported as done"));
+    }
+    failures
+}
+
 #[test]
 fn every_fault_kind_through_the_binary_ends_verified_or_typed() {
     // Move faults at probability 1 so each kind really happens; byte faults at 1 %.
@@ -271,47 +313,27 @@ fn every_fault_kind_through_the_binary_ends_verified_or_typed() {
         "estop=1",
         "disconnect=1",
     ];
-    let mut failures = vec![];
-    for d in DIALECTS {
-        for spec in kinds {
-            let dir = tempfile::tempdir().unwrap();
-            let truth = dir.path().join("truth.json");
-            let out = embedded("0", d, &truth)
-                .args(["--sim-faults", spec, "--json", "move", "60", "40"])
-                .output()
-                .unwrap();
-            let (code, j, err) = parse(out);
-            let t = read_truth(&truth);
-            let (tx, ty) = carriage_um(&t);
-            match code {
-                0 => {
-                    let (x, y) = xy(&j);
-                    if (x * 1000.0 - tx).abs() > 1.5 || (y * 1000.0 - ty).abs() > 1.5 {
-                        failures.push(format!(
-                            "{d} {spec}: accepted {x},{y} mm but truth {tx},{ty} µm"
-                        ));
-                    }
-                }
-                4..=8 => {
-                    if j["error"]["kind"].as_str().is_none() {
-                        failures.push(format!(
-                            "{d} {spec}: exit {code} without a JSON error: {err}"
-                        ));
-                    }
-                    if t["busy"] != false && t["disconnected"] != true {
-                        failures.push(format!(
-                            "{d} {spec}: exit {code} but the stage is still moving"
-                        ));
-                    }
-                }
-                _ => failures.push(format!("{d} {spec}: exit {code}: {err}")),
-            }
-            // Move faults must show up as errors, never as a verified move.
-            if spec.ends_with("=1") && code == 0 {
-                failures.push(format!("{d} {spec}: a faulted move was reported as done"));
-            }
+    // Each case its own process and simulator, six at a time (they mostly wait on the
+    // faults' timeouts).
+    let cases: Vec<_> = DIALECTS
+        .iter()
+        .flat_map(|d| kinds.iter().map(move |k| (*d, *k)))
+        .collect();
+    let queue = std::sync::Mutex::new(cases.into_iter());
+    let failures = std::sync::Mutex::new(Vec::new());
+    std::thread::scope(|sc| {
+        for _ in 0..6 {
+            sc.spawn(|| loop {
+                let Some((d, spec)) = queue.lock().unwrap().next() else {
+                    break;
+                };
+                let f = fault_case(d, spec);
+                failures.lock().unwrap().extend(f);
+            });
         }
-    }
+    });
+    let mut failures = failures.into_inner().unwrap();
+    failures.sort();
     assert!(failures.is_empty(), "{}", failures.join("\n"));
 }
 
