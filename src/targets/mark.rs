@@ -93,6 +93,76 @@ impl Part {
 
     /// The cost of one [`Part::contains`] at the worst point, in tests of a strip or circle:
     /// the spokes within asin(w/2 / r) of a point's direction, r at least `from` (or w/2).
+    /// Whether every point within `r` µm of `c` is in the part (`Some(true)`), none is
+    /// (`Some(false)`), or either may be (`None`). Conservative: a disk on a boundary, or one
+    /// too near it to tell, is `None`, so that drawing by samples decides there (the drawn
+    /// coverage is the same to the bit).
+    pub fn disk(&self, c: [f64; 2], r: f64) -> Option<bool> {
+        let strip = |d: [f64; 2], lo: f64, hi: f64, hw: f64| {
+            let along = c[0] * d[0] + c[1] * d[1];
+            let across = -c[0] * d[1] + c[1] * d[0];
+            if across.abs() + r < hw && along - r > lo && along + r < hi {
+                Some(true)
+            } else if across.abs() - r > hw || along + r < lo || along - r > hi {
+                Some(false)
+            } else {
+                None
+            }
+        };
+        let d = c[0].hypot(c[1]);
+        match *self {
+            Part::Dot { radius } => {
+                if d + r < radius {
+                    Some(true)
+                } else if d - r > radius {
+                    Some(false)
+                } else {
+                    None
+                }
+            }
+            Part::Ring { radius, width } => {
+                let off = (d - radius).abs();
+                if off + r < width / 2.0 {
+                    Some(true)
+                } else if off - r > width / 2.0 {
+                    Some(false)
+                } else {
+                    None
+                }
+            }
+            Part::Bar {
+                length,
+                width,
+                angle_deg,
+            } => strip(dir(angle_deg), -length / 2.0, length / 2.0, width / 2.0),
+            Part::Spokes {
+                count,
+                from,
+                to,
+                width,
+                angle0_deg,
+            } => {
+                if d + r < from || d - r > to.hypot(width / 2.0) {
+                    return Some(false);
+                }
+                if count > 8 {
+                    return None;
+                }
+                // A few spokes: each one's strip, as a bar from `from` to `to`.
+                let step = 360.0 / count as f64;
+                let mut all_out = true;
+                for k in 0..count {
+                    match strip(dir(angle0_deg + step * k as f64), from, to, width / 2.0) {
+                        Some(true) => return Some(true),
+                        Some(false) => {}
+                        None => all_out = false,
+                    }
+                }
+                all_out.then_some(false)
+            }
+        }
+    }
+
     pub fn cost(&self) -> f64 {
         match *self {
             Part::Spokes {
@@ -259,6 +329,20 @@ impl MarkShape {
     /// Whether the point (µm from the centre) is on the mark.
     pub fn contains(&self, p: [f64; 2]) -> bool {
         self.parts.iter().any(|part| part.contains(p))
+    }
+
+    /// Whether the disk of `r` µm about `c` is wholly in the mark, wholly out of it, or
+    /// either may be (see [`Part::disk`]).
+    pub fn disk(&self, c: [f64; 2], r: f64) -> Option<bool> {
+        let mut all_out = true;
+        for part in &self.parts {
+            match part.disk(c, r) {
+                Some(true) => return Some(true),
+                Some(false) => {}
+                None => all_out = false,
+            }
+        }
+        all_out.then_some(false)
     }
 
     /// How far the mark reaches from its centre, µm.
