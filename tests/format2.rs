@@ -120,9 +120,7 @@ fn three_plain_photos_give_a_dem_a_gis_can_place() {
         Crs::Epsg(32616),
     )
     .unwrap();
-    let mut project = String::from(
-        format!("format = 2\ncrs = \"EPSG:32616\"\n\n[camera.rc10]\nfocal_mm = 153.0\npixel_mm = {PIXEL_MM}\n"),
-    );
+    let mut project = format!("format = 2\ncrs = \"EPSG:32616\"\n\n[camera.rc10]\nfocal_mm = 153.0\npixel_mm = {PIXEL_MM}\n");
     // Photo 2's image is a crop shifted along x: x = SHIFT − (N−1)/2·p + col·p.
     let c = (N as f64 - 1.0) / 2.0 * PIXEL_MM;
     writeln!(
