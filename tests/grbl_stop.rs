@@ -209,61 +209,70 @@ fn ctrl_c_during_homing_ends_the_cycle_and_leaves_a_board_that_answers() {
 /// position, and the board then takes commands.
 #[test]
 fn rig_stage_stop_recovers_a_board_another_program_left_held_or_running() {
-    for held in [true, false] {
-        let what = if held { "held" } else { "running" };
-        let sim = SimProcess::start_scaled("grbl", "1", &["--start-homed", "--seed", "5"]);
-        {
-            let mut f = open_nonblocking(&sim.port);
-            f.write_all(b"G90 G21 G53 G1 X-240 Y-240 F600\nG4 P0.01\n\n")
-                .unwrap();
-            std::thread::sleep(Duration::from_millis(700));
-            if held {
-                f.write_all(b"!").unwrap();
-            }
-            let deadline = Instant::now() + Duration::from_secs(5);
-            let want = if held { "Hold:0" } else { "Run" };
-            while sim.truth()["controller_state"] != want {
-                assert!(Instant::now() < deadline, "{what}: {}", sim.truth());
-                std::thread::sleep(Duration::from_millis(20));
-            }
-        } // the other program is gone
-        let before = sim.truth();
-        let (code, j, err) = sim.stage("grbl", &["status"]);
-        assert_eq!(code, 5, "{what}: {err}");
-        assert_eq!(j["error"]["kind"], "not_ready", "{what}: {j}");
-        assert!(err.contains("rig stage stop"), "{what}: {err}");
-        if held {
-            assert_eq!(
-                sim.truth()["controller_state"],
-                "Hold:0",
-                "status changed nothing"
-            );
+    // The two boards side by side, each its own simulator (a panic in either fails the test).
+    std::thread::scope(|sc| {
+        for held in [true, false] {
+            sc.spawn(move || left_held_or_running(held));
         }
-        let t = Instant::now();
-        let (code, j, err) = sim.stage("grbl", &["stop"]);
-        let took = t.elapsed();
-        assert_eq!(code, 0, "{what}: {err}");
-        let want = if held { "released" } else { "decelerated" };
-        assert_eq!(j["action"], want, "{what}: {j}");
-        let after = rest(&sim);
-        assert_eq!(after["controller_state"], "Idle", "{what}: {after}");
-        assert_eq!(after["homed"], true, "{what}: reference lost: {after}");
+    });
+}
+
+/// A board another program left held (`held`) or running: `rig stage status` refuses it,
+/// `rig stage stop` brings it to Idle, homed, where it was, ready for the next move.
+fn left_held_or_running(held: bool) {
+    let what = if held { "held" } else { "running" };
+    let sim = SimProcess::start_scaled("grbl", "1", &["--start-homed", "--seed", "5"]);
+    {
+        let mut f = open_nonblocking(&sim.port);
+        f.write_all(b"G90 G21 G53 G1 X-240 Y-240 F600\nG4 P0.01\n\n")
+            .unwrap();
+        std::thread::sleep(Duration::from_millis(700));
         if held {
-            // (The truth drifts by a few µm an hour.)
-            let (a, b) = (carriage_um(&after), carriage_um(&before));
-            assert!(
-                (a.0 - b.0).abs() < 0.05 && (a.1 - b.1).abs() < 0.05,
-                "{what}: a held board does not move: {b:?} → {a:?}"
-            );
+            f.write_all(b"!").unwrap();
         }
-        let (sx, sy) = xy(&j);
-        let (tx, ty) = carriage_um(&after);
-        assert!((sx * 1000.0 - tx).abs() < 5.0 && (sy * 1000.0 - ty).abs() < 5.0);
-        status_matches_truth(&sim, &after, what);
-        let (code, _, err) = sim.stage("grbl", &["move", "100", "120"]);
-        assert_eq!(code, 0, "{what}: {err}");
-        eprintln!("{what}: `rig stage stop` took {took:?}");
+        let deadline = Instant::now() + Duration::from_secs(5);
+        let want = if held { "Hold:0" } else { "Run" };
+        while sim.truth()["controller_state"] != want {
+            assert!(Instant::now() < deadline, "{what}: {}", sim.truth());
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    } // the other program is gone
+    let before = sim.truth();
+    let (code, j, err) = sim.stage("grbl", &["status"]);
+    assert_eq!(code, 5, "{what}: {err}");
+    assert_eq!(j["error"]["kind"], "not_ready", "{what}: {j}");
+    assert!(err.contains("rig stage stop"), "{what}: {err}");
+    if held {
+        assert_eq!(
+            sim.truth()["controller_state"],
+            "Hold:0",
+            "status changed nothing"
+        );
     }
+    let t = Instant::now();
+    let (code, j, err) = sim.stage("grbl", &["stop"]);
+    let took = t.elapsed();
+    assert_eq!(code, 0, "{what}: {err}");
+    let want = if held { "released" } else { "decelerated" };
+    assert_eq!(j["action"], want, "{what}: {j}");
+    let after = rest(&sim);
+    assert_eq!(after["controller_state"], "Idle", "{what}: {after}");
+    assert_eq!(after["homed"], true, "{what}: reference lost: {after}");
+    if held {
+        // (The truth drifts by a few µm an hour.)
+        let (a, b) = (carriage_um(&after), carriage_um(&before));
+        assert!(
+            (a.0 - b.0).abs() < 0.05 && (a.1 - b.1).abs() < 0.05,
+            "{what}: a held board does not move: {b:?} → {a:?}"
+        );
+    }
+    let (sx, sy) = xy(&j);
+    let (tx, ty) = carriage_um(&after);
+    assert!((sx * 1000.0 - tx).abs() < 5.0 && (sy * 1000.0 - ty).abs() < 5.0);
+    status_matches_truth(&sim, &after, what);
+    let (code, _, err) = sim.stage("grbl", &["move", "100", "120"]);
+    assert_eq!(code, 0, "{what}: {err}");
+    eprintln!("{what}: `rig stage stop` took {took:?}");
 }
 
 /// A fault mid-move (a limit switch: GRBL's hard-limit alarm, critical, which answers nothing

@@ -49,6 +49,31 @@ fn dir(deg: f64) -> [f64; 2] {
 
 /// Whether `p` lies on the strip of half-width `hw` along `d` with its along-coordinate in
 /// `lo..=hi`.
+/// Wholly in (`Some(true)`) when `inside` holds, wholly out when `outside` does, else `None`.
+fn either(inside: bool, outside: bool) -> Option<bool> {
+    if inside {
+        Some(true)
+    } else if outside {
+        Some(false)
+    } else {
+        None
+    }
+}
+
+/// A disk against a union of parts: wholly in when it is wholly in one, wholly out when it is
+/// out of every one.
+fn union(parts: impl Iterator<Item = Option<bool>>) -> Option<bool> {
+    let mut all_out = true;
+    for p in parts {
+        match p {
+            Some(true) => return Some(true),
+            Some(false) => {}
+            None => all_out = false,
+        }
+    }
+    all_out.then_some(false)
+}
+
 fn on_strip(p: [f64; 2], d: [f64; 2], lo: f64, hi: f64, hw: f64) -> bool {
     let along = p[0] * d[0] + p[1] * d[1];
     let across = -p[0] * d[1] + p[1] * d[0];
@@ -101,34 +126,17 @@ impl Part {
         let strip = |d: [f64; 2], lo: f64, hi: f64, hw: f64| {
             let along = c[0] * d[0] + c[1] * d[1];
             let across = -c[0] * d[1] + c[1] * d[0];
-            if across.abs() + r < hw && along - r > lo && along + r < hi {
-                Some(true)
-            } else if across.abs() - r > hw || along + r < lo || along - r > hi {
-                Some(false)
-            } else {
-                None
-            }
+            either(
+                across.abs() + r < hw && along - r > lo && along + r < hi,
+                across.abs() - r > hw || along + r < lo || along - r > hi,
+            )
         };
         let d = c[0].hypot(c[1]);
         match *self {
-            Part::Dot { radius } => {
-                if d + r < radius {
-                    Some(true)
-                } else if d - r > radius {
-                    Some(false)
-                } else {
-                    None
-                }
-            }
+            Part::Dot { radius } => either(d + r < radius, d - r > radius),
             Part::Ring { radius, width } => {
                 let off = (d - radius).abs();
-                if off + r < width / 2.0 {
-                    Some(true)
-                } else if off - r > width / 2.0 {
-                    Some(false)
-                } else {
-                    None
-                }
+                either(off + r < width / 2.0, off - r > width / 2.0)
             }
             Part::Bar {
                 length,
@@ -143,22 +151,18 @@ impl Part {
                 angle0_deg,
             } => {
                 if d + r < from || d - r > to.hypot(width / 2.0) {
-                    return Some(false);
+                    Some(false)
+                } else if count > 8 {
+                    None
+                } else {
+                    // A few spokes: each one's strip, as a bar from `from` to `to`.
+                    let step = 360.0 / count as f64;
+                    union(
+                        (0..count).map(|k| {
+                            strip(dir(angle0_deg + step * k as f64), from, to, width / 2.0)
+                        }),
+                    )
                 }
-                if count > 8 {
-                    return None;
-                }
-                // A few spokes: each one's strip, as a bar from `from` to `to`.
-                let step = 360.0 / count as f64;
-                let mut all_out = true;
-                for k in 0..count {
-                    match strip(dir(angle0_deg + step * k as f64), from, to, width / 2.0) {
-                        Some(true) => return Some(true),
-                        Some(false) => {}
-                        None => all_out = false,
-                    }
-                }
-                all_out.then_some(false)
             }
         }
     }
@@ -334,15 +338,7 @@ impl MarkShape {
     /// Whether the disk of `r` µm about `c` is wholly in the mark, wholly out of it, or
     /// either may be (see [`Part::disk`]).
     pub fn disk(&self, c: [f64; 2], r: f64) -> Option<bool> {
-        let mut all_out = true;
-        for part in &self.parts {
-            match part.disk(c, r) {
-                Some(true) => return Some(true),
-                Some(false) => {}
-                None => all_out = false,
-            }
-        }
-        all_out.then_some(false)
+        union(self.parts.iter().map(|part| part.disk(c, r)))
     }
 
     /// How far the mark reaches from its centre, µm.
