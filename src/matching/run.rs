@@ -23,6 +23,35 @@ pub enum Report {
     Oslsm(Box<OslsmReport>),
 }
 
+impl Report {
+    /// The model's figures, whichever method made it.
+    pub fn model(&self) -> &crate::matching::accuracy::figures::ModelFigures {
+        match self {
+            Report::Sweep(r) => &r.model,
+            Report::Mgcm(r) => &r.model,
+            Report::Oslsm(r) => &r.model,
+        }
+    }
+
+    /// The figures a person looks at first, for report.html.
+    pub fn summary(&self) -> Vec<(String, String)> {
+        match self {
+            Report::Sweep(r) => r.summary(),
+            Report::Mgcm(r) => r.summary(),
+            Report::Oslsm(r) => r.summary(),
+        }
+    }
+
+    /// The ground coordinates' system of the model.
+    pub fn crs(&self) -> crate::geometry::Crs {
+        match self {
+            Report::Sweep(r) => r.crs,
+            Report::Mgcm(r) => r.head.crs,
+            Report::Oslsm(r) => r.head.crs,
+        }
+    }
+}
+
 /// Runs project `p`'s method on its loaded `photos` into `out`.
 pub fn run(
     p: &Project,

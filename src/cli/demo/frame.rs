@@ -9,8 +9,7 @@ use anyhow::{bail, Context};
 use clap::Args;
 use rig::calibrate::documents::{InteriorResults, PixelResults};
 use rig::coords::PhotoMm;
-use rig::matching::methods::mgcm::run::MgcmReport;
-use rig::matching::methods::sweep::SweepReport;
+use rig::matching::run::Report;
 use rig::scan::ScannedPhoto;
 use rig_sim::scene::{jacksboro, AerialPhoto};
 use serde_json::json;
@@ -52,44 +51,6 @@ pub enum DemoSensor {
 pub enum Method {
     Sweep,
     Mgcm,
-}
-
-/// The elevation model's report, of either matcher.
-#[derive(serde::Serialize)]
-#[serde(untagged)]
-pub(super) enum Model {
-    Sweep(Box<SweepReport>),
-    Mgcm(Box<MgcmReport>),
-}
-
-impl Model {
-    pub(super) fn summary(&self) -> Vec<(String, String)> {
-        match self {
-            Model::Sweep(r) => r.summary(),
-            Model::Mgcm(r) => r.summary(),
-        }
-    }
-    pub(super) fn comparison(&self) -> Option<&rig::matching::grid::Comparison> {
-        match self {
-            Model::Sweep(r) => r.model.comparison.as_ref(),
-            Model::Mgcm(r) => r.model.comparison.as_ref(),
-        }
-    }
-    /// The DEM's nodes with a height, and all its nodes (its default extent, where two views
-    /// see the ground at the middle height).
-    pub(super) fn filled(&self) -> (usize, usize) {
-        let m = match self {
-            Model::Sweep(r) => &r.model,
-            Model::Mgcm(r) => &r.model,
-        };
-        (m.grid_filled, m.grid.cols * m.grid.rows)
-    }
-    fn crs(&self) -> rig::geometry::Crs {
-        match self {
-            Model::Sweep(r) => r.crs,
-            Model::Mgcm(r) => r.head.crs,
-        }
-    }
 }
 
 /// The area of photo 1 that is scanned and matched, photo mm: where photos 2 (about 92 mm
@@ -366,11 +327,11 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<i32> {
         s(&dtm_dir),
     ];
     let dtm = match a.method {
-        Method::Sweep => Model::Sweep(step(
+        Method::Sweep => Report::Sweep(step(
             "elevation model: every pair of the three photos swept along its mapping functions (seeds 000, 004)",
             &args,
         )?),
-        Method::Mgcm => Model::Mgcm(step(
+        Method::Mgcm => Report::Mgcm(step(
             "elevation model: the three photos matched at once, geometrically constrained (seed 002)",
             &args,
         )?),
@@ -413,7 +374,7 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<i32> {
         );
     }
     match &dtm {
-        Model::Sweep(r) => {
+        Report::Sweep(r) => {
             for pr in &r.pairs {
                 println!(
                     "  photos {} × {}: step {:.2} m (half a pixel of parallax), {:.1} % of {} points matched, {:.1} % kept after the height and population criteria",
@@ -426,7 +387,7 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<i32> {
                 );
             }
         }
-        Model::Mgcm(r) => {
+        Report::Mgcm(r) => {
             println!(
                 "  photo {} against {}: {} of {} points kept ({:.0} points/s)",
                 r.reference,
@@ -449,8 +410,11 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<i32> {
                 );
             }
         }
+        // The object-space matching has its own figures in its report; the demo asks for the
+        // sweep or the MGCM.
+        Report::Oslsm(_) => {}
     }
-    if let Some(c) = dtm.comparison() {
+    if let Some(c) = &dtm.model().comparison {
         println!(
             "  elevation model vs the true DEM: RMSE {:.2} m ({:.3} ‰ of the 6 500 m flying height), mean {:+.2} m, max +{:.2} / {:.2} m over {} nodes; in {}",
             c.rmse_m,
@@ -462,7 +426,7 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<i32> {
             dtm.crs()
         );
     }
-    if let Model::Sweep(dtm) = &dtm {
+    if let Report::Sweep(dtm) = &dtm {
         if let Some(sv) = &dtm.model.sigma_vs_reference {
             println!(
             "  its standard deviations (quality.tif: the matching's, the terrain the nodes do not resolve{}): RMS {:.2} m; the true errors are {:.2} × them, {:.0} % within 2σ",
@@ -508,7 +472,7 @@ fn demo_page(
     pixel: &PixelResults,
     interiors: &[InteriorResults],
     sidecars: &[PathBuf],
-    dtm: &Model,
+    dtm: &Report,
 ) -> rig::matching::products::html::Page {
     use rig::matching::products::html::{Page, Section};
     let rel = |p: &std::path::Path| {

@@ -3,11 +3,12 @@
 //! elevation model from the three views, compared with the true DEM in metres and in pixels
 //! of parallax of the widest pair.
 
-use super::frame::{run_step, s, DemoArgs, Method, Model};
+use super::frame::{run_step, s, DemoArgs, Method};
 use anyhow::Context;
 use rig::coords::PixelXY;
 use rig::geometry::{Pushbroom, Sensor};
 use rig::matching::block::geometry::parallax_per_m;
+use rig::matching::run::Report;
 use serde_json::json;
 use std::path::Path;
 use std::time::Instant;
@@ -77,8 +78,8 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<i32> {
         &args,
     )?;
     let dtm = match a.method {
-        Method::Sweep => Model::Sweep(serde_json::from_str(text.trim())?),
-        Method::Mgcm => Model::Mgcm(serde_json::from_str(text.trim())?),
+        Method::Sweep => Report::Sweep(serde_json::from_str(text.trim())?),
+        Method::Mgcm => Report::Mgcm(serde_json::from_str(text.trim())?),
     };
     // Parallax of the widest pair (views 1 and 3) per metre of height, at the scene's middle.
     let (v1, v3) = (model(&out, 1)?, model(&out, 3)?);
@@ -116,12 +117,13 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<i32> {
             );
         }
     }
-    let (filled, nodes) = dtm.filled();
+    let m = dtm.model();
+    let (filled, nodes) = (m.grid_filled, m.grid.cols * m.grid.rows);
     println!(
         "  elevation model: a height at {filled} of its {nodes} nodes ({:.1} % of the default extent: where two views see the ground)",
         100.0 * filled as f64 / nodes.max(1) as f64
     );
-    if let Some(c) = dtm.comparison() {
+    if let Some(c) = &m.comparison {
         println!(
             "  elevation model vs the true DEM: RMSE {:.2} m = {:.3} px of parallax of the widest pair ({:.3} px per m), mean {:+.2} m, over {} nodes",
             c.rmse_m,
