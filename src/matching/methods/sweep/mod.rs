@@ -16,7 +16,7 @@ use crate::geometry::{Crs, PhotoSensor, Resection, Sensor};
 use crate::matching::accuracy::averaging::{remove_window_averaging, AveragingReport, Kernel};
 use crate::matching::accuracy::figures::ModelFigures;
 use crate::matching::accuracy::precision::{variance_factor, VarianceFactor};
-use crate::matching::block::orient::corrected_lines;
+use crate::matching::block::orient::{corrected_lines, Oriented};
 use crate::matching::block::photo::Photo;
 use crate::matching::block::photo::PhotoGeometry;
 use crate::matching::error::MatchingError;
@@ -143,9 +143,9 @@ impl SweepReport {
 /// Cov(δq_i, δq_j) (px²) at `g` of photos `i` and `j` resected from shared control:
 /// J_i·C_ij·J_jᵀ.
 fn shared_pointing(plan: &Plan, i: usize, j: usize, g: GroundM) -> Option<[[f64; 2]; 2]> {
-    let c = plan.shared_orientation.between(i, j)?;
-    let ji = plan.sensors[i].frame()?.exterior_partials(g)?;
-    let jj = plan.sensors[j].frame()?.exterior_partials(g)?;
+    let c = plan.oriented.shared_orientation.between(i, j)?;
+    let ji = plan.oriented.sensors[i].frame()?.exterior_partials(g)?;
+    let jj = plan.oriented.sensors[j].frame()?.exterior_partials(g)?;
     let mut out = [[0.0; 2]; 2];
     for (r, row) in out.iter_mut().enumerate() {
         for (s, v) in row.iter_mut().enumerate() {
@@ -175,6 +175,7 @@ fn add_orientation_sigma(grid: &ElevationGrid, sigma: &mut [f32], plan: &Plan) -
     let mid = grid.z.iter().copied().find(|z| z.is_finite())? as f64;
     let g0 = GroundM::new(centre[0], centre[1], mid);
     if plan
+        .oriented
         .sensors
         .iter()
         .all(|s| s.pointing_covariance(g0).is_none())
@@ -206,10 +207,10 @@ fn add_orientation_sigma(grid: &ElevationGrid, sigma: &mut [f32], plan: &Plan) -
             .pairs
             .iter()
             .map(|p| (p.left, p.right))
-            .filter(|&(i, j)| inside(&plan.sensors[i], g) && inside(&plan.sensors[j], g))
+            .filter(|&(i, j)| inside(&plan.oriented.sensors[i], g) && inside(&plan.oriented.sensors[j], g))
             .collect();
         crate::matching::accuracy::orientation_error::height_sigma(
-            &plan.sensors,
+            &plan.oriented.sensors,
             &seeing,
             g,
             &|i, j| shared_pointing(plan, i, j, g),
@@ -303,15 +304,15 @@ pub fn run(run: &Run) -> Result<SweepReport, MatchingError> {
 pub fn finish(run: &Run, plan: &Plan, parts: Vec<PairPart>) -> Result<SweepReport, MatchingError> {
     let p = run.project;
     let obs = p.observations()?;
-    let Plan {
+    let Oriented {
         sensors,
         resected,
         corrected,
         heights,
         extent,
-        budget,
         ..
-    } = plan.clone();
+    } = plan.oriented.clone();
+    let budget = plan.budget;
     let mut by_pair: Vec<(Vec<SweptBands>, f64)> = vec![(Vec::new(), 0.0); plan.pairs.len()];
     for part in parts {
         let slot = by_pair.get_mut(part.pair).ok_or_else(|| {
@@ -365,7 +366,7 @@ pub fn finish(run: &Run, plan: &Plan, parts: Vec<PairPart>) -> Result<SweepRepor
     // height, weighted by the points the pair gave.
     let (mut ws, mut wn) = (0.0, 0.0);
     for (pair, pts) in plan.pairs.iter().zip(&per_pair) {
-        let s = &plan.sensors[pair.left];
+        let s = &plan.oriented.sensors[pair.left];
         let (w, h) = s.image_size();
         let centre = PixelXY::new(0.5 * w as f64, 0.5 * h as f64);
         if let Some(g) = s.ground_pixel_m(centre, 0.5 * (heights[0] + heights[1])) {

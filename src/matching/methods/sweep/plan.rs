@@ -3,9 +3,7 @@
 //! functions from the two sensors (seed 004 §4), its height step and parameters, its work
 //! checked against the budget.
 
-use crate::geometry::control_covariance::CrossCovariances;
-use crate::geometry::control_fit::ControlFit;
-use crate::geometry::{PhotoSensor, Resection, Sensor};
+use crate::geometry::{PhotoSensor, Sensor};
 use crate::matching::block::orient::{orient, Oriented};
 use crate::matching::block::photo::PhotoGeometry;
 use crate::matching::error::MatchingError;
@@ -30,13 +28,8 @@ pub struct PlannedPair {
 /// same on every machine of a tiled run.
 #[derive(Debug, Clone)]
 pub struct Plan {
-    pub sensors: Vec<PhotoSensor>,
-    pub resected: Vec<(String, Resection)>,
-    pub corrected: Vec<(String, ControlFit)>,
-    /// As [`Oriented::shared_orientation`].
-    pub shared_orientation: CrossCovariances,
-    pub heights: [f64; 2],
-    pub extent: [f64; 4],
+    /// The photos oriented, the heights, the extent and the overlapping pairs.
+    pub oriented: Oriented,
     pub pairs: Vec<PlannedPair>,
     pub budget: Budget,
 }
@@ -70,22 +63,15 @@ pub fn plan(
     photos: &[PhotoGeometry],
     max_memory_mb: Option<u64>,
 ) -> Result<Plan, MatchingError> {
-    let Oriented {
-        sensors,
-        resected,
-        corrected,
-        shared_orientation,
-        heights,
-        extent,
-        overlapping,
-    } = orient(p, photos)?;
+    let oriented = orient(p, photos)?;
+    let (sensors, heights) = (&oriented.sensors, oriented.heights);
     let budget = Budget {
         max_memory_mb: max_memory_mb.unwrap_or(p.limits.max_memory_mb),
         max_candidates: p.limits.max_candidates_g * 1e9,
     };
     let m = &p.matching;
     let mut pairs = Vec::new();
-    for (i, j) in overlapping {
+    for &(i, j) in &oriented.overlapping {
         let (l, r) = (&sensors[i], &sensors[j]);
         let (li, ri) = (&p.photos[i].id, &p.photos[j].id);
         // A line scanner's (or its RPCs') mappings may take seed 004's extended terms.
@@ -146,12 +132,7 @@ pub fn plan(
         });
     }
     Ok(Plan {
-        sensors,
-        resected,
-        corrected,
-        shared_orientation,
-        heights,
-        extent,
+        oriented,
         pairs,
         budget,
     })
