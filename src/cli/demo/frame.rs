@@ -126,6 +126,18 @@ fn run_step_beside(
     Ok(String::from_utf8_lossy(&out.stdout).into_owned())
 }
 
+/// The demo's folder, created, as an absolute path.
+pub(super) fn out_dir(a: &DemoArgs) -> anyhow::Result<PathBuf> {
+    std::fs::create_dir_all(&a.out)
+        .and_then(|()| std::fs::canonicalize(&a.out))
+        .with_context(|| {
+            format!(
+                "cannot make the demo's folder {} (give --out a directory that can be made)",
+                a.out.display()
+            )
+        })
+}
+
 pub(super) fn s(p: &Path) -> String {
     p.display().to_string()
 }
@@ -169,8 +181,7 @@ photo_mm = [{:.3}, {:.3}, {:.3}, {:.3}]
 
 /// The frame camera's demo (the dispatcher, `crate::cli::run`, has checked `a.out` is new).
 pub fn run(a: &DemoArgs) -> anyhow::Result<i32> {
-    std::fs::create_dir_all(&a.out)?;
-    let out = std::fs::canonicalize(&a.out)?;
+    let out = out_dir(a)?;
     let t0 = Instant::now();
     let seed = a.seed.to_string();
     let store = out.join("sessions");

@@ -3,7 +3,7 @@
 //! elevation model from the three views, compared with the true DEM in metres and in pixels
 //! of parallax of the widest pair.
 
-use super::frame::{run_step, s, DemoArgs, Method};
+use super::frame::{out_dir, run_step, s, DemoArgs, Method};
 use anyhow::Context;
 use rig::coords::PixelXY;
 use rig::geometry::{Pushbroom, Sensor};
@@ -20,8 +20,7 @@ fn model(dir: &Path, view: u32) -> anyhow::Result<Pushbroom> {
 }
 
 pub fn run(a: &DemoArgs) -> anyhow::Result<i32> {
-    std::fs::create_dir_all(&a.out)?;
-    let out = std::fs::canonicalize(&a.out)?;
+    let out = out_dir(a)?;
     let t0 = Instant::now();
     let size = if a.quick { "600" } else { "1200" };
     let args: Vec<String> = [

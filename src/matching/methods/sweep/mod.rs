@@ -207,7 +207,9 @@ fn add_orientation_sigma(grid: &ElevationGrid, sigma: &mut [f32], plan: &Plan) -
             .pairs
             .iter()
             .map(|p| (p.left, p.right))
-            .filter(|&(i, j)| inside(&plan.oriented.sensors[i], g) && inside(&plan.oriented.sensors[j], g))
+            .filter(|&(i, j)| {
+                inside(&plan.oriented.sensors[i], g) && inside(&plan.oriented.sensors[j], g)
+            })
             .collect();
         crate::matching::accuracy::orientation_error::height_sigma(
             &plan.oriented.sensors,
