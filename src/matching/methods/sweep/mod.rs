@@ -313,7 +313,8 @@ pub fn finish(run: &Run, plan: &Plan, parts: Vec<PairPart>) -> Result<SweepRepor
         heights,
         extent,
         ..
-    } = plan.oriented.clone();
+    } = &plan.oriented;
+    let (heights, extent) = (*heights, *extent);
     let budget = plan.budget;
     let mut by_pair: Vec<(Vec<SweptBands>, f64)> = vec![(Vec::new(), 0.0); plan.pairs.len()];
     for part in parts {
@@ -368,7 +369,7 @@ pub fn finish(run: &Run, plan: &Plan, parts: Vec<PairPart>) -> Result<SweepRepor
     // height, weighted by the points the pair gave.
     let (mut ws, mut wn) = (0.0, 0.0);
     for (pair, pts) in plan.pairs.iter().zip(&per_pair) {
-        let s = &plan.oriented.sensors[pair.left];
+        let s = &sensors[pair.left];
         let (w, h) = s.image_size();
         let centre = PixelXY::new(0.5 * w as f64, 0.5 * h as f64);
         if let Some(g) = s.ground_pixel_m(centre, 0.5 * (heights[0] + heights[1])) {
@@ -391,8 +392,8 @@ pub fn finish(run: &Run, plan: &Plan, parts: Vec<PairPart>) -> Result<SweepRepor
     let report = SweepReport {
         project: p.path.clone(),
         crs: p.crs,
-        resected,
-        corrected,
+        resected: resected.clone(),
+        corrected: corrected.clone(),
         heights_m: heights,
         extent,
         pairs: reports,
@@ -406,7 +407,7 @@ pub fn finish(run: &Run, plan: &Plan, parts: Vec<PairPart>) -> Result<SweepRepor
         &report.model,
         &all,
         &quality,
-        &sensors,
+        sensors,
         &report,
         &report.summary(),
     )?;
