@@ -59,7 +59,6 @@ fn raw_exchange(f: &mut std::fs::File, bytes: &[u8], dur: Duration) -> String {
     String::from_utf8_lossy(&out).to_string()
 }
 
-#[test]
 fn emulator_is_silent_while_homing_and_answers_once_before_its_ok() {
     // Half real time: seed 1's seek (168 mm at 10 mm/s) takes 8 s, so the questions below all
     // fall inside the cycle.
@@ -88,7 +87,6 @@ fn emulator_is_silent_while_homing_and_answers_once_before_its_ok() {
     assert!(now.starts_with("<Idle|MPos:-1.0"), "{now:?}");
 }
 
-#[test]
 fn rig_homes_a_board_that_is_silent_while_homing() {
     // Fast enough for a test, slow enough that the cycle (1-3 s) outlasts the old 2 s give-up.
     let sim = grbl(0.2, false, &[]);
@@ -112,7 +110,6 @@ fn rig_homes_a_board_that_is_silent_while_homing() {
     );
 }
 
-#[test]
 fn homing_toward_the_minus_switches_moves_limits_and_frame_with_them() {
     let sim = grbl(0.0, false, &[(23, 3.0)]);
     let mut d = driver(&sim.port);
@@ -145,7 +142,6 @@ fn homing_toward_the_minus_switches_moves_limits_and_frame_with_them() {
     assert_eq!(d.status().unwrap().limit_switches, "");
 }
 
-#[test]
 fn wpos_and_inch_reports_give_the_same_carriage_positions() {
     // An operator's G54 offset (set by other software) and reports in inches: the rig must
     // neither move by the offset nor misread the unit.
@@ -178,7 +174,6 @@ fn wpos_and_inch_reports_give_the_same_carriage_positions() {
     assert!((at.x_mm() - 100.0).abs() < 0.003, "{at}");
 }
 
-#[test]
 fn alarm_at_connect_is_reported_not_hidden() {
     let sim = grbl(0.0, false, &[]);
     let c = GrblController::open(&sim.port, &Default::default()).unwrap();
@@ -197,7 +192,6 @@ fn alarm_at_connect_is_reported_not_hidden() {
     ));
 }
 
-#[test]
 fn connecting_never_aborts_a_homing_cycle() {
     // Seed 1's cycle (8 s at half real time) outlasts the connection attempt (2.5 s).
     let sim = grbl(0.5, false, &[]);
@@ -226,7 +220,6 @@ fn connecting_never_aborts_a_homing_cycle() {
     assert!(c.info().notes.iter().all(|n| !n.contains("Alarm")));
 }
 
-#[test]
 fn absurd_settings_are_refused_by_name_before_anything_moves() {
     for (k, v) in [
         (110, 0.0),
@@ -254,7 +247,6 @@ fn absurd_settings_are_refused_by_name_before_anything_moves() {
     }
 }
 
-#[test]
 fn wrong_dialect_first_does_not_spoil_the_next_connection() {
     let sim = grbl(0.0, true, &[]);
     let e = match rig::stage::native::NativeController::open(&sim.port, &Default::default()) {
@@ -285,7 +277,6 @@ fn wrong_dialect_first_does_not_spoil_the_next_connection() {
     assert!(m.contains("heard") || m.contains("nothing at all"), "{m}");
 }
 
-#[test]
 fn a_late_report_never_answers_a_later_question() {
     let fake = FakeGrbl::start(Script::default());
     let mut c = GrblController::open(&fake.port, &Default::default()).unwrap();
@@ -308,7 +299,6 @@ fn a_late_report_never_answers_a_later_question() {
 
 /// A noisy line can lose `$H`'s `ok` (or its ALARM): the wait then learns from a status report
 /// that the cycle is over, within seconds, instead of waiting out the homing bound.
-#[test]
 fn a_lost_homing_answer_is_recovered_from_the_board_state() {
     for (state, homed) in [("Idle", true), ("Alarm", false)] {
         let fake = FakeGrbl::start(Script {
@@ -341,7 +331,6 @@ fn a_lost_homing_answer_is_recovered_from_the_board_state() {
     }
 }
 
-#[test]
 fn a_stop_acts_at_once_and_escalates_to_a_reset() {
     let fake = FakeGrbl::start(Script {
         hang_on_move: true,
@@ -364,7 +353,6 @@ fn a_stop_acts_at_once_and_escalates_to_a_reset() {
     assert!(asked <= most, "{asked} questions in {took:?}");
 }
 
-#[test]
 fn a_stop_that_is_not_confirmed_is_never_reported_as_done() {
     let fake = FakeGrbl::start(Script {
         hang_on_move: true,
@@ -394,7 +382,6 @@ fn a_stop_that_is_not_confirmed_is_never_reported_as_done() {
     assert!(fake.seen().resets >= 1, "a reset was tried");
 }
 
-#[test]
 fn a_position_far_outside_the_travel_is_a_fault() {
     let fake = FakeGrbl::start(Script {
         pos: "MPos:-5000.000,-100.000,0.000".into(),
@@ -418,7 +405,6 @@ fn a_position_far_outside_the_travel_is_a_fault() {
     assert!(e.to_string().contains("far outside"), "{e}");
 }
 
-#[test]
 fn a_settings_dump_answered_with_an_error_is_asked_again() {
     let fake = FakeGrbl::start(Script {
         settings_errors: 2,
@@ -430,7 +416,6 @@ fn a_settings_dump_answered_with_an_error_is_asked_again() {
     assert!(dumps >= 4, "two refused, two that agree: {dumps}");
 }
 
-#[test]
 fn a_silent_line_is_reported_as_silence_without_a_reset() {
     let fake = FakeGrbl::start(Script {
         silent: true,
@@ -467,7 +452,6 @@ fn grbl_cli(setting: &str, action: &str) -> (i32, String, String) {
     )
 }
 
-#[test]
 fn check_setup_says_what_to_change() {
     let (code, text, err) = grbl_cli("20=0", "check-setup");
     assert_eq!(code, 0, "{err}");
@@ -481,3 +465,22 @@ fn check_setup_says_what_to_change() {
     assert!(err.contains("$110 (X max rate"), "{err}");
     assert!(!err.contains("panicked"));
 }
+
+crate::waiting_tests!(
+    emulator_is_silent_while_homing_and_answers_once_before_its_ok,
+    rig_homes_a_board_that_is_silent_while_homing,
+    homing_toward_the_minus_switches_moves_limits_and_frame_with_them,
+    wpos_and_inch_reports_give_the_same_carriage_positions,
+    alarm_at_connect_is_reported_not_hidden,
+    connecting_never_aborts_a_homing_cycle,
+    absurd_settings_are_refused_by_name_before_anything_moves,
+    wrong_dialect_first_does_not_spoil_the_next_connection,
+    a_late_report_never_answers_a_later_question,
+    a_lost_homing_answer_is_recovered_from_the_board_state,
+    a_stop_acts_at_once_and_escalates_to_a_reset,
+    a_stop_that_is_not_confirmed_is_never_reported_as_done,
+    a_position_far_outside_the_travel_is_a_fault,
+    a_settings_dump_answered_with_an_error_is_asked_again,
+    a_silent_line_is_reported_as_silence_without_a_reset,
+    check_setup_says_what_to_change,
+);

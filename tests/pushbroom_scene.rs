@@ -118,8 +118,8 @@ fn bad_pushbroom_scenes_are_refused_before_anything_is_written() {
 
 /// Issue 20's DEM goal on a simulated SPOT-like triplet (across-track, ±20°): the sweep
 /// through the views' line-scanner models, and again through their RPCs as a user's
-/// satellite images would come, within 0.25 px of parallax of the widest pair against the
-/// true DEM; the pixels of parallax per metre from the closed form of a ±20° pair
+/// satellite images would come (as _RPC.TXT files, or in the images' own tags), within
+/// 0.25 px of parallax of the widest pair against the true DEM; the pixels of parallax per metre from the closed form of a ±20° pair
 /// (2·sin 20°·cos 20° per ground pixel of the nadir view).
 #[test]
 fn a_triplet_through_its_models_or_its_rpcs_gives_the_dem_within_a_quarter_pixel() {
@@ -148,7 +148,24 @@ fn a_triplet_through_its_models_or_its_rpcs_gives_the_dem_within_a_quarter_pixel
         .replace("_RPC.TXT\"", ".tiff\"");
     assert!(tagged.contains("rpc = \"view-1.tiff\""), "{tagged}");
     std::fs::write(scene.join("block-tag.toml"), tagged).unwrap();
-    for project in ["block.toml", "block-rpc.toml", "block-tag.toml"] {
+    // Read from the tags, the project holds the very photos (images and RPCs, every
+    // coefficient) it holds from the _RPC.TXT files, so its run is block-rpc.toml's run.
+    let load = |name: &str| rig::matching::project::Project::load(&scene.join(name)).unwrap();
+    let (from_txt, from_tag) = (load("block-rpc.toml"), load("block-tag.toml"));
+    assert_eq!(from_tag.photos.len(), 3);
+    for (a, b) in from_txt.photos.iter().zip(&from_tag.photos) {
+        assert!(
+            matches!(&b.source, rig::matching::project::Source::Model { model, .. }
+                if matches!(**model, rig::matching::project::GivenModel::Rpc(_))),
+            "{b:?}"
+        );
+        assert_eq!(
+            a, b,
+            "photo {}: the tag's RPC differs from the _RPC.TXT's",
+            a.id
+        );
+    }
+    for project in ["block.toml", "block-rpc.toml"] {
         let r = common::dtm_json(
             &scene.join(project),
             &d.path().join(project.replace(".toml", "")),

@@ -2,6 +2,8 @@
 //! invocations, and the simulator's truth file.
 #![allow(dead_code)]
 
+pub mod waiting;
+
 use serde_json::Value;
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};

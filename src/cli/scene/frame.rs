@@ -464,8 +464,10 @@ pub fn write_truth_grids(
     Ok(())
 }
 
-/// Cell of truth-reflectance.tif, m (finer than a ground pixel, about 1 m), doubled for
-/// large areas until the grid is at most [`REFLECTANCE_MAX_NODES`].
+/// Finest cell of truth-reflectance.tif, m (finer than a ground pixel of about 1 m). It is
+/// doubled while it stays within a quarter of the photos' ground pixel (a 10 m satellite
+/// pixel is checked on 2 m cells, not on 400 times as many), and for large areas until the
+/// grid is at most [`REFLECTANCE_MAX_NODES`].
 const REFLECTANCE_CELL_M: f64 = 0.5;
 
 /// Nodes of truth-reflectance.tif at the most (25 million: 4 km × 5 km at 1 m).
@@ -473,10 +475,12 @@ const REFLECTANCE_MAX_NODES: f64 = 25e6;
 
 /// The terrain's true reflectance (0 … 1, as the simulator shades it: what every photo's
 /// grey values are a linear function of) over `dem`'s extent, in the world's CRS, and its
-/// cell ([`REFLECTANCE_CELL_M`] or coarser).
+/// cell ([`REFLECTANCE_CELL_M`], or coarser as the photos' ground pixel `pixel_m` allows when
+/// it is given).
 pub fn truth_reflectance(
     reflectance_at: &(dyn Fn(f64, f64) -> f64 + Sync),
     dem: &ElevationGrid,
+    pixel_m: Option<f64>,
 ) -> Result<(ElevationGrid, f64), rig::matching::grid::GridError> {
     let [ox, oy] = rig::sim_scene::ORIGIN_M;
     let half = 0.5 * dem.cell_m;
@@ -488,6 +492,9 @@ pub fn truth_reflectance(
     ];
     let area_m2 = (extent[2] - extent[0]) * (extent[3] - extent[1]);
     let mut cell_m = REFLECTANCE_CELL_M;
+    while pixel_m.is_some_and(|p| 2.0 * cell_m <= 0.25 * p) && cell_m < 1e4 {
+        cell_m *= 2.0;
+    }
     while area_m2 / (cell_m * cell_m) > REFLECTANCE_MAX_NODES && cell_m < 1e4 {
         cell_m *= 2.0;
     }
@@ -647,7 +654,7 @@ pub fn run(a: &SceneArgs) -> anyhow::Result<i32> {
     // coarsened) at once, not after the rendering.
     let truth = truth_grid(&p1, area, truth_cell_m)?;
     let (reflectance, reflectance_cell_m) =
-        truth_reflectance(&|x, y| p1.reflectance_at(x, y), &truth)?;
+        truth_reflectance(&|x, y| p1.reflectance_at(x, y), &truth, None)?;
     std::fs::create_dir_all(&a.out)?;
     eprintln!(
         "rendering photo 1 ({}×{} px) and photo 2 ({}×{} px)…",

@@ -91,7 +91,7 @@ pub fn run(a: &SceneArgs) -> anyhow::Result<i32> {
         scene_heights(ground.iter().map(|g| g[2]), &truth, HEIGHT_MARGIN_M);
     let v0 = views[0].clone();
     let (reflectance, reflectance_cell_m) =
-        truth_reflectance(&move |x, y| v0.reflectance_at(x, y), &truth)?;
+        truth_reflectance(&move |x, y| v0.reflectance_at(x, y), &truth, Some(a.gsd_m))?;
     std::fs::create_dir_all(&a.out)?;
     let geo = Geographic::new(rig::sim_scene::CRS)?;
     let mut fits = Vec::new();

@@ -506,9 +506,22 @@ fn shifts_body<F: CellSink>(
     }
 }
 
-/// Heights: the search photo is resampled once per plane over the rows' span, then the four
-/// search sums (Σw, Σw², Σl·w and the count of samples it does not see) run down and across.
-fn score_warped(
+built_per_cpu! {
+    /// Heights: the search photo is resampled once per plane over the rows' span, then the
+    /// four search sums (Σw, Σw², Σl·w and the count of samples it does not see) run down and
+    /// across. Built per CPU (see `simd`).
+    fn score_warped[](
+        left: &Prepared,
+        right: &Prepared,
+        planes: &Planes,
+        k: usize,
+        cells: &Cells,
+        out: &mut Scores,
+    ) = warped_body;
+}
+
+#[inline(always)]
+fn warped_body(
     left: &Prepared,
     right: &Prepared,
     planes: &Planes,
@@ -696,7 +709,7 @@ fn collapse(poly: &crate::matching::mapping::pmf::Polynomial, x: f64, y: f64, a:
     }
 }
 
-#[inline]
+#[inline(always)]
 fn horner(a: &[f64], u: f64) -> f64 {
     a.iter().rev().fold(0.0, |acc, c| acc * u + c)
 }
