@@ -545,12 +545,21 @@ fn accumulate(
     lay: &Layout,
     base: usize,
 ) {
-    let idx = (0..lay.point).chain(base..base + lay.per);
-    let nz: Vec<usize> = idx.filter(|&i| row[i] != 0.0).collect();
-    for &i in &nz {
+    // At most 3 + 10 unknowns (see `Layout`): on the stack, as this runs for every grey value
+    // of every patch at every iteration.
+    let mut nz = [0usize; 16];
+    let mut count = 0;
+    for i in (0..lay.point).chain(base..base + lay.per) {
+        if row[i] != 0.0 {
+            nz[count] = i;
+            count += 1;
+        }
+    }
+    let nz = &nz[..count];
+    for &i in nz {
         let ri = w * row[i];
         b[i] += ri * l;
-        for &j in &nz {
+        for &j in nz {
             n[(i, j)] += ri * row[j];
         }
     }
@@ -624,8 +633,9 @@ fn finish(
             let mut arow = DVector::<f64>::zeros(nu);
             lay.design(k, &smp.a, dcdz[k], &mut arow);
             lay.design(k, &smp.j, dcdz[k], &mut jrow);
-            n_mat += &arow * arow.transpose();
-            b_mat += &arow * jrow.transpose();
+            // Rank-one updates in place (the same sums as adding the outer products).
+            n_mat.ger(1.0, &arow, &arow, 1.0);
+            b_mat.ger(1.0, &arow, &jrow, 1.0);
             these.push((arow, l, [smp.j[0], smp.j[1]]));
         }
         vv += rv;
