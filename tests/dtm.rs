@@ -103,6 +103,55 @@ fn elevation_model_from_a_rendered_pair_meets_half_the_height_step() {
         std::fs::read(first.join("dem.tif")).unwrap(),
         std::fs::read(again.join("dem.tif")).unwrap()
     );
+    // The same project written as format 2 by `rig dtm upgrade` (mappings fitted to the
+    // control points, as seed 000's): run by format 2's sweep, the model is the format-1
+    // run's on the nodes both have, and a second upgrade overwrites nothing.
+    let up = scene.join("dtm-points-format2.toml");
+    run_ok(
+        rig()
+            .args(["dtm", "upgrade"])
+            .arg(scene.join("dtm-points.toml")),
+    );
+    let text = std::fs::read_to_string(&up).unwrap();
+    assert!(
+        text.contains("format = 2") && text.contains("mappings = \"points\""),
+        "{text}"
+    );
+    let o = rig()
+        .args(["dtm", "upgrade"])
+        .arg(scene.join("dtm-points.toml"))
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(2), "{o:?}");
+    assert!(String::from_utf8_lossy(&o.stderr).contains("is not overwritten"));
+    let v = common::dtm_json(&up, &d.path().join("dtm-format2"));
+    let two =
+        rig::matching::products::files::read_geotiff(&d.path().join("dtm-format2").join("dem.tif"))
+            .unwrap();
+    let one = rig::matching::products::files::read_geotiff(&first.join("dem.tif")).unwrap();
+    let (mut n, mut ss) = (0usize, 0.0f64);
+    for r in 0..two.rows {
+        for c in 0..two.cols {
+            let [x, y] = two.node(c, r);
+            let (a, b) = (two.z[r * two.cols + c], one.interpolate(x, y));
+            if a.is_finite() && b.is_finite() {
+                n += 1;
+                ss += (a as f64 - b).powi(2);
+            }
+        }
+    }
+    let rms = (ss / n.max(1) as f64).sqrt();
+    let step = v["pairs"][0]["h_step_m"].as_f64().unwrap();
+    eprintln!(
+        "format 2 after upgrade: RMSE {} m; against the format-1 model {rms:.3} m RMS over {n} nodes",
+        v["comparison"]["rmse_m"]
+    );
+    assert!(
+        n as f64 > 0.9 * one.filled() as f64,
+        "{n} of {}",
+        one.filled()
+    );
+    assert!(rms < 0.05 * step, "{rms} m against a {step} m step");
     // A height range that misses most of the terrain: the run warns that the heights pile at
     // the bound (it does not pass silently).
     let h_min: f64 = project

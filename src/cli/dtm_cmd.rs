@@ -98,6 +98,89 @@ pub enum DtmAction {
         #[command(flatten)]
         run: RunOptions,
     },
+    /// Write a format-1 project (one scanned pair, [photos] left/right, points in JSON) as
+    /// format 2: the same photos, points, heights, grid and sweep parameters, the points as
+    /// format 2's CSV (pixel centres at integers). `[pmf] from = "points"` becomes
+    /// `[matching] mappings = "points"` (seed 000), `from = "rigorous"` the default
+    /// `mappings = "sensors"` (seed 004). Nothing is overwritten.
+    ///
+    /// Examples:
+    ///   rig dtm upgrade scene/project.toml                 # writes scene/project-format2.toml
+    ///   rig dtm upgrade old.toml --out block.toml           # and block-points.csv beside it
+    #[command(verbatim_doc_comment)]
+    Upgrade {
+        /// The format-1 project.
+        #[arg(value_name = "OLD.toml")]
+        project: PathBuf,
+        /// The format-2 project to write, in the old one's directory (its points go beside it
+        /// as NAME-points.csv); default: OLD-format2.toml.
+        #[arg(long, value_name = "NEW.toml")]
+        out: Option<PathBuf>,
+    },
+}
+
+/// `rig dtm upgrade`: the format-2 project and its points beside the old project.
+fn upgrade(project: &std::path::Path, out: Option<PathBuf>) -> anyhow::Result<i32> {
+    let p = match AnyProject::load(project)? {
+        AnyProject::Pair(p) => p,
+        AnyProject::Block(_) => {
+            eprintln!(
+                "rig dtm upgrade: {} is format 2 already (it has `format = 2`)",
+                project.display()
+            );
+            return Ok(rig::exit::USAGE);
+        }
+    };
+    let dir = project.parent().unwrap_or(std::path::Path::new("."));
+    let stem = project
+        .file_stem()
+        .map_or_else(|| "project".into(), |s| s.to_string_lossy().into_owned());
+    let out = out.unwrap_or_else(|| dir.join(format!("{stem}-format2.toml")));
+    let same_dir = |a: &std::path::Path| {
+        let a = a.parent().filter(|d| !d.as_os_str().is_empty());
+        let a = a.unwrap_or(std::path::Path::new("."));
+        std::fs::canonicalize(a).ok() == std::fs::canonicalize(dir).ok()
+    };
+    if !same_dir(&out) {
+        eprintln!(
+            "rig dtm upgrade: --out {} must be in the old project's directory ({}), where its photos and points are named from",
+            out.display(),
+            dir.display()
+        );
+        return Ok(rig::exit::USAGE);
+    }
+    let new_stem = out
+        .file_stem()
+        .map_or_else(|| "project".into(), |s| s.to_string_lossy().into_owned());
+    let csv_name = format!("{new_stem}-points.csv");
+    let csv = dir.join(&csv_name);
+    for f in [&out, &csv] {
+        if f.exists() {
+            eprintln!(
+                "rig dtm upgrade: {} exists: it is not overwritten (remove it, or give another --out)",
+                f.display()
+            );
+            return Ok(rig::exit::USAGE);
+        }
+    }
+    let pts = p.points()?;
+    let base = p.path.parent().unwrap_or(std::path::Path::new("."));
+    let u = rig::matching::project::upgrade::upgrade(&p, &pts, base, &csv_name)?;
+    rig::atomic::write(&csv, u.csv.as_bytes())
+        .with_context(|| format!("writing {}", csv.display()))?;
+    rig::atomic::write(&out, u.toml.as_bytes())
+        .with_context(|| format!("writing {}", out.display()))?;
+    // What was written reads back as format 2, its points included.
+    let back = Project::load(&out)?;
+    back.observations()?;
+    println!(
+        "wrote {} (format 2) and {} ({} points); run it with: rig dtm {} --out DIR",
+        out.display(),
+        csv.display(),
+        pts.gcps.len() + pts.cps.len(),
+        out.display()
+    );
+    Ok(0)
 }
 
 pub fn print_report(pmf: &[FitReport], r: &PmfDtm) {
@@ -418,6 +501,7 @@ pub fn run(a: DtmArgs) -> anyhow::Result<i32> {
         (Some(DtmAction::Pmf { project, out, run }), _, _) => {
             return run_pair(&PairProject::load(&project)?, &out, run)
         }
+        (Some(DtmAction::Upgrade { project, out }), _, _) => return upgrade(&project, out),
         (None, Some(project), Some(out)) => (project, out),
         (None, None, _) => {
             eprintln!(

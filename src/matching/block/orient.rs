@@ -127,6 +127,8 @@ pub struct Oriented {
     pub extent: [f64; 4],
     /// Pairs (i, j), i < j, of photos that overlap on the ground at the middle height.
     pub overlapping: Vec<(usize, usize)>,
+    /// The points file's observations (read once, here).
+    pub observations: Vec<Observation>,
 }
 
 /// The orientations, heights, extent and overlapping pairs of a project.
@@ -337,5 +339,6 @@ pub fn orient(p: &Project, photos: &[PhotoGeometry]) -> Result<Oriented, Matchin
         heights,
         extent,
         overlapping,
+        observations: obs,
     })
 }

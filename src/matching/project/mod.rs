@@ -9,6 +9,7 @@
 
 pub mod matchers;
 pub mod pair;
+pub mod upgrade;
 
 use crate::coords::{GroundM, PhotoMm};
 use crate::geometry::{Crs, Exterior};
@@ -150,6 +151,19 @@ impl<'de> Deserialize<'de> for Method {
     }
 }
 
+/// `[matching] mappings`: where each pair's mapping functions come from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Deserialize, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Mappings {
+    /// Sampled from the two photos' sensors on a grid of image points and heights (Wang,
+    /// 2012's rigorous derivation; seed 004 §4).
+    #[default]
+    Sensors,
+    /// Fitted to the control points the two photos share, the check points reporting the
+    /// fit (seed 000's mapping functions, its Table 2): no orientation enters them.
+    Points,
+}
+
 /// `[matching]`: the method and its parameters (seed 000 Table 3, with defaults).
 #[derive(Debug, Clone, Deserialize, serde::Serialize)]
 #[serde(deny_unknown_fields)]
@@ -172,8 +186,11 @@ pub struct Matching {
     /// narrow. Accepted (and ignored) so that older projects still load.
     #[serde(default = "d_true")]
     pub neighbours: bool,
-    /// Order of the mapping functions derived from the sensors (seed 004: 3); "auto": chosen
-    /// by the check points among 1 … 3.
+    /// Where the sweep's mapping functions come from: "sensors" (default) or "points".
+    #[serde(default)]
+    pub mappings: Mappings,
+    /// Order of the mapping functions derived from the sensors (seed 004: 3) or fitted to
+    /// the control points (seed 000: 2); "auto": chosen by the check points among 1 … 3.
     #[serde(
         default = "d_order",
         deserialize_with = "crate::matching::project::pair::order_or_auto"
@@ -581,6 +598,12 @@ impl Project {
                     "[matching] pmf_grid = [{n}, {levels}]: 2 … 50 image points across, 2 … 20 heights (seed 004: [5, 3])"
                 )));
             }
+        }
+        if m.mappings == Mappings::Points && m.method != Method::Sweep {
+            return Err(bad(format!(
+                "[matching] mappings = \"points\" is the sweep's (method = \"sweep\"); {} takes the photos' sensors: leave mappings out",
+                m.method
+            )));
         }
         if !(0..=3).contains(&m.order) {
             return Err(bad(format!(

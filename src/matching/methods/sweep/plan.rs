@@ -1,8 +1,10 @@
 //! Everything the sweep decides before it sweeps, from the project and the photos' geometry
 //! alone (the same on every machine of a tiled run): each overlapping pair's mapping
-//! functions from the two sensors (seed 004 §4), its height step and parameters, its work
+//! functions from the two sensors (seed 004 §4) or fitted to the control points the two
+//! photos share (seed 000), its height step and parameters, its work
 //! checked against the budget.
 
+use crate::coords::PixelWindow;
 use crate::geometry::{PhotoSensor, Sensor};
 use crate::matching::block::orient::{orient, Oriented};
 use crate::matching::block::photo::PhotoGeometry;
@@ -11,8 +13,8 @@ use crate::matching::mapping::pmf_set::{SampleGrid, TermSet};
 use crate::matching::methods::sweep::height_sweep::{step_for_parallax, SweepLayout, SweepParams};
 use crate::matching::methods::sweep::pair_model::{estimate, Budget, PmfDtmParams};
 use crate::matching::methods::sweep::regions::RegionParams;
-use crate::matching::project::Project;
-use crate::matching::PmfSet;
+use crate::matching::project::{Kind, Mappings, Observation, Project};
+use crate::matching::{PmfSet, StereoPoint};
 
 /// One pair to sweep: photos `left` and `right` (indices into the project's photos).
 #[derive(Debug, Clone)]
@@ -56,6 +58,32 @@ impl Plan {
     }
 }
 
+/// The points of `kind` with ground coordinates that photos `a` and `b` both show, as seed
+/// 000 fits a pair's mappings to them: each photo's pixel in the window of it that was read.
+fn shared_points(
+    obs: &[Observation],
+    kind: Kind,
+    (a, wa): (&str, PixelWindow),
+    (b, wb): (&str, PixelWindow),
+) -> Vec<StereoPoint> {
+    let in_window =
+        |o: &Observation, w: PixelWindow| [o.col - w.col0 as f64, o.row - w.row0 as f64];
+    obs.iter()
+        .filter(|o| o.kind == kind && o.photo == a)
+        .filter_map(|o| {
+            let other = obs
+                .iter()
+                .find(|q| q.kind == kind && q.photo == b && q.id == o.id)?;
+            Some(StereoPoint {
+                id: o.id.clone(),
+                left: in_window(o, wa),
+                right: in_window(other, wb),
+                ground: o.ground?,
+            })
+        })
+        .collect()
+}
+
 /// The orientations, heights, pairs, mappings and sweep parameters of a project, with each
 /// pair's work checked against the budget.
 pub fn plan(
@@ -85,12 +113,29 @@ pub fn plan(
             .pmf_grid
             .map(|[n, levels]| SampleGrid { n, levels })
             .unwrap_or_default();
-        let pmfs = PmfSet::from_sensors_on(l, r, heights, m.order, grid, set).map_err(|e| {
-            MatchingError::Mappings {
-                left: li.clone(),
-                right: ri.clone(),
-                message: e.to_string(),
+        let pmfs = match m.mappings {
+            Mappings::Sensors => PmfSet::from_sensors_on(l, r, heights, m.order, grid, set),
+            Mappings::Points => {
+                let shared = |kind| {
+                    shared_points(
+                        &oriented.observations,
+                        kind,
+                        (li, photos[i].window),
+                        (ri, photos[j].window),
+                    )
+                };
+                PmfSet::from_points_with(m.order, set, &shared(Kind::Gcp), &shared(Kind::Cp))
             }
+        }
+        .map_err(|e| MatchingError::Mappings {
+            left: li.clone(),
+            right: ri.clone(),
+            message: match m.mappings {
+                Mappings::Sensors => e.to_string(),
+                Mappings::Points => format!(
+                    "fitted to the control points both photos show ([matching] mappings = \"points\"): {e}"
+                ),
+            },
         })?;
         let (w, h) = l.image_size();
         let h_step = m
