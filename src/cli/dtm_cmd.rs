@@ -121,66 +121,24 @@ pub enum DtmAction {
 
 /// `rig dtm upgrade`: the format-2 project and its points beside the old project.
 fn upgrade(project: &std::path::Path, out: Option<PathBuf>) -> anyhow::Result<i32> {
-    let p = match AnyProject::load(project)? {
-        AnyProject::Pair(p) => p,
-        AnyProject::Block(_) => {
-            eprintln!(
-                "rig dtm upgrade: {} is format 2 already (it has `format = 2`)",
-                project.display()
+    use rig::matching::project::upgrade::write_beside;
+    match write_beside(project, out.as_deref()) {
+        Ok(w) => {
+            println!(
+                "wrote {} (format 2) and {} ({} points); run it with: rig dtm {} --out DIR",
+                w.project.display(),
+                w.points.display(),
+                w.point_count,
+                w.project.display()
             );
-            return Ok(rig::exit::USAGE);
+            Ok(0)
         }
-    };
-    let dir = project.parent().unwrap_or(std::path::Path::new("."));
-    let stem = project
-        .file_stem()
-        .map_or_else(|| "project".into(), |s| s.to_string_lossy().into_owned());
-    let out = out.unwrap_or_else(|| dir.join(format!("{stem}-format2.toml")));
-    let same_dir = |a: &std::path::Path| {
-        let a = a.parent().filter(|d| !d.as_os_str().is_empty());
-        let a = a.unwrap_or(std::path::Path::new("."));
-        std::fs::canonicalize(a).ok() == std::fs::canonicalize(dir).ok()
-    };
-    if !same_dir(&out) {
-        eprintln!(
-            "rig dtm upgrade: --out {} must be in the old project's directory ({}), where its photos and points are named from",
-            out.display(),
-            dir.display()
-        );
-        return Ok(rig::exit::USAGE);
-    }
-    let new_stem = out
-        .file_stem()
-        .map_or_else(|| "project".into(), |s| s.to_string_lossy().into_owned());
-    let csv_name = format!("{new_stem}-points.csv");
-    let csv = dir.join(&csv_name);
-    for f in [&out, &csv] {
-        if f.exists() {
-            eprintln!(
-                "rig dtm upgrade: {} exists: it is not overwritten (remove it, or give another --out)",
-                f.display()
-            );
-            return Ok(rig::exit::USAGE);
+        Err(e) if e.is_usage() => {
+            eprintln!("rig dtm upgrade: {e}");
+            Ok(rig::exit::USAGE)
         }
+        Err(e) => Err(e.into()),
     }
-    let pts = p.points()?;
-    let base = p.path.parent().unwrap_or(std::path::Path::new("."));
-    let u = rig::matching::project::upgrade::upgrade(&p, &pts, base, &csv_name)?;
-    rig::atomic::write(&csv, u.csv.as_bytes())
-        .with_context(|| format!("writing {}", csv.display()))?;
-    rig::atomic::write(&out, u.toml.as_bytes())
-        .with_context(|| format!("writing {}", out.display()))?;
-    // What was written reads back as format 2, its points included.
-    let back = Project::load(&out)?;
-    back.observations()?;
-    println!(
-        "wrote {} (format 2) and {} ({} points); run it with: rig dtm {} --out DIR",
-        out.display(),
-        csv.display(),
-        pts.gcps.len() + pts.cps.len(),
-        out.display()
-    );
-    Ok(0)
 }
 
 pub fn print_report(pmf: &[FitReport], r: &PmfDtm) {

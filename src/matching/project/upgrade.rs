@@ -20,6 +20,101 @@ pub enum UpgradeError {
     DuplicateId { path: PathBuf, id: String },
     #[error("{path}: point id {id:?} holds a comma or a line break, which format 2's CSV cannot: rename it")]
     BadId { path: PathBuf, id: String },
+    #[error("{path} is format 2 already (it has `format = 2`)")]
+    AlreadyFormat2 { path: PathBuf },
+    #[error("{new} must be in the old project's directory ({dir}), where its photos and points are named from")]
+    Elsewhere { new: PathBuf, dir: PathBuf },
+    #[error("{path} exists: it is not overwritten (remove it, or give another name)")]
+    Exists { path: PathBuf },
+    #[error(transparent)]
+    Project(#[from] crate::matching::project::ProjectError),
+    #[error(transparent)]
+    Points(#[from] crate::matching::project::pair::PairProjectError),
+    #[error("writing {path}: {cause}")]
+    Write {
+        path: PathBuf,
+        cause: std::io::Error,
+    },
+}
+
+impl UpgradeError {
+    /// Whether the user asked for something this cannot do as asked (a usage error), rather
+    /// than a file being wrong or unwritable.
+    pub fn is_usage(&self) -> bool {
+        matches!(
+            self,
+            UpgradeError::AlreadyFormat2 { .. }
+                | UpgradeError::Elsewhere { .. }
+                | UpgradeError::Exists { .. }
+        )
+    }
+}
+
+/// What [`write_beside`] wrote.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Written {
+    pub project: PathBuf,
+    pub points: PathBuf,
+    pub point_count: usize,
+}
+
+/// Reads the format-1 project at `old` and writes it as format 2 to `new` (default
+/// OLD-format2.toml beside it) with its points as NEW-points.csv beside that, each written
+/// whole (atomically) and only where no file is; what was written is read back as format 2.
+pub fn write_beside(old: &Path, new: Option<&Path>) -> Result<Written, UpgradeError> {
+    let p = match crate::matching::project::AnyProject::load(old)? {
+        crate::matching::project::AnyProject::Pair(p) => p,
+        crate::matching::project::AnyProject::Block(_) => {
+            return Err(UpgradeError::AlreadyFormat2 {
+                path: old.to_path_buf(),
+            })
+        }
+    };
+    let dir = match old.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
+    };
+    let stem = |f: &Path| {
+        f.file_stem()
+            .map_or_else(|| "project".into(), |s| s.to_string_lossy().into_owned())
+    };
+    let project = new.map_or_else(
+        || dir.join(format!("{}-format2.toml", stem(old))),
+        Path::to_path_buf,
+    );
+    let new_dir = match project.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
+    };
+    if std::fs::canonicalize(new_dir).ok() != std::fs::canonicalize(dir).ok() {
+        return Err(UpgradeError::Elsewhere {
+            new: project,
+            dir: dir.to_path_buf(),
+        });
+    }
+    let csv_name = format!("{}-points.csv", stem(&project));
+    let points = dir.join(&csv_name);
+    for f in [&project, &points] {
+        if f.exists() {
+            return Err(UpgradeError::Exists { path: f.clone() });
+        }
+    }
+    let pts = p.points()?;
+    let u = upgrade(&p, &pts, dir, &csv_name)?;
+    let write = |path: &Path, text: &str| {
+        crate::atomic::write(path, text.as_bytes()).map_err(|cause| UpgradeError::Write {
+            path: path.to_path_buf(),
+            cause,
+        })
+    };
+    write(&points, &u.csv)?;
+    write(&project, &u.toml)?;
+    crate::matching::project::Project::load(&project)?.observations()?;
+    Ok(Written {
+        project,
+        points,
+        point_count: pts.gcps.len() + pts.cps.len(),
+    })
 }
 
 /// The two files of the upgraded project: the format-2 TOML and its points CSV.
