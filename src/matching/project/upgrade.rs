@@ -70,10 +70,13 @@ pub fn write_beside(old: &Path, new: Option<&Path>) -> Result<Written, UpgradeEr
             })
         }
     };
-    let dir = match old.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d,
-        _ => Path::new("."),
+    // A file's directory ("." for a bare name).
+    let folder = |f: &Path| match f.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
+        _ => PathBuf::from("."),
     };
+    let dir = folder(old);
+    let dir = dir.as_path();
     let stem = |f: &Path| {
         f.file_stem()
             .map_or_else(|| "project".into(), |s| s.to_string_lossy().into_owned())
@@ -82,11 +85,7 @@ pub fn write_beside(old: &Path, new: Option<&Path>) -> Result<Written, UpgradeEr
         || dir.join(format!("{}-format2.toml", stem(old))),
         Path::to_path_buf,
     );
-    let new_dir = match project.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d,
-        _ => Path::new("."),
-    };
-    if std::fs::canonicalize(new_dir).ok() != std::fs::canonicalize(dir).ok() {
+    if std::fs::canonicalize(folder(&project)).ok() != std::fs::canonicalize(dir).ok() {
         return Err(UpgradeError::Elsewhere {
             new: project,
             dir: dir.to_path_buf(),
@@ -206,27 +205,20 @@ pub fn upgrade(
         p.limits.max_memory_mb,
         num(p.limits.max_candidates_g)
     );
+    // Format 2 reports the RMSE in metres and pixels of parallax; format 1's per-mille
+    // figure is kept as a comment, so that the number is not lost.
+    if let Some(h) = p.grid.flying_height_m {
+        let _ = writeln!(
+            t,
+            "\n# format 1 gave flying_height_m = {} (its RMSE in per mille of it): RMSE / {} × 1000",
+            num(h),
+            num(h)
+        );
+    }
     Ok(Upgraded {
         toml: t,
         csv: points_csv_text(pts, &p.path)?,
-    }
-    .with_flying_height(p.grid.flying_height_m))
-}
-
-impl Upgraded {
-    /// Format 2 reports the RMSE in metres and pixels of parallax; format 1's per-mille
-    /// figure is kept as a comment, so that the number is not lost.
-    fn with_flying_height(mut self, h: Option<f64>) -> Upgraded {
-        if let Some(h) = h {
-            let _ = writeln!(
-                self.toml,
-                "\n# format 1 gave flying_height_m = {} (its RMSE in per mille of it): RMSE / {} × 1000",
-                num(h),
-                num(h)
-            );
-        }
-        self
-    }
+    })
 }
 
 /// The points as format 2's CSV (`id,kind,x,y,z,photo,col,row`, pixel centres at integers).

@@ -524,6 +524,7 @@ pub fn run(run: &Run) -> Result<MgcmReport, MatchingError> {
         heights,
         extent,
         overlapping,
+        observations: obs,
         ..
     } = b.oriented;
     // The references: the one named, or enough of them that every overlapping pair has one
@@ -646,7 +647,6 @@ pub fn run(run: &Run) -> Result<MgcmReport, MatchingError> {
         Kernel::scattered(window_m, spacing_m, radius_m),
     );
     tracing::info!(?averaging, "window averaging removed");
-    let obs = p.observations()?;
     let reference_dem = run.reference;
     let model = ModelFigures::check(p, reference_dem, &obs, grid, &quality.sigma_m);
     let hg = flying_height(&sensors[r], centre0, mid).unwrap_or(f64::NAN);

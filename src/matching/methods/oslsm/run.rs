@@ -248,6 +248,7 @@ pub fn run(run: &Run) -> Result<OslsmReport, MatchingError> {
         heights,
         extent,
         overlapping,
+        observations: obs,
         ..
     } = b.oriented;
     let (mid, r, others) = (b.mid, b.reference, b.others);
@@ -599,7 +600,6 @@ pub fn run(run: &Run) -> Result<OslsmReport, MatchingError> {
             cols * rows
         ));
     }
-    let obs = p.observations()?;
     let model = ModelFigures::check(p, run.reference, &obs, grid, &quality.sigma_m);
     let report = OslsmReport {
         head: ReportHead {

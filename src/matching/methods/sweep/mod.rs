@@ -305,13 +305,13 @@ pub fn run(run: &Run) -> Result<SweepReport, MatchingError> {
 /// the outputs in `out`.
 pub fn finish(run: &Run, plan: &Plan, parts: Vec<PairPart>) -> Result<SweepReport, MatchingError> {
     let p = run.project;
-    let obs = p.observations()?;
     let Oriented {
         sensors,
         resected,
         corrected,
         heights,
         extent,
+        observations: obs,
         ..
     } = &plan.oriented;
     let (heights, extent) = (*heights, *extent);
@@ -388,7 +388,7 @@ pub fn finish(run: &Run, plan: &Plan, parts: Vec<PairPart>) -> Result<SweepRepor
     );
     tracing::info!(?averaging, "window averaging removed");
     let orientation_sigma_m = add_orientation_sigma(&grid, &mut quality.sigma_m, plan);
-    let model = ModelFigures::check(p, run.reference, &obs, grid, &quality.sigma_m);
+    let model = ModelFigures::check(p, run.reference, obs, grid, &quality.sigma_m);
     let report = SweepReport {
         project: p.path.clone(),
         crs: p.crs,

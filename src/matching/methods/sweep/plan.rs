@@ -68,12 +68,16 @@ fn shared_points(
 ) -> Vec<StereoPoint> {
     let in_window =
         |o: &Observation, w: PixelWindow| [o.col - w.col0 as f64, o.row - w.row0 as f64];
+    // Photo b's points by id: a points file may hold a million observations.
+    // The first of an id, as a search from the top would find it.
+    let mut in_b: std::collections::HashMap<&str, &Observation> = Default::default();
+    for q in obs.iter().filter(|q| q.kind == kind && q.photo == b) {
+        in_b.entry(q.id.as_str()).or_insert(q);
+    }
     obs.iter()
         .filter(|o| o.kind == kind && o.photo == a)
         .filter_map(|o| {
-            let other = obs
-                .iter()
-                .find(|q| q.kind == kind && q.photo == b && q.id == o.id)?;
+            let other = *in_b.get(o.id.as_str())?;
             Some(StereoPoint {
                 id: o.id.clone(),
                 left: in_window(o, wa),
