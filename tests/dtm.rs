@@ -1,5 +1,5 @@
 //! Seed 000's method end to end on a scene rendered by the simulator: `rig sim scene`, then
-//! `rig dtm pmf`, the elevation model against the true DEM.
+//! `rig dtm` on its format-1 project, the elevation model against the true DEM.
 
 mod common;
 
@@ -39,26 +39,33 @@ fn elevation_model_from_a_rendered_pair_meets_half_the_height_step() {
         );
         std::fs::write(&p, text).unwrap();
         let out = d.path().join(name);
-        let o = run_ok(
-            rig()
-                .args(["dtm", "pmf", "--json", "--project"])
-                .arg(&p)
-                .arg("--out")
-                .arg(&out),
+        let v = common::dtm_json(&p, &out);
+        // Format 1 runs as the format-2 sweep of its two photos.
+        let pairs = v["pairs"].as_array().unwrap();
+        assert_eq!(pairs.len(), 1, "{v}");
+        assert_eq!(
+            (&pairs[0]["left"], &pairs[0]["right"]),
+            (&"left".into(), &"right".into())
         );
-        let v: Value = serde_json::from_slice(&o.stdout).unwrap();
-        // The run used the mappings asked for (not the default the text may have kept).
-        assert_eq!(v["pmf_from"], from, "{}", v["pmf_from"]);
-        assert_eq!(v["orientation"].is_null(), from != "rigorous");
-        let t = &v["dtm"];
-        let step = t["params"]["sweep"]["h_step"].as_f64().unwrap();
-        let rmse = t["comparison"]["rmse_m"].as_f64().unwrap();
-        let mean = t["comparison"]["mean_m"].as_f64().unwrap();
+        // The mappings asked for (not the default the text may have kept): fitted to the
+        // control points, or sampled from the resected photos (which alone report the
+        // check points' error in the other space).
+        let fits = pairs[0]["pmf"].as_array().unwrap();
+        assert!(!fits.is_empty());
+        for f in fits
+            .iter()
+            .filter(|f| f["name"].as_str().unwrap().contains('→'))
+        {
+            assert_eq!(f["cp_rmse_other"].is_null(), from == "points", "{f}");
+        }
+        let t = &pairs[0]["dtm"];
+        let step = pairs[0]["h_step_m"].as_f64().unwrap();
+        let rmse = v["comparison"]["rmse_m"].as_f64().unwrap();
+        let mean = v["comparison"]["mean_m"].as_f64().unwrap();
         let matched = t["matched_percent"].as_f64().unwrap();
         let left = t["remaining_percent"].as_f64().unwrap();
         eprintln!(
-            "PMFs from {from}: matched {matched:.1} %, left {left:.1} %, RMSE {rmse:.2} m (step {step} m), mean {mean:+.2} m, {:.3} ‰ of the flying height",
-            t["rmse_permille_of_flying_height"].as_f64().unwrap()
+            "PMFs from {from}: matched {matched:.1} %, left {left:.1} %, RMSE {rmse:.2} m (step {step} m), mean {mean:+.2} m"
         );
         assert!(matched > 95.0 && left > 90.0);
         assert!(rmse <= 0.5 * step, "RMSE {rmse} m against a {step} m step");
@@ -69,43 +76,40 @@ fn elevation_model_from_a_rendered_pair_meets_half_the_height_step() {
             "hillshade.png",
             "error.png",
             "report.json",
+            "mappings.json",
         ] {
             assert!(out.join(f).is_file(), "{f}");
         }
         let g = rig::matching::products::files::read_geotiff(&out.join("dem.tif")).unwrap();
         assert!(g.filled() > 1000);
     }
-    // The mappings given directly (the first run's pmfs.json): the same model, byte for byte.
-    let p = scene.join("dtm-file.toml");
+    // The mappings given directly: the first run's mappings.json, and its one pair's set
+    // alone (format 1's pmfs.json form): the same model, byte for byte.
     let first = d.path().join("dtm-points");
-    std::fs::write(
-        &p,
-        project.replace(
-            "from = \"points\"",
-            &format!(
-                "from = \"file\"\nfile = \"{}\"",
-                first.join("pmfs.json").display()
+    let written: Value =
+        serde_json::from_slice(&std::fs::read(first.join("mappings.json")).unwrap()).unwrap();
+    let one = scene.join("pmfs.json");
+    std::fs::write(&one, written["pairs"][0]["mappings"].to_string()).unwrap();
+    for (file, name) in [(first.join("mappings.json"), "dtm-file"), (one, "dtm-pmfs")] {
+        let p = scene.join(format!("{name}.toml"));
+        std::fs::write(
+            &p,
+            project.replace(
+                "from = \"points\"",
+                &format!("from = \"file\"\nfile = \"{}\"", file.display()),
             ),
-        ),
-    )
-    .unwrap();
-    let again = d.path().join("dtm-file");
-    let o = run_ok(
-        rig()
-            .args(["dtm", "pmf", "--json", "--project"])
-            .arg(&p)
-            .arg("--out")
-            .arg(&again),
-    );
-    let v: Value = serde_json::from_slice(&o.stdout).unwrap();
-    assert_eq!(v["pmf_from"], "file");
-    assert_eq!(
-        std::fs::read(first.join("dem.tif")).unwrap(),
-        std::fs::read(again.join("dem.tif")).unwrap()
-    );
-    // The same project written as format 2 by `rig dtm upgrade` (mappings fitted to the
-    // control points, as seed 000's): run by format 2's sweep, the model is the format-1
-    // run's on the nodes both have, and a second upgrade overwrites nothing.
+        )
+        .unwrap();
+        let again = d.path().join(name);
+        common::dtm_json(&p, &again);
+        assert_eq!(
+            std::fs::read(first.join("dem.tif")).unwrap(),
+            std::fs::read(again.join("dem.tif")).unwrap(),
+            "{name}"
+        );
+    }
+    // The same project written as format 2 by `rig dtm upgrade` is the project format 1 is
+    // read as (so its run is the one above), and a second upgrade overwrites nothing.
     let up = scene.join("dtm-points-format2.toml");
     run_ok(
         rig()
@@ -124,34 +128,18 @@ fn elevation_model_from_a_rendered_pair_meets_half_the_height_step() {
         .unwrap();
     assert_eq!(o.status.code(), Some(2), "{o:?}");
     assert!(String::from_utf8_lossy(&o.stderr).contains("is not overwritten"));
-    let v = common::dtm_json(&up, &d.path().join("dtm-format2"));
-    let two =
-        rig::matching::products::files::read_geotiff(&d.path().join("dtm-format2").join("dem.tif"))
-            .unwrap();
-    let one = rig::matching::products::files::read_geotiff(&first.join("dem.tif")).unwrap();
-    let (mut n, mut ss) = (0usize, 0.0f64);
-    for r in 0..two.rows {
-        for c in 0..two.cols {
-            let [x, y] = two.node(c, r);
-            let (a, b) = (two.z[r * two.cols + c], one.interpolate(x, y));
-            if a.is_finite() && b.is_finite() {
-                n += 1;
-                ss += (a as f64 - b).powi(2);
-            }
-        }
-    }
-    let rms = (ss / n.max(1) as f64).sqrt();
-    let step = v["pairs"][0]["h_step_m"].as_f64().unwrap();
-    eprintln!(
-        "format 2 after upgrade: RMSE {} m; against the format-1 model {rms:.3} m RMS over {n} nodes",
-        v["comparison"]["rmse_m"]
+    use rig::matching::project::Project;
+    let (mut two, one) = (
+        Project::load(&up).unwrap(),
+        Project::load(&scene.join("dtm-points.toml")).unwrap(),
     );
-    assert!(
-        n as f64 > 0.9 * one.filled() as f64,
-        "{n} of {}",
-        one.filled()
+    assert_eq!(two.observations().unwrap(), one.observations().unwrap());
+    assert_ne!(two.points_file, one.points_file, "the CSV, and the JSON");
+    (two.path, two.points_file) = (one.path.clone(), one.points_file.clone());
+    assert_eq!(
+        serde_json::to_value(&two).unwrap(),
+        serde_json::to_value(&one).unwrap()
     );
-    assert!(rms < 0.05 * step, "{rms} m against a {step} m step");
     // A height range that misses most of the terrain: the run warns that the heights pile at
     // the bound (it does not pass silently).
     let h_min: f64 = project
@@ -193,7 +181,7 @@ fn elevation_model_from_a_rendered_pair_meets_half_the_height_step() {
     assert_ne!(text, project, "the scene's project has no [matching]");
     std::fs::write(&bad, text).unwrap();
     let o = rig()
-        .args(["dtm", "pmf", "--project"])
+        .arg("dtm")
         .arg(&bad)
         .arg("--out")
         .arg(d.path().join("never"))

@@ -88,7 +88,7 @@ fn snapshot(dir: &Path) -> Vec<(String, u64)> {
         .collect()
 }
 
-/// Runs `rig dtm pmf` on `project_text` (written beside the scene's files) into a new
+/// Runs `rig dtm` on `project_text` (written beside the scene's files) into a new
 /// directory; returns the exit code and what it said.
 fn dtm(project_text: &str, extra: &[&str]) -> (Option<i32>, String) {
     let name = format!("p{:x}.toml", {
@@ -102,7 +102,7 @@ fn dtm(project_text: &str, extra: &[&str]) -> (Option<i32>, String) {
     let out = tempfile::tempdir().unwrap();
     let before = snapshot(scene());
     let mut cmd = common::rig();
-    cmd.args(["dtm", "pmf", "--project"])
+    cmd.arg("dtm")
         .arg(&p)
         .arg("--out")
         .arg(out.path().join("o"))
@@ -151,8 +151,11 @@ fn hostile_project_numbers_are_refused_by_field_and_range() {
 
 #[test]
 fn work_and_memory_are_estimated_before_the_run() {
-    // A tiny grid cell that passes the range check but would need hundreds of GB.
-    let (code, said) = dtm(&with("grid", "cell_m", "0.001"), &[]);
+    // The smallest grid cell the range check passes, and a limit it needs more than.
+    let (code, said) = dtm(
+        &with("limits", "max_memory_mb", "64").replace("cell_m = 10.0", "cell_m = 0.01"),
+        &[],
+    );
     assert_eq!(code, Some(1), "{said}");
     assert!(said.contains("MiB") && said.contains("cell_m"), "{said}");
     // A work limit below this sweep's candidates.
@@ -187,7 +190,7 @@ fn hostile_points_files_are_refused() {
     let mut same = good.clone();
     let first = good["gcps"][0].clone();
     same["gcps"] = serde_json::json!(vec![first; 12]);
-    cases.push(("twelve copies of one point", same, "control points"));
+    cases.push(("twelve copies of one point", same, "listed twice"));
     let mut huge = good.clone();
     huge["gcps"][3]["ground"]["z"] = serde_json::json!(1e300);
     cases.push(("a height of 1e300", huge, "gcps[3]"));
@@ -232,10 +235,7 @@ fn a_killed_run_can_be_run_again_and_foreign_files_are_kept() {
     let out = d.path().join("o");
     let run = || {
         let mut cmd = common::rig();
-        cmd.args(["dtm", "pmf", "--project"])
-            .arg(&p)
-            .arg("--out")
-            .arg(&out);
+        cmd.arg("dtm").arg(&p).arg("--out").arg(&out);
         common::run_hostile(&mut cmd, 4, 60)
     };
     assert_eq!(run().code, Some(0));
@@ -285,19 +285,19 @@ fn a_killed_run_can_be_run_again_and_foreign_files_are_kept() {
 /// matched), exit 0; with --strict the same outputs and exit 12.
 #[test]
 fn heights_that_miss_the_terrain_warn_and_strict_makes_it_an_exit_code() {
-    let text = with("matching", "h_min", "1500.0");
+    let text = with("matching", "h_min", "150.0");
     let text: String = text
         .lines()
         .map(|l| {
             if l.split('=').next().map(str::trim) == Some("h_max") {
-                "h_max = 1600.0".to_string()
+                "h_max = 250.0".to_string()
             } else {
                 l.to_string()
             }
         })
         .collect::<Vec<_>>()
         .join("\n");
-    assert!(text.contains("h_max = 1600.0"), "{text}");
+    assert!(text.contains("h_max = 250.0"), "{text}");
     let (code, said) = dtm(&text, &[]);
     assert_eq!(code, Some(0), "{said}");
     assert!(said.contains("rig dtm: warning:"), "{said}");
@@ -321,7 +321,7 @@ fn the_mapping_order_can_be_left_to_the_check_points() {
     assert_eq!(code, Some(0), "{said}");
     let json = said.lines().find(|l| l.starts_with('{')).unwrap();
     let v: serde_json::Value = serde_json::from_str(json).unwrap();
-    let fits = v["pmf"].as_array().unwrap();
+    let fits = v["pairs"][0]["pmf"].as_array().unwrap();
     assert!(!fits.is_empty());
     for f in fits {
         let o = f["order"].as_u64().unwrap();

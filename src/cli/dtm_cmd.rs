@@ -1,17 +1,11 @@
 //! `rig dtm`: elevation models from a matching project.
 
 use super::shared_args::JsonOutput;
-use anyhow::Context;
 use clap::{Args, Subcommand};
-use rig::matching::mapping::pmf_set::FitReport;
-use rig::matching::methods::sweep::pair_model::PmfDtm;
-use rig::matching::methods::sweep::regions::RegionStats;
-use rig::matching::methods::sweep::scanned_pair;
 use rig::matching::methods::sweep::tiles::{self, TileError, TileSpec};
 use rig::matching::methods::sweep::SweepReport;
 use rig::matching::products::outputs::{self, Writer};
-use rig::matching::project::pair::PairProject;
-use rig::matching::project::{AnyProject, Project};
+use rig::matching::project::Project;
 use rig::scan::ScannedPhoto;
 use std::path::PathBuf;
 
@@ -74,19 +68,8 @@ pub enum DtmAction {
         #[command(flatten)]
         run: RunOptions,
     },
-    /// Seed 000's method: polynomial mapping functions from the control points (terms chosen by
-    /// the check points), a height sweep along their epipolar lines, removal of wrong heights
-    /// by the height and population criteria, gridding, comparison with a reference.
-    ///
-    /// Writes into --out: dem.tif (float32 GeoTIFF, nodata −9999), quality.tif (σ, correlation),
-    /// ortho.tif, points.ply, points.las, hillshade.png, quality.png, error.png (with a
-    /// reference), report.json, pmfs.json (the mappings, reusable with
-    /// `from = "file"`). Each file is written whole or not at all; a run that was killed can
-    /// be run again into the same directory.
-    ///
-    /// Memory and work are estimated first and the run refused above [limits] in the
-    /// project (max_memory_mb, default 4096; max_candidates_g, default 20) or --max-memory.
-    #[command(verbatim_doc_comment)]
+    /// Formerly format 1's run; now `rig dtm PROJECT --out DIR`, which reads both formats.
+    #[command(hide = true)]
     Pmf {
         /// The project file (TOML; see docs/elevation-models.md; `rig sim scene` writes one).
         #[arg(long, value_name = "FILE")]
@@ -141,71 +124,13 @@ fn upgrade(project: &std::path::Path, out: Option<PathBuf>) -> anyhow::Result<i3
     }
 }
 
-pub fn print_report(pmf: &[FitReport], r: &PmfDtm) {
-    println!("mapping functions (seed 000 Table 2):");
-    for f in pmf {
-        println!(
-            "  {:28} {:>2} terms   GCP RMSE {:7.3}   CP RMSE {:7.3} {}",
-            f.name, f.terms, f.gcp_rmse, f.cp_rmse, f.units
-        );
-    }
-    let t = &r.report;
-    let s = &t.params.sweep;
-    println!(
-        "matching (Table 3): heights {:.0}…{:.0} m by {:.3} m, window {w}×{w}, threshold {}, sub-step by {}",
-        s.h_min,
-        s.h_max,
-        s.h_step,
-        s.threshold,
-        match s.subpixel {
-            rig::matching::plane_sweep::refine::Subpixel::Lsm => "least squares",
-            rig::matching::plane_sweep::refine::Subpixel::Parabola => "parabola",
-        },
-        w = s.window
-    );
-    println!(
-        "  {} of {} points matched ({:.1} %), {:.1} M candidate heights in {:.1} s ({:.0} points/s)",
-        t.points_matched,
-        t.points_total,
-        t.matched_percent,
-        t.candidates as f64 / 1e6,
-        t.matching_seconds,
-        t.pixels_per_second
-    );
-    let g = &t.regions;
-    println!(
-        "wrong heights (Table 4): {} regions; removed {} by height, {} by population; {} left",
-        g.regions, g.regions_removed_by_height, g.regions_removed_by_population, g.regions_left
-    );
-    println!(
-        "  points removed {} ({:.2} %), left {} ({:.2} %)",
-        g.points_removed,
-        RegionStats::percent(g.points_removed, g.points),
-        g.points_left,
-        RegionStats::percent(g.points_left, g.points)
-    );
-    println!(
-        "elevation model: {} × {} nodes of {} m, {} with a height",
-        r.grid.cols, r.grid.rows, t.params.cell_m, t.grid_filled
-    );
-    if let Some(c) = &t.comparison {
-        println!(
-            "against the reference (Table 5): max +{:.2} m, max {:.2} m, mean {:+.2} m, mean |Δ| {:.2} m, RMSE {:.2} m over {} nodes",
-            c.max_positive_m, c.max_negative_m, c.mean_m, c.mean_abs_m, c.rmse_m, c.nodes
-        );
-        if let Some(pm) = t.rmse_permille_of_flying_height {
-            println!("  RMSE = {pm:.3} ‰ of the flying height");
-        }
-    }
-}
-
 /// The rig's own scans come through the scan's hand-over.
 fn scan_photo(sidecar: &std::path::Path) -> Result<rig::matching::block::photo::Photo, String> {
     ScannedPhoto::load_photo(sidecar).map_err(|e| e.to_string())
 }
 
-/// A format-2 project: photos loaded (scans through the scan's hand-over), its method run.
-fn run_format2(
+/// A project: photos loaded (scans through the scan's hand-over), its method run.
+fn run_project(
     p: &Project,
     out: &std::path::Path,
     RunOptions {
@@ -220,7 +145,7 @@ fn run_format2(
     match rig::matching::run::run(p, &photos, out, max_memory, &bar)? {
         Report::Mgcm(r) => print_mgcm(&r, out, json, strict),
         Report::Oslsm(r) => print_oslsm(&r, out, json, strict),
-        Report::Sweep(r) => print_format2(p, &r, out, json, strict),
+        Report::Sweep(r) => print_sweep(p, &r, out, json, strict),
     }
 }
 
@@ -369,11 +294,11 @@ fn merge(
     eprintln!("rig dtm merge: {} shares", dirs.len());
     let bar = super::progress_bar::Bar::new(!json);
     let (p, r) = tiles::merge(dirs, out, max_memory, &scan_photo, &bar)?;
-    print_format2(&p, &r, out, json, strict)
+    print_sweep(&p, &r, out, json, strict)
 }
 
-/// The report of a format-2 run (single or merged).
-fn print_format2(
+/// The report of a sweep (single or merged).
+fn print_sweep(
     p: &Project,
     r: &SweepReport,
     out: &std::path::Path,
@@ -408,6 +333,22 @@ fn print_format2(
             "  {} × {}: step {:.2} m, {:.1} % matched, {} points kept",
             pr.left, pr.right, pr.h_step_m, pr.dtm.matched_percent, pr.points
         );
+        // Seed 000 Table 2's figure a person checks first: how well the mapping the sweep
+        // follows fits the check points (every fit is in report.json).
+        let along: Vec<String> = pr
+            .pmf
+            .iter()
+            .filter(|f| f.name.starts_with("left→right"))
+            .map(|f| {
+                format!(
+                    "{} {} terms, check points {:.3} {}",
+                    f.name, f.terms, f.cp_rmse, f.units
+                )
+            })
+            .collect();
+        if !along.is_empty() {
+            println!("    mapping functions: {}", along.join("; "));
+        }
     }
     println!(
         "elevation model: {} × {} nodes of {} m, {} with a height",
@@ -457,7 +398,10 @@ pub fn run(a: DtmArgs) -> anyhow::Result<i32> {
     let (project, out) = match (a.action, a.project, a.out) {
         (Some(DtmAction::Merge { tiles, out, run }), _, _) => return merge(&tiles, &out, run),
         (Some(DtmAction::Pmf { project, out, run }), _, _) => {
-            return run_pair(&PairProject::load(&project)?, &out, run)
+            eprintln!(
+                "rig dtm: `rig dtm pmf --project P --out D` is now `rig dtm P --out D` (both formats); running that"
+            );
+            return run_project(&Project::load(&project)?, &out, run);
         }
         (Some(DtmAction::Upgrade { project, out }), _, _) => return upgrade(&project, out),
         (None, Some(project), Some(out)) => (project, out),
@@ -472,52 +416,9 @@ pub fn run(a: DtmArgs) -> anyhow::Result<i32> {
             return Ok(rig::exit::USAGE);
         }
     };
-    match (AnyProject::load(&project)?, a.tile) {
-        (AnyProject::Block(p), Some(spec)) => {
-            run_tile(&p, spec, &out, a.run.max_memory, a.run.output.json)
-        }
-        (AnyProject::Block(p), None) => run_format2(&p, &out, a.run),
-        (AnyProject::Pair(_), Some(_)) => {
-            eprintln!("rig dtm: --tile splits format-2 projects; {} is format 1 (one scanned pair): run it whole, or write it as format 2 (see docs/elevation-models.md)", project.display());
-            Ok(rig::exit::USAGE)
-        }
-        (AnyProject::Pair(p), None) => run_pair(&p, &out, a.run),
+    let p = Project::load(&project)?;
+    match a.tile {
+        Some(spec) => run_tile(&p, spec, &out, a.run.max_memory, a.run.output.json),
+        None => run_project(&p, &out, a.run),
     }
-}
-
-/// A format-1 project: its scanned pair through seed 000's method.
-fn run_pair(p: &PairProject, out: &std::path::Path, run: RunOptions) -> anyhow::Result<i32> {
-    let RunOptions {
-        max_memory,
-        output: JsonOutput { json },
-        strict,
-    } = run;
-    let load = |f: &PathBuf| {
-        ScannedPhoto::load_photo(f)
-            .with_context(|| format!("project {}: photo {}", p.path.display(), f.display()))
-    };
-    let (left, right) = (load(&p.photos.left)?, load(&p.photos.right)?);
-    let bar = super::progress_bar::Bar::new(!json);
-    let (r, report) = scanned_pair::run(p, [&left, &right], out, max_memory, &bar)?;
-    let warnings = r.report.warnings();
-    for w in &warnings {
-        eprintln!("rig dtm: warning: {w}");
-    }
-    if json {
-        println!("{}", serde_json::to_string(&report)?);
-    } else {
-        print_report(&report.pmf, &r);
-        if let Some(c) = &report.sigma_vs_reference {
-            println!(
-                "standard deviations (quality.tif, the matching's own: one pair cannot scale them): RMS {:.2} m; against the reference the errors are {:.1} × them, {:.0} % within 2σ",
-                c.rms_sigma_m, c.ratio, c.within_2_sigma_percent
-            );
-        }
-        println!(
-            "written to {}: {}",
-            out.display(),
-            outputs::listed(Some(Writer::Format1), report.dtm.comparison.is_some())
-        );
-    }
-    Ok(exit_code(!warnings.is_empty(), strict))
 }

@@ -186,8 +186,8 @@ pub enum Command {
     ///   "oslsm"  heights, the terrain's reflectance and each photo's gain and offset in one
     ///            object-space adjustment (seed 001), from the sweep's model in coarse/ or
     ///            a DEM file; reflectance.tif, convergence.png
-    /// A format-1 project (a scanned pair: `rig sim scene` writes one) runs seed 000's
-    /// method. Outputs in DIR, each written whole or not at all (a killed run can be run
+    /// A format-1 project (a scanned pair: `rig sim scene` writes one) is read as the format-2
+    /// project `rig dtm upgrade` writes and swept as above. Outputs in DIR, each written whole or not at all (a killed run can be run
     /// again):
     ///   dem.tif      heights, Deflate float32 GeoTIFF in the project's CRS, nodata −9999
     ///   quality.tif  band 1 each height's standard deviation (m), band 2 its correlation

@@ -3,8 +3,6 @@
 
 use crate::geometry::ResectionError;
 use crate::matching::grid::GridError;
-use crate::matching::mapping::pmf::PmfError;
-use crate::matching::project::pair::PairProjectError;
 use crate::matching::project::ProjectError;
 use std::path::PathBuf;
 
@@ -12,8 +10,6 @@ use std::path::PathBuf;
 pub enum MatchingError {
     #[error(transparent)]
     Project(#[from] ProjectError),
-    #[error(transparent)]
-    PairProject(#[from] PairProjectError),
     #[error("photo `{id}`: {message}")]
     Photo { id: String, message: String },
     #[error("photo `{id}`: resection from {points} control points: {cause}")]
@@ -38,12 +34,14 @@ pub enum MatchingError {
         right: String,
         cause: DtmError,
     },
-    #[error("photos `{left}` and `{right}`: mapping functions from the sensors: {message}")]
+    #[error("photos `{left}` and `{right}`: mapping functions {message}")]
     Mappings {
         left: String,
         right: String,
         message: String,
     },
+    #[error("[matching] mappings_file {path}: {message}")]
+    GivenMappings { path: PathBuf, message: String },
     #[error("the DEM grid: {0}")]
     Grid(String),
     /// Memory a method would take beyond the limit, with what it is for.
@@ -54,22 +52,6 @@ pub enum MatchingError {
     NoMatch(String),
     #[error("the object-space matching: {0}")]
     Oslsm(String),
-    // A scanned pair's (project format 1) own steps.
-    #[error("the mapping functions show no parallax (the photos have no base?): no height step can be derived; give [matching] h_step")]
-    NoParallax,
-    #[error("fitting the mapping functions to {path}: {cause}")]
-    Fit { path: PathBuf, cause: PmfError },
-    #[error("the mappings {path}: {message}")]
-    PairMappings { path: PathBuf, message: String },
-    #[error("resection of the {which} photo: {cause}")]
-    PairResection {
-        which: &'static str,
-        cause: ResectionError,
-    },
-    #[error("deriving the mapping functions from the resected photos: {0}")]
-    Derive(PmfError),
-    #[error("project {path}: {cause}")]
-    Dtm { path: PathBuf, cause: DtmError },
     // The reference model and the output directory.
     #[error("reading the reference model {path}: {cause}")]
     Reference {

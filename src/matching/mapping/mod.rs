@@ -2,6 +2,7 @@
 //! ground relations of a stereo pair fitted to control points or derived from two sensors,
 //! and the heights they give from a point's image coordinates.
 
+pub mod given;
 pub mod pmf;
 pub mod pmf_set;
 pub mod triplets;

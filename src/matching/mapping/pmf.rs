@@ -145,6 +145,32 @@ impl Polynomial {
             .sum()
     }
 
+    /// The same polynomial of variables moved by `d` (each new variable is the old one − d):
+    /// only the centre of the normalisation moves, so the value is the same expression.
+    pub fn with_variables_moved(&self, d: [f64; 3]) -> Polynomial {
+        let mut p = self.clone();
+        for (c, d) in p.norm.centre.iter_mut().zip(d) {
+            *c -= d;
+        }
+        p
+    }
+
+    /// The polynomial less `c` (its constant term moved; one added where it has none).
+    pub fn minus(&self, c: f64) -> Polynomial {
+        let mut p = self.clone();
+        if c == 0.0 {
+            return p;
+        }
+        match p.terms.iter().position(|t| *t == Term(0, 0, 0)) {
+            Some(k) => p.coef[k] -= c,
+            None => {
+                p.terms.push(Term(0, 0, 0));
+                p.coef.push(-c);
+            }
+        }
+        p
+    }
+
     /// Least-squares coefficients of `terms` over `samples`.
     pub fn fit(terms: &[Term], norm: &Normaliser, samples: &[Sample]) -> Result<Self, PmfError> {
         if samples.len() <= terms.len() {
@@ -394,6 +420,15 @@ impl Mapping {
     #[inline]
     pub fn eval(&self, v: [f64; 3]) -> [f64; 2] {
         [self.x.eval(v), self.y.eval(v)]
+    }
+
+    /// The mapping between spaces moved by `from` (its variables) and `to` (its values):
+    /// each new coordinate is the old one − the offset.
+    pub fn moved(&self, from: [f64; 3], to: [f64; 2]) -> Mapping {
+        Mapping {
+            x: self.x.with_variables_moved(from).minus(to[0]),
+            y: self.y.with_variables_moved(from).minus(to[1]),
+        }
     }
 }
 

@@ -128,6 +128,26 @@ impl Default for SampleGrid {
 }
 
 impl PmfSet {
+    /// The same mappings for pixels counted from other origins: each photo's pixel becomes the
+    /// old one − its offset (`left`, `right`: (col, row)), as a window read from each image
+    /// counts them. The ground is unchanged.
+    pub fn moved(&self, left: [f64; 2], right: [f64; 2]) -> PmfSet {
+        let (l, r) = ([left[0], left[1], 0.0], [right[0], right[1], 0.0]);
+        let none = [0.0; 3];
+        PmfSet {
+            left_to_right: self.left_to_right.moved(l, right),
+            right_to_left: self.right_to_left.as_ref().map(|m| m.moved(r, left)),
+            left_to_ground: self.left_to_ground.moved(l, [0.0; 2]),
+            right_to_ground: self.right_to_ground.moved(r, [0.0; 2]),
+            ground_to_left: self.ground_to_left.moved(none, left),
+            ground_to_right: self.ground_to_right.moved(none, right),
+            height: self
+                .height
+                .with_variables_moved([left[0], left[1], right[0]]),
+            report: self.report.clone(),
+        }
+    }
+
     /// All six mappings from control and check points, terms chosen from the full form of
     /// `order` (seed 000 started from the second order; third gave no better accuracy).
     pub fn from_points(
@@ -308,6 +328,60 @@ mod tests {
     /// orbit and a drifting attitude (the quadratic model of seed 004's rigorous solution).
     fn pair() -> (Pushbroom, Pushbroom) {
         (spot_like(-20.0), spot_like(20.0))
+    }
+
+    /// Moved mappings read the same geometry in the new pixels: at points of a SPOT pair,
+    /// every mapping of the moved set, given the moved pixels, gives the moved values (a
+    /// second computation: the original set with the offsets added back by hand).
+    #[test]
+    fn moved_mappings_hold_the_same_geometry_in_window_pixels() {
+        let (l, r) = pair();
+        let s = PmfSet::from_sensors(&l, &r, [0.0, 2000.0], 2).unwrap();
+        let (dl, dr) = ([1234.5, -77.25], [-301.0, 4096.0]);
+        let m = s.moved(dl, dr);
+        for (x, y, h) in [
+            (100.0, 200.0, 50.0),
+            (2900.0, 1500.0, 1800.0),
+            (0.0, 0.0, 0.0),
+        ] {
+            let close = |a: [f64; 2], b: [f64; 2]| {
+                assert!(
+                    (a[0] - b[0]).abs() < 1e-6 && (a[1] - b[1]).abs() < 1e-6,
+                    "{a:?} {b:?}"
+                )
+            };
+            let (lw, g) = ([x - dl[0], y - dl[1]], s.left_to_ground.eval([x, y, h]));
+            let q = s.left_to_right.eval([x, y, h]);
+            close(
+                m.left_to_right.eval([lw[0], lw[1], h]),
+                [q[0] - dr[0], q[1] - dr[1]],
+            );
+            close(m.left_to_ground.eval([lw[0], lw[1], h]), g);
+            let back = s.right_to_left.as_ref().unwrap().eval([q[0], q[1], h]);
+            let mb = m.right_to_left.as_ref().unwrap();
+            close(
+                mb.eval([q[0] - dr[0], q[1] - dr[1], h]),
+                [back[0] - dl[0], back[1] - dl[1]],
+            );
+            close(
+                m.right_to_ground.eval([q[0] - dr[0], q[1] - dr[1], h]),
+                s.right_to_ground.eval([q[0], q[1], h]),
+            );
+            let gl = s.ground_to_left.eval([g[0], g[1], h]);
+            close(
+                m.ground_to_left.eval([g[0], g[1], h]),
+                [gl[0] - dl[0], gl[1] - dl[1]],
+            );
+            let gr = s.ground_to_right.eval([g[0], g[1], h]);
+            close(
+                m.ground_to_right.eval([g[0], g[1], h]),
+                [gr[0] - dr[0], gr[1] - dr[1]],
+            );
+            let z = s.height.eval([x, y, q[0]]);
+            assert!((m.height.eval([lw[0], lw[1], q[0] - dr[0]]) - z).abs() < 1e-6);
+        }
+        // No offset: the same set, to the last bit.
+        assert_eq!(s.moved([0.0; 2], [0.0; 2]), s);
     }
 
     /// Seed 004's check of the mapping functions: every one of the six, on seed 004's own

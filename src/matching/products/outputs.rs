@@ -11,8 +11,8 @@ pub enum Writer {
     Every,
     /// Every run given a reference DEM (`[check] reference`).
     WithReference,
-    /// A format-1 run (one scanned pair and its mapping functions).
-    Format1,
+    /// The height sweep (`method = "sweep"`).
+    Sweep,
     /// The multiphoto matching (`method = "mgcm"`).
     Mgcm,
     /// The multiphoto matching given a reference DEM (its accuracy analysis).
@@ -27,7 +27,7 @@ impl Writer {
         match self {
             Writer::Every => "every run",
             Writer::WithReference => "a run with a reference DEM",
-            Writer::Format1 => "format 1",
+            Writer::Sweep => "the sweep",
             Writer::Mgcm => "MGCM",
             Writer::MgcmWithReference => "MGCM with a reference DEM",
             Writer::Oslsm => "OSLSM",
@@ -56,7 +56,7 @@ pub const REPORT_HTML: &str = "report.html";
 pub const QUALITY_MAP: &str = "quality.png";
 pub const HILLSHADE: &str = "hillshade.png";
 pub const ERROR_MAP: &str = "error.png";
-pub const PMFS: &str = "pmfs.json";
+pub const MAPPINGS: &str = "mappings.json";
 pub const POINTS_CSV: &str = "points.csv";
 pub const ACCURACY_TXT: &str = "accuracy.txt";
 pub const ACCURACY_JSON: &str = "accuracy.json";
@@ -121,9 +121,9 @@ pub const OUTPUTS: [OutputFile; 17] = [
         false,
     ),
     file(
-        PMFS,
-        "the fitted mapping functions (`[pmf] from = \"file\"` reads them)",
-        Writer::Format1,
+        MAPPINGS,
+        "each pair's mapping functions (`[matching] mappings = \"file\"` reads them)",
+        Writer::Sweep,
         false,
     ),
     file(

@@ -27,9 +27,9 @@ pub enum ProjectError {
     },
     #[error("{path}: {message}")]
     Invalid { path: PathBuf, message: String },
-    /// A format-1 project's own error.
+    /// A format-1 project that cannot be read as format 2.
     #[error(transparent)]
-    Pair(Box<pair::PairProjectError>),
+    Format1(Box<upgrade::UpgradeError>),
 }
 
 #[derive(Debug, Deserialize)]
@@ -162,6 +162,19 @@ pub enum Mappings {
     /// Fitted to the control points the two photos share, the check points reporting the
     /// fit (seed 000's mapping functions, its Table 2): no orientation enters them.
     Points,
+    /// Read from `mappings_file` (a run's mappings.json, or format 1's pmfs.json for two
+    /// photos): the mappings as given, fitted nowhere.
+    File,
+}
+
+impl Mappings {
+    pub fn name(self) -> &'static str {
+        match self {
+            Mappings::Sensors => "sensors",
+            Mappings::Points => "points",
+            Mappings::File => "file",
+        }
+    }
 }
 
 /// `[matching]`: the method and its parameters (seed 000 Table 3, with defaults).
@@ -189,6 +202,8 @@ pub struct Matching {
     /// Where the sweep's mapping functions come from: "sensors" (default) or "points".
     #[serde(default)]
     pub mappings: Mappings,
+    /// With `mappings = "file"`: the file (relative to the project's directory).
+    pub mappings_file: Option<PathBuf>,
     /// Order of the mapping functions derived from the sensors (seed 004: 3) or fitted to
     /// the control points (seed 000: 2); "auto": chosen by the check points among 1 … 3.
     #[serde(
@@ -320,6 +335,9 @@ pub struct Project {
     pub crs: Crs,
     pub photos: Vec<PhotoEntry>,
     pub points_file: Option<PathBuf>,
+    /// The points, where they were read with the project (format 1's JSON).
+    #[serde(skip)]
+    pub points_given: Option<Vec<Observation>>,
     /// How well the control and check points' ground was surveyed, σ in m (X and Y, Z),
     /// when the project states it: the control's error is then shared by every photo
     /// resected from it ([`crate::geometry::control_covariance`]), and a check point's adds
@@ -333,7 +351,6 @@ pub struct Project {
     pub limits: Limits,
 }
 
-/// Whether `text` is a format-2 project (a top-level `format = 2`).
 /// Which project format `text` is (1 or 2), or what it lacks to be either: a file that parses
 /// as TOML but names no format and has neither format's tables is not taken for format 1 (whose
 /// first complaint, a missing `photos`, would mislead). Text that is not TOML is left to the
@@ -363,50 +380,33 @@ pub fn format_of(text: &str) -> Result<u32, String> {
     }
 }
 
-/// A project file read once, in whichever format it is.
-#[derive(Debug, Clone)]
-pub enum AnyProject {
-    /// Format 2: any number of photos, any sensor, any method.
-    Block(Box<Project>),
-    /// Format 1: one scanned pair, seed 000's method.
-    Pair(Box<pair::PairProject>),
-}
+const MAX_PHOTOS: usize = 64;
+/// Coordinates of ground points and projection centres, m (any projected CRS fits).
+const MAX_GROUND_M: f64 = 1e8;
 
-impl AnyProject {
-    /// Reads `path` once and parses it as the format it declares.
-    pub fn load(path: &Path) -> Result<AnyProject, ProjectError> {
+impl Project {
+    /// Reads the project at `path` in whichever format it is: format 2, or format 1 (one
+    /// scanned pair) as [`upgrade`] writes it in format 2, its points read from its JSON.
+    pub fn load(path: &Path) -> Result<Project, ProjectError> {
         let text = std::fs::read_to_string(path).map_err(|source| ProjectError::Read {
             path: path.to_path_buf(),
             cause: source,
         })?;
         match format_of(&text) {
-            Ok(2) => Ok(AnyProject::Block(Box::new(Project::parse(&text, path)?))),
-            Ok(_) => pair::PairProject::parse(&text, path)
-                .map(|p| AnyProject::Pair(Box::new(p)))
-                .map_err(|e| ProjectError::Pair(Box::new(e))),
+            Ok(2) => Self::parse(&text, path),
+            Ok(_) => upgrade::read(&text, path).map_err(|e| match e {
+                upgrade::UpgradeError::Project(e) => e,
+                e => ProjectError::Format1(Box::new(e)),
+            }),
             Err(message) => Err(ProjectError::Invalid {
                 path: path.to_path_buf(),
                 message,
             }),
         }
     }
-}
 
-const MAX_PHOTOS: usize = 64;
-/// Coordinates of ground points and projection centres, m (any projected CRS fits).
-const MAX_GROUND_M: f64 = 1e8;
-
-impl Project {
-    pub fn load(path: &Path) -> Result<Project, ProjectError> {
-        let text = std::fs::read_to_string(path).map_err(|source| ProjectError::Read {
-            path: path.to_path_buf(),
-            cause: source,
-        })?;
-        Self::parse(&text, path)
-    }
-
-    /// The project in `text`, as if read from `path` (relative paths resolved against its
-    /// directory; nothing else is read).
+    /// The format-2 project in `text`, as if read from `path` (relative paths resolved
+    /// against its directory; nothing else is read).
     pub fn parse(text: &str, path: &Path) -> Result<Project, ProjectError> {
         let bad = |message: String| ProjectError::Invalid {
             path: path.to_path_buf(),
@@ -582,7 +582,7 @@ impl Project {
                 )));
             }
         }
-        let m = raw
+        let mut m = raw
             .matching
             .unwrap_or_else(|| toml::from_str("").expect("every [matching] key has a default"));
         m.mgcm.check().map_err(bad)?;
@@ -599,11 +599,27 @@ impl Project {
                 )));
             }
         }
-        if m.mappings == Mappings::Points && m.method != Method::Sweep {
+        if m.mappings != Mappings::Sensors && m.method != Method::Sweep {
             return Err(bad(format!(
-                "[matching] mappings = \"points\" is the sweep's (method = \"sweep\"); {} takes the photos' sensors: leave mappings out",
+                "[matching] mappings = \"{}\" is the sweep's (method = \"sweep\"); {} takes the photos' sensors: leave mappings out",
+                m.mappings.name(),
                 m.method
             )));
+        }
+        match (m.mappings, &m.mappings_file) {
+            (Mappings::File, Some(f)) => m.mappings_file = Some(base.join(f)),
+            (Mappings::File, None) => {
+                return Err(bad(
+                    "[matching] mappings = \"file\" needs mappings_file = \"mappings.json\" (a sweep's, or format 1's pmfs.json)".into(),
+                ))
+            }
+            (other, Some(_)) => {
+                return Err(bad(format!(
+                    "[matching] mappings_file is read with mappings = \"file\" (here \"{}\"): add that, or leave the file out",
+                    other.name()
+                )))
+            }
+            (_, None) => {}
         }
         if !(0..=3).contains(&m.order) {
             return Err(bad(format!(
@@ -645,6 +661,7 @@ impl Project {
             crs: raw.crs,
             photos,
             points_file: raw.points.map(|p| base.join(p.file)),
+            points_given: None,
             control_sigma_m,
             cell_m: d.cell_m,
             extent: d.extent,
@@ -658,6 +675,9 @@ impl Project {
     /// The points file's observations (`id,kind,x,y,z,photo,col,row`, a header line first;
     /// x, y, z empty for tie points), every number range-checked with its line.
     pub fn observations(&self) -> Result<Vec<Observation>, ProjectError> {
+        if let Some(given) = &self.points_given {
+            return Ok(given.clone());
+        }
         let Some(f) = &self.points_file else {
             return Ok(Vec::new());
         };
@@ -792,6 +812,43 @@ mod tests {
         for bad in ["\"half a metre\"", "[1, 2, 3]"] {
             let e = with(bad).unwrap_err().to_string();
             assert!(e.contains("one number (m) or two"), "{bad}: {e}");
+        }
+    }
+
+    /// `mappings = "file"` takes its file from the project's directory; the file without
+    /// it, it without the file, and either with another matcher are refused by name.
+    #[test]
+    fn mappings_from_a_file_need_the_file_and_the_sweep() {
+        let seed = include_str!("../../../fuzz/seeds/project/format2.toml");
+        let with = |keys: &str, method: &str| {
+            let t = seed.replace(
+                "method = \"sweep\"",
+                &format!("method = \"{method}\"\n{keys}"),
+            );
+            Project::parse(&t, Path::new("blocks/p.toml"))
+        };
+        let p = with("mappings = \"file\"\nmappings_file = \"m.json\"", "sweep").unwrap();
+        assert_eq!(p.matching.mappings, Mappings::File);
+        assert_eq!(
+            p.matching.mappings_file,
+            Some(PathBuf::from("blocks/m.json"))
+        );
+        for (keys, method, says) in [
+            ("mappings = \"file\"", "sweep", "needs mappings_file"),
+            (
+                "mappings_file = \"m.json\"",
+                "sweep",
+                "read with mappings = \"file\"",
+            ),
+            (
+                "mappings = \"file\"\nmappings_file = \"m.json\"",
+                "mgcm",
+                "is the sweep's",
+            ),
+            ("mappings = \"points\"", "oslsm", "is the sweep's"),
+        ] {
+            let e = with(keys, method).unwrap_err().to_string();
+            assert!(e.contains(says), "{keys} / {method}: {e}");
         }
     }
 }

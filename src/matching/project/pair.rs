@@ -62,7 +62,7 @@ pub struct PmfSection {
     /// grid at several heights (seed 004).
     #[serde(default)]
     pub from: PmfSource,
-    /// With `from = "file"`: the mappings as JSON (the `pmfs.json` that `rig dtm pmf` writes,
+    /// With `from = "file"`: the mappings as JSON (format 1's `pmfs.json`, a sweep's `mappings.json`,
     /// or coefficients from elsewhere in that form).
     pub file: Option<PathBuf>,
 }
@@ -295,7 +295,7 @@ impl PairProject {
         p.pmf.file = p.pmf.file.map(|f| base.join(f));
         if p.pmf.from == PmfSource::File && p.pmf.file.is_none() {
             return Err(bad(
-                "[pmf] from = \"file\" needs file = \"pmfs.json\" (the mappings as `rig dtm pmf` writes them)".into(),
+                "[pmf] from = \"file\" needs file = \"pmfs.json\" (format 1's pmfs.json, or a sweep's mappings.json)".into(),
             ));
         }
         p.grid.reference = p.grid.reference.map(|r| base.join(r));
@@ -341,8 +341,8 @@ impl PairProject {
             ),
         )?;
         let g = &self.grid;
-        if !(g.cell_m.is_finite() && (0.001..=100_000.0).contains(&g.cell_m)) {
-            return Err(format!("[grid] cell_m {}: 0.001 to 100000 m", g.cell_m));
+        if !(g.cell_m.is_finite() && (0.01..=10_000.0).contains(&g.cell_m)) {
+            return Err(format!("[grid] cell_m {}: 0.01 to 10000 m", g.cell_m));
         }
         if let Some(h) = g.flying_height_m {
             if !(h.is_finite() && h > 0.0 && h <= 1_000_000.0) {

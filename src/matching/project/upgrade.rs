@@ -8,13 +8,14 @@
 
 use crate::matching::mapping::pmf_set::StereoPoint;
 use crate::matching::project::pair::{PairProject, PmfSource, PointFile};
+use crate::matching::project::{format_of, parse_points, Project, ProjectError};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 /// Why a format-1 project has no format-2 form.
 #[derive(Debug, thiserror::Error)]
 pub enum UpgradeError {
-    #[error("{path}: [pmf] from = \"file\" (mappings read from a file) has no format-2 form yet: write the project with from = \"points\" or \"rigorous\", or keep running it as format 1")]
+    #[error("{path}: [pmf] from = \"file\" names no file: add file = \"pmfs.json\" (the mapping functions as an earlier run wrote them)")]
     MappingsFromFile { path: PathBuf },
     #[error("{path}: point {id:?} is listed twice (ids name points in format 2's CSV)")]
     DuplicateId { path: PathBuf, id: String },
@@ -27,7 +28,7 @@ pub enum UpgradeError {
     #[error("{path} exists: it is not overwritten (remove it, or give another name)")]
     Exists { path: PathBuf },
     #[error(transparent)]
-    Project(#[from] crate::matching::project::ProjectError),
+    Project(#[from] ProjectError),
     #[error(transparent)]
     Points(#[from] crate::matching::project::pair::PairProjectError),
     #[error("writing {path}: {cause}")]
@@ -62,19 +63,16 @@ pub struct Written {
 /// OLD-format2.toml beside it) with its points as NEW-points.csv beside that, each written
 /// whole (atomically) and only where no file is; what was written is read back as format 2.
 pub fn write_beside(old: &Path, new: Option<&Path>) -> Result<Written, UpgradeError> {
-    let p = match crate::matching::project::AnyProject::load(old)? {
-        crate::matching::project::AnyProject::Pair(p) => p,
-        crate::matching::project::AnyProject::Block(_) => {
-            return Err(UpgradeError::AlreadyFormat2 {
-                path: old.to_path_buf(),
-            })
-        }
-    };
-    // A file's directory ("." for a bare name).
-    let folder = |f: &Path| match f.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
-        _ => PathBuf::from("."),
-    };
+    let text = std::fs::read_to_string(old).map_err(|cause| ProjectError::Read {
+        path: old.to_path_buf(),
+        cause,
+    })?;
+    if format_of(&text) == Ok(2) {
+        return Err(UpgradeError::AlreadyFormat2 {
+            path: old.to_path_buf(),
+        });
+    }
+    let p = PairProject::parse(&text, old)?;
     let dir = folder(old);
     let dir = dir.as_path();
     let stem = |f: &Path| {
@@ -108,12 +106,33 @@ pub fn write_beside(old: &Path, new: Option<&Path>) -> Result<Written, UpgradeEr
     };
     write(&points, &u.csv)?;
     write(&project, &u.toml)?;
-    crate::matching::project::Project::load(&project)?.observations()?;
+    Project::load(&project)?.observations()?;
     Ok(Written {
         project,
         points,
         point_count: pts.gcps.len() + pts.cps.len(),
     })
+}
+
+/// A file's directory ("." for a bare name).
+fn folder(f: &Path) -> PathBuf {
+    match f.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
+        _ => PathBuf::from("."),
+    }
+}
+
+/// The format-1 project in `text` (read from `path`) as the format-2 [`Project`] that
+/// [`write_beside`] would write, its points read from the JSON once, here.
+pub fn read(text: &str, path: &Path) -> Result<Project, UpgradeError> {
+    let p = PairProject::parse(text, path)?;
+    let pts = p.points()?;
+    let dir = folder(path);
+    let name = p.points.file.strip_prefix(&dir).unwrap_or(&p.points.file);
+    let u = upgrade(&p, &pts, &dir, &name.to_string_lossy())?;
+    let mut project = Project::parse(&u.toml, path)?;
+    project.points_given = Some(parse_points(&u.csv, &p.points.file, &project.photos)?);
+    Ok(project)
 }
 
 /// The two files of the upgraded project: the format-2 TOML and its points CSV.
@@ -132,18 +151,19 @@ pub fn upgrade(
     dir: &Path,
     points_csv: &str,
 ) -> Result<Upgraded, UpgradeError> {
-    let mappings = match p.pmf.from {
-        PmfSource::Points => "points",
-        PmfSource::Rigorous => "sensors",
-        PmfSource::File => {
+    let rel = |f: &Path| -> String {
+        let shown = f.strip_prefix(dir).unwrap_or(f);
+        quoted(&shown.to_string_lossy())
+    };
+    let mappings = match (p.pmf.from, &p.pmf.file) {
+        (PmfSource::Points, _) => "\"points\"".to_string(),
+        (PmfSource::Rigorous, _) => "\"sensors\"".to_string(),
+        (PmfSource::File, Some(f)) => format!("\"file\"\nmappings_file = {}", rel(f)),
+        (PmfSource::File, None) => {
             return Err(UpgradeError::MappingsFromFile {
                 path: p.path.clone(),
             })
         }
-    };
-    let rel = |f: &Path| -> String {
-        let shown = f.strip_prefix(dir).unwrap_or(f);
-        quoted(&shown.to_string_lossy())
     };
     let m = &p.matching;
     let r = &p.regions;
@@ -174,7 +194,7 @@ pub fn upgrade(
     };
     let _ = writeln!(
         t,
-        "[matching]\nmethod = \"sweep\"\nmappings = \"{mappings}\"\norder = {order}"
+        "[matching]\nmethod = \"sweep\"\nmappings = {mappings}\norder = {order}"
     );
     if let Some(s) = m.h_step {
         let _ = writeln!(t, "h_step = {}", num(s));
@@ -389,19 +409,21 @@ max_candidates_g = 7.5
     }
 
     #[test]
-    fn mappings_from_a_file_and_bad_ids_are_refused_by_name() {
+    fn mappings_from_a_file_are_kept_and_bad_ids_are_refused_by_name() {
         let dir = Path::new("/data/block");
         let pts = PointFile {
             gcps: vec![point("g1", 1.0)],
             cps: vec![],
         };
-        let file = OLD.replace("from = \"points\"", "from = \"file\"\nfile = \"pmfs.json\"");
-        let old = PairProject::parse(&file, &dir.join("old.toml")).unwrap();
-        let e = upgrade(&old, &pts, dir, "p.csv").unwrap_err().to_string();
-        assert!(
-            e.contains("from = \"file\"") && e.contains("old.toml"),
-            "{e}"
+        let file = OLD.replace(
+            "from = \"points\"",
+            "from = \"file\"\nfile = \"maps/pmfs.json\"",
         );
+        let old = PairProject::parse(&file, &dir.join("old.toml")).unwrap();
+        let u = upgrade(&old, &pts, dir, "p.csv").unwrap();
+        let new = Project::parse(&u.toml, &dir.join("new.toml")).unwrap();
+        assert_eq!(new.matching.mappings, Mappings::File);
+        assert_eq!(new.matching.mappings_file, Some(dir.join("maps/pmfs.json")));
         let old = PairProject::parse(OLD, &dir.join("old.toml")).unwrap();
         let twice = PointFile {
             gcps: vec![point("g1", 1.0)],

@@ -7,7 +7,6 @@ pub mod height_sweep;
 pub mod pair_model;
 pub mod plan;
 pub mod regions;
-pub mod scanned_pair;
 pub mod tiles;
 
 use crate::coords::{GroundM, PixelXY};
@@ -21,11 +20,13 @@ use crate::matching::block::photo::Photo;
 use crate::matching::block::photo::PhotoGeometry;
 use crate::matching::error::MatchingError;
 use crate::matching::grid::ElevationGrid;
+use crate::matching::mapping::given::{MappingsFile, PairMappings};
 use crate::matching::mapping::pmf_set::FitReport;
 use crate::matching::methods::context::Run;
 use crate::matching::methods::sweep::height_sweep::{sweep_bands, HeightMap, SweptBands};
 use crate::matching::methods::sweep::pair_model::{pmf_dtm_from_heights, PmfDtmReport};
 use crate::matching::methods::sweep::plan::{plan, Plan};
+use crate::matching::products::outputs::MAPPINGS;
 use crate::matching::project::Project;
 use crate::matching::MatchedPoint;
 use serde::{Deserialize, Serialize};
@@ -335,12 +336,13 @@ pub fn finish(run: &Run, plan: &Plan, parts: Vec<PairPart>) -> Result<SweepRepor
         let hm = HeightMap::from_bands(pair.layout, bands).map_err(|e| {
             MatchingError::Grid(format!("photos {li} × {ri}: the sweep's parts: {e}"))
         })?;
-        let d = pmf_dtm_from_heights(hm, &pair.pmfs, &pair.params, &budget, None, None, secs)
-            .map_err(|source| MatchingError::Pair {
+        let d = pmf_dtm_from_heights(hm, &pair.pmfs, &pair.params, &budget, secs).map_err(
+            |source| MatchingError::Pair {
                 left: li.clone(),
                 right: ri.clone(),
                 cause: source,
-            })?;
+            },
+        )?;
         let h_step = pair.params.sweep.h_step;
         tracing::info!(
             pair = %format!("{li} × {ri}"),
@@ -411,6 +413,28 @@ pub fn finish(run: &Run, plan: &Plan, parts: Vec<PairPart>) -> Result<SweepRepor
         &report,
         &report.summary(),
     )?;
+    // Each pair's mappings in the whole images' pixels, for `mappings = "file"`.
+    let whole = |k: usize| {
+        let w = run.photos[k].geometry().window;
+        [-(w.col0 as f64), -(w.row0 as f64)]
+    };
+    let mappings = MappingsFile {
+        pairs: plan
+            .pairs
+            .iter()
+            .map(|pair| PairMappings {
+                left: p.photos[pair.left].id.clone(),
+                right: p.photos[pair.right].id.clone(),
+                mappings: pair.pmfs.moved(whole(pair.left), whole(pair.right)),
+            })
+            .collect(),
+    };
+    crate::atomic::write_json(&run.out.join(MAPPINGS), &mappings).map_err(|cause| {
+        MatchingError::Write {
+            dir: run.out.to_path_buf(),
+            cause,
+        }
+    })?;
     Ok(report)
 }
 

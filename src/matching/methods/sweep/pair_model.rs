@@ -3,15 +3,13 @@
 //! by the image→ground PMFs, gridding, and — given a reference model — the comparison.
 
 use crate::coords::GroundM;
-use crate::image::ImageF32;
 use crate::matching::error::DtmError;
-use crate::matching::grid::{Comparison, ElevationGrid};
+use crate::matching::grid::ElevationGrid;
 use crate::matching::mapping::pmf_set::PmfSet;
-use crate::matching::methods::sweep::height_sweep::{sweep_with, HeightMap, SweepParams};
+use crate::matching::methods::sweep::height_sweep::{HeightMap, SweepParams};
 use crate::matching::methods::sweep::regions::{remove_wrong_heights, RegionParams, RegionStats};
 use crate::matching::point::MatchedPoint;
 use serde::{Deserialize, Serialize};
-use std::time::Instant;
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct PmfDtmParams {
@@ -83,10 +81,6 @@ pub struct PmfDtmReport {
     pub remaining_percent: f64,
     pub grid_nodes: usize,
     pub grid_filled: usize,
-    pub comparison: Option<Comparison>,
-    /// Flying height above the terrain, m, when known: the RMSE in per mille of it.
-    pub flying_height_m: Option<f64>,
-    pub rmse_permille_of_flying_height: Option<f64>,
     /// Share of the points kept whose height lies within a step of the lowest (highest)
     /// height tried, %: a pile there means the terrain may reach beyond the range.
     #[serde(default)]
@@ -146,41 +140,15 @@ pub struct PmfDtm {
     pub report: PmfDtmReport,
 }
 
-/// Runs the method within `budget` (checked first, see [`estimate`]); `reference` (a height at
-/// ground x, y) gives the comparison.
-#[allow(clippy::too_many_arguments)] // the two photos, their mappings, the parameters, the budget and three optional companions
-pub fn pmf_dtm(
-    left: &ImageF32,
-    right: &ImageF32,
-    pmfs: &PmfSet,
-    p: &PmfDtmParams,
-    budget: &Budget,
-    reference: Option<&dyn Fn(f64, f64) -> f64>,
-    flying_height_m: Option<f64>,
-    progress: &dyn crate::matching::progress::Progress,
-) -> Result<PmfDtm, DtmError> {
-    estimate(
-        (left.width, left.height),
-        (right.width, right.height),
-        p,
-        budget,
-    )?;
-    let t = Instant::now();
-    let heights = sweep_with(left, right, &pmfs.left_to_right, &p.sweep, progress);
-    let secs = t.elapsed().as_secs_f64();
-    pmf_dtm_from_heights(heights, pmfs, p, budget, reference, flying_height_m, secs)
-}
-
 /// The method after the sweep (whose heights may have come from several machines, see
 /// `rig dtm --tile`): wrong heights removed, ground coordinates, the grid, the comparison.
-/// `secs` is the time the sweep took.
+/// `secs` is the time the sweep took. The model's comparison with a reference is the merged
+/// grid's, not a pair's.
 pub fn pmf_dtm_from_heights(
     mut heights: HeightMap,
     pmfs: &PmfSet,
     p: &PmfDtmParams,
     budget: &Budget,
-    reference: Option<&dyn Fn(f64, f64) -> f64>,
-    flying_height_m: Option<f64>,
     secs: f64,
 ) -> Result<PmfDtm, DtmError> {
     let total = heights.cols * heights.rows;
@@ -218,11 +186,6 @@ pub fn pmf_dtm_from_heights(
     };
     let pts: Vec<GroundM> = points.iter().map(|p| p.ground).collect();
     grid.fill(&pts);
-    let comparison = reference.map(|f| grid.compare(f));
-    let rmse_permille = match (&comparison, flying_height_m) {
-        (Some(c), Some(h)) => Some(1000.0 * c.rmse_m / h),
-        _ => None,
-    };
     let report = PmfDtmReport {
         params: p.clone(),
         points_total: total,
@@ -236,9 +199,6 @@ pub fn pmf_dtm_from_heights(
         regions: stats,
         grid_nodes: grid.cols * grid.rows,
         grid_filled: grid.filled(),
-        comparison,
-        flying_height_m,
-        rmse_permille_of_flying_height: rmse_permille,
         at_lowest_percent: RegionStats::percent(
             points
                 .iter()

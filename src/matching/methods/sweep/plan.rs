@@ -9,6 +9,7 @@ use crate::geometry::{PhotoSensor, Sensor};
 use crate::matching::block::orient::{orient, Oriented};
 use crate::matching::block::photo::PhotoGeometry;
 use crate::matching::error::MatchingError;
+use crate::matching::mapping::given::MappingsFile;
 use crate::matching::mapping::pmf_set::{SampleGrid, TermSet};
 use crate::matching::methods::sweep::height_sweep::{step_for_parallax, SweepLayout, SweepParams};
 use crate::matching::methods::sweep::pair_model::{estimate, Budget, PmfDtmParams};
@@ -102,6 +103,18 @@ pub fn plan(
         max_candidates: p.limits.max_candidates_g * 1e9,
     };
     let m = &p.matching;
+    let given = match (&m.mappings, &m.mappings_file) {
+        (Mappings::File, Some(f)) => {
+            let ids: Vec<&str> = p.photos.iter().map(|ph| ph.id.as_str()).collect();
+            Some(
+                MappingsFile::read(f, &ids).map_err(|message| MatchingError::GivenMappings {
+                    path: f.clone(),
+                    message,
+                })?,
+            )
+        }
+        _ => None,
+    };
     let mut pairs = Vec::new();
     for &(i, j) in &oriented.overlapping {
         let (l, r) = (&sensors[i], &sensors[j]);
@@ -130,12 +143,26 @@ pub fn plan(
                 };
                 PmfSet::from_points_with(m.order, set, &shared(Kind::Gcp), &shared(Kind::Cp))
             }
+            Mappings::File => {
+                let (Some(given), Some(f)) = (&given, &m.mappings_file) else {
+                    unreachable!("the project checks that mappings = \"file\" names its file")
+                };
+                let (a, b) = (photos[i].window, photos[j].window);
+                let set = given.pair(li, ri).map_err(|message| MatchingError::GivenMappings {
+                    path: f.clone(),
+                    message,
+                })?;
+                Ok(set.moved(
+                    [a.col0 as f64, a.row0 as f64],
+                    [b.col0 as f64, b.row0 as f64],
+                ))
+            }
         }
         .map_err(|e| MatchingError::Mappings {
             left: li.clone(),
             right: ri.clone(),
             message: match m.mappings {
-                Mappings::Sensors => e.to_string(),
+                Mappings::Sensors | Mappings::File => format!("from the sensors: {e}"),
                 Mappings::Points => format!(
                     "fitted to the control points both photos show ([matching] mappings = \"points\"): {e}"
                 ),
