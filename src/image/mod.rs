@@ -35,6 +35,15 @@ impl ImageF32 {
     /// c + 0.5); `None` outside the pixel centres' hull.
     #[inline]
     pub fn bilinear(&self, x: f64, y: f64) -> Option<f32> {
+        let cell = self.bilinear_cell(x, y)?;
+        Some(self.bilinear_in(cell))
+    }
+
+    /// Where [`ImageF32::bilinear`] takes (x, y) from: the first of its four pixels (an index
+    /// into `data`) and the fractions across and down; `None` outside the centres' hull. An
+    /// image of the same size takes the same cell ([`ImageF32::bilinear_in`]).
+    #[inline(always)]
+    pub fn bilinear_cell(&self, x: f64, y: f64) -> Option<(usize, f32, f32)> {
         let (u, v) = (x - 0.5, y - 0.5);
         // Written so that NaN and huge coordinates fall outside too.
         let (w1, h1) = (self.width as f64 - 1.0, self.height as f64 - 1.0);
@@ -50,11 +59,17 @@ impl ImageF32 {
             (v as usize).min(self.height - 2),
         );
         let (fx, fy) = ((u - i as f64) as f32, (v - j as f64) as f32);
-        let p = &self.data[j * self.width + i..];
-        let q = &self.data[(j + 1) * self.width + i..];
+        Some((j * self.width + i, fx, fy))
+    }
+
+    /// The bilinear value in a cell of [`ImageF32::bilinear_cell`] (of an image this size).
+    #[inline(always)]
+    pub fn bilinear_in(&self, (k, fx, fy): (usize, f32, f32)) -> f32 {
+        let p = &self.data[k..];
+        let q = &self.data[k + self.width..];
         let a = p[0] + fx * (p[1] - p[0]);
         let b = q[0] + fx * (q[1] - q[0]);
-        Some(a + fy * (b - a))
+        a + fy * (b - a)
     }
 
     /// The bilinear value and its exact derivatives ∂/∂x, ∂/∂y at (x, y) (those of the

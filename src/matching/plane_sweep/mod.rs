@@ -557,29 +557,39 @@ fn warped_body(
             .collect()
     };
     let (us, uy) = (normalised(&map.x.norm), normalised(&map.y.norm));
-    // Warped values and their "unseen" flags, row-major over the span, planes innermost.
-    let mut wv: Vec<f32> = crate::matching::plane_sweep::volume::zeroed(span * wl * np);
-    let mut wn: Vec<f32> = crate::matching::plane_sweep::volume::zeroed(span * wl * np);
+    // Warped values and their "unseen" flags, row-major over the span, planes innermost;
+    // this thread's buffers of its last band, each element written below (so not cleared).
+    let (mut wv, mut wn) = WARPED.with(|b| std::mem::take(&mut *b.borrow_mut()));
+    for v in [&mut wv, &mut wn] {
+        if v.capacity() < span * wl * np {
+            *v = crate::matching::plane_sweep::volume::zeroed(span * wl * np);
+        }
+        v.resize(span * wl * np, 0.0);
+    }
     let (rw, rh) = (right.img.width as f64, right.img.height as f64);
     let any_nodata = !right.nodata.is_empty();
     let mut ax = vec![0.0f64; order + 1];
     let mut ay = vec![0.0f64; order + 1];
+    // Where each plane lands, for one reference pixel: Horner's steps run across the planes
+    // (in each lane the operations of one plane's Horner, so the same bits).
+    let (mut qxs, mut qys) = (vec![0.0f64; np], vec![0.0f64; np]);
     for rr in 0..span {
         let y = (top + rr) as f64 + 0.5;
         for c in 0..wl {
             let x = c as f64 + 0.5;
             collapse(&map.x, x, y, &mut ax);
             collapse(&map.y, x, y, &mut ay);
+            horner_across(&ax, &us, &mut qxs);
+            horner_across(&ay, &uy, &mut qys);
             let o = (rr * wl + c) * np;
             for p in 0..np {
-                let qx = horner(&ax, us[p]);
-                let qy = horner(&ay, uy[p]);
+                let (qx, qy) = (qxs[p], qys[p]);
                 // Bilinear, pixel centres at +0.5; the sample must have its four pixels.
                 // A millionth of a pixel beyond the outermost centres is on them: a fitted
                 // mapping lands there, not exactly on them.
                 let (u, v) = (qx - 0.5, qy - 0.5);
                 if !(u >= -1e-6 && v >= -1e-6 && u <= rw - 1.0 + 1e-6 && v <= rh - 1.0 + 1e-6) {
-                    wn[o + p] = 1.0;
+                    (wv[o + p], wn[o + p]) = (0.0, 1.0);
                     continue;
                 }
                 let (u, v) = (u.clamp(0.0, rw - 1.0), v.clamp(0.0, rh - 1.0));
@@ -595,12 +605,12 @@ fn warped_body(
                 if any_nodata
                     && nd[base] + nd[base + 1] + nd[base + rwid] + nd[base + rwid + 1] > 0.0
                 {
-                    wn[o + p] = 1.0;
+                    (wv[o + p], wn[o + p]) = (0.0, 1.0);
                     continue;
                 }
                 let a = d[base] + fx * (d[base + 1] - d[base]);
                 let b = d[base + rwid] + fx * (d[base + rwid + 1] - d[base + rwid]);
-                wv[o + p] = a + fy * (b - a);
+                (wv[o + p], wn[o + p]) = (a + fy * (b - a), 0.0);
             }
         }
     }
@@ -691,6 +701,13 @@ fn warped_body(
             }
         }
     }
+    WARPED.with(|b| *b.borrow_mut() = (wv, wn));
+}
+
+thread_local! {
+    /// [`score_warped`]'s warped band, kept for the thread's next band: clearing a fresh one
+    /// took a tenth of a sweep.
+    static WARPED: std::cell::RefCell<(Vec<f32>, Vec<f32>)> = const { std::cell::RefCell::new((Vec::new(), Vec::new())) };
 }
 
 #[inline(always)]
@@ -709,9 +726,16 @@ fn collapse(poly: &crate::matching::mapping::pmf::Polynomial, x: f64, y: f64, a:
     }
 }
 
+/// The polynomial with coefficients `a` (lowest first) at every `u` into `q` by Horner's
+/// rule, a coefficient at a time over all of them.
 #[inline(always)]
-fn horner(a: &[f64], u: f64) -> f64 {
-    a.iter().rev().fold(0.0, |acc, c| acc * u + c)
+fn horner_across(a: &[f64], u: &[f64], q: &mut [f64]) {
+    q.iter_mut().for_each(|v| *v = 0.0);
+    for c in a.iter().rev() {
+        for (v, &u) in q.iter_mut().zip(u) {
+            *v = *v * u + c;
+        }
+    }
 }
 
 #[cfg(test)]

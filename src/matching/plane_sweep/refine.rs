@@ -142,7 +142,8 @@ pub fn refine(
                 a = mean_l - b * ms;
             }
         }
-        let mut nm = M5::zeros();
+        // The normals' upper triangle (each product once; the lower is the same numbers).
+        let mut up = [[0.0f64; 5]; 5];
         let mut rhs = V5::zeros();
         let mut vv = 0.0;
         for (idx, ((&l, &s), &g)) in lw.iter().zip(&sw).zip(&gw).enumerate() {
@@ -154,11 +155,16 @@ pub fn refine(
             res[idx] = e;
             // ∂/∂(t, t_u, t_v, a, b) of a + b·s(q(u, v)).
             let bg = b * g;
-            let d = V5::new(bg, bg * u, bg * v, 1.0, s);
-            nm += d * d.transpose();
-            rhs += d * e;
+            let d = [bg, bg * u, bg * v, 1.0, s];
+            for (a, row) in up.iter_mut().enumerate() {
+                for b in a..5 {
+                    row[b] += d[a] * d[b];
+                }
+            }
+            rhs += V5::from(d) * e;
             vv += e * e;
         }
+        let nm = M5::from_fn(|i, j| up[i.min(j)][i.max(j)]);
         let q_inv = nm.try_inverse().ok_or(RefineFailure::Singular)?;
         let dx = q_inv * rhs;
         if !dx.iter().all(|v| v.is_finite()) {

@@ -49,12 +49,14 @@ impl Textured {
 
     /// Grey value and gradient (per pixel) at continuous point (x, y), bilinearly; `None`
     /// outside the pixel centres' hull.
+    /// The three images are one size, so the cell is found once.
     #[inline]
     pub fn sample(&self, x: f64, y: f64) -> Option<[f64; 3]> {
+        let cell = self.image.bilinear_cell(x, y)?;
         Some([
-            self.image.bilinear(x, y)? as f64,
-            self.gx.bilinear(x, y)? as f64,
-            self.gy.bilinear(x, y)? as f64,
+            self.image.bilinear_in(cell) as f64,
+            self.gx.bilinear_in(cell) as f64,
+            self.gy.bilinear_in(cell) as f64,
         ])
     }
 }

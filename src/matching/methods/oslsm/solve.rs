@@ -415,6 +415,7 @@ pub fn refine(
                     let mut nl = DMatrix::<f64>::zeros(local + 1, local + 1);
                     let mut bl = DVector::<f64>::zeros(local + 1);
                     let mut row = DVector::<f64>::zeros(local + 1);
+                    let mut nz: Vec<usize> = Vec::with_capacity(local + 1);
                     let bb: f64 = obs
                         .iter()
                         .map(|o| radiometry_at(&radiometry[o.photo], pos)[1].powi(2))
@@ -439,8 +440,11 @@ pub fn refine(
                         row.fill(0.0);
                         // g(Z + dZ) − (a + da) − (b + db)(D + dD) = 0, a and b linear in s, t:
                         // ∂g/∂Z·dZ − (da₀ + s·daₛ + t·daₜ) − D·(db₀ + …) − b·dD = −l.
+                        // The row's non-zero places: the posts, this photo's radiometry, D.
+                        nz.clear();
                         for (c, w) in gr.weights.iter().enumerate() {
                             row[c] = o.dg_dz * w;
+                            nz.push(c);
                         }
                         if o.photo > 0 {
                             let c = 4 + NR * (o.photo - 1);
@@ -448,10 +452,18 @@ pub fn refine(
                                 row[c + i] = -f;
                                 row[c + 3 + i] = -d[n] * f;
                             }
+                            nz.extend(c..c + NR);
                         }
                         row[local] = -b;
-                        nl += &row * row.transpose();
-                        bl += &row * (-l);
+                        nz.push(local);
+                        // row·rowᵀ and row·(−l) where they are not zero: the same sums as
+                        // the whole products (a zero product adds nothing), without them.
+                        for &i in &nz {
+                            for &j in &nz {
+                                nl[(i, j)] += row[i] * row[j];
+                            }
+                            bl[i] += row[i] * (-l);
+                        }
                     }
                     // Eliminate D: N − n·nᵀ/n_dd.
                     let ndd = nl[(local, local)];
