@@ -89,3 +89,21 @@ pub struct ReportHead {
     #[serde(default)]
     pub corrected: Vec<(String, ControlFit)>,
 }
+
+impl ReportHead {
+    /// The first lines of a summary: the method in words, the heights tried and the models
+    /// the control points corrected.
+    pub fn lines(&self, method: String, heights_m: [f64; 2]) -> Vec<(String, String)> {
+        let mut v = vec![
+            ("method".to_string(), method),
+            (
+                "heights tried".into(),
+                format!("{:.1} … {:.1} m", heights_m[0], heights_m[1]),
+            ),
+        ];
+        v.extend(crate::matching::block::orient::corrected_lines(
+            &self.corrected,
+        ));
+        v
+    }
+}

@@ -119,34 +119,25 @@ pub struct MgcmReport {
 
 impl MgcmReport {
     pub fn summary(&self) -> Vec<(String, String)> {
-        let mut v = vec![
-            (
-                "method".to_string(),
-                format!(
-                    "multiphoto geometrically constrained matching: {}",
-                    if self.references.is_empty() {
-                        format!(
-                            "photo {} against {}",
-                            self.reference,
-                            self.searched.join(", ")
-                        )
-                    } else {
-                        self.references
-                            .iter()
-                            .map(|(r, o)| format!("photo {r} against {}", o.join(", ")))
-                            .collect::<Vec<_>>()
-                            .join("; ")
-                    }
-                ),
+        let mut v = self.head.lines(
+            format!(
+                "multiphoto geometrically constrained matching: {}",
+                if self.references.is_empty() {
+                    format!(
+                        "photo {} against {}",
+                        self.reference,
+                        self.searched.join(", ")
+                    )
+                } else {
+                    self.references
+                        .iter()
+                        .map(|(r, o)| format!("photo {r} against {}", o.join(", ")))
+                        .collect::<Vec<_>>()
+                        .join("; ")
+                }
             ),
-            (
-                "heights tried".into(),
-                format!("{:.1} … {:.1} m", self.heights_m[0], self.heights_m[1]),
-            ),
-        ];
-        v.extend(crate::matching::block::orient::corrected_lines(
-            &self.head.corrected,
-        ));
+            self.heights_m,
+        );
         for l in &self.levels {
             v.push((
                 format!("level {}", l.level),

@@ -94,29 +94,20 @@ pub struct OslsmReport {
 
 impl OslsmReport {
     pub fn summary(&self) -> Vec<(String, String)> {
-        let mut v = vec![
-            (
-                "method".to_string(),
-                format!(
-                    "object-space least-squares matching: photo {} (the radiometric datum) with {}",
-                    self.reference,
-                    self.others.join(", ")
-                ),
+        let mut v = self.head.lines(
+            format!(
+                "object-space least-squares matching: photo {} (the radiometric datum) with {}",
+                self.reference,
+                self.others.join(", ")
             ),
-            (
-                "heights tried".into(),
-                format!("{:.1} … {:.1} m", self.heights_m[0], self.heights_m[1]),
+            self.heights_m,
+        );
+        v.push((
+            "grids".into(),
+            format!(
+                "posts every {:.2} m, {} groundels of {:.3} m ({} to a cell side), {:.3} m per px of parallax",
+                self.post_m, self.groundels, self.groundel_m, self.groundels_per_cell, self.m_per_px
             ),
-            (
-                "grids".into(),
-                format!(
-                    "posts every {:.2} m, {} groundels of {:.3} m ({} to a cell side), {:.3} m per px of parallax",
-                    self.post_m, self.groundels, self.groundel_m, self.groundels_per_cell, self.m_per_px
-                ),
-            ),
-        ];
-        v.extend(crate::matching::block::orient::corrected_lines(
-            &self.head.corrected,
         ));
         if let Some(c) = &self.coarse_comparison {
             v.push((

@@ -306,16 +306,9 @@ pub fn run(run: &Run) -> Result<SweepReport, MatchingError> {
 /// the outputs in `out`.
 pub fn finish(run: &Run, plan: &Plan, parts: Vec<PairPart>) -> Result<SweepReport, MatchingError> {
     let p = run.project;
-    let Oriented {
-        sensors,
-        resected,
-        corrected,
-        heights,
-        extent,
-        observations: obs,
-        ..
-    } = &plan.oriented;
-    let (heights, extent) = (*heights, *extent);
+    let o: &Oriented = &plan.oriented;
+    let (sensors, obs) = (&o.sensors, &o.observations);
+    let (heights, extent) = (o.heights, o.extent);
     let budget = plan.budget;
     let mut by_pair: Vec<(Vec<SweptBands>, f64)> = vec![(Vec::new(), 0.0); plan.pairs.len()];
     for part in parts {
@@ -394,8 +387,8 @@ pub fn finish(run: &Run, plan: &Plan, parts: Vec<PairPart>) -> Result<SweepRepor
     let report = SweepReport {
         project: p.path.clone(),
         crs: p.crs,
-        resected: resected.clone(),
-        corrected: corrected.clone(),
+        resected: o.resected.clone(),
+        corrected: o.corrected.clone(),
         heights_m: heights,
         extent,
         pairs: reports,
