@@ -309,9 +309,9 @@ pub fn run(a: CalibrateArgs) -> anyhow::Result<i32> {
                 print_history(&h);
             }
             Ok(if drift {
-                super::exit::DRIFT
+                rig::exit::DRIFT
             } else {
-                super::exit::OK
+                rig::exit::OK
             })
         }
         CalibrateAction::Interior {

@@ -12,9 +12,9 @@ use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 
 /// Exit code of a scan paused by Ctrl-C.
-pub const EXIT_PAUSED: i32 = super::exit::PAUSED;
+pub const EXIT_PAUSED: i32 = rig::exit::PAUSED;
 /// Exit code of a plan refused (soft limits, frame size).
-pub const EXIT_REFUSED: i32 = super::exit::OUTSIDE_LIMITS;
+pub const EXIT_REFUSED: i32 = rig::exit::OUTSIDE_LIMITS;
 
 /// The command that continues this scan: the same hardware (or simulator), store and
 /// script, with --resume — what the operator can paste.

@@ -1,7 +1,9 @@
-//! Project format 2: any number of photos as plain images with their cameras and orientations
-//! (or the rig's own scan hand-overs), control and check points in a CSV file, the ground CRS,
-//! the DEM's cell, extent and heights. docs/elevation-models.md documents every key; the names are the
-//! contract. Every number is range-checked here with the file and the key named.
+//! The matching project, one model for both formats. Format 2: any number of photos as plain
+//! images with their cameras and orientations (or the rig's own scan hand-overs), control and
+//! check points in a CSV file, the ground CRS, the DEM's cell, extent and heights. Format 1
+//! (one scanned pair, [`pair`]) is read as the format-2 project [`upgrade`] writes.
+//! docs/elevation-models.md documents every key; the names are the contract. Every number is
+//! range-checked here with the file and the key named.
 //!
 //! Pixel coordinates in this format (and in the points file) follow the convention of docs/conventions.md:
 //! (col, row) with integer values at pixel centres, (0, 0) the centre of the top-left pixel.
