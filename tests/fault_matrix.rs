@@ -329,7 +329,7 @@ fn fault_matrix() {
         .collect();
     let queue = Mutex::new(jobs.into_iter());
     std::thread::scope(|sc| {
-        for _ in 0..12 {
+        for _ in 0..54 {
             sc.spawn(|| loop {
                 let Some((i, k, s, d, seed)) = queue.lock().unwrap().next() else {
                     break;

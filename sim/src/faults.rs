@@ -240,6 +240,11 @@ impl LineFilter {
     pub fn has_pending(&self) -> bool {
         !self.pending.is_empty()
     }
+
+    /// Until when a delay fault holds the pending bytes back (`None`: none is).
+    pub fn held_until(&self) -> Option<Instant> {
+        self.quiet_until.filter(|_| !self.pending.is_empty())
+    }
 }
 
 #[cfg(test)]

@@ -346,7 +346,18 @@ pub fn serve(
             (Some(a), Some(b)) => Some(a.min(b)),
             (a, b) => a.or(b),
         };
-        let wait_ms = if line.has_pending() || (next_t.is_some() && cfg.time_scale == 0.0) {
+        let wait_ms = if line.has_pending() {
+            // Held back by a delay fault: until it ends (input wakes the wait sooner); else
+            // the terminal took only part of them: a millisecond for it to drain. (Polling
+            // at once here spun a core for the whole delay.)
+            match line.held_until() {
+                Some(t) => {
+                    let us = t.saturating_duration_since(Instant::now()).as_micros();
+                    us.div_ceil(1000).min(20) as i32
+                }
+                None => 1,
+            }
+        } else if next_t.is_some() && cfg.time_scale == 0.0 {
             0
         } else if next_t.is_some() {
             1
