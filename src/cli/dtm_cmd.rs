@@ -389,7 +389,7 @@ fn print_sweep(
     println!(
         "written to {}: {}",
         out.display(),
-        outputs::listed(None, r.model.comparison.is_some())
+        outputs::listed(Some(Writer::Sweep), r.model.comparison.is_some())
     );
     Ok(code)
 }
