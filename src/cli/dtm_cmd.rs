@@ -85,7 +85,8 @@ pub enum DtmAction {
     /// format 2: the same photos, points, heights, grid and sweep parameters, the points as
     /// format 2's CSV (pixel centres at integers). `[pmf] from = "points"` becomes
     /// `[matching] mappings = "points"` (seed 000), `from = "rigorous"` the default
-    /// `mappings = "sensors"` (seed 004). Nothing is overwritten.
+    /// `mappings = "sensors"` (seed 004), `from = "file"` `mappings = "file"` with its file.
+    /// `rig dtm` reads a format-1 project as this very project; nothing is overwritten.
     ///
     /// Examples:
     ///   rig dtm upgrade scene/project.toml                 # writes scene/project-format2.toml
