@@ -721,8 +721,27 @@ fn add_into(a: &mut [f32], b: &[f32]) {
 fn collapse(poly: &crate::matching::mapping::pmf::Polynomial, x: f64, y: f64, a: &mut [f64]) {
     a.iter_mut().for_each(|v| *v = 0.0);
     let u = poly.norm.apply([x, y, poly.norm.centre[2]]);
+    // Each power once (the `powi` a term took, so the same bits), not two a term.
+    const N: usize = 8;
+    let top = poly
+        .terms
+        .iter()
+        .map(|t| t.0.max(t.1) as usize)
+        .max()
+        .unwrap_or(0)
+        .min(N - 1);
+    let (mut p0, mut p1) = ([f64::NAN; N], [f64::NAN; N]);
+    for (k, (a, b)) in p0.iter_mut().zip(&mut p1).enumerate().take(top + 1) {
+        (*a, *b) = (u[0].powi(k as i32), u[1].powi(k as i32));
+    }
     for (t, c) in poly.terms.iter().zip(&poly.coef) {
-        a[t.2 as usize] += c * u[0].powi(t.0 as i32) * u[1].powi(t.1 as i32);
+        let (e0, e1) = (t.0 as usize, t.1 as usize);
+        let (w0, w1) = if e0 < N && e1 < N {
+            (p0[e0], p1[e1])
+        } else {
+            (u[0].powi(t.0 as i32), u[1].powi(t.1 as i32))
+        };
+        a[t.2 as usize] += c * w0 * w1;
     }
 }
 
