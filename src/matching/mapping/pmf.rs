@@ -109,6 +109,21 @@ pub enum PmfError {
     Degenerate { missing: String },
 }
 
+/// How many powers of a variable [`powers`] holds: a polynomial with an exponent this high or
+/// higher takes a `powi` per term instead.
+pub const MOST_POWERS: usize = 8;
+
+/// x⁰ … x^top (`top` < [`MOST_POWERS`]; the rest 1), each the `powi` a term takes, so that
+/// sums built from them are the per-term ones to the last bit.
+#[inline]
+pub fn powers(x: f64, top: u8) -> [f64; MOST_POWERS] {
+    let mut p = [1.0f64; MOST_POWERS];
+    for (k, slot) in p.iter_mut().enumerate().take(top as usize + 1).skip(1) {
+        *slot = x.powi(k as i32);
+    }
+    p
+}
+
 /// One sample: the three variables and the value.
 pub type Sample = ([f64; 3], f64);
 
@@ -119,12 +134,8 @@ impl Polynomial {
         // Each variable's powers once, not three `powi` a term (a sixth of the height sweep's
         // time went to them); each power is the `powi` the term took, so the sum is the same
         // to the last bit.
-        const N: usize = 8;
-        let mut top = [0u8; 3];
-        for t in &self.terms {
-            top = [top[0].max(t.0), top[1].max(t.1), top[2].max(t.2)];
-        }
-        if top.iter().any(|&e| e as usize >= N) {
+        let top = self.top_exponents();
+        if top.iter().any(|&e| e as usize >= MOST_POWERS) {
             return self
                 .terms
                 .iter()
@@ -132,17 +143,26 @@ impl Polynomial {
                 .map(|(t, c)| c * t.eval(u))
                 .sum();
         }
-        let mut pw = [[1.0f64; N]; 3];
-        for ((p, &x), &e) in pw.iter_mut().zip(&u).zip(&top) {
-            for (k, slot) in p.iter_mut().enumerate().take(e as usize + 1).skip(1) {
-                *slot = x.powi(k as i32);
-            }
-        }
+        let pw = [
+            powers(u[0], top[0]),
+            powers(u[1], top[1]),
+            powers(u[2], top[2]),
+        ];
         self.terms
             .iter()
             .zip(&self.coef)
             .map(|(t, c)| c * (pw[0][t.0 as usize] * pw[1][t.1 as usize] * pw[2][t.2 as usize]))
             .sum()
+    }
+
+    /// The highest exponent of each variable over the terms.
+    #[inline]
+    pub fn top_exponents(&self) -> [u8; 3] {
+        let mut top = [0u8; 3];
+        for t in &self.terms {
+            top = [top[0].max(t.0), top[1].max(t.1), top[2].max(t.2)];
+        }
+        top
     }
 
     /// The same polynomial of variables moved by `d` (each new variable is the old one − d):

@@ -539,14 +539,8 @@ fn warped_body(
     let span = bottom - top + 1;
     // The mapping as a polynomial in the normalised height for each reference pixel:
     // q(u) = Σ a_e·uᵉ, so a plane costs a Horner per coordinate, not the full polynomial.
-    let order = map
-        .x
-        .terms
-        .iter()
-        .chain(&map.y.terms)
-        .map(|t| t.2 as usize)
-        .max()
-        .unwrap_or(0);
+    let (top_x, top_y) = (map.x.top_exponents(), map.y.top_exponents());
+    let order = top_x[2].max(top_y[2]) as usize;
     let height = |p: usize| match *planes {
         Planes::Heights { h0, step, .. } => h0 + p as f64 * step,
         Planes::Shifts { .. } => 0.0,
@@ -577,8 +571,8 @@ fn warped_body(
         let y = (top + rr) as f64 + 0.5;
         for c in 0..wl {
             let x = c as f64 + 0.5;
-            collapse(&map.x, x, y, &mut ax);
-            collapse(&map.y, x, y, &mut ay);
+            collapse(&map.x, top_x, x, y, &mut ax);
+            collapse(&map.y, top_y, x, y, &mut ay);
             horner_across(&ax, &us, &mut qxs);
             horner_across(&ay, &uy, &mut qys);
             let o = (rr * wl + c) * np;
@@ -718,30 +712,26 @@ fn add_into(a: &mut [f32], b: &[f32]) {
 }
 
 /// The coefficients of `poly` at (x, y) as a polynomial in its normalised third variable.
-fn collapse(poly: &crate::matching::mapping::pmf::Polynomial, x: f64, y: f64, a: &mut [f64]) {
+fn collapse(
+    poly: &crate::matching::mapping::pmf::Polynomial,
+    top: [u8; 3],
+    x: f64,
+    y: f64,
+    a: &mut [f64],
+) {
+    use crate::matching::mapping::pmf::{powers, MOST_POWERS};
     a.iter_mut().for_each(|v| *v = 0.0);
     let u = poly.norm.apply([x, y, poly.norm.centre[2]]);
-    // Each power once (the `powi` a term took, so the same bits), not two a term.
-    const N: usize = 8;
-    let top = poly
-        .terms
-        .iter()
-        .map(|t| t.0.max(t.1) as usize)
-        .max()
-        .unwrap_or(0)
-        .min(N - 1);
-    let (mut p0, mut p1) = ([f64::NAN; N], [f64::NAN; N]);
-    for (k, (a, b)) in p0.iter_mut().zip(&mut p1).enumerate().take(top + 1) {
-        (*a, *b) = (u[0].powi(k as i32), u[1].powi(k as i32));
+    if top[0] as usize >= MOST_POWERS || top[1] as usize >= MOST_POWERS {
+        for (t, c) in poly.terms.iter().zip(&poly.coef) {
+            a[t.2 as usize] += c * u[0].powi(t.0 as i32) * u[1].powi(t.1 as i32);
+        }
+        return;
     }
+    // Each power once (`top`: the polynomial's highest exponents, found once a band).
+    let (p0, p1) = (powers(u[0], top[0]), powers(u[1], top[1]));
     for (t, c) in poly.terms.iter().zip(&poly.coef) {
-        let (e0, e1) = (t.0 as usize, t.1 as usize);
-        let (w0, w1) = if e0 < N && e1 < N {
-            (p0[e0], p1[e1])
-        } else {
-            (u[0].powi(t.0 as i32), u[1].powi(t.1 as i32))
-        };
-        a[t.2 as usize] += c * w0 * w1;
+        a[t.2 as usize] += c * p0[t.0 as usize] * p1[t.1 as usize];
     }
 }
 

@@ -201,7 +201,7 @@ pub struct Matching {
     /// narrow. Accepted (and ignored) so that older projects still load.
     #[serde(default = "d_true")]
     pub neighbours: bool,
-    /// Where the sweep's mapping functions come from: "sensors" (default) or "points".
+    /// Where the sweep's mapping functions come from: "sensors" (default), "points" or "file".
     #[serde(default)]
     pub mappings: Mappings,
     /// With `mappings = "file"`: the file (relative to the project's directory).

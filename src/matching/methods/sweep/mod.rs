@@ -408,7 +408,7 @@ pub fn finish(run: &Run, plan: &Plan, parts: Vec<PairPart>) -> Result<SweepRepor
     )?;
     // Each pair's mappings in the whole images' pixels, for `mappings = "file"`.
     let whole = |k: usize| {
-        let w = run.photos[k].geometry().window;
+        let w = run.photos[k].window;
         [-(w.col0 as f64), -(w.row0 as f64)]
     };
     let mappings = MappingsFile {

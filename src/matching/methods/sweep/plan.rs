@@ -103,15 +103,22 @@ pub fn plan(
         max_candidates: p.limits.max_candidates_g * 1e9,
     };
     let m = &p.matching;
-    let given = match (&m.mappings, &m.mappings_file) {
+    // A mappings file is read once, before the pairs.
+    let given = match (m.mappings, &m.mappings_file) {
         (Mappings::File, Some(f)) => {
             let ids: Vec<&str> = p.photos.iter().map(|ph| ph.id.as_str()).collect();
-            Some(
+            let file =
                 MappingsFile::read(f, &ids).map_err(|message| MatchingError::GivenMappings {
                     path: f.clone(),
                     message,
-                })?,
-            )
+                })?;
+            Some((f, file))
+        }
+        (Mappings::File, None) => {
+            return Err(MatchingError::GivenMappings {
+                path: p.path.clone(),
+                message: "[matching] mappings = \"file\" names no mappings_file".into(),
+            })
         }
         _ => None,
     };
@@ -130,9 +137,26 @@ pub fn plan(
             .pmf_grid
             .map(|[n, levels]| SampleGrid { n, levels })
             .unwrap_or_default();
-        let pmfs = match m.mappings {
-            Mappings::Sensors => PmfSet::from_sensors_on(l, r, heights, m.order, grid, set),
-            Mappings::Points => {
+        let failed = |message: String| MatchingError::Mappings {
+            left: li.clone(),
+            right: ri.clone(),
+            message,
+        };
+        let pmfs = match (&given, m.mappings) {
+            (Some((f, given)), _) => {
+                let (a, b) = (photos[i].window, photos[j].window);
+                let set = given
+                    .pair(li, ri)
+                    .map_err(|message| MatchingError::GivenMappings {
+                        path: (*f).clone(),
+                        message,
+                    })?;
+                set.moved(
+                    [a.col0 as f64, a.row0 as f64],
+                    [b.col0 as f64, b.row0 as f64],
+                )
+            }
+            (None, Mappings::Points) => {
                 let shared = |kind| {
                     shared_points(
                         &oriented.observations,
@@ -142,32 +166,13 @@ pub fn plan(
                     )
                 };
                 PmfSet::from_points_with(m.order, set, &shared(Kind::Gcp), &shared(Kind::Cp))
+                    .map_err(|e| failed(format!(
+                        "fitted to the control points both photos show ([matching] mappings = \"points\"): {e}"
+                    )))?
             }
-            Mappings::File => {
-                let (Some(given), Some(f)) = (&given, &m.mappings_file) else {
-                    unreachable!("the project checks that mappings = \"file\" names its file")
-                };
-                let (a, b) = (photos[i].window, photos[j].window);
-                let set = given.pair(li, ri).map_err(|message| MatchingError::GivenMappings {
-                    path: f.clone(),
-                    message,
-                })?;
-                Ok(set.moved(
-                    [a.col0 as f64, a.row0 as f64],
-                    [b.col0 as f64, b.row0 as f64],
-                ))
-            }
-        }
-        .map_err(|e| MatchingError::Mappings {
-            left: li.clone(),
-            right: ri.clone(),
-            message: match m.mappings {
-                Mappings::Sensors | Mappings::File => format!("from the sensors: {e}"),
-                Mappings::Points => format!(
-                    "fitted to the control points both photos show ([matching] mappings = \"points\"): {e}"
-                ),
-            },
-        })?;
+            (None, _) => PmfSet::from_sensors_on(l, r, heights, m.order, grid, set)
+                .map_err(|e| failed(format!("from the sensors: {e}")))?,
+        };
         let (w, h) = l.image_size();
         let h_step = m
             .h_step
