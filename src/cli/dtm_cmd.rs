@@ -115,7 +115,7 @@ fn upgrade(project: &std::path::Path, out: Option<PathBuf>) -> anyhow::Result<i3
                 w.point_count,
                 w.project.display()
             );
-            Ok(0)
+            Ok(rig::exit::OK)
         }
         Err(e) if e.is_usage() => {
             eprintln!("rig dtm upgrade: {e}");
