@@ -13,7 +13,7 @@ their rigorous models and by their RPCs), `rig match pair` on a rectified pair c
 scene, and with --demo `rig demo --seed 3` (two minutes more). A file's hash is its bytes',
 except that JSON documents lose the keys that hold times (any key with "second" or "time" in its
 name), rates in report.html ("830 points/s", "3.2 s") are blanked, the work directory's
-absolute path is read as WORK, and logs (*.jsonl) are left out: those change from run to run. --check prints each file
+absolute path is read as WORK, a session's time stamp (20261129T181352Z) as STAMP, and logs (*.jsonl) are left out: those change from run to run. --check prints each file
 that differs and exits 1.
 """
 import argparse
@@ -26,6 +26,7 @@ import subprocess
 import sys
 
 TIMED = ("second", "time", "started", "finished")
+STAMP = re.compile(rb"\d{8}T\d{6}Z")
 
 
 def strip_times(x):
@@ -41,6 +42,8 @@ def digest(path, work):
         data = f.read()
     # Absolute paths name the work directory, which differs between the two runs.
     data = data.replace(os.path.abspath(work).encode(), b"WORK")
+    # A calibration session's folder is named by the time it began.
+    data = STAMP.sub(b"STAMP", data)
     if path.endswith(".html"):
         data = re.sub(rb"\d[\d.,]*\s*(\w+/s|s)\b", b"RATE", data)
     if path.endswith(".json"):
@@ -59,7 +62,7 @@ def hashes(root):
             if f.endswith(".jsonl") or f.endswith(".log"):
                 continue
             p = os.path.join(d, f)
-            out[os.path.relpath(p, root)] = digest(p, root)
+            out[STAMP.sub(b"STAMP", os.path.relpath(p, root).encode()).decode()] = digest(p, root)
     return out
 
 

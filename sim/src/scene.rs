@@ -286,17 +286,62 @@ pub struct AerialPhoto {
     pub t_max: f64,
     #[serde(skip)]
     pub dem: Arc<Dem>,
-    /// Ground (x, y) of the photo grid's nodes, for fast rendering.
+    /// Ground (x, y) of the photo grid's nodes, for fast rendering (shared by clones).
     #[serde(skip)]
-    grid: PhotoGrid,
+    grid: Arc<PhotoGrid>,
 }
 
-#[derive(Debug, Clone, Default)]
+/// The rendering grid's nodes, ray-traced a block at a time when first read: a scan or a
+/// calibration looks at a few per cent of the photo, and tracing all 850 000 nodes took most
+/// of a simulated camera's start. Each node is the same function of its place, so the
+/// rendering is the same, to the bit, whichever block is traced first.
+#[derive(Debug, Default)]
 struct PhotoGrid {
     step_mm: f64,
     half_mm: f64,
+    /// Nodes along each side.
     n: usize,
-    ground: Vec<[f32; 2]>,
+    /// Blocks of BLOCK × BLOCK nodes, row-major, each (x, y) of its nodes row-major.
+    blocks: Vec<OnceLock<Box<[[f32; 2]]>>>,
+}
+
+/// Nodes along a side of one of the grid's blocks.
+const BLOCK: usize = 32;
+
+impl PhotoGrid {
+    fn blocks_across(&self) -> usize {
+        self.n.div_ceil(BLOCK)
+    }
+
+    /// Photo point (mm) of node (i, j).
+    fn node_mm(&self, i: usize, j: usize) -> [f64; 2] {
+        [
+            -self.half_mm + i as f64 * self.step_mm,
+            -self.half_mm + j as f64 * self.step_mm,
+        ]
+    }
+
+    /// Ground (x, y) of node (i, j) of `photo`'s grid.
+    #[inline]
+    fn node(&self, photo: &AerialPhoto, i: usize, j: usize) -> [f32; 2] {
+        let across = self.blocks_across();
+        let (bi, bj) = (i / BLOCK, j / BLOCK);
+        let block = self.blocks[bj * across + bi].get_or_init(|| {
+            // Traced on this thread (not in parallel: a rayon worker waiting here could be
+            // handed a task that waits for this very block).
+            let (i0, j0) = (bi * BLOCK, bj * BLOCK);
+            let mut nodes = Vec::with_capacity(BLOCK * BLOCK);
+            for j in j0..(j0 + BLOCK).min(self.n) {
+                for i in i0..(i0 + BLOCK).min(self.n) {
+                    let g = photo.ground_point(self.node_mm(i, j));
+                    nodes.push([g[0] as f32, g[1] as f32]);
+                }
+            }
+            nodes.into_boxed_slice()
+        });
+        let w = BLOCK.min(self.n - bi * BLOCK);
+        block[(j % BLOCK) * w + i % BLOCK]
+    }
 }
 
 /// The block's layout: base 40 % and strip spacing 70 % of the 230 mm format at the photo
@@ -347,28 +392,17 @@ impl AerialPhoto {
             t_min: 0.05,
             t_max: 0.88,
             dem,
-            grid: PhotoGrid::default(),
+            grid: Arc::default(),
         };
         let step_mm = 0.25;
         let n = (2.0 * half_mm / step_mm).ceil() as usize + 3;
-        let ground = {
-            use rayon::prelude::*;
-            (0..n * n)
-                .into_par_iter()
-                .map(|k| {
-                    let u = -half_mm - step_mm + (k % n) as f64 * step_mm;
-                    let v = -half_mm - step_mm + (k / n) as f64 * step_mm;
-                    let g = p.ground_point([u, v]);
-                    [g[0] as f32, g[1] as f32]
-                })
-                .collect()
-        };
-        p.grid = PhotoGrid {
+        let blocks = n.div_ceil(BLOCK);
+        p.grid = Arc::new(PhotoGrid {
             step_mm,
             half_mm: half_mm + step_mm,
             n,
-            ground,
-        };
+            blocks: (0..blocks * blocks).map(|_| OnceLock::new()).collect(),
+        });
         p
     }
 
@@ -413,10 +447,12 @@ impl AerialPhoto {
         let fy = ((p[1] + g.half_mm) / g.step_mm).clamp(0.0, (g.n - 1) as f64 - 1e-9);
         let (i, j) = (fx.floor() as usize, fy.floor() as usize);
         let (tx, ty) = (fx - i as f64, fy - j as f64);
-        let q = |i: usize, j: usize, k: usize| g.ground[j * g.n + i][k] as f64;
+        let [n00, n10, n01, n11] =
+            [(i, j), (i + 1, j), (i, j + 1), (i + 1, j + 1)].map(|(i, j)| g.node(self, i, j));
         std::array::from_fn(|k| {
-            let a = q(i, j, k) + tx * (q(i + 1, j, k) - q(i, j, k));
-            let b = q(i, j + 1, k) + tx * (q(i + 1, j + 1, k) - q(i, j + 1, k));
+            let q = |n: [f32; 2]| n[k] as f64;
+            let a = q(n00) + tx * (q(n10) - q(n00));
+            let b = q(n01) + tx * (q(n11) - q(n01));
             a + ty * (b - a)
         })
     }

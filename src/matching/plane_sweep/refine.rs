@@ -75,6 +75,38 @@ pub enum RefineFailure {
 }
 
 const MAX_ITERATIONS: usize = 15;
+
+/// The lanes of [`refine`]'s sums (21 used, padded to whole vectors).
+const LANES: usize = 24;
+/// Lane i sums d[PAIRS[i].0]·d[PAIRS[i].1], d = (∂/∂t, ∂/∂t_u, ∂/∂t_v, ∂/∂a, ∂/∂b, e): the
+/// normals' upper triangle row by row, then each derivative times the residual, then e·e;
+/// the padding lanes sum ∂/∂a·∂/∂a and are not read.
+const PAIRS: [(usize, usize); LANES] = [
+    (0, 0),
+    (0, 1),
+    (0, 2),
+    (0, 3),
+    (0, 4),
+    (1, 1),
+    (1, 2),
+    (1, 3),
+    (1, 4),
+    (2, 2),
+    (2, 3),
+    (2, 4),
+    (3, 3),
+    (3, 4),
+    (4, 4),
+    (0, 5),
+    (1, 5),
+    (2, 5),
+    (3, 5),
+    (4, 5),
+    (5, 5),
+    (3, 3),
+    (3, 3),
+    (3, 3),
+];
 /// Converged when the plane changes by less than this.
 const CONVERGED: f64 = 1e-3;
 
@@ -86,17 +118,31 @@ pub struct Window {
     pub k: usize,
 }
 
-/// Refines plane `t0` for reference window `w` of `left`. `locate(u, v, t)` is where reference
-/// point (c + u, r + v) (offsets in pixels from the window centre) lands in `right` on plane
-/// t. The solution must stay within `reach` planes of `t0`.
-pub fn refine(
+built_per_cpu! {
+    /// Refines plane `t0` for reference window `win` of `left`. `locate(u, v, t)` is where
+    /// reference point (c + u, r + v) lands in `right` on plane t; it is asked for the offsets
+    /// (u, v) = (0, 0), (1, 0) and (0, 1) alone. The solution must stay within `reach` planes of
+    /// `t0`. Built per CPU (see `simd`): the sweep refines every matched pixel.
+    pub fn refine[L: Fn(f64, f64, f64) -> [f64; 2]](
+        left: &ImageF32,
+        win: Window,
+        right: &ImageF32,
+        locate: &L,
+        t0: f64,
+        reach: f64,
+    ) -> Result<Refined, RefineFailure> = refine_body;
+}
+
+#[inline(always)]
+fn refine_body<L: Fn(f64, f64, f64) -> [f64; 2]>(
     left: &ImageF32,
-    Window { c, r, k }: Window,
+    win: Window,
     right: &ImageF32,
-    locate: &dyn Fn(f64, f64, f64) -> [f64; 2],
+    locate: &L,
     t0: f64,
     reach: f64,
 ) -> Result<Refined, RefineFailure> {
+    let Window { c, r, k } = win;
     let side = 2 * k + 1;
     let mut lw = Vec::with_capacity(side * side);
     for rr in r - k..=r + k {
@@ -142,28 +188,34 @@ pub fn refine(
                 a = mean_l - b * ms;
             }
         }
-        // The normals' upper triangle (each product once; the lower is the same numbers).
-        let mut up = [[0.0f64; 5]; 5];
-        let mut rhs = V5::zeros();
-        let mut vv = 0.0;
-        for (idx, ((&l, &s), &g)) in lw.iter().zip(&sw).zip(&gw).enumerate() {
-            let (u, v) = (
-                (idx % side) as f64 - k as f64,
-                (idx / side) as f64 - k as f64,
-            );
-            let e = l - (a + b * s);
-            res[idx] = e;
-            // ∂/∂(t, t_u, t_v, a, b) of a + b·s(q(u, v)).
-            let bg = b * g;
-            let d = [bg, bg * u, bg * v, 1.0, s];
-            for (a, row) in up.iter_mut().enumerate() {
-                for b in a..5 {
-                    row[b] += d[a] * d[b];
+        // The normals' upper triangle (each product once; the lower is the same numbers),
+        // the right-hand side and Σe², each a sum over the window in its order, in the lanes
+        // of one array: lane i adds `first[i]·second[i]` (UPPER's pairs of d, then d·e, e·e).
+        let mut acc = [0.0f64; LANES];
+        for jj in 0..side {
+            let v = jj as f64 - k as f64;
+            for ii in 0..side {
+                let idx = jj * side + ii;
+                let u = ii as f64 - k as f64;
+                let (l, s, g) = (lw[idx], sw[idx], gw[idx]);
+                let e = l - (a + b * s);
+                res[idx] = e;
+                // ∂/∂(t, t_u, t_v, a, b) of a + b·s(q(u, v)).
+                let bg = b * g;
+                let d = [bg, bg * u, bg * v, 1.0, s, e];
+                let first: [f64; LANES] = std::array::from_fn(|i| d[PAIRS[i].0]);
+                let second: [f64; LANES] = std::array::from_fn(|i| d[PAIRS[i].1]);
+                for ((acc, x), y) in acc.iter_mut().zip(first).zip(second) {
+                    *acc += x * y;
                 }
             }
-            rhs += V5::from(d) * e;
-            vv += e * e;
         }
+        let mut up = [[0.0f64; 5]; 5];
+        for (lane, &(i, j)) in PAIRS.iter().enumerate().take(15) {
+            up[i][j] = acc[lane];
+        }
+        let rhs = V5::from_fn(|i, _| acc[15 + i]);
+        let vv = acc[20];
         let nm = M5::from_fn(|i, j| up[i.min(j)][i.max(j)]);
         let q_inv = nm.try_inverse().ok_or(RefineFailure::Singular)?;
         let dx = q_inv * rhs;
@@ -236,6 +288,7 @@ fn dependence(e: &[f64], side: usize, vv: f64) -> f64 {
 
 /// The search photo's window of half-size `k` at `q0 + j[0]·u + j[1]·v` (bilinear) into `s`,
 /// and each sample's derivative along `dir` (the bilinear surface's own gradient) into `g`.
+#[inline(always)]
 fn sample(
     img: &ImageF32,
     q0: [f64; 2],

@@ -309,8 +309,26 @@ pub fn sweep_bands(
                     let mut sd = height_sigma(w.score as f64, den, p.h_step, p.window * p.window);
                     if p.refine && p.subpixel == Subpixel::Lsm {
                         let px = [c as f64 + 0.5, r as f64 + 0.5];
-                        let locate =
-                            |u: f64, v: f64, t: f64| planes.locate(px[0] + u, px[1] + v, t);
+                        // The mapping at the three points least squares follows, each a
+                        // function of the height alone (the same numbers as the whole
+                        // polynomial's, for a third of the work).
+                        let along = [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0)]
+                            .map(|(u, v)| map.along_height(px[0] + u, px[1] + v));
+                        let locate = |u: f64, v: f64, t: f64| {
+                            let at = match (u == 0.0, v == 0.0, u == 1.0, v == 1.0) {
+                                (true, true, _, _) => &along[0],
+                                (_, true, true, _) => &along[1],
+                                (true, _, _, true) => &along[2],
+                                _ => &None,
+                            };
+                            match at {
+                                Some([x, y]) => {
+                                    let h = p.h_min + t * p.h_step;
+                                    [x.eval(h), y.eval(h)]
+                                }
+                                None => planes.locate(px[0] + u, px[1] + v, t),
+                            }
+                        };
                         let win = Window { c, r, k };
                         match refine(left, win, right, &locate, t, 2.0) {
                             // Beyond the range: the ground is higher or lower than tried;
