@@ -1,33 +1,38 @@
-//! A harness for test binaries whose tests mostly wait (on a simulated board's homing, its
-//! timeouts, a stop's confirmation): libtest runs two tests at a time on a two-core machine,
-//! which leaves it idle for most of their time. These run eight at a time (or as many as
-//! `--test-threads` or `RUST_TEST_THREADS` say), each still on its own simulator.
+//! A harness for the tests that mostly wait (on a simulated board's homing, its timeouts, a
+//! stop's confirmation, a pseudo-terminal's replies): libtest runs two tests at a time on a
+//! two-core machine, which leaves it idle for most of their time. These run sixteen at a time
+//! (or as many as `--test-threads` or `RUST_TEST_THREADS` say), each on its own simulator, all
+//! in one binary (`tests/controllers.rs`), so that they also wait beside one another.
 
-/// Runs `tests` (name, function; a panic fails the test) with libtest's arguments and exits.
-pub fn run(tests: &[(&'static str, fn())]) -> ! {
+/// One module's tests: name and function (a panic fails the test).
+pub type Tests = &'static [(&'static str, fn())];
+
+/// Runs the tests of `groups` (module name, its tests), named `module::test`, with libtest's
+/// arguments, and exits.
+pub fn run(groups: &[(&'static str, Tests)]) -> ! {
     let mut args = libtest_mimic::Arguments::from_args();
     let from_env = std::env::var("RUST_TEST_THREADS")
         .ok()
         .and_then(|v| v.parse().ok());
-    args.test_threads = args.test_threads.or(from_env).or(Some(8));
-    let trials = tests
+    args.test_threads = args.test_threads.or(from_env).or(Some(16));
+    let trials = groups
         .iter()
-        .map(|&(name, f)| {
-            libtest_mimic::Trial::test(name, move || {
-                f();
-                Ok(())
+        .flat_map(|&(module, tests)| {
+            tests.iter().map(move |&(name, f)| {
+                libtest_mimic::Trial::test(format!("{module}::{name}"), move || {
+                    f();
+                    Ok(())
+                })
             })
         })
         .collect();
     libtest_mimic::run(&args, trials).exit()
 }
 
-/// `fn main` running the named test functions through [`run`].
+/// `pub const TESTS`: the named test functions, for [`run`].
 #[macro_export]
 macro_rules! waiting_tests {
     ($($f:ident),* $(,)?) => {
-        fn main() {
-            common::waiting::run(&[$((stringify!($f), $f as fn())),*])
-        }
+        pub const TESTS: $crate::common::waiting::Tests = &[$((stringify!($f), $f as fn())),*];
     };
 }

@@ -7,9 +7,7 @@
 //! its state), never from what the rig said; durations are only generous caps, so that a hang
 //! fails instead of blocking.
 
-mod common;
-
-use common::*;
+use crate::common::*;
 use serde_json::Value;
 use std::io::{Read, Write};
 use std::process::{Command, Stdio};

@@ -1,7 +1,7 @@
 //! The simulated GRBL speaks GRBL 1.1's documented interface, checked byte by byte over its
 //! pseudo-terminal without the rig's client in between.
 
-mod common;
+use crate::common;
 
 use rig_sim::{Dialect, EmbeddedSim, SimConfig};
 use std::io::{Read, Write};
@@ -58,7 +58,6 @@ impl Raw {
     }
 }
 
-#[test]
 fn boot_alarm_lock_home_and_status_reports() {
     let mut g = Raw::open(false);
     // A soft reset prints the banner; with homing enabled and no reference it locks.
@@ -84,7 +83,6 @@ fn boot_alarm_lock_home_and_status_reports() {
     );
 }
 
-#[test]
 fn settings_moves_dwell_and_errors() {
     let mut g = Raw::open(true);
     let out = g.tx(b"$$\n", "ok\r\n");
@@ -133,7 +131,6 @@ fn settings_moves_dwell_and_errors() {
     assert!(!out.contains("unlock"), "{out:?}");
 }
 
-#[test]
 fn realtime_hold_resume_and_jog_cancel() {
     // At real time so the motion is still under way when the real-time bytes arrive.
     let sim = EmbeddedSim::start(SimConfig {
@@ -187,7 +184,6 @@ fn realtime_hold_resume_and_jog_cancel() {
     );
 }
 
-#[test]
 fn client_unlocks_a_soft_limit_alarm_keeping_the_position() {
     use rig::coords::CarriageUm;
     use rig::stage::grbl::GrblController;
@@ -237,3 +233,10 @@ fn client_unlocks_a_soft_limit_alarm_keeping_the_position() {
     assert_eq!((st.state, st.homed), (StageState::Idle, true), "{st:?}");
     assert_eq!(st.position, before.position);
 }
+
+crate::waiting_tests!(
+    boot_alarm_lock_home_and_status_reports,
+    settings_moves_dwell_and_errors,
+    realtime_hold_resume_and_jog_cancel,
+    client_unlocks_a_soft_limit_alarm_keeping_the_position,
+);

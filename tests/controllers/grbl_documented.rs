@@ -5,11 +5,9 @@
 //! (`common/fake_grbl.rs`) plays the boards that misbehave. Truth comes from the simulated
 //! stage itself (where the carriage really is), not from what the rig was told.
 
-mod common;
-#[path = "common/fake_grbl.rs"]
-mod fake_grbl;
+use crate::common;
 
-use fake_grbl::{FakeGrbl, Script};
+use crate::fake_grbl::{FakeGrbl, Script};
 use rig::coords::CarriageUm;
 use rig::stage::grbl::GrblController;
 use rig::stage::{
