@@ -74,6 +74,17 @@ pub trait Sensor {
         Some(d)
     }
 
+    /// ∂(col, row)/∂Z at `g`, pixels per metre: the last column of [`Sensor::partials`], the
+    /// same numbers, for a caller that needs only it (object-space matching follows heights
+    /// alone): by default its two central differences, a third of the work. A model that
+    /// overrides `partials` overrides this too.
+    fn height_partials(&self, g: GroundM) -> Option<[f64; 2]> {
+        const H: f64 = 0.5;
+        let at = |s: f64| self.ground_to_image(GroundM::new(g.x, g.y, g.z + s));
+        let (a, b) = (at(H)?, at(-H)?);
+        Some([(a.col - b.col) / (2.0 * H), (a.row - b.row) / (2.0 * H)])
+    }
+
     /// The covariance (px²) of where the sensor puts `g`, from its orientation's own
     /// uncertainty (a resection's, an RPC's stated error); `None` where the orientation is
     /// taken as exact.
@@ -246,6 +257,10 @@ impl Sensor for Windowed {
         self.sensor.partials(g)
     }
 
+    fn height_partials(&self, g: GroundM) -> Option<[f64; 2]> {
+        self.sensor.height_partials(g)
+    }
+
     fn pointing_covariance(&self, g: GroundM) -> Option<[[f64; 2]; 2]> {
         self.sensor.pointing_covariance(g)
     }
@@ -274,6 +289,10 @@ impl Sensor for PhotoSensor {
 
     fn partials(&self, g: GroundM) -> Option<[[f64; 3]; 2]> {
         self.inner().partials(g)
+    }
+
+    fn height_partials(&self, g: GroundM) -> Option<[f64; 2]> {
+        self.inner().height_partials(g)
     }
 
     fn pointing_covariance(&self, g: GroundM) -> Option<[[f64; 2]; 2]> {
@@ -316,6 +335,7 @@ mod tests {
                 assert!((d[r][c] - want[r][c]).abs() < 1e-6, "{d:?} vs {want:?}");
             }
         }
+        assert_eq!(s.height_partials(g), Some([d[0][2], d[1][2]]));
         let q = s.ground_to_image(g).unwrap();
         let back = s.image_to_ground(q, g.z).unwrap();
         assert!((back.x - g.x).abs() < 1e-6 && (back.y - g.y).abs() < 1e-6);
@@ -354,6 +374,10 @@ mod tests {
                 "{q:?}"
             );
             assert_eq!(w.partials(g), s.partials(g));
+            // The height's column alone is that column, to the bit, through the window too.
+            let d = s.partials(g).unwrap();
+            assert_eq!(s.height_partials(g), Some([d[0][2], d[1][2]]));
+            assert_eq!(w.height_partials(g), Some([d[0][2], d[1][2]]));
         }
         assert!(matches!(
             s.clone().windowed(PixelWindow::whole(3000, 3000)),

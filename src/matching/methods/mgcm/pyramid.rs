@@ -150,6 +150,11 @@ impl Sensor for AtLevel<'_> {
         self.inner.partials(g).map(|d| d.map(|r| r.map(|v| v / s)))
     }
 
+    fn height_partials(&self, g: GroundM) -> Option<[f64; 2]> {
+        let s = self.scale();
+        self.inner.height_partials(g).map(|d| d.map(|v| v / s))
+    }
+
     fn pointing_covariance(&self, g: GroundM) -> Option<[[f64; 2]; 2]> {
         let s2 = self.scale().powi(2);
         self.inner

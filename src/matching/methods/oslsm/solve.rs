@@ -229,14 +229,14 @@ fn observe(photos: &[PhotoView<'_>], sees: &[bool], gr: &Groundel, z: f64, out: 
         let Some([g, gx, gy]) = v.image.bilinear_with_gradient(q.col, q.row) else {
             continue;
         };
-        let Some(d) = v.sensor.partials(p) else {
+        let Some(d) = v.sensor.height_partials(p) else {
             continue;
         };
-        let [noise_g, noise_dz] = noise_gains(q.col, q.row, [d[0][2], d[1][2]]);
+        let [noise_g, noise_dz] = noise_gains(q.col, q.row, d);
         out.push(Obs {
             photo: k,
             g,
-            dg_dz: gx * d[0][2] + gy * d[1][2],
+            dg_dz: gx * d[0] + gy * d[1],
             noise_g,
             noise_dz,
         });
@@ -416,6 +416,9 @@ pub fn refine(
                     let mut bl = DVector::<f64>::zeros(local + 1);
                     let mut row = DVector::<f64>::zeros(local + 1);
                     let mut nz: Vec<usize> = Vec::with_capacity(local + 1);
+                    // The places any observation touched: the posts and the radiometry of
+                    // the photos that see this groundel.
+                    let mut touched = vec![false; local];
                     let bb: f64 = obs
                         .iter()
                         .map(|o| radiometry_at(&radiometry[o.photo], pos)[1].powi(2))
@@ -454,6 +457,9 @@ pub fn refine(
                             }
                             nz.extend(c..c + NR);
                         }
+                        for &i in &nz {
+                            touched[i] = true;
+                        }
                         row[local] = -b;
                         nz.push(local);
                         // row·rowᵀ and row·(−l) where they are not zero: the same sums as
@@ -470,11 +476,20 @@ pub fn refine(
                     if ndd <= 0.0 {
                         return acc;
                     }
-                    for i in 0..local {
+                    // Only where a row or column was touched: elsewhere the term is 0 − 0·x/n_dd,
+                    // +0, which leaves every sum as it is (none is −0: each began at +0). A
+                    // column at a time, down the column-major matrix.
+                    let act: Vec<usize> = (0..local).filter(|&i| touched[i]).collect();
+                    for &i in &act {
                         let ni = nl[(i, local)];
                         rhs[idx[i]] += bl[i] - ni * bl[local] / ndd;
-                        for j in 0..local {
-                            n_mat[(idx[i], idx[j])] += nl[(i, j)] - ni * nl[(j, local)] / ndd;
+                    }
+                    for &j in &act {
+                        let nj = nl[(j, local)];
+                        let col = idx[j];
+                        for &i in &act {
+                            let ni = nl[(i, local)];
+                            n_mat[(idx[i], col)] += nl[(i, j)] - ni * nj / ndd;
                         }
                     }
                     acc
