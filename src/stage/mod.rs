@@ -18,7 +18,7 @@ mod port;
 pub use driver::{Driver, DriverOptions};
 pub use error::{FaultKind, Result, StageError};
 pub use motion::{move_duration, secs, Approach, SoftLimits, TimeoutPolicy};
-pub use port::{LinkOptions, Port};
+pub use port::{LinkOptions, Port, BUSY_GRACE};
 
 use crate::coords::CarriageUm;
 use serde::Serialize;

@@ -27,28 +27,42 @@ pub struct Port {
     cancel: Option<Arc<AtomicBool>>,
 }
 
+/// How long a busy port is waited for before it is reported busy ([`Port::open`]).
+pub const BUSY_GRACE: Duration = Duration::from_millis(250);
+
 /// Read slices are short so deadlines are kept to within this.
 const READ_SLICE: Duration = Duration::from_millis(20);
 
 impl Port {
     /// Opens `path` at `baud`, exclusively: serialport takes `TIOCEXCL` and an exclusive
-    /// `flock`, and reports either refusal as `NoDevice`, which is a busy port.
+    /// `flock`, and reports either refusal as `NoDevice`, which is a busy port. A port busy
+    /// for less than [`BUSY_GRACE`] is waited for: one closed a moment ago can still be held
+    /// by a process that is ending, or by a child forked (by another thread) before the close
+    /// and not yet past its `exec`, which closes the copy.
     pub fn open(path: &Path, baud: u32, link: &LinkOptions) -> Result<Port> {
-        let port = serialport::new(path.to_string_lossy(), baud)
-            .timeout(READ_SLICE)
-            .open_native()
-            .map_err(|e| {
-                if e.kind() == serialport::ErrorKind::NoDevice {
-                    StageError::PortBusy {
-                        path: path.to_path_buf(),
+        let start = Instant::now();
+        let port = loop {
+            match serialport::new(path.to_string_lossy(), baud)
+                .timeout(READ_SLICE)
+                .open_native()
+            {
+                Ok(p) => break p,
+                Err(e) if e.kind() == serialport::ErrorKind::NoDevice => {
+                    if start.elapsed() >= BUSY_GRACE {
+                        return Err(StageError::PortBusy {
+                            path: path.to_path_buf(),
+                        });
                     }
-                } else {
-                    StageError::Open {
+                    std::thread::sleep(Duration::from_millis(10));
+                }
+                Err(e) => {
+                    return Err(StageError::Open {
                         path: path.to_path_buf(),
                         source: e.into(),
-                    }
+                    })
                 }
-            })?;
+            }
+        };
         let wire_log = match &link.wire_log {
             Some(l) => Some(
                 std::fs::OpenOptions::new()

@@ -343,9 +343,36 @@ fn reset_mid_move_is_reported_and_forgets_everything() {
     assert_eq!(l.status().state, State::Unhomed);
 }
 
+/// A port released a moment after the rig asks for it (a process ending, a child between
+/// fork and exec holding a copy) is opened; one held on is reported busy, after the grace.
+fn a_port_released_within_the_grace_opens_and_a_held_one_is_busy() {
+    use rig::stage::{LinkOptions, Port, StageError, BUSY_GRACE};
+    let sim = EmbeddedSim::start(SimConfig {
+        dialect: Dialect::Native,
+        time_scale: 0.0,
+        ..Default::default()
+    })
+    .unwrap();
+    let held = Port::open(&sim.port, 115_200, &LinkOptions::default()).unwrap();
+    let t0 = Instant::now();
+    match Port::open(&sim.port, 115_200, &LinkOptions::default()) {
+        Err(StageError::PortBusy { .. }) => {}
+        Err(e) => panic!("not a busy port: {e}"),
+        Ok(_) => panic!("a held port opened twice"),
+    }
+    assert!(t0.elapsed() >= BUSY_GRACE, "{:?}", t0.elapsed());
+    let release = std::thread::spawn(move || {
+        std::thread::sleep(BUSY_GRACE / 3);
+        drop(held);
+    });
+    Port::open(&sim.port, 115_200, &LinkOptions::default()).expect("released within the grace");
+    release.join().unwrap();
+}
+
 crate::waiting_tests!(
     handshake_identity_and_version_refusal,
     motion_rules_events_and_settings,
     replies_echo_sequence_numbers_and_garbage_is_survived,
     reset_mid_move_is_reported_and_forgets_everything,
+    a_port_released_within_the_grace_opens_and_a_held_one_is_busy,
 );
