@@ -783,20 +783,32 @@ fn finish(
         // Every pair of photos, each with itself included: their residuals share the
         // template's noise, whose effect on the point cancels between photos on opposite
         // sides of the reference and adds up between photos on the same side.
-        for k in 0..rows.len() {
-            for m in 0..rows.len() {
-                let [v] = crate::hac::covariance(
-                    [&hvs[k]],
-                    &psis[k],
-                    [&hvs[m]],
-                    &psis[m],
-                    &inside,
-                    side,
-                    lag,
-                    n_grey as f64 / dof,
-                );
-                hac += v;
+        // Each pair's two orders from one pass (the same numbers as two), summed in the
+        // order of the pairs.
+        let np = rows.len();
+        let mut pair = vec![0.0; np * np];
+        for k in 0..np {
+            for m in k..np {
+                let dof = n_grey as f64 / dof;
+                if k == m {
+                    [pair[k * np + k]] =
+                        crate::hac::variance([&hvs[k]], &psis[k], &inside, side, lag, dof);
+                } else {
+                    ([pair[k * np + m]], [pair[m * np + k]]) = crate::hac::covariance_both_ways(
+                        [&hvs[k]],
+                        &psis[k],
+                        [&hvs[m]],
+                        &psis[m],
+                        &inside,
+                        side,
+                        lag,
+                        dof,
+                    );
+                }
             }
+        }
+        for v in pair {
+            hac += v;
         }
         // Through the reference: Σₖ sₖ·Tₖ (a pointing error of the reference moves every
         // search patch against the model by Tₖ times it).
