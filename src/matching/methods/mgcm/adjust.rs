@@ -794,7 +794,7 @@ fn finish(
                     [pair[k * np + k]] =
                         crate::hac::variance([&hvs[k]], &psis[k], &inside, side, lag, dof);
                 } else {
-                    ([pair[k * np + m]], [pair[m * np + k]]) = crate::hac::covariance_both_ways(
+                    ([pair[k * np + m]], [pair[m * np + k]]) = crate::hac::covariance(
                         [&hvs[k]],
                         &psis[k],
                         [&hvs[m]],
