@@ -17,8 +17,8 @@ pub fn variance<const K: usize>(
 ) -> [f64; K] {
     // A series against itself: lag −d takes the products of lag d, in the same order (each
     // pair the other way round), so half the lags give them all.
-    let t = Lags::new(h, psi, h, psi, inside, n, lag, true);
-    t.total(false, dof)
+    let s = Series { h, psi };
+    Lags::new(s, s, inside, n, lag, true).total(false, dof)
 }
 
 /// The cross term of two series observed at the same pixels (two photos' residuals against
@@ -39,8 +39,16 @@ pub fn covariance<const K: usize>(
     lag: usize,
     dof: f64,
 ) -> ([f64; K], [f64; K]) {
-    let t = Lags::new(h_a, psi_a, h_b, psi_b, inside, n, lag, false);
+    let (a, b) = (Series { h: h_a, psi: psi_a }, Series { h: h_b, psi: psi_b });
+    let t = Lags::new(a, b, inside, n, lag, false);
     (t.total(false, dof), t.total(true, dof))
+}
+
+/// One series over the window: the estimates' influences and the residuals.
+#[derive(Clone, Copy)]
+struct Series<'a, const K: usize> {
+    h: [&'a [f64]; K],
+    psi: &'a [f64],
 }
 
 /// Per lag (dy, dx), row-major from (−l, −l): Σ ψ_a·ψ_b over the pairs, their number, and
@@ -52,17 +60,15 @@ struct Lags<const K: usize> {
 
 impl<const K: usize> Lags<K> {
     /// `mirror`: the two series are one, so the second half of the lags is the first's.
-    #[allow(clippy::too_many_arguments)]
     fn new(
-        h_a: [&[f64]; K],
-        psi_a: &[f64],
-        h_b: [&[f64]; K],
-        psi_b: &[f64],
+        a: Series<'_, K>,
+        b: Series<'_, K>,
         inside: &[bool],
         n: usize,
         lag: usize,
         mirror: bool,
     ) -> Lags<K> {
+        let (h_a, psi_a, h_b, psi_b) = (a.h, a.psi, b.h, b.psi);
         let l = lag.min(n.saturating_sub(1)) as i64;
         let n_i = n as i64;
         let side = (2 * l + 1) as usize;
@@ -121,15 +127,10 @@ impl<const K: usize> Lags<K> {
 
 #[cfg(test)]
 mod tests {
-    /// Uniform numbers in [−½, ½) from `seed` (a linear congruential generator).
+    /// Uniform numbers in [−½, ½) from `seed`.
     fn uniform(seed: u64) -> impl FnMut() -> f64 {
-        let mut state = seed;
-        move || {
-            state = state
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            ((state >> 11) as f64 / (1u64 << 53) as f64) - 0.5
-        }
+        let mut u = crate::test_rng::uniform(seed);
+        move || u() - 0.5
     }
 
     /// The mirrored lags give each number a direct pass over every lag gives, to the bit: a

@@ -21,3 +21,5 @@ pub mod seconds;
 pub mod sim_scene;
 pub mod stage;
 pub mod targets;
+#[cfg(test)]
+mod test_rng;

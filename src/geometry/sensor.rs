@@ -59,17 +59,9 @@ pub trait Sensor {
     /// ∂(col, row)/∂(X, Y, Z) at `g`, pixels per metre: by default central differences of
     /// [`Sensor::ground_to_image`] over ±0.5 m (a model with closed forms overrides it).
     fn partials(&self, g: GroundM) -> Option<[[f64; 3]; 2]> {
-        const H: f64 = 0.5;
         let mut d = [[0.0; 3]; 2];
         for k in 0..3 {
-            let at = |s: f64| {
-                let mut p = [g.x, g.y, g.z];
-                p[k] += s;
-                self.ground_to_image(GroundM::new(p[0], p[1], p[2]))
-            };
-            let (a, b) = (at(H)?, at(-H)?);
-            d[0][k] = (a.col - b.col) / (2.0 * H);
-            d[1][k] = (a.row - b.row) / (2.0 * H);
+            [d[0][k], d[1][k]] = central_difference(self, g, k)?;
         }
         Some(d)
     }
@@ -79,10 +71,7 @@ pub trait Sensor {
     /// alone): by default its two central differences, a third of the work. A model that
     /// overrides `partials` overrides this too.
     fn height_partials(&self, g: GroundM) -> Option<[f64; 2]> {
-        const H: f64 = 0.5;
-        let at = |s: f64| self.ground_to_image(GroundM::new(g.x, g.y, g.z + s));
-        let (a, b) = (at(H)?, at(-H)?);
-        Some([(a.col - b.col) / (2.0 * H), (a.row - b.row) / (2.0 * H)])
+        central_difference(self, g, 2)
     }
 
     /// The covariance (px²) of where the sensor puts `g`, from its orientation's own
@@ -91,6 +80,20 @@ pub trait Sensor {
     fn pointing_covariance(&self, _g: GroundM) -> Option<[[f64; 2]; 2]> {
         None
     }
+}
+
+/// ∂(col, row)/∂(ground coordinate k) at `g` (k = 0, 1, 2: X, Y, Z), pixels per metre: the
+/// central difference of [`Sensor::ground_to_image`] over ±0.5 m, the default of
+/// [`Sensor::partials`] and [`Sensor::height_partials`].
+fn central_difference<S: Sensor + ?Sized>(s: &S, g: GroundM, k: usize) -> Option<[f64; 2]> {
+    const H: f64 = 0.5;
+    let at = |d: f64| {
+        let mut p = [g.x, g.y, g.z];
+        p[k] += d;
+        s.ground_to_image(GroundM::new(p[0], p[1], p[2]))
+    };
+    let (a, b) = (at(H)?, at(-H)?);
+    Some([(a.col - b.col) / (2.0 * H), (a.row - b.row) / (2.0 * H)])
 }
 
 /// A frame photo as a sensor: its camera (collinearity) and which photo point each pixel of

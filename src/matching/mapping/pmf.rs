@@ -189,12 +189,11 @@ impl Polynomial {
     #[inline]
     pub fn along_height(&self, x: f64, y: f64) -> Option<AlongHeight> {
         let n = self.terms.len();
-        let top = self.top_exponents()[2];
+        let [tx, ty, top] = self.top_exponents();
         if n > ALONG_MOST || top as usize >= MOST_POWERS {
             return None;
         }
         let u = self.norm.apply([x, y, self.norm.centre[2]]);
-        let [tx, ty, _] = self.top_exponents();
         let few = (tx as usize) < MOST_POWERS && (ty as usize) < MOST_POWERS;
         let (px, py) = if few {
             (powers(u[0], tx), powers(u[1], ty))
@@ -531,6 +530,8 @@ impl Mapping {
 mod tests {
     use super::*;
 
+    use crate::test_rng::uniform;
+
     /// The powers taken once per variable give each term's value to the last bit, as three
     /// `powi` a term did (tiles and merges compare outputs byte for byte).
     #[test]
@@ -546,13 +547,8 @@ mod tests {
                 scale: [1.7, 0.9, 2.3],
             },
         };
-        let mut s: u64 = 11;
-        let mut r = || {
-            s = s
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (s >> 11) as f64 / (1u64 << 53) as f64 * 4.0 - 2.0
-        };
+        let mut u = uniform(11);
+        let mut r = || 4.0 * u() - 2.0;
         for _ in 0..2000 {
             let v = [r(), r(), r()];
             let u = p.norm.apply(v);
@@ -586,13 +582,8 @@ mod tests {
             Term(2, 0, 1),
             Term(0, 1, 2),
         ];
-        let mut s: u64 = 5;
-        let mut r = || {
-            s = s
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (s >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
-        };
+        let mut u = uniform(5);
+        let mut r = || 2.0 * u() - 1.0;
         for terms in [full_terms(3), few] {
             let p = Polynomial {
                 coef: (0..terms.len()).map(|_| 3.0 * r()).collect(),

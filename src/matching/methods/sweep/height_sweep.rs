@@ -231,6 +231,10 @@ impl HeightMap {
     }
 }
 
+/// The offsets from a window's centre that least squares asks the mapping for
+/// ([`refine`]'s contract).
+const PROBES: [(f64, f64); 3] = [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0)];
+
 /// Matches the rows of bands `bands` of the layout of `left` (see [`SweepLayout`]): each band
 /// is one plane sweep over every height (see [`crate::matching::plane_sweep`]); per pixel the best
 /// correlation above the threshold, refined below the step by least squares (or, where that
@@ -312,16 +316,10 @@ pub fn sweep_bands(
                         // The mapping at the three points least squares follows, each a
                         // function of the height alone (the same numbers as the whole
                         // polynomial's, for a third of the work).
-                        let along = [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0)]
-                            .map(|(u, v)| map.along_height(px[0] + u, px[1] + v));
+                        let along = PROBES.map(|(u, v)| map.along_height(px[0] + u, px[1] + v));
                         let locate = |u: f64, v: f64, t: f64| {
-                            let at = match (u == 0.0, v == 0.0, u == 1.0, v == 1.0) {
-                                (true, true, _, _) => &along[0],
-                                (_, true, true, _) => &along[1],
-                                (true, _, _, true) => &along[2],
-                                _ => &None,
-                            };
-                            match at {
+                            let probe = PROBES.iter().position(|&o| o == (u, v));
+                            match probe.and_then(|k| along[k].as_ref()) {
                                 Some([x, y]) => {
                                     let h = p.h_min + t * p.h_step;
                                     [x.eval(h), y.eval(h)]
