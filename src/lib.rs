@@ -18,6 +18,7 @@ pub mod matching;
 pub mod picture;
 pub mod scan;
 pub mod seconds;
+pub mod service;
 pub mod sim_scene;
 pub mod stage;
 pub mod targets;

@@ -1,6 +1,6 @@
 //! The two halves of the rig, enforced on the sources: the core (images, sensor geometry, least
 //! squares, mapping functions, DEM grids, matchers) imports nothing from the hardware side
-//! (stage, camera, digitise, targets, calibrate, scan, the CLI, the simulator), so that it takes
+//! (stage, camera, digitise, targets, calibrate, scan, the service, the CLI, the simulator), so that it takes
 //! anyone's photos and orientations as plain data; and the simulator never imports the host.
 
 use std::path::{Path, PathBuf};
@@ -19,8 +19,9 @@ const CORE: [&str; 10] = [
     "atomic.rs",
 ];
 /// What the core may not name: modules of the hardware side, and the simulator's crate.
-const HARDWARE: [&str; 9] = [
+const HARDWARE: [&str; 10] = [
     "crate::stage",
+    "crate::service",
     "crate::camera",
     "crate::digitise",
     "crate::targets",
