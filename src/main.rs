@@ -15,6 +15,7 @@ fn main() {
         Command::Camera(a) => cli::camera_cmd::run(a),
         Command::Calibrate(a) => cli::calibrate_cmd::run(a),
         Command::Scan(a) => cli::scan_cmd::run(a),
+        Command::Serve(a) => cli::serve_cmd::run(a),
         Command::Sim(cli::SimCmd {
             action: Some(cli::SimAction::Scene(a)),
             ..

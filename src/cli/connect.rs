@@ -136,7 +136,29 @@ pub struct Hardware {
     pub camera: Box<dyn Camera>,
 }
 
+/// What is left to close once the stage and camera are taken out of [`Hardware`]: the
+/// simulator, if any.
+pub struct Rest {
+    sim: Option<rig_sim::EmbeddedSim>,
+}
+
+impl Rest {
+    /// Stops the simulator (it writes its truth file); call after the stage and camera are
+    /// dropped.
+    pub fn close(self) -> anyhow::Result<()> {
+        match self.sim {
+            Some(s) => s.shutdown().context("stopping the built-in simulator"),
+            None => Ok(()),
+        }
+    }
+}
+
 impl Hardware {
+    /// The stage and camera to own elsewhere (the service's hardware thread), and the rest.
+    pub fn split(self) -> (Box<dyn Stage>, Box<dyn Camera>, Rest) {
+        (self.stage, self.camera, Rest { sim: self.sim })
+    }
+
     /// Closes the hardware; the simulator writes its truth file.
     pub fn close(mut self) -> anyhow::Result<()> {
         if let Some(s) = self.sim.take() {

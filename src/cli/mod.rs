@@ -13,6 +13,7 @@ pub use rig::exit;
 pub mod progress_bar;
 pub mod scan_cmd;
 pub mod scene;
+pub mod serve_cmd;
 pub mod stage_cmd;
 pub mod usage;
 
@@ -158,6 +159,22 @@ pub enum Command {
     ///
     #[command(verbatim_doc_comment, after_help = exit::TABLE)]
     Scan(scan_cmd::ScanArgs),
+    /// The lab service: hold the stage and camera, run a queue of scans and moves, tell
+    /// clients what happens, show the camera live in the browser.
+    ///
+    /// Examples:
+    ///   rig serve --sim                        (then open http://127.0.0.1:7878/)
+    ///   rig serve --stage /dev/ttyUSB0 --dialect grbl --camera /dev/video0
+    ///   rig serve token add lab-pc --role operator --tokens tokens.toml
+    ///   rig serve --sim --bind 0.0.0.0:7878 --tokens tokens.toml
+    ///
+    /// Everything the service was asked and did is in --data (journal: the queue, the history
+    /// and the running item, synced before each answer; items/ID/: each item's files). Killed,
+    /// it starts again with the running item interrupted at the front of the queue and the
+    /// queue stopped until an operator starts it; a scan continues from its last tile. The
+    /// API is at /api/v1 (GET /api/v1/openapi.json lists it); docs/service.md is the guide.
+    #[command(verbatim_doc_comment, after_help = exit::TABLE)]
+    Serve(serve_cmd::ServeArgs),
     /// Run the simulated stage controller on a pseudo-terminal (same as `rig-sim`).
     ///
     /// Prints the pseudo-terminal's path on its first line (and links it at --stage-link), then

@@ -133,24 +133,11 @@ pub enum ScanAction {
 
 /// The script's calibration; the operator's --limits tighten the recorded soft limits.
 fn calibration(a: &ScanArgs, s: &ScanScript) -> anyhow::Result<ScanCalibration> {
-    let store = &a.sessions.store;
-    let interior = match &s.interior_session {
-        Some(d) => d.clone(),
-        None => rig::calibrate::session::list(store, "interior")?
-            .pop()
-            .with_context(|| {
-                format!(
-                    "{}: [film] names no interior_session and {} has none: run `rig calibrate interior` or name one",
-                    s.path.display(),
-                    store.display()
-                )
-            })?,
-    };
-    let mut cal = ScanCalibration::load(&interior, s.fiducials)?;
-    if let Some(l) = &a.conn.port.limits {
-        cal.rig.limits = cal.rig.limits.intersect(l);
-    }
-    Ok(cal)
+    Ok(ScanCalibration::for_script(
+        s,
+        &a.sessions.store,
+        a.conn.port.limits.as_ref(),
+    )?)
 }
 
 fn duration(s: f64) -> String {

@@ -15,7 +15,7 @@ pub use average::{average_frames, average_frames_into, Averaged, Averager};
 pub use capture::{capture, CaptureError, Captured};
 pub use flat::FlatField;
 pub use lowpass::seed_lowpass;
-pub use stretch::{stretch, Stretch};
+pub use stretch::{look8, stretch, Stretch};
 pub use stripes::{estimate_stripes, estimate_stripes_where, remove_stripes, StripeEstimate};
 
 /// Why digitisation could not go on.

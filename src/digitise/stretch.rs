@@ -39,6 +39,34 @@ pub fn stretch(img: &ImageF32, low_pct: f64, high_pct: f64) -> (Vec<u16>, Stretc
     )
 }
 
+/// An 8-bit look for the operator (a scan's preview, the service's live view): block averages of
+/// `value(index)` over a `width` × `height` image, at most `max_side` px across, contrast
+/// stretched over the 0.5–99.5 % range. Returns (width, height, grey bytes).
+pub fn look8(
+    width: usize,
+    height: usize,
+    max_side: usize,
+    value: impl Fn(usize) -> f32,
+) -> (usize, usize, Vec<u8>) {
+    let k = width.max(height).div_ceil(max_side.max(1)).max(1);
+    let (w, h) = (width / k, height / k);
+    let mut small = ImageF32::new(w.max(1), h.max(1));
+    for r in 0..h {
+        for c in 0..w {
+            let mut s = 0.0;
+            for j in 0..k {
+                for i in 0..k {
+                    s += value((r * k + j) * width + c * k + i);
+                }
+            }
+            small.data[r * w + c] = s / (k * k) as f32;
+        }
+    }
+    let (v, _) = stretch(&small, 0.5, 99.5);
+    let bytes = v.iter().map(|&x| (x >> 8) as u8).collect();
+    (small.width, small.height, bytes)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

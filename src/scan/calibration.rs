@@ -112,6 +112,29 @@ fn recorded_path(session: &Path, recorded: &Path, fallback_name: &str) -> Option
 }
 
 impl ScanCalibration {
+    /// The calibration a script scans with: its `[film] interior_session`, else the newest
+    /// interior session in `store`; `limits` (the operator's) tighten the recorded soft limits.
+    pub fn for_script(
+        s: &crate::scan::ScanScript,
+        store: &Path,
+        limits: Option<&crate::stage::SoftLimits>,
+    ) -> Result<Self, crate::scan::ScanError> {
+        let interior = match &s.interior_session {
+            Some(d) => d.clone(),
+            None => crate::calibrate::session::list(store, "interior")?
+                .pop()
+                .ok_or_else(|| crate::scan::ScanError::NoInterior {
+                    script: s.path.clone(),
+                    store: store.to_path_buf(),
+                })?,
+        };
+        let mut cal = ScanCalibration::load(&interior, s.fiducials)?;
+        if let Some(l) = limits {
+            cal.rig.limits = cal.rig.limits.intersect(l);
+        }
+        Ok(cal)
+    }
+
     pub fn load(interior: &Path, version: FiducialVersion) -> Result<Self, CalibrationError> {
         let results_path = interior.join(crate::calibrate::session::RESULTS);
         let doc = |e: DocumentError| err(&e.path, e.message);

@@ -59,6 +59,8 @@ pub enum ScanError {
     },
     #[error(transparent)]
     Calibration(#[from] super::calibration::CalibrationError),
+    #[error("{script}: [film] names no interior_session and {store} has none: run `rig calibrate interior` or name one")]
+    NoInterior { script: PathBuf, store: PathBuf },
     #[error(transparent)]
     Plan(#[from] super::plan::PlanError),
     #[error("{dir}/manifest.json does not agree with the scan's script and calibration: {detail}. The manifest was edited or belongs to another scan: restore it, or scan into a new directory")]
@@ -309,7 +311,7 @@ impl ScanDir {
 }
 
 /// A tile's file, relative to the scan directory.
-fn tile_file(id: &str) -> String {
+pub fn tile_file(id: &str) -> String {
     format!("{TILES}/{id}.tiff")
 }
 
@@ -619,28 +621,13 @@ pub fn mosaic_region(
 /// An 8-bit look at the photo for the operator (at most 1600 px across, contrast stretched
 /// over the 0.5–99.5 % range); the TIFF is the data.
 fn preview(path: &Path, grid: &PhotoGrid, px: &[u16]) -> std::io::Result<()> {
-    let k = grid.width.max(grid.height).div_ceil(1600).max(1);
-    let (w, h) = (grid.width / k, grid.height / k);
-    let mut small = ImageF32::new(w.max(1), h.max(1));
-    for r in 0..h {
-        for c in 0..w {
-            let mut s = 0.0;
-            for j in 0..k {
-                for i in 0..k {
-                    s += px[(r * k + j) * grid.width + c * k + i] as f32;
-                }
-            }
-            small.data[r * w + c] = s / (k * k) as f32;
-        }
-    }
-    let (v, _) = crate::digitise::stretch(&small, 0.5, 99.5);
-    let bytes: Vec<u8> = v.iter().map(|&x| (x >> 8) as u8).collect();
+    let (pw, ph, bytes) = crate::digitise::look8(grid.width, grid.height, 1600, |i| px[i] as f32);
     crate::atomic::write_with(path, |w| {
         image::write_buffer_with_format(
             w,
             &bytes,
-            small.width as u32,
-            small.height as u32,
+            pw as u32,
+            ph as u32,
             image::ExtendedColorType::L8,
             image::ImageFormat::Png,
         )

@@ -7,5 +7,15 @@
 //! follows bluesky's queue server (a queue of plans; pause, resume, stop, abort, halt; a
 //! history) and Micro-Manager's live view.
 
+pub mod auth;
+pub mod events;
+pub mod hardware;
+pub mod http;
 pub mod journal;
+pub mod ledger;
+pub mod openapi;
 pub mod queue;
+pub mod runner;
+pub mod server;
+pub mod task;
+pub mod work;

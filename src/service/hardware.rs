@@ -1,0 +1,448 @@
+//! The one thread that owns the stage and the camera for the service's lifetime. Their I/O
+//! blocks (serial reads, frame waits), so it stays on this plain thread; the async side sends
+//! it [`Command`]s and awaits the replies. The running item is interrupted through
+//! [`Control`], which the async side sets directly while this thread is busy: a deferred pause
+//! or a stop is seen at the next tile boundary, an immediate pause, an abort or a halt cancel
+//! the stage's wait at once (the driver then stops the stages), and a halt resets the
+//! controller after that (as Micro-Manager's devices are owned by one core and probe-rs's
+//! probe by one session).
+
+use super::events::{Bus, Kind};
+use super::queue::{ItemId, Task};
+use crate::camera::Camera;
+use crate::coords::CarriageUm;
+use crate::stage::{Stage, StageError, StageStatus};
+use serde::Serialize;
+use serde_json::json;
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{mpsc, Arc, Mutex};
+use std::time::Duration;
+use tokio::sync::oneshot;
+
+/// The devices the service holds, and what closes them (the simulator writes its truth).
+pub struct Devices {
+    pub stage: Box<dyn Stage>,
+    pub camera: Box<dyn Camera>,
+    pub close: Box<dyn FnOnce() -> Result<(), String>>,
+}
+
+/// Opens the devices on the hardware thread, given the flag that cancels a stage wait.
+pub type Opener = Box<dyn FnOnce(Arc<AtomicBool>) -> Result<Devices, String> + Send>;
+
+/// What the operator asked of the running item.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Interrupt {
+    /// Pause at the next tile (deferred).
+    Pause,
+    /// End the item at the next tile, done.
+    Stop,
+    /// Pause now: feed hold; the tile being taken is taken again on resume.
+    PauseNow,
+    /// Stop the stages now; the item goes back to the front for a new attempt.
+    Abort,
+    /// Reset the controller now.
+    Halt,
+}
+
+/// How the running item is interrupted from outside the hardware thread.
+pub struct Control {
+    /// Seen by the scan at each tile boundary.
+    pub pause: AtomicBool,
+    /// Cancels the stage's current wait (the driver stops the stages).
+    cancel: Arc<AtomicBool>,
+    wanted: Mutex<Option<Interrupt>>,
+}
+
+impl Control {
+    fn new(cancel: Arc<AtomicBool>) -> Control {
+        Control {
+            pause: AtomicBool::new(false),
+            cancel,
+            wanted: Mutex::new(None),
+        }
+    }
+
+    /// Asks the running item to be interrupted; the stronger of two requests wins (a halt
+    /// after a pause is a halt).
+    pub fn interrupt(&self, i: Interrupt) {
+        let mut w = self.wanted.lock().unwrap_or_else(|e| e.into_inner());
+        *w = Some(w.map_or(i, |old| old.max(i)));
+        self.pause.store(true, Ordering::SeqCst);
+        if i >= Interrupt::PauseNow {
+            self.cancel.store(true, Ordering::SeqCst);
+        }
+    }
+
+    /// What was asked, clearing every flag for the next item.
+    fn take(&self) -> Option<Interrupt> {
+        self.pause.store(false, Ordering::SeqCst);
+        self.cancel.store(false, Ordering::SeqCst);
+        self.wanted.lock().unwrap_or_else(|e| e.into_inner()).take()
+    }
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum DeviceError {
+    #[error(transparent)]
+    Stage(#[from] StageError),
+    #[error(transparent)]
+    Camera(#[from] crate::camera::CameraError),
+    #[error(transparent)]
+    Capture(#[from] crate::digitise::CaptureError),
+    #[error("the hardware is busy with item {0}: pause it or wait")]
+    Busy(ItemId),
+    #[error("the hardware thread has ended")]
+    Gone,
+    #[error("{0}")]
+    Other(String),
+}
+
+/// How a run of an item ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Ended {
+    Done,
+    Failed,
+    /// Paused (deferred or at once); running it again continues it.
+    Paused,
+    Stopped,
+    Aborted,
+    Halted,
+}
+
+#[derive(Debug, Clone)]
+pub struct Ran {
+    pub ended: Ended,
+    pub message: Option<String>,
+    pub result: Option<serde_json::Value>,
+}
+
+/// A frame for the live view: PNG bytes, where it was taken and its number.
+#[derive(Debug, Clone)]
+pub struct Look {
+    pub png: Arc<Vec<u8>>,
+    pub number: u64,
+    pub at: Option<CarriageUm>,
+    pub taken: std::time::Instant,
+}
+
+type Reply<T> = oneshot::Sender<Result<T, DeviceError>>;
+
+pub enum Command {
+    Status(Reply<StageStatus>),
+    Jog {
+        delta: CarriageUm,
+        reply: Reply<CarriageUm>,
+    },
+    /// Take a live frame now (idle only).
+    Look(Reply<Look>),
+    /// Run (or continue) an item.
+    Run {
+        id: ItemId,
+        task: Task,
+        dir: PathBuf,
+        reply: oneshot::Sender<Ran>,
+    },
+    /// Reset the controller at once (when no item runs; a running item is halted through
+    /// [`Control`]).
+    Halt(Reply<String>),
+    Close(oneshot::Sender<Result<(), String>>),
+}
+
+/// Where the work's files go and what it is checked against.
+#[derive(Debug, Clone)]
+pub struct Settings {
+    /// Calibration sessions (`rig calibrate --store`).
+    pub store: PathBuf,
+    /// The operator's soft limits (intersected with the controller's).
+    pub limits: Option<crate::stage::SoftLimits>,
+    pub max_memory_mib: u64,
+    /// Frames averaged for a live frame.
+    pub look_frames: u32,
+}
+
+/// The async side's end of the hardware thread.
+pub struct Handle {
+    tx: mpsc::Sender<Command>,
+    pub control: Arc<Control>,
+    /// The id of the item running on the thread (0: none).
+    busy: Arc<AtomicU64>,
+    /// The newest live frame (or scan tile).
+    pub last_look: Arc<Mutex<Option<Look>>>,
+    /// The soft limits in force on the stage (the controller's and the operator's).
+    pub limits: crate::stage::SoftLimits,
+    thread: Mutex<Option<std::thread::JoinHandle<()>>>,
+}
+
+impl Handle {
+    /// Sends a command; the reply comes on the channel the command carries.
+    pub fn send(&self, c: Command) -> Result<(), DeviceError> {
+        self.tx.send(c).map_err(|_| DeviceError::Gone)
+    }
+
+    pub fn busy_with(&self) -> Option<ItemId> {
+        match self.busy.load(Ordering::SeqCst) {
+            0 => None,
+            n => Some(n - 1),
+        }
+    }
+
+    /// Asks a command with a reply and awaits it.
+    pub async fn ask<T>(&self, make: impl FnOnce(Reply<T>) -> Command) -> Result<T, DeviceError> {
+        if let Some(id) = self.busy_with() {
+            return Err(DeviceError::Busy(id));
+        }
+        let (tx, rx) = oneshot::channel();
+        self.send(make(tx))?;
+        rx.await.map_err(|_| DeviceError::Gone)?
+    }
+
+    /// Closes the devices and ends the thread.
+    pub fn close(&self) -> Result<(), String> {
+        let (tx, rx) = oneshot::channel();
+        if self.tx.send(Command::Close(tx)).is_err() {
+            return Ok(());
+        }
+        let r = rx.blocking_recv().unwrap_or(Ok(()));
+        if let Some(t) = self.thread.lock().unwrap_or_else(|e| e.into_inner()).take() {
+            let _ = t.join();
+        }
+        r
+    }
+}
+
+/// Starts the hardware thread and opens the devices on it; an error opening them is returned
+/// here, before the service takes any request.
+pub fn spawn(open: Opener, bus: Arc<Bus>, settings: Settings) -> Result<Handle, String> {
+    let cancel = Arc::new(AtomicBool::new(false));
+    let control = Arc::new(Control::new(cancel.clone()));
+    let busy = Arc::new(AtomicU64::new(0));
+    let last_look = Arc::new(Mutex::new(None));
+    let (tx, rx) = mpsc::channel();
+    let (opened_tx, opened_rx) = mpsc::channel();
+    let thread = {
+        let (control, busy, last_look) = (control.clone(), busy.clone(), last_look.clone());
+        std::thread::Builder::new()
+            .name("rig-hardware".into())
+            .spawn(move || {
+                let dev = match open(cancel) {
+                    Ok(d) => {
+                        let _ = opened_tx.send(Ok(d.stage.limits()));
+                        d
+                    }
+                    Err(e) => {
+                        let _ = opened_tx.send(Err(e));
+                        return;
+                    }
+                };
+                Actor {
+                    dev: Some(dev),
+                    control,
+                    busy,
+                    bus,
+                    settings,
+                    last_look,
+                    looks: 0,
+                }
+                .serve(rx)
+            })
+            .map_err(|e| format!("starting the hardware thread: {e}"))?
+    };
+    let limits = opened_rx
+        .recv()
+        .map_err(|_| "the hardware thread ended while opening the devices".to_string())??;
+    Ok(Handle {
+        limits,
+        tx,
+        control,
+        busy,
+        last_look,
+        thread: Mutex::new(Some(thread)),
+    })
+}
+
+struct Actor {
+    dev: Option<Devices>,
+    control: Arc<Control>,
+    busy: Arc<AtomicU64>,
+    bus: Arc<Bus>,
+    settings: Settings,
+    last_look: Arc<Mutex<Option<Look>>>,
+    looks: u64,
+}
+
+/// How often an idle thread reads the stage's position while clients listen.
+const IDLE_POLL: Duration = Duration::from_millis(100);
+
+impl Actor {
+    fn serve(mut self, rx: mpsc::Receiver<Command>) {
+        let mut last: Option<CarriageUm> = None;
+        loop {
+            let c = match rx.recv_timeout(IDLE_POLL) {
+                Ok(c) => c,
+                Err(mpsc::RecvTimeoutError::Timeout) => {
+                    if self.bus.clients() > 0 {
+                        self.poll_position(&mut last);
+                    }
+                    continue;
+                }
+                Err(mpsc::RecvTimeoutError::Disconnected) => break,
+            };
+            let dev = self.dev.as_mut().expect("open until closed");
+            match c {
+                Command::Status(r) => {
+                    let _ = r.send(dev.stage.status().map_err(Into::into));
+                }
+                Command::Jog { delta, reply } => {
+                    let speed = dev.stage.info().max_speed_um_s / 4.0;
+                    let r = dev.stage.jog(delta, speed).map_err(Into::into);
+                    self.control.take();
+                    if let Ok(p) = &r {
+                        self.bus.position(position_json(*p), true);
+                    }
+                    let _ = reply.send(r);
+                }
+                Command::Look(r) => {
+                    let _ = r.send(self.look());
+                }
+                Command::Run {
+                    id,
+                    task,
+                    dir,
+                    reply,
+                } => {
+                    self.busy.store(id + 1, Ordering::SeqCst);
+                    let ran = super::work::run(
+                        &mut super::work::Rig {
+                            dev: self.dev.as_mut().expect("open"),
+                            bus: &self.bus,
+                            control: &self.control,
+                            settings: &self.settings,
+                            last_look: &self.last_look,
+                        },
+                        id,
+                        &task,
+                        &dir,
+                    );
+                    let ran = self.settle(ran);
+                    self.busy.store(0, Ordering::SeqCst);
+                    let _ = reply.send(ran);
+                }
+                Command::Halt(r) => {
+                    self.control.take();
+                    let _ = r.send(self.halt().map_err(Into::into));
+                }
+                Command::Close(r) => {
+                    let d = self.dev.take().expect("open");
+                    drop(d.stage);
+                    drop(d.camera);
+                    let _ = r.send((d.close)());
+                    return;
+                }
+            }
+        }
+        if let Some(d) = self.dev.take() {
+            let _ = (d.close)();
+        }
+    }
+
+    /// Maps a run's end to what the operator asked, resets the controller after a halt, and
+    /// leaves every flag clear for the next item.
+    fn settle(&mut self, mut ran: Ran) -> Ran {
+        let wanted = self.control.take();
+        let asked = match (ran.ended, wanted) {
+            (Ended::Done, _) | (_, None) => return ran,
+            (_, Some(w)) => w,
+        };
+        ran.ended = match asked {
+            Interrupt::Pause | Interrupt::PauseNow => Ended::Paused,
+            Interrupt::Stop => Ended::Stopped,
+            Interrupt::Abort => Ended::Aborted,
+            Interrupt::Halt => {
+                match self.halt() {
+                    Ok(what) => ran.message = Some(what),
+                    Err(e) => {
+                        ran.message = Some(format!("the halt's reset was not confirmed: {e}"));
+                        self.bus
+                            .publish(Kind::Warning, json!({"message": ran.message}));
+                    }
+                }
+                Ended::Halted
+            }
+        };
+        ran
+    }
+
+    /// Resets the controller at once; the stage is then unhomed.
+    fn halt(&mut self) -> Result<String, StageError> {
+        let dev = self.dev.as_mut().expect("open");
+        dev.stage.emergency_stop()?;
+        let st = dev.stage.status()?;
+        self.bus.position(position_json(st.position), true);
+        Ok(format!(
+            "controller reset; the stage is {} and must be homed",
+            if st.homed { "homed" } else { "not homed" }
+        ))
+    }
+
+    fn poll_position(&mut self, last: &mut Option<CarriageUm>) {
+        let dev = self.dev.as_mut().expect("open");
+        match dev.stage.status() {
+            Ok(st) if Some(st.position) != *last => {
+                *last = Some(st.position);
+                self.bus.position(position_json(st.position), false);
+            }
+            Ok(_) => {}
+            Err(e) => {
+                self.bus.publish(
+                    Kind::Warning,
+                    json!({"message": format!("reading the stage's position: {e}")}),
+                );
+            }
+        }
+    }
+
+    fn look(&mut self) -> Result<Look, DeviceError> {
+        let dev = self.dev.as_mut().expect("open");
+        let at = dev.stage.position().ok();
+        let settled = dev.camera.now()?;
+        let c = crate::digitise::capture::capture(
+            dev.camera.as_mut(),
+            self.settings.look_frames,
+            true,
+            Duration::from_secs(2),
+            Some(settled),
+            |_| {},
+        )?;
+        self.looks += 1;
+        let look = Look {
+            png: Arc::new(png_of(&c.image).map_err(|e| DeviceError::Other(e.to_string()))?),
+            number: self.looks,
+            at,
+            taken: std::time::Instant::now(),
+        };
+        *self.last_look.lock().unwrap_or_else(|e| e.into_inner()) = Some(look.clone());
+        Ok(look)
+    }
+}
+
+pub fn position_json(p: CarriageUm) -> serde_json::Value {
+    json!({"x_mm": p.x_mm(), "y_mm": p.y_mm()})
+}
+
+/// The operator's 8-bit look at an image, as PNG bytes (at most 800 px across).
+pub fn png_of(img: &crate::digitise::ImageF32) -> image::ImageResult<Vec<u8>> {
+    let (w, h, grey) = crate::digitise::look8(img.width, img.height, 800, |i| img.data[i]);
+    let mut out = std::io::Cursor::new(Vec::new());
+    image::write_buffer_with_format(
+        &mut out,
+        &grey,
+        w as u32,
+        h as u32,
+        image::ExtendedColorType::L8,
+        image::ImageFormat::Png,
+    )?;
+    Ok(out.into_inner())
+}
