@@ -16,6 +16,9 @@ fn main() {
         Command::Calibrate(a) => cli::calibrate_cmd::run(a),
         Command::Scan(a) => cli::scan_cmd::run(a),
         Command::Serve(a) => cli::serve_cmd::run(a),
+        Command::Queue(a) => cli::client_cmd::queue(a),
+        Command::Run(a) => cli::client_cmd::run(a),
+        Command::Events(a) => cli::client_cmd::events(a),
         Command::Sim(cli::SimCmd {
             action: Some(cli::SimAction::Scene(a)),
             ..

@@ -964,3 +964,106 @@ fn a_damaged_calibration_session_refuses_the_plan() {
         );
     }
 }
+
+/// The lab service runs the same scan twice: once untouched, once killed with SIGKILL at five
+/// points and started again each time. Each restart finds the item interrupted at the front
+/// and the queue stopped; started again it goes on from the last tile; the photos are the
+/// untouched run's, byte for byte.
+#[test]
+fn a_service_killed_five_times_mid_scan_resumes_to_the_same_files() {
+    use common::serve::{wait_for, Server};
+    let (store, i1, _) = calibrated();
+    let d = tempfile::tempdir().unwrap();
+    let data = d.path().join("service");
+    let regions = "[[region]]\nname = \"a\"\nphoto_mm = [-8.0, -5.0, 4.0, 5.0]\n\n[[region]]\nname = \"b\"\nphoto_mm = [2.0, 2.0, 12.0, 9.0]\n";
+    let text = std::fs::read_to_string(script(d.path(), i1, regions, "unused")).unwrap();
+    let args = [
+        "--sim",
+        "--sim-seed",
+        SEED,
+        "--sim-repeatable",
+        "--store",
+        store.to_str().unwrap(),
+    ];
+    let add = |s: &Server, name: &str| {
+        let body = serde_json::json!({"items": [{"task": {"kind": "scan", "name": name, "script": text}}]});
+        let (st, v) = s.call("POST", "/api/v1/queue/items", None, Some(&body.to_string()));
+        assert_eq!(st, 200, "{v}");
+        v["ids"][0].as_u64().unwrap()
+    };
+    let ended = |id: u64| {
+        move |v: &Value| {
+            v["where"] == "history" && v["item"]["state"] == "done" || {
+                assert_ne!(v["item"]["state"], "failed", "item {id}: {v}");
+                false
+            }
+        }
+    };
+    let s = Server::start(&data, &args);
+    let whole = add(&s, "whole");
+    let cut = add(&s, "cut");
+    assert_eq!(s.call("POST", "/api/v1/queue/stop", None, None).0, 200);
+    assert_eq!(s.call("POST", "/api/v1/queue/start", None, None).0, 200);
+    wait_for(&s, &format!("/api/v1/items/{whole}"), 120, ended(whole));
+    s.call("POST", "/api/v1/queue/stop", None, None);
+    let total = {
+        let m: Value = serde_json::from_slice(
+            &std::fs::read(data.join(format!("items/{whole}/scan/manifest.json"))).unwrap(),
+        )
+        .unwrap();
+        m["tiles"].as_array().unwrap().len()
+    };
+    assert!(total >= 8, "{total} tiles");
+    let cut_dir = data.join(format!("items/{cut}/scan"));
+    // Five kill points, different each run (printed), each after at least one more tile.
+    let seed = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap()
+        .as_nanos() as u64;
+    let mut at = Vec::new();
+    let mut k = 0;
+    for i in 0..5u64 {
+        k += 1 + ((seed >> (8 * i)) % 2) as usize;
+        at.push(k.min(total - 1));
+    }
+    eprintln!("{total} tiles; kill -9 of the service at {at:?}");
+    let mut s = s;
+    for (n, &k) in at.iter().enumerate() {
+        assert_eq!(s.call("POST", "/api/v1/queue/start", None, None).0, 200);
+        let t0 = Instant::now();
+        while done_tiles(&cut_dir) < k {
+            assert!(t0.elapsed() < Duration::from_secs(120), "scan stalled");
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        s.kill();
+        s = Server::start(&data, &args);
+        let (_, v) = s.call("GET", &format!("/api/v1/items/{cut}"), None, None);
+        assert_eq!(v["where"], "queue", "{v}");
+        assert_eq!(v["index"], 0, "{v}");
+        let attempts = v["item"]["attempts"].as_array().unwrap();
+        assert_eq!(attempts.len(), n + 1, "{v}");
+        assert_eq!(attempts[n]["outcome"], "interrupted", "{v}");
+        let (_, q) = s.call("GET", "/api/v1/queue", None, None);
+        assert_eq!(
+            q["options"]["running"], false,
+            "the queue waits for an operator: {q}"
+        );
+    }
+    assert_eq!(s.call("POST", "/api/v1/queue/start", None, None).0, 200);
+    let v = wait_for(&s, &format!("/api/v1/items/{cut}"), 120, ended(cut));
+    assert_eq!(v["item"]["attempts"].as_array().unwrap().len(), 6);
+    assert!(
+        v["item"]["result"]["photos"]
+            .as_array()
+            .is_some_and(|p| p.len() == 2),
+        "{v}"
+    );
+    let whole_dir = data.join(format!("items/{whole}/scan"));
+    for f in ["a.tiff", "a.json", "b.tiff", "b.json"] {
+        let (x, y) = (
+            std::fs::read(whole_dir.join(f)).unwrap(),
+            std::fs::read(cut_dir.join(f)).unwrap(),
+        );
+        assert!(x == y, "{f} differs after five kills and resumes");
+    }
+}

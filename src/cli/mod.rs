@@ -2,6 +2,7 @@
 
 pub mod calibrate_cmd;
 pub mod camera_cmd;
+pub mod client_cmd;
 pub mod config;
 pub mod connect;
 pub mod demo;
@@ -175,6 +176,22 @@ pub enum Command {
     /// API is at /api/v1 (GET /api/v1/openapi.json lists it); docs/service.md is the guide.
     #[command(verbatim_doc_comment, after_help = exit::TABLE)]
     Serve(serve_cmd::ServeArgs),
+    /// The queue of a running `rig serve`: add, list, show, move, remove, clear, start, stop.
+    ///
+    /// Examples:
+    ///   rig queue add scan film-12.toml
+    ///   rig queue add move 120 80 --front
+    ///   rig queue list
+    ///   rig queue start
+    ///
+    #[command(verbatim_doc_comment, after_help = exit::TABLE)]
+    Queue(client_cmd::QueueArgs),
+    /// Control the item a `rig serve` runs: pause [--now], resume, stop, abort, halt.
+    #[command(after_help = exit::TABLE)]
+    Run(client_cmd::RunArgs),
+    /// Follow a `rig serve`'s events (one line each; --json for scripts).
+    #[command(after_help = exit::TABLE)]
+    Events(client_cmd::EventsArgs),
     /// Run the simulated stage controller on a pseudo-terminal (same as `rig-sim`).
     ///
     /// Prints the pseudo-terminal's path on its first line (and links it at --stage-link), then

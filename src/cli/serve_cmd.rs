@@ -26,7 +26,7 @@ pub struct ServeArgs {
     pub data: PathBuf,
     /// Tokens file (SHA-256 digests and roles; `rig serve token add` writes it). Without it,
     /// only this machine can connect, with every right.
-    #[arg(long, value_name = "FILE")]
+    #[arg(long, value_name = "FILE", global = true)]
     pub tokens: Option<PathBuf>,
     /// Memory a scan's plan may take, MiB.
     #[arg(long, default_value_t = rig::scan::plan::DEFAULT_MAX_MEMORY_MIB, value_name = "MIB")]

@@ -2,6 +2,7 @@
 //! invocations, and the simulator's truth file.
 #![allow(dead_code)]
 
+pub mod serve;
 pub mod waiting;
 
 use serde_json::Value;

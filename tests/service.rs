@@ -1,0 +1,430 @@
+//! `rig serve` end to end on the simulator: who may do what, a server open to the network
+//! without tokens, hostile requests, and events that no client loses.
+
+mod common;
+
+use common::serve::{call, Server};
+use serde_json::{json, Value};
+use std::io::{BufRead, BufReader, Read, Write};
+use std::time::{Duration, Instant};
+
+fn tokens(dir: &std::path::Path) -> (std::path::PathBuf, [String; 3]) {
+    let path = dir.join("tokens.toml");
+    let mut out = Vec::new();
+    for (name, role) in [("o", "observer"), ("p", "operator"), ("a", "admin")] {
+        let o = common::rig()
+            .args(["serve", "token", "add", name, "--role", role, "--tokens"])
+            .arg(&path)
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        out.push(String::from_utf8(o.stdout).unwrap().trim().to_string());
+    }
+    let text = std::fs::read_to_string(&path).unwrap();
+    for t in &out {
+        assert!(!text.contains(t.as_str()), "a token in clear in the file");
+    }
+    (path, [out[0].clone(), out[1].clone(), out[2].clone()])
+}
+
+/// The routes as the service lists them: (method, path, role).
+fn routes(s: &Server, token: &str) -> Vec<(String, String, Option<String>)> {
+    let (st, doc) = s.call("GET", "/api/v1/openapi.json", Some(token), None);
+    assert_eq!(st, 200);
+    let mut v = Vec::new();
+    for (path, ops) in doc["paths"].as_object().unwrap() {
+        for (m, op) in ops.as_object().unwrap() {
+            v.push((
+                m.to_uppercase(),
+                path.replace("{id}", "0"),
+                op["x-role"].as_str().map(String::from),
+            ));
+        }
+    }
+    v
+}
+
+#[test]
+fn every_route_answers_each_role_as_the_roles_say() {
+    let d = tempfile::tempdir().unwrap();
+    let (file, [obs, op, admin]) = tokens(d.path());
+    let s = Server::start(
+        &d.path().join("data"),
+        &["--sim", "--tokens", file.to_str().unwrap()],
+    );
+    let rank = |r: &str| {
+        ["observer", "operator", "admin"]
+            .iter()
+            .position(|x| *x == r)
+            .unwrap()
+    };
+    let all = routes(&s, &obs);
+    assert!(all.len() >= 20, "{all:?}");
+    let mut checked = 0;
+    for (m, path, role) in &all {
+        if path.ends_with("/shutdown") {
+            continue;
+        }
+        for (who, tok) in [
+            (None, None),
+            (Some(0), Some(obs.as_str())),
+            (Some(1), Some(op.as_str())),
+            (Some(2), Some(admin.as_str())),
+        ] {
+            let body = (m != "GET" && m != "DELETE").then_some("{\"wrong\": 1}");
+            let (st, v) = if path.ends_with("/events") {
+                (events_status(&s.url, tok), Value::Null)
+            } else {
+                s.call(m, path, tok, body)
+            };
+            let want = match (role, who) {
+                (None, _) => None,
+                (Some(_), None) => Some(401),
+                (Some(r), Some(w)) if w < rank(r) => Some(403),
+                _ => None,
+            };
+            match want {
+                Some(code) => assert_eq!(st, code, "{m} {path} as {who:?}: {v}"),
+                None => assert!(
+                    st != 401 && st != 403,
+                    "{m} {path} as {who:?} gave {st}: {v}"
+                ),
+            }
+            checked += 1;
+        }
+    }
+    // An unknown token is refused; shutdown is the admin's alone, and ends the service.
+    assert_eq!(s.call("GET", "/api/v1/status", Some("nope"), None).0, 401);
+    assert_eq!(s.call("POST", "/api/v1/shutdown", Some(&op), None).0, 403);
+    assert_eq!(
+        s.call("POST", "/api/v1/shutdown", Some(&admin), None).0,
+        200
+    );
+    let mut s = s;
+    let t0 = Instant::now();
+    while s.child.try_wait().unwrap().is_none() {
+        assert!(
+            t0.elapsed() < Duration::from_secs(30),
+            "shutdown did not end the service"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    eprintln!("{checked} route × role requests checked");
+}
+
+fn events_status(url: &str, token: Option<&str>) -> u16 {
+    let mut q = common::serve::agent().get(format!("{url}/api/v1/events"));
+    if let Some(t) = token {
+        q = q.header("Authorization", format!("Bearer {t}"));
+    }
+    q.call().unwrap().status().as_u16()
+}
+
+#[test]
+fn a_server_open_to_the_network_needs_tokens() {
+    let d = tempfile::tempdir().unwrap();
+    let o = common::rig()
+        .args(["serve", "--sim", "--bind", "0.0.0.0:0", "--data"])
+        .arg(d.path())
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(1));
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        e.contains("without tokens") && e.contains("--tokens"),
+        "{e}"
+    );
+}
+
+/// Reads events from an SSE stream (sending `last` as Last-Event-ID) until `n` of them are
+/// of kind `queue` or `resync`: (kind, seq) of every event read.
+fn read_events(url: &str, last: Option<u64>, n: usize) -> Vec<(String, u64)> {
+    let mut q = common::serve::agent().get(format!("{url}/api/v1/events"));
+    if let Some(l) = last {
+        q = q.header("Last-Event-ID", l.to_string());
+    }
+    let r = q.call().unwrap();
+    let mut lines = BufReader::new(r.into_body().into_reader()).lines();
+    let mut kind = String::new();
+    let mut out: Vec<(String, u64)> = Vec::new();
+    while out
+        .iter()
+        .filter(|e| e.0 == "queue" || e.0 == "resync")
+        .count()
+        < n
+    {
+        let l = lines.next().unwrap().unwrap();
+        if let Some(k) = l.strip_prefix("event:") {
+            kind = k.trim().into();
+        } else if let Some(d) = l.strip_prefix("data:") {
+            let v: Value = serde_json::from_str(d.trim()).unwrap();
+            out.push((kind.clone(), v["seq"].as_u64().unwrap_or(0)));
+        }
+    }
+    out
+}
+
+/// Twenty clients follow the events while ten edit the queue: every client sees every event
+/// in the same gapless order; a client reconnecting with its last number gets what it missed.
+#[test]
+fn no_client_loses_or_reorders_an_event() {
+    let d = tempfile::tempdir().unwrap();
+    let s = Server::start(&d.path().join("data"), &["--sim"]);
+    let url = s.url.clone();
+    let (_, st) = s.call("GET", "/api/v1/status", None, None);
+    let first = st["next_event"].as_u64().unwrap();
+    const EDITS: usize = 10 * 20;
+    let readers: Vec<_> = (0..20)
+        .map(|_| {
+            let u = url.clone();
+            std::thread::spawn(move || read_events(&u, Some(first - 1), EDITS))
+        })
+        .collect();
+    let writers: Vec<_> = (0..10)
+        .map(|w| {
+            let u = url.clone();
+            std::thread::spawn(move || {
+                for i in 0..20 {
+                    let b = json!({"items": [{"task": {"kind": "move", "x_mm": w as f64, "y_mm": i as f64}}]});
+                    let (st, v) = call(&u, "POST", "/api/v1/queue/items", None, Some(&b.to_string()));
+                    assert_eq!(st, 200, "{v}");
+                }
+            })
+        })
+        .collect();
+    for w in writers {
+        w.join().unwrap();
+    }
+    let seen: Vec<Vec<(String, u64)>> = readers.into_iter().map(|r| r.join().unwrap()).collect();
+    // Every client saw the same numbers, gapless from the first; the stage's position events
+    // are among them.
+    for c in &seen {
+        let seqs: Vec<u64> = c.iter().map(|e| e.1).collect();
+        let want: Vec<u64> = (first..first + seqs.len() as u64).collect();
+        assert_eq!(seqs, want, "a client saw a gap or another order");
+        assert_eq!(c[..EDITS.min(c.len())].len(), EDITS.min(c.len()));
+        assert_eq!(c.iter().filter(|e| e.0 == "queue").count(), EDITS);
+    }
+    let shortest = seen.iter().map(|c| c.len()).min().unwrap();
+    for c in &seen {
+        assert_eq!(
+            c[..shortest],
+            seen[0][..shortest],
+            "two clients saw different events"
+        );
+    }
+    // Reconnecting after event first+99: from first+100 on, replayed.
+    let again = read_events(&url, Some(first + 99), 50);
+    assert_eq!(again.first().unwrap().1, first + 100);
+    let seqs: Vec<u64> = again.iter().map(|e| e.1).collect();
+    assert_eq!(
+        seqs,
+        (first + 100..first + 100 + seqs.len() as u64).collect::<Vec<_>>()
+    );
+    // A number from before the backlog or from another run: told to resync first.
+    assert_eq!(read_events(&url, Some(3), 1)[0].0, "resync");
+    let (_, q) = s.call("GET", "/api/v1/queue", None, None);
+    assert_eq!(q["queue"].as_array().unwrap().len(), EDITS);
+}
+
+/// Hostile requests each end in a typed 4xx with a message, and leave the queue, the stage
+/// and the service as they were.
+#[test]
+fn hostile_requests_are_refused_with_typed_errors() {
+    let d = tempfile::tempdir().unwrap();
+    let s = Server::start(&d.path().join("data"), &["--sim"]);
+    // A half-open connection (a port scan's), and a client that leaves mid-stream: neither
+    // holds the service up.
+    let mut half = std::net::TcpStream::connect(s.url.trim_start_matches("http://")).unwrap();
+    half.write_all(b"GET /api/v1/status HTTP/1.1\r\nHost: x\r\n")
+        .unwrap();
+    {
+        let mut ev = std::net::TcpStream::connect(s.url.trim_start_matches("http://")).unwrap();
+        ev.write_all(b"GET /api/v1/events HTTP/1.1\r\nHost: x\r\n\r\n")
+            .unwrap();
+        let mut b = [0u8; 64];
+        let _ = ev.read(&mut b).unwrap();
+    }
+    let big = format!(
+        "{{\"items\": [{{\"task\": {{\"kind\": \"home\"}}, \"key\": \"{}\"}}]}}",
+        "x".repeat(5 << 20)
+    );
+    let scan = |name: &str, script: &str| {
+        json!({"items": [{"task": {"kind": "scan", "name": name, "script": script}}]}).to_string()
+    };
+    let cases: Vec<(&str, String, Option<String>, u16, &str)> = vec![
+        (
+            "POST",
+            "/api/v1/queue/items".into(),
+            Some("{\"items\": [".into()),
+            400,
+            "malformed_json",
+        ),
+        (
+            "POST",
+            "/api/v1/queue/items".into(),
+            Some(
+                "{\"items\": [{\"task\": {\"kind\": \"move\", \"x_mm\": \"ten\", \"y_mm\": 1}}]}"
+                    .into(),
+            ),
+            422,
+            "wrong_type",
+        ),
+        (
+            "POST",
+            "/api/v1/queue/items".into(),
+            Some("{\"items\": [{\"task\": {\"kind\": \"fly\"}}]}".into()),
+            422,
+            "wrong_type",
+        ),
+        (
+            "POST",
+            "/api/v1/queue/items".into(),
+            Some("{\"items\": [], \"extra\": 1}".into()),
+            422,
+            "wrong_type",
+        ),
+        (
+            "POST",
+            "/api/v1/queue/items".into(),
+            Some("{\"items\": []}".into()),
+            422,
+            "bad_request",
+        ),
+        ("POST", "/api/v1/queue/items".into(), Some(big), 413, "body"),
+        (
+            "POST",
+            "/api/v1/queue/items".into(),
+            Some(
+                "{\"items\": [{\"task\": {\"kind\": \"move\", \"x_mm\": 500, \"y_mm\": 1}}]}"
+                    .into(),
+            ),
+            422,
+            "out_of_limits",
+        ),
+        (
+            "POST",
+            "/api/v1/queue/items".into(),
+            Some(
+                "{\"items\": [{\"task\": {\"kind\": \"move\", \"x_mm\": 1e400, \"y_mm\": 1}}]}"
+                    .into(),
+            ),
+            400,
+            "malformed_json",
+        ),
+        (
+            "POST",
+            "/api/v1/queue/items".into(),
+            Some(scan("../../etc", "x = 1")),
+            422,
+            "bad_task",
+        ),
+        (
+            "POST",
+            "/api/v1/queue/items".into(),
+            Some(scan("ok", "[film]\nname = 3")),
+            422,
+            "bad_task",
+        ),
+        (
+            "POST",
+            "/api/v1/queue/items".into(),
+            Some(
+                "{\"items\": [{\"task\": {\"kind\": \"home\"}}], \"at\": {\"before\": 77}}".into(),
+            ),
+            404,
+            "no_item",
+        ),
+        (
+            "POST",
+            "/api/v1/queue/items".into(),
+            Some("{\"items\": [{\"task\": {\"kind\": \"home\"}}], \"at\": {\"index\": 9}}".into()),
+            422,
+            "bad_position",
+        ),
+        ("GET", "/api/v1/items/12345".into(), None, 404, "no_item"),
+        (
+            "GET",
+            "/api/v1/items/..%2F..%2Fetc".into(),
+            None,
+            400,
+            "bad_id",
+        ),
+        (
+            "DELETE",
+            "/api/v1/queue/items/-1".into(),
+            None,
+            400,
+            "bad_id",
+        ),
+        (
+            "POST",
+            "/api/v1/queue/items/5/move".into(),
+            Some("{\"to\": \"front\"}".into()),
+            404,
+            "no_item",
+        ),
+        ("POST", "/api/v1/run/resume".into(), None, 409, "state"),
+        ("POST", "/api/v1/run/pause".into(), None, 409, "state"),
+        ("POST", "/api/v1/run/abort".into(), None, 409, "state"),
+        ("POST", "/api/v1/run/stop".into(), None, 409, "state"),
+        (
+            "POST",
+            "/api/v1/run/pause".into(),
+            Some("{\"immediate\": \"yes\"}".into()),
+            422,
+            "bad_body",
+        ),
+        (
+            "POST",
+            "/api/v1/stage/jog".into(),
+            Some("{\"dx_mm\": 1e9, \"dy_mm\": 0}".into()),
+            422,
+            "bad_jog",
+        ),
+        ("GET", "/api/v1/nothing/here".into(), None, 404, "no_route"),
+    ];
+    let n = cases.len();
+    for (m, path, body, code, kind) in cases {
+        let (st, v) = s.call(m, &path, None, body.as_deref());
+        assert_eq!(st, code, "{m} {path}: {v}");
+        assert_eq!(v["error"], kind, "{m} {path}: {v}");
+        assert!(v["message"].as_str().is_some_and(|m| !m.is_empty()), "{v}");
+    }
+    // Nothing of it was queued, and the service still answers.
+    let (st, q) = s.call("GET", "/api/v1/queue", None, None);
+    assert_eq!(st, 200);
+    assert_eq!(q["queue"].as_array().unwrap().len(), 0, "{q}");
+    // Ten thousand items in one batch are taken; one more is refused, typed.
+    let batch = json!({"items": vec![json!({"task": {"kind": "home"}}); 10_000]}).to_string();
+    let (st, v) = s.call("POST", "/api/v1/queue/items", None, Some(&batch));
+    assert_eq!(st, 200, "{v}");
+    let (st, v) = s.call(
+        "POST",
+        "/api/v1/queue/items",
+        None,
+        Some("{\"items\": [{\"task\": {\"kind\": \"home\"}}]}"),
+    );
+    assert_eq!((st, v["error"].as_str()), (507, Some("queue_full")), "{v}");
+    let (st, _) = s.call("POST", "/api/v1/queue/clear", None, None);
+    assert_eq!(st, 200);
+    // A storm of pauses, resumes and aborts with nothing running: each refused, typed.
+    for i in 0..60 {
+        let p = [
+            "/api/v1/run/pause",
+            "/api/v1/run/resume",
+            "/api/v1/run/abort",
+        ][i % 3];
+        let (st, v) = s.call("POST", p, None, None);
+        assert_eq!((st, v["error"].as_str()), (409, Some("state")), "{p}: {v}");
+    }
+    // Halt from idle resets the controller; the stage then needs homing and says so.
+    let (st, v) = s.call("POST", "/api/v1/run/halt", None, None);
+    assert_eq!(st, 200, "{v}");
+    let (_, v) = s.call("GET", "/api/v1/status", None, None);
+    assert_eq!(v["stage"]["homed"], false, "{v}");
+    drop(half);
+    eprintln!(
+        "{n} hostile requests, a 10 000-item batch, a full queue, 60 control requests: each typed"
+    );
+}
