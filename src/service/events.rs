@@ -189,7 +189,8 @@ mod tests {
             [13, 14, 15, 16]
         );
         // Beyond the backlog, or from another run: told to resync.
-        for _ in 0..BACKLOG {
+        // (One more than the ring holds, so that `a`, which read none of them, lags.)
+        for _ in 0..=BACKLOG {
             bus.publish(Kind::Log, json!(0));
         }
         assert!(bus.subscribe(Some(12)).gap);
