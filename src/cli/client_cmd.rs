@@ -352,13 +352,30 @@ pub fn queue(a: QueueArgs) -> anyhow::Result<i32> {
         QueueAction::Show { id } => {
             let v = c.call("GET", &format!("/api/v1/items/{id}"), None)?;
             print(&v, json, |v| {
-                format!(
+                let mut s = format!(
                     "{}\n  where: {}\n  folder: {}\n  result: {}",
                     item_line(&v["item"]),
                     v["where"].as_str().unwrap_or("?"),
                     v["dir"].as_str().unwrap_or("none yet"),
                     v["item"]["result"]
-                )
+                );
+                for (n, a) in v["item"]["attempts"]
+                    .as_array()
+                    .into_iter()
+                    .flatten()
+                    .enumerate()
+                {
+                    s += &format!(
+                        "\n  attempt {}: {}{}",
+                        n + 1,
+                        a["outcome"].as_str().unwrap_or("running"),
+                        a["message"]
+                            .as_str()
+                            .map(|m| format!(": {m}"))
+                            .unwrap_or_default()
+                    );
+                }
+                s
             });
         }
         QueueAction::Move { id, place } => {
@@ -463,7 +480,15 @@ pub fn events(a: EventsArgs) -> anyhow::Result<i32> {
             if a.server.json {
                 println!("{}", json!({"kind": kind, "event": v}));
             } else {
-                println!("{:>20} {:<9} {}", v["seq"], kind, v["data"]);
+                match &v["seq"] {
+                    Value::Null => println!(
+                        "{:>20} {:<9} {}",
+                        "",
+                        kind,
+                        v["message"].as_str().unwrap_or("")
+                    ),
+                    seq => println!("{:>20} {:<9} {}", seq, kind, v["data"]),
+                }
             }
             use std::io::Write;
             let _ = std::io::stdout().flush();
