@@ -5,7 +5,7 @@ use super::usage::usage_bail;
 use anyhow::Context;
 use clap::{Args, Subcommand};
 use rig::service::auth::{Role, Tokens};
-use rig::service::hardware::{Devices, Settings};
+use rig::service::devices::{Devices, Settings};
 use rig::service::server::{serve, ServeOptions};
 use rig::stage::LinkOptions;
 use std::net::SocketAddr;

@@ -3,8 +3,9 @@
 //! a message; bodies are limited; every request but the event stream has a time limit.
 
 use super::auth::{Role, Tokens};
+use super::devices::{DeviceError, Interrupt};
 use super::events::{Event as BusEvent, Kind};
-use super::hardware::{Command, DeviceError, Interrupt};
+use super::hardware::Command;
 use super::ledger::LedgerError;
 use super::queue::{ItemId, Options, Position, QueueError, Request, Task};
 use super::runner::{item_dir, ControlError, Lab};
@@ -36,7 +37,7 @@ pub struct App {
     /// `None`: no tokens configured (loopback only): every client may do everything.
     pub tokens: Option<Arc<Tokens>>,
     pub limits: crate::stage::SoftLimits,
-    pub settings: super::hardware::Settings,
+    pub settings: super::devices::Settings,
     pub shutdown: Arc<tokio::sync::Notify>,
 }
 
@@ -456,7 +457,7 @@ async fn status(State(app): State<App>) -> Answer {
     });
     let stage = match app.lab.hw.ask(Command::Status).await {
         Ok(st) => {
-            json!({"position": super::hardware::position_json(st.position), "homed": st.homed, "state": format!("{:?}", st.state)})
+            json!({"position": super::devices::position_json(st.position), "homed": st.homed, "state": format!("{:?}", st.state)})
         }
         Err(e) => json!({"unavailable": e.to_string()}),
     };
@@ -738,7 +739,7 @@ async fn jog(State(app): State<App>, Body(b): Body<JogBody>) -> Answer {
         .hw
         .ask(|reply| Command::Jog { delta, reply })
         .await?;
-    ok(json!({"position": super::hardware::position_json(at)}))
+    ok(json!({"position": super::devices::position_json(at)}))
 }
 
 async fn live(State(app): State<App>) -> Result<Response, ApiError> {
@@ -830,7 +831,15 @@ async fn events(
 }
 
 async fn openapi() -> Answer {
-    ok(super::openapi::document())
+    let all = routes();
+    ok(super::openapi::document(all.iter().map(|r| {
+        super::openapi::Described {
+            method: r.method.as_str(),
+            path: r.path,
+            role: r.role,
+            summary: r.summary,
+        }
+    })))
 }
 
 async fn shutdown(State(app): State<App>) -> Answer {

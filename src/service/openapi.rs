@@ -1,12 +1,20 @@
-//! The OpenAPI 3.1 document of the service, made from the one table of routes, so that it
-//! cannot disagree with what the router serves.
+//! The OpenAPI 3.1 document of the service, made from the one table of routes
+//! (`http::routes`), so that it cannot disagree with what the router serves.
 
-use super::http::routes;
+use super::auth::Role;
 use serde_json::{json, Map, Value};
 
-pub fn document() -> Value {
+/// What the document says of a route.
+pub struct Described<'a> {
+    pub method: &'a str,
+    pub path: &'a str,
+    pub role: Option<Role>,
+    pub summary: &'a str,
+}
+
+pub fn document<'a>(routes: impl Iterator<Item = Described<'a>>) -> Value {
     let mut paths = Map::new();
-    for r in routes() {
+    for r in routes {
         let entry = paths.entry(r.path.to_string()).or_insert_with(|| json!({}));
         let mut op = json!({
             "summary": r.summary,
@@ -25,7 +33,7 @@ pub fn document() -> Value {
             }
             None => op["security"] = json!([]),
         }
-        entry[r.method.as_str().to_ascii_lowercase()] = op;
+        entry[r.method.to_ascii_lowercase()] = op;
     }
     json!({
         "openapi": "3.1.0",

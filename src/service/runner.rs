@@ -2,8 +2,9 @@
 //! for its end, records it, and in between takes the operator's pause, resume, stop, abort
 //! and halt (bluesky's queue server's verbs, with GRBL's hold and reset beneath them).
 
+use super::devices::{DeviceError, Ended, Interrupt, Ran};
 use super::events::now_ms;
-use super::hardware::{Command, DeviceError, Ended, Handle, Interrupt, Ran};
+use super::hardware::{Command, Handle};
 use super::ledger::{Ledger, LedgerError};
 use super::queue::{Change, ItemId, ItemState, Outcome, Task};
 use std::path::{Path, PathBuf};

@@ -4,7 +4,7 @@
 //! once, stages stopped, and found interrupted at the next start).
 
 use super::auth::Tokens;
-use super::hardware::{Interrupt, Opener, Settings};
+use super::devices::{Interrupt, Opener, Settings};
 use super::http::{router, App};
 use super::ledger::{Ledger, LedgerError};
 use super::runner::Lab;

@@ -2,7 +2,7 @@
 //! within the soft limits, a scan whose script parses and whose plan stays within them (with
 //! the calibration it would scan with). A task refused here never reaches the hardware.
 
-use super::hardware::Settings;
+use super::devices::Settings;
 use super::queue::Task;
 use crate::coords::CarriageUm;
 use crate::scan::{ScanCalibration, ScanScript};

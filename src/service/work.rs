@@ -1,8 +1,8 @@
 //! What an item does on the hardware thread: a home, a move, a scan (as `rig scan run`, into
 //! the item's own folder, continued from its manifest on every later attempt).
 
+use super::devices::{position_json, Control, Devices, Ended, Look, Ran, Settings};
 use super::events::{Bus, Kind};
-use super::hardware::{position_json, Control, Devices, Ended, Look, Ran, Settings};
 use super::queue::{ItemId, Task};
 use crate::coords::CarriageUm;
 use crate::scan::run::{Outcome, Progress, Reopen, RunOptions, ScanRig};
@@ -147,7 +147,7 @@ fn preview(bus: &Bus, last: &Mutex<Option<Look>>, dir: &Path, tile: &str) {
     let Ok(img) = crate::digitise::output::read_tiff16_f32(&path) else {
         return;
     };
-    let Ok(png) = super::hardware::png_of(&img) else {
+    let Ok(png) = super::devices::png_of(&img) else {
         return;
     };
     let number = {
