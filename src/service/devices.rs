@@ -110,12 +110,11 @@ pub struct Ran {
     pub result: Option<serde_json::Value>,
 }
 
-/// A frame for the live view: PNG bytes, where it was taken and its number.
+/// A frame for the live view: PNG bytes, its number and when it was taken.
 #[derive(Debug, Clone)]
 pub struct Look {
     pub png: Arc<Vec<u8>>,
     pub number: u64,
-    pub at: Option<CarriageUm>,
     pub taken: std::time::Instant,
 }
 

@@ -288,7 +288,6 @@ impl Actor {
 
     fn look(&mut self) -> Result<Look, DeviceError> {
         let dev = self.dev.as_mut().expect("open");
-        let at = dev.stage.position().ok();
         let settled = dev.camera.now()?;
         let c = crate::digitise::capture::capture(
             dev.camera.as_mut(),
@@ -302,7 +301,6 @@ impl Actor {
         let look = Look {
             png: Arc::new(png_of(&c.image).map_err(|e| DeviceError::Other(e.to_string()))?),
             number: self.looks,
-            at,
             taken: std::time::Instant::now(),
         };
         *self.last_look.lock().unwrap_or_else(|e| e.into_inner()) = Some(look.clone());

@@ -7,7 +7,7 @@ use super::devices::{DeviceError, Interrupt};
 use super::events::{Event as BusEvent, Kind};
 use super::hardware::Command;
 use super::ledger::LedgerError;
-use super::queue::{ItemId, Options, Position, QueueError, Request, Task};
+use super::queue::{ItemId, Options, Place, Position, QueueError, Request, Task};
 use super::runner::{item_dir, ControlError, Lab};
 use super::task::TaskError;
 use axum::extract::{FromRequest, Path as UrlPath, Request as HttpRequest, State};
@@ -141,15 +141,10 @@ impl<T: serde::de::DeserializeOwned, S: Send + Sync> FromRequest<S> for Body<T> 
                     J::JsonDataError(_) => "wrong_type",
                     J::JsonSyntaxError(_) => "malformed_json",
                     J::MissingJsonContentType(_) => "content_type",
-                    J::BytesRejection(_) => "body",
+                    // Too large (413) or unreadable.
                     _ => "body",
                 };
-                let status = if e.status() == StatusCode::PAYLOAD_TOO_LARGE {
-                    StatusCode::PAYLOAD_TOO_LARGE
-                } else {
-                    e.status()
-                };
-                Err(ApiError::new(status, kind, e.body_text()))
+                Err(ApiError::new(e.status(), kind, e.body_text()))
             }
         }
     }
@@ -495,18 +490,16 @@ fn parse_id(s: &str) -> Result<ItemId, ApiError> {
 
 async fn item(State(app): State<App>, UrlPath(id): UrlPath<String>) -> Answer {
     let id = parse_id(&id)?;
-    let found = app.lab.ledger.read(|s| {
-        let place = if s.queue.iter().any(|i| i.id == id) {
-            "queue"
-        } else if s.running.as_ref().is_some_and(|i| i.id == id) {
-            "running"
-        } else {
-            "history"
-        };
-        s.find(id)
-            .map(|i| (i.clone(), place, s.queue.iter().position(|i| i.id == id)))
-    });
-    let (it, place, index) = found.ok_or(QueueError::NoItem(id))?;
+    let (it, place) = app
+        .lab
+        .ledger
+        .read(|s| s.locate(id).map(|(i, p)| (i.clone(), p)))
+        .ok_or(QueueError::NoItem(id))?;
+    let (place, index) = match place {
+        Place::Queue(k) => ("queue", Some(k)),
+        Place::Running => ("running", None),
+        Place::History => ("history", None),
+    };
     let dir = item_dir(&app.lab.data, id);
     ok(json!({"item": it, "where": place, "index": index, "dir": dir.exists().then_some(dir)}))
 }
@@ -527,9 +520,11 @@ struct AddBody {
 }
 
 async fn add(State(app): State<App>, Body(b): Body<AddBody>) -> Answer {
-    if b.items.len() > super::queue::MAX_QUEUED {
+    // Refused before each task is checked (a scan's check plans it).
+    let queued = app.lab.ledger.read(|s| s.queue.len());
+    if queued + b.items.len() > super::queue::MAX_QUEUED {
         return Err(QueueError::Full {
-            queued: 0,
+            queued,
             adding: b.items.len(),
         }
         .into());

@@ -91,6 +91,15 @@ pub struct Item {
     pub result: Option<Value>,
 }
 
+/// Where an item is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Place {
+    /// Waiting, at this index.
+    Queue(usize),
+    Running,
+    History,
+}
+
 /// Where to put items in the queue.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "snake_case")]
@@ -213,13 +222,23 @@ pub enum QueueError {
 }
 
 impl State {
+    /// The item with `id` and where it is.
+    pub fn locate(&self, id: ItemId) -> Option<(&Item, Place)> {
+        if let Some(k) = self.queue.iter().position(|i| i.id == id) {
+            return Some((&self.queue[k], Place::Queue(k)));
+        }
+        if let Some(i) = self.running.as_ref().filter(|i| i.id == id) {
+            return Some((i, Place::Running));
+        }
+        self.history
+            .iter()
+            .find(|i| i.id == id)
+            .map(|i| (i, Place::History))
+    }
+
     /// The item with `id` wherever it is.
     pub fn find(&self, id: ItemId) -> Option<&Item> {
-        self.queue
-            .iter()
-            .chain(self.running.as_ref())
-            .chain(self.history.iter())
-            .find(|i| i.id == id)
+        self.locate(id).map(|(i, _)| i)
     }
 
     fn by_key(&self, key: &str) -> Option<&Item> {

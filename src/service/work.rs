@@ -156,7 +156,6 @@ fn preview(bus: &Bus, last: &Mutex<Option<Look>>, dir: &Path, tile: &str) {
         *l = Some(Look {
             png: Arc::new(png),
             number: n,
-            at: None,
             taken: std::time::Instant::now(),
         });
         n
