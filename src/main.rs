@@ -6,8 +6,10 @@ use clap::Parser;
 use cli::{Cli, Command};
 
 fn main() {
-    quiet_on_closed_pipe();
     let cli = Cli::parse();
+    if !serves_clients(&cli.command) {
+        quiet_on_closed_pipe();
+    }
     cli::init_logging(&cli.verbosity);
     limit_simd_from_env();
     let code = match cli.command {
@@ -49,11 +51,22 @@ fn main() {
     }
 }
 
+/// The servers (`rig serve`, `rig sim`) keep SIGPIPE ignored, as Rust leaves it: a client that
+/// vanishes while a reply is written is an error on that connection, never the end of the
+/// service (hyper writes with `writev`, which raises SIGPIPE where `send` would not).
+fn serves_clients(c: &Command) -> bool {
+    match c {
+        Command::Serve(a) => a.action.is_none(),
+        Command::Sim(cli::SimCmd { action, .. }) => action.is_none(),
+        _ => false,
+    }
+}
+
 /// A closed pipe (`rig … | head`) ends the program quietly, as it ends any Unix tool, instead of
 /// a panic at the next print. The commands print before or after motion, never during it, and
 /// a scan ended so resumes from its checkpoint.
 fn quiet_on_closed_pipe() {
-    // SAFETY: called first thing in main, before any other thread exists; SIG_DFL is a valid
+    // SAFETY: called first thing after parsing the arguments, before any other thread exists; SIG_DFL is a valid
     // disposition for SIGPIPE.
     unsafe {
         libc::signal(libc::SIGPIPE, libc::SIG_DFL);

@@ -227,6 +227,46 @@ fn no_client_loses_or_reorders_an_event() {
     assert_eq!(q["queue"].as_array().unwrap().len(), EDITS);
 }
 
+/// Clients that vanish while events are written to them (a close, a reset, then another write:
+/// EPIPE) leave the service answering: the process must not die of SIGPIPE, which the CLI's
+/// other commands take by default.
+#[test]
+fn clients_vanishing_mid_write_never_end_the_service() {
+    let d = tempfile::tempdir().unwrap();
+    let mut s = Server::start(&d.path().join("data"), &["--sim"]);
+    let host = s.url.trim_start_matches("http://").to_string();
+    let done = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    // Three writers keep events coming while the readers come and go.
+    let writers: Vec<_> = (0..3)
+        .map(|w| {
+            let (u, done) = (s.url.clone(), done.clone());
+            std::thread::spawn(move || {
+                let mut n = 0;
+                while !done.load(std::sync::atomic::Ordering::Relaxed) {
+                    let b = json!({"items": [{"task": {"kind": "move", "x_mm": w as f64, "y_mm": 1.0}}]});
+                    let (st, v) = call(&u, "POST", "/api/v1/queue/items", None, Some(&b.to_string()));
+                    assert_eq!(st, 200, "{v}");
+                    n += 1;
+                }
+                n
+            })
+        })
+        .collect();
+    for _ in 0..400 {
+        let mut ev = std::net::TcpStream::connect(&host).unwrap();
+        ev.write_all(b"GET /api/v1/events HTTP/1.1\r\nHost: x\r\n\r\n")
+            .unwrap();
+        let mut b = [0u8; 256];
+        let _ = ev.read(&mut b).unwrap();
+        // Dropped mid-stream, some of it unread.
+    }
+    done.store(true, std::sync::atomic::Ordering::Relaxed);
+    let added: usize = writers.into_iter().map(|w| w.join().unwrap()).sum();
+    assert!(s.child.try_wait().unwrap().is_none(), "the service ended");
+    let (_, q) = s.call("GET", "/api/v1/queue", None, None);
+    assert_eq!(q["queue"].as_array().unwrap().len(), added);
+}
+
 /// Hostile requests each end in a typed 4xx with a message, and leave the queue, the stage
 /// and the service as they were.
 #[test]

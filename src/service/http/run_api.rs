@@ -1,0 +1,113 @@
+//! Control of the running item, the stage's jog, the live frame and the service's end.
+
+use super::error::{ApiError, Body};
+use super::{ok, Answer, App, LOOK_AGE};
+use crate::service::devices::{DeviceError, Interrupt};
+use crate::service::hardware::Command;
+use axum::extract::State;
+use axum::http::{header, StatusCode};
+use axum::response::{IntoResponse, Response};
+use serde::Deserialize;
+use serde_json::json;
+
+#[derive(Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+pub(super) struct PauseBody {
+    #[serde(default)]
+    immediate: bool,
+}
+
+pub(super) async fn pause(State(app): State<App>, body: axum::body::Bytes) -> Answer {
+    // No body: a deferred pause.
+    let b: PauseBody = if body.iter().all(|c| c.is_ascii_whitespace()) {
+        PauseBody::default()
+    } else {
+        serde_json::from_slice(&body).map_err(|e| {
+            ApiError::new(StatusCode::UNPROCESSABLE_ENTITY, "bad_body", e.to_string())
+        })?
+    };
+    let id = app.lab.pause(b.immediate)?;
+    ok(json!({"id": id, "immediate": b.immediate}))
+}
+
+pub(super) async fn resume(State(app): State<App>) -> Answer {
+    ok(json!({"id": app.lab.resume()?}))
+}
+
+pub(super) async fn run_stop(State(app): State<App>) -> Answer {
+    ok(json!({"id": app.lab.end(Interrupt::Stop).await?}))
+}
+
+pub(super) async fn abort(State(app): State<App>) -> Answer {
+    ok(json!({"id": app.lab.end(Interrupt::Abort).await?}))
+}
+
+pub(super) async fn halt(State(app): State<App>) -> Answer {
+    ok(json!({"id": app.lab.end(Interrupt::Halt).await?}))
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct JogBody {
+    dx_mm: f64,
+    dy_mm: f64,
+}
+
+pub(super) async fn jog(State(app): State<App>, Body(b): Body<JogBody>) -> Answer {
+    let span = (app.limits.max.x_mm() - app.limits.min.x_mm())
+        .max(app.limits.max.y_mm() - app.limits.min.y_mm());
+    for (f, v) in [("dx_mm", b.dx_mm), ("dy_mm", b.dy_mm)] {
+        if !(v.is_finite() && v.abs() <= span) {
+            return Err(ApiError::new(
+                StatusCode::UNPROCESSABLE_ENTITY,
+                "bad_jog",
+                format!("{f} = {v}: a jog is at most the travel, ±{span:.1} mm"),
+            ));
+        }
+    }
+    let delta = crate::coords::CarriageUm::from_mm(b.dx_mm, b.dy_mm);
+    let at = app
+        .lab
+        .hw
+        .ask(|reply| Command::Jog { delta, reply })
+        .await?;
+    ok(json!({"position": crate::service::devices::position_json(at)}))
+}
+
+pub(super) async fn live(State(app): State<App>) -> Result<Response, ApiError> {
+    let fresh = {
+        let l = app
+            .lab
+            .hw
+            .last_look
+            .lock()
+            .unwrap_or_else(|e| e.into_inner());
+        l.clone()
+    };
+    let look = match (app.lab.hw.busy_with(), fresh) {
+        // A scan runs: its newest tile.
+        (Some(_), Some(l)) => l,
+        (Some(id), None) => return Err(DeviceError::Busy(id).into()),
+        (None, l) => match l {
+            Some(l) if l.taken.elapsed() < LOOK_AGE => l,
+            _ => app.lab.hw.ask(Command::Look).await?,
+        },
+    };
+    Ok((
+        [
+            (header::CONTENT_TYPE, "image/png".to_string()),
+            (header::CACHE_CONTROL, "no-store".to_string()),
+            (
+                header::HeaderName::from_static("x-frame-number"),
+                look.number.to_string(),
+            ),
+        ],
+        look.png.as_ref().clone(),
+    )
+        .into_response())
+}
+
+pub(super) async fn shutdown(State(app): State<App>) -> Answer {
+    app.shutdown.notify_one();
+    ok(json!({"shutting_down": true}))
+}
