@@ -9,6 +9,7 @@ pub mod history;
 pub mod interior;
 pub mod pixel;
 pub mod plot;
+pub mod run;
 pub mod session;
 
 pub use affine_fit::{fit, Fit, FitError, Model};

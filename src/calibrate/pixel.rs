@@ -71,6 +71,9 @@ pub enum CalibrateError {
     Fit(#[from] FitError),
     #[error("{0}")]
     NotFound(String),
+    /// Asked to pause (or stop) by the operator; seen before the next move.
+    #[error("interrupted by the operator before the next mark; the session ends here (a calibration's marks are measured in one stretch: resumed, it starts again)")]
+    Interrupted,
     #[error("the flat field at carriage {at} is not clear glass ({dark:.1} % of it is dark): clean the plate there, or calibrate with --no-flat")]
     FlatNotClear { at: CarriageUm, dark: f64 },
 }
@@ -184,6 +187,9 @@ pub struct Rig<'a> {
     /// Divides every image taken (dust, the measuring mark): the pixel session takes it, the
     /// sessions after it reuse it.
     pub flat: Option<crate::digitise::FlatField>,
+    /// Set from outside to end the session before the next move (the service's pause and
+    /// stop); `None`: runs to its end.
+    pub interrupt: Option<&'a std::sync::atomic::AtomicBool>,
 }
 
 impl Rig<'_> {
@@ -193,6 +199,12 @@ impl Rig<'_> {
         at: CarriageUm,
         frames: u32,
     ) -> Result<(CarriageUm, ImageF32), CalibrateError> {
+        if self
+            .interrupt
+            .is_some_and(|i| i.load(std::sync::atomic::Ordering::SeqCst))
+        {
+            return Err(CalibrateError::Interrupted);
+        }
         let s = self.stage.move_to(at)?;
         // Frames captured before the stage stood still are set aside.
         let settled = self.camera.now().map_err(CaptureError::from)?;

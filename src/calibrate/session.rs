@@ -209,6 +209,11 @@ pub fn list(store: &Path, kind: &str) -> std::io::Result<Vec<PathBuf>> {
     Ok(v)
 }
 
+/// The newest session of a kind in the store, if any.
+pub fn newest(store: &Path, kind: &str) -> std::io::Result<Option<PathBuf>> {
+    list(store, kind).map(|mut v| v.pop())
+}
+
 /// `results.json` of a session: what kind of calibration, where, and its result.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct Results<C> {

@@ -4,12 +4,10 @@ use super::connect::{connect, Hardware};
 use super::usage::usage_bail;
 use anyhow::{bail, Context};
 use clap::{Args, Subcommand};
-use rig::calibrate::documents::{InteriorDescriptor, PixelDescriptor, Results};
+use rig::calibrate::run::{Finished, Hands, InteriorJob, PixelJob, SessionError};
 use rig::calibrate::{
-    calibrate_interior, calibrate_pixel, CalibrateError, InteriorOptions, InteriorOrientation,
-    PixelCalibration, PixelOptions, Rig, Session,
+    InteriorOptions, InteriorOrientation, PixelCalibration, PixelOptions, Session,
 };
-use rig::targets::certificate::{CameraCertificate, PlateCertificate};
 use std::path::PathBuf;
 
 /// Options of `rig calibrate` (its help text is on `Command::Calibrate`).
@@ -105,96 +103,61 @@ fn parse_pair(s: &str, what: &str) -> anyhow::Result<[f64; 2]> {
     }
 }
 
-/// A session being run: its directory, the hardware (or simulator), progress output.
-struct Running {
-    session: Session,
-    hw: Hardware,
-    /// The flat field the session divides its images by (an interior session: its pixel
-    /// session's).
-    flat: Option<rig::digitise::FlatField>,
+/// Creates the session's folder (in --store unless --out) and connects the hardware (the
+/// simulator keeps its truth in the session).
+fn begin(
+    a: &CalibrateArgs,
+    out: &Option<PathBuf>,
+    kind: &str,
+    film: bool,
+) -> anyhow::Result<(Session, Hardware)> {
+    let session = match out {
+        Some(d) => Session::create(d),
+        None => Session::new_in_store(&a.sessions.store, kind),
+    }
+    .with_context(|| {
+        format!(
+            "creating the session directory in {}",
+            out.as_deref().unwrap_or(&a.sessions.store).display()
+        )
+    })?;
+    let hw = connect(
+        &a.conn,
+        Some(session.dir.join("sim-truth.json")),
+        film,
+        &Default::default(),
+    )?;
+    Ok((session, hw))
 }
 
-impl Running {
-    fn begin(
-        a: &CalibrateArgs,
-        out: &Option<PathBuf>,
-        kind: &str,
-        film: bool,
-    ) -> anyhow::Result<Self> {
-        let session = match out {
-            Some(d) => Session::create(d),
-            None => Session::new_in_store(&a.sessions.store, kind),
-        }
-        .with_context(|| {
-            format!(
-                "creating the session directory in {}",
-                out.as_deref().unwrap_or(&a.sessions.store).display()
-            )
-        })?;
-        let hw = connect(
-            &a.conn,
-            Some(session.dir.join("sim-truth.json")),
-            film,
-            &Default::default(),
-        )?;
-        Ok(Running {
-            session,
-            hw,
-            flat: None,
-        })
+/// Runs one session (rig::calibrate::run) with a progress display, then closes the hardware.
+/// The calibration's own error comes first; a failure to close the hardware after it is
+/// reported as well, never instead.
+fn run_session<T>(
+    a: &CalibrateArgs,
+    mut hw: Hardware,
+    body: impl FnOnce(Hands) -> Result<Finished<T>, SessionError>,
+) -> anyhow::Result<Finished<T>> {
+    let mut steps = super::progress_bar::Steps::new(a.output.json);
+    let mut progress = |st: rig::calibrate::pixel::Step<'_>| steps.step(st.what, st.of);
+    let r = body(Hands {
+        stage: hw.stage.as_mut(),
+        camera: hw.camera.as_mut(),
+        progress: &mut progress,
+        interrupt: None,
+    });
+    steps.finish();
+    let closed = hw.close();
+    if let (Err(_), Err(c)) = (&r, &closed) {
+        eprintln!("rig: also, closing the hardware failed: {c:#}");
     }
-
-    /// Runs `body` with the rig, then records the outcome, stops the simulator, and returns
-    /// the results document.
-    fn run<T: serde::Serialize>(
-        mut self,
-        a: &CalibrateArgs,
-        kind: &str,
-        body: impl FnOnce(&mut Rig) -> Result<T, CalibrateError>,
-    ) -> anyhow::Result<(T, serde_json::Value, PathBuf)> {
-        let mut steps = super::progress_bar::Steps::new(a.output.json);
-        let mut progress = |st: rig::calibrate::pixel::Step<'_>| steps.step(st.what, st.of);
-        let r = body(&mut Rig {
-            stage: self.hw.stage.as_mut(),
-            camera: self.hw.camera.as_mut(),
-            session: &mut self.session,
-            progress: &mut progress,
-            flat: self.flat.take(),
-        });
-        steps.finish();
-        let result = match r {
-            Ok(c) => {
-                let results = Results {
-                    kind: kind.to_string(),
-                    session: self.session.dir.clone(),
-                    calibration: &c,
-                };
-                self.session.write_results(&results)?;
-                let doc = serde_json::to_value(&results)?;
-                self.session.stop("done", None)?;
-                Ok((c, doc))
-            }
-            Err(e) => {
-                let _ = self.session.stop("failed", Some(&e.to_string()));
-                Err(e)
-            }
-        };
-        let dir = self.session.dir.clone();
-        // The calibration's own error comes first; a failure to close the hardware after it is
-        // reported as well, never instead.
-        let closed = self.hw.close();
-        if let (Err(_), Err(c)) = (&result, &closed) {
-            eprintln!("rig: also, closing the hardware failed: {c:#}");
-        }
-        let (c, doc) = result.with_context(|| {
-            format!(
-                "calibration failed (stored as failed, not used as the latest); the session so far is in {}",
-                dir.display()
-            )
-        })?;
-        closed?;
-        Ok((c, doc, dir))
-    }
+    let done = r.map_err(|e| match e {
+        SessionError::Calibrate { .. } => anyhow::Error::new(e)
+            .context("calibration failed (stored as failed, not used as the latest)"),
+        e => e.into(),
+    })?;
+    closed?;
+    Ok(done)
 }
 
 fn check_frames(frames: u32) -> anyhow::Result<()> {
@@ -225,11 +188,11 @@ pub fn run(a: CalibrateArgs) -> anyhow::Result<i32> {
             if plate_cert.is_none() && !a.conn.sim.on {
                 usage_bail!("--plate-cert FILE is needed (the carriage plate's certificate; docs/calibration.md shows its format)");
             }
-            let mut run = Running::begin(&a, out, "pixel", false)?;
-            let cert_path = match (plate_cert, &run.hw.sim) {
+            let (session, hw) = begin(&a, out, "pixel", false)?;
+            let cert_path = match (plate_cert, &hw.sim) {
                 (Some(p), _) => p.clone(),
                 (None, Some(s)) => {
-                    let p = run.session.dir.join("plate-cert.toml");
+                    let p = session.dir.join("plate-cert.toml");
                     std::fs::write(
                         &p,
                         rig_sim::certificates::plate_certificate(&s.world.plate, s.world.seed),
@@ -239,32 +202,26 @@ pub fn run(a: CalibrateArgs) -> anyhow::Result<i32> {
                 }
                 (None, None) => unreachable!("checked above"),
             };
-            let plate = PlateCertificate::load(&cert_path)?;
-            let opt = PixelOptions {
-                frames: *frames,
-                grid: *grid,
-                nominal_um_per_px: nominal,
-                home: !no_home,
-                all_crosses: !grid_only,
-                flat_field: !no_flat,
-                ..Default::default()
-            };
-            run.session.start(
-                "pixel",
-                &PixelDescriptor {
-                    plate_certificate: cert_path.clone(),
-                    plate: plate.name.clone(),
-                    camera: run.hw.camera.info(),
-                    stage: run.hw.stage.info().clone(),
-                    frames: opt.frames,
-                    grid: opt.grid,
-                    patch: opt.patch,
-                    blur_px: opt.blur_px,
+            let job = PixelJob {
+                plate_certificate: cert_path,
+                options: PixelOptions {
+                    frames: *frames,
+                    grid: *grid,
                     nominal_um_per_px: nominal,
-                    sim: a.conn.sim.on,
+                    home: !no_home,
+                    all_crosses: !grid_only,
+                    flat_field: !no_flat,
+                    ..Default::default()
                 },
-            )?;
-            let (c, doc, dir) = run.run(&a, "pixel", |rig| calibrate_pixel(rig, &plate, &opt))?;
+                sim: a.conn.sim.on,
+            };
+            let Finished {
+                calibration: c,
+                results: doc,
+                dir,
+            } = run_session(&a, hw, |hands| {
+                rig::calibrate::run::pixel(session, hands, &job)
+            })?;
             if a.output.json {
                 println!("{doc}");
             } else {
@@ -338,21 +295,13 @@ pub fn run(a: CalibrateArgs) -> anyhow::Result<i32> {
                         )
                     })?,
             };
-            let pixel = rig::calibrate::documents::pixel_transform(&pixel_dir)?;
-            let flat_path = pixel_dir.join(rig::calibrate::pixel::FLAT);
-            let flat = match flat_path.exists() {
-                true => Some(
-                    rig::digitise::FlatField::load(&flat_path)
-                        .with_context(|| format!("reading {}", flat_path.display()))?,
-                ),
-                false => None,
-            };
-            let mut run = Running::begin(&a, out, "interior", true)?;
-            run.flat = flat;
-            let cert_path = match (camera_cert, &run.hw.sim) {
+            // Read before a session folder is made or the hardware opened.
+            rig::calibrate::documents::pixel_transform(&pixel_dir)?;
+            let (session, hw) = begin(&a, out, "interior", true)?;
+            let cert_path = match (camera_cert, &hw.sim) {
                 (Some(p), _) => p.clone(),
                 (None, Some(s)) => {
-                    let p = run.session.dir.join("camera-cert.toml");
+                    let p = session.dir.join("camera-cert.toml");
                     let film = s
                         .world
                         .film
@@ -367,35 +316,24 @@ pub fn run(a: CalibrateArgs) -> anyhow::Result<i32> {
                 }
                 (None, None) => unreachable!("checked above"),
             };
-            let cert = CameraCertificate::load(&cert_path)?;
-            let opt = InteriorOptions {
-                frames: *frames,
-                film_centre: rig::coords::CarriageUm::from_mm(centre[0], centre[1]),
-                ..Default::default()
-            };
-            run.session.start(
-                "interior",
-                &InteriorDescriptor {
-                    camera_certificate: cert_path.clone(),
-                    camera_name: cert.name.clone(),
-                    pixel_session: pixel_dir.clone(),
-                    pixel_to_carriage: pixel,
-                    flat_field: run.flat.is_some().then(|| flat_path.clone()),
-                    camera: run.hw.camera.info(),
-                    stage: run.hw.stage.info().clone(),
-                    frames: opt.frames,
-                    patch: opt.patch,
-                    film_centre_mm: centre,
-                    sim: a.conn.sim.on,
+            let job = InteriorJob {
+                camera_certificate: cert_path,
+                pixel_session: pixel_dir,
+                options: InteriorOptions {
+                    frames: *frames,
+                    film_centre: rig::coords::CarriageUm::from_mm(centre[0], centre[1]),
+                    ..Default::default()
                 },
-            )?;
-            let home = !no_home;
-            let (c, doc, dir) = run.run(&a, "interior", |rig| {
-                if home {
-                    (rig.progress)(rig::calibrate::pixel::Step::note("homing"));
-                    rig.stage.home()?;
-                }
-                calibrate_interior(rig, &cert, &pixel, &opt)
+                home: !no_home,
+                film_centre_mm: centre,
+                sim: a.conn.sim.on,
+            };
+            let Finished {
+                calibration: c,
+                results: doc,
+                dir,
+            } = run_session(&a, hw, |hands| {
+                rig::calibrate::run::interior(session, hands, &job)
             })?;
             if a.output.json {
                 println!("{doc}");

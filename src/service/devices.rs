@@ -115,6 +115,8 @@ pub struct Ran {
 pub struct Look {
     pub png: Arc<Vec<u8>>,
     pub number: u64,
+    /// The image's own size (width, height), camera px: the PNG may be smaller.
+    pub size: [usize; 2],
     pub taken: std::time::Instant,
 }
 

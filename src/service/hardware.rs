@@ -301,6 +301,7 @@ impl Actor {
         let look = Look {
             png: Arc::new(png_of(&c.image).map_err(|e| DeviceError::Other(e.to_string()))?),
             number: self.looks,
+            size: [c.image.width, c.image.height],
             taken: std::time::Instant::now(),
         };
         *self.last_look.lock().unwrap_or_else(|e| e.into_inner()) = Some(look.clone());

@@ -156,6 +156,7 @@ fn preview(bus: &Bus, last: &Mutex<Option<Look>>, dir: &Path, tile: &str) {
         *l = Some(Look {
             png: Arc::new(png),
             number: n,
+            size: [img.width, img.height],
             taken: std::time::Instant::now(),
         });
         n

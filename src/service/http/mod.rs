@@ -2,6 +2,7 @@
 //! route's role, the OpenAPI document and the tests' list. Every error is JSON with a kind and
 //! a message; bodies are limited; every request but the event stream has a time limit.
 
+mod calibration_api;
 mod error;
 mod queue_api;
 mod run_api;
@@ -220,6 +221,20 @@ pub fn routes() -> Vec<Route> {
             get(run_api::live),
         ),
         events,
+        route(
+            Method::GET,
+            "/api/v1/calibration",
+            o,
+            "The newest pixel and interior sessions in the store: figures and plots",
+            get(calibration_api::calibration),
+        ),
+        route(
+            Method::GET,
+            "/api/v1/calibration/{kind}/{file}",
+            o,
+            "One residual plot of the newest session of a kind (PNG)",
+            get(calibration_api::plot),
+        ),
         route(
             Method::GET,
             "/api/v1/openapi.json",

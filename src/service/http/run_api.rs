@@ -101,6 +101,10 @@ pub(super) async fn live(State(app): State<App>) -> Result<Response, ApiError> {
                 header::HeaderName::from_static("x-frame-number"),
                 look.number.to_string(),
             ),
+            (
+                header::HeaderName::from_static("x-image-size"),
+                format!("{},{}", look.size[0], look.size[1]),
+            ),
         ],
         look.png.as_ref().clone(),
     )
