@@ -35,7 +35,7 @@ pub enum SessionError {
     #[error("{source} (the session, stored as failed, is in {dir})")]
     Calibrate {
         dir: PathBuf,
-        source: CalibrateError,
+        source: Box<CalibrateError>,
     },
 }
 
@@ -119,7 +119,10 @@ fn finish<T: serde::Serialize>(
         Err(source) => {
             // The calibration's own error is the one reported; the record of it is best effort.
             let _ = session.stop("failed", Some(&source.to_string()));
-            Err(SessionError::Calibrate { dir, source })
+            Err(SessionError::Calibrate {
+                dir,
+                source: Box::new(source),
+            })
         }
     }
 }
@@ -183,7 +186,7 @@ pub fn interior(
                 camera_certificate: job.camera_certificate.clone(),
                 camera_name: cert.name.clone(),
                 pixel_session: job.pixel_session.clone(),
-                pixel_to_carriage: pixel.clone(),
+                pixel_to_carriage: pixel,
                 flat_field: flat.is_some().then(|| flat_path.clone()),
                 camera: hands.camera.info(),
                 stage: hands.stage.info().clone(),
