@@ -5,7 +5,7 @@ use super::usage::usage_bail;
 use anyhow::Context;
 use clap::{Args, Subcommand};
 use rig::service::auth::{Role, Tokens};
-use rig::service::devices::{Devices, Settings};
+use rig::service::devices::{Devices, Settings, SimCertificates};
 use rig::service::server::{serve, ServeOptions};
 use rig::stage::LinkOptions;
 use std::net::SocketAddr;
@@ -91,6 +91,7 @@ pub fn run(a: ServeArgs) -> anyhow::Result<i32> {
         limits,
         max_memory_mib: a.max_memory,
         look_frames: a.look_frames,
+        sim: a.conn.sim.on,
     };
     let data = a.data.clone();
     let json = a.json;
@@ -107,10 +108,25 @@ pub fn run(a: ServeArgs) -> anyhow::Result<i32> {
             },
         )
         .map_err(|e| format!("{e:#}"))?;
+        let certificates = match &hw.sim {
+            Some(s) => SimCertificates {
+                plate: Some(rig_sim::certificates::plate_certificate(
+                    &s.world.plate,
+                    s.world.seed,
+                )),
+                camera: s
+                    .world
+                    .film
+                    .as_ref()
+                    .map(|f| rig_sim::certificates::camera_certificate(f, s.world.seed)),
+            },
+            None => SimCertificates::default(),
+        };
         let (stage, camera, rest) = hw.split();
         Ok(Devices {
             stage,
             camera,
+            certificates,
             close: Box::new(move || rest.close().map_err(|e| format!("{e:#}"))),
         })
     });

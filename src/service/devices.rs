@@ -15,7 +15,16 @@ use std::sync::{Arc, Mutex};
 pub struct Devices {
     pub stage: Box<dyn Stage>,
     pub camera: Box<dyn Camera>,
+    /// The simulator's own certificates (TOML), for calibration items that name none.
+    pub certificates: SimCertificates,
     pub close: Box<dyn FnOnce() -> Result<(), String>>,
+}
+
+/// The simulator's plate and camera certificates; empty on real hardware.
+#[derive(Debug, Clone, Default)]
+pub struct SimCertificates {
+    pub plate: Option<String>,
+    pub camera: Option<String>,
 }
 
 /// Opens the devices on the hardware thread, given the flag that cancels a stage wait.
@@ -130,6 +139,8 @@ pub struct Settings {
     pub max_memory_mib: u64,
     /// Frames averaged for a live frame.
     pub look_frames: u32,
+    /// The hardware is the simulator (its certificates stand in for ones not given).
+    pub sim: bool,
 }
 
 pub fn position_json(p: CarriageUm) -> serde_json::Value {

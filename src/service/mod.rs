@@ -8,6 +8,7 @@
 //! history) and Micro-Manager's live view.
 
 pub mod auth;
+pub mod calibration;
 pub mod devices;
 pub mod events;
 pub mod hardware;

@@ -11,6 +11,7 @@
 
 use serde::{Deserialize, Serialize};
 use serde_json::Value;
+use std::path::PathBuf;
 
 pub type ItemId = u64;
 
@@ -31,6 +32,54 @@ pub enum Task {
     Move { x_mm: f64, y_mm: f64 },
     /// Scan film by a script (its TOML text); `name` names the output folder.
     Scan { name: String, script: String },
+    /// A pixel calibration session into the store (as `rig calibrate pixel`).
+    CalibratePixel {
+        /// Frames averaged at each position.
+        #[serde(default = "default_frames")]
+        frames: u32,
+        /// Positions per side of the grid.
+        #[serde(default = "default_grid")]
+        grid: usize,
+        /// Only the grid: not the crosses that locate the measuring mark.
+        #[serde(default)]
+        grid_only: bool,
+        /// No flat field.
+        #[serde(default)]
+        no_flat: bool,
+        /// Nominal pixel spacing to start from, µm.
+        #[serde(default = "default_pixel_um")]
+        pixel_um: [f64; 2],
+        /// The plate certificate (a path on the service's machine); with the simulator, its own.
+        #[serde(default)]
+        plate_cert: Option<PathBuf>,
+    },
+    /// An interior orientation session into the store (as `rig calibrate interior`).
+    CalibrateInterior {
+        #[serde(default = "default_frames")]
+        frames: u32,
+        /// Where the film's centre lies on the carriage, roughly, mm.
+        #[serde(default = "default_film_centre")]
+        film_centre_mm: [f64; 2],
+        /// The pixel session to use (default: the newest in the store).
+        #[serde(default)]
+        pixel_session: Option<PathBuf>,
+        /// The film camera's certificate; with the simulator, its own.
+        #[serde(default)]
+        camera_cert: Option<PathBuf>,
+    },
+}
+
+fn default_frames() -> u32 {
+    32
+}
+fn default_grid() -> usize {
+    5
+}
+fn default_pixel_um() -> [f64; 2] {
+    [10.0, 10.0]
+}
+fn default_film_centre() -> [f64; 2] {
+    [125.0, 125.0]
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]

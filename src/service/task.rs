@@ -1,6 +1,7 @@
 //! An item's task is checked when it is added or edited, before anything is queued: a move
 //! within the soft limits, a scan whose script parses and whose plan stays within them (with
-//! the calibration it would scan with). A task refused here never reaches the hardware.
+//! the calibration it would scan with), a calibration's numbers in range and its certificate
+//! at hand. A task refused here never reaches the hardware.
 
 use super::devices::Settings;
 use super::queue::Task;
@@ -76,6 +77,69 @@ pub fn check(task: &Task, limits: &SoftLimits, settings: &Settings) -> Result<()
             crate::scan::plan(&s, &cal, settings.max_memory_mib)?;
             Ok(())
         }
+        Task::CalibratePixel {
+            frames,
+            grid,
+            pixel_um,
+            plate_cert,
+            ..
+        } => {
+            check_frames(*frames)?;
+            if !(2..=15).contains(grid) {
+                return Err(invalid("grid", format!("{grid}: use 2 to 15")));
+            }
+            for v in pixel_um {
+                if !(v.is_finite() && (0.1..=1000.0).contains(v)) {
+                    return Err(invalid("pixel_um", format!("{v}: use 0.1 to 1000 µm")));
+                }
+            }
+            check_certificate("plate_cert", plate_cert, settings)
+        }
+        Task::CalibrateInterior {
+            frames,
+            film_centre_mm,
+            pixel_session,
+            camera_cert,
+        } => {
+            check_frames(*frames)?;
+            for v in film_centre_mm {
+                if !v.is_finite() {
+                    return Err(invalid("film_centre_mm", "finite millimetres"));
+                }
+            }
+            limits.check(CarriageUm::from_mm(film_centre_mm[0], film_centre_mm[1]))?;
+            // Without a name, the newest pixel session when the item runs: an earlier item of
+            // the queue may be the one that makes it.
+            if let Some(d) = pixel_session {
+                crate::calibrate::documents::pixel_transform(d)
+                    .map_err(|e| invalid("pixel_session", e.to_string()))?;
+            }
+            check_certificate("camera_cert", camera_cert, settings)
+        }
+    }
+}
+
+fn check_frames(frames: u32) -> Result<(), TaskError> {
+    match frames {
+        1..=1024 => Ok(()),
+        _ => Err(invalid("frames", format!("{frames}: use 1 to 1024"))),
+    }
+}
+
+/// A certificate must be named on real hardware (the simulator has its own), and be a file.
+fn check_certificate(
+    field: &str,
+    path: &Option<std::path::PathBuf>,
+    settings: &Settings,
+) -> Result<(), TaskError> {
+    match path {
+        None if settings.sim => Ok(()),
+        None => Err(invalid(
+            field,
+            "name the certificate (a TOML file on the service's machine; docs/calibration.md shows its format)",
+        )),
+        Some(p) if p.is_file() => Ok(()),
+        Some(p) => Err(invalid(field, format!("{} is not a file here", p.display()))),
     }
 }
 

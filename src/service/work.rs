@@ -1,5 +1,6 @@
 //! What an item does on the hardware thread: a home, a move, a scan (as `rig scan run`, into
-//! the item's own folder, continued from its manifest on every later attempt).
+//! the item's own folder, continued from its manifest on every later attempt), a calibration
+//! (`calibration`).
 
 use super::devices::{position_json, Control, Devices, Ended, Look, Ran, Settings};
 use super::events::{Bus, Kind};
@@ -40,6 +41,9 @@ pub fn run(rig: &mut Rig, id: ItemId, task: &Task, dir: &Path) -> Ran {
             .map(|p| Some(json!({"position": position_json(p)})))
             .map_err(|e| e.to_string()),
         Task::Scan { script, .. } => scan(rig, id, script, dir),
+        Task::CalibratePixel { .. } | Task::CalibrateInterior { .. } => {
+            super::calibration::run(rig, id, task).map(Some)
+        }
     };
     if let Ok(p) = rig.dev.stage.position() {
         rig.bus.position(position_json(p), true);
