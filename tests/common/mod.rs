@@ -4,6 +4,7 @@
 
 pub mod serve;
 pub mod waiting;
+pub mod webdriver;
 
 use serde_json::Value;
 use std::io::{BufRead, BufReader};
