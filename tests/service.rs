@@ -227,6 +227,83 @@ fn no_client_loses_or_reorders_an_event() {
     assert_eq!(q["queue"].as_array().unwrap().len(), EDITS);
 }
 
+/// Position events come during a motion, not only after it: a long move reports where the
+/// carriage is on its way, at most ten times a second.
+#[test]
+fn position_events_follow_a_motion_at_most_ten_times_a_second() {
+    let d = tempfile::tempdir().unwrap();
+    let s = Server::start(
+        &d.path().join("data"),
+        // A tenth of real time: a 250 mm move takes about a second.
+        &["--sim", "--sim-time-scale", "0.1"],
+    );
+    let (_, st) = s.call("GET", "/api/v1/status", None, None);
+    let first = st["next_event"].as_u64().unwrap();
+    let body = json!({"items": [{"task": {"kind": "home"}}, {"task": {"kind": "move", "x_mm": 200.0, "y_mm": 150.0}}]});
+    let (code, v) = s.call("POST", "/api/v1/queue/items", None, Some(&body.to_string()));
+    assert_eq!(code, 200, "{v}");
+    let moving = v["ids"][1].as_u64().unwrap();
+    let url = s.url.clone();
+    let reader = std::thread::spawn(move || {
+        let r = common::serve::agent()
+            .get(format!("{url}/api/v1/events"))
+            .header("Last-Event-ID", (first - 1).to_string())
+            .call()
+            .unwrap();
+        let mut kind = String::new();
+        let mut out: Vec<(u64, f64, f64, bool)> = Vec::new();
+        let mut started = false;
+        for l in BufReader::new(r.into_body().into_reader()).lines() {
+            let l = l.unwrap();
+            if let Some(k) = l.strip_prefix("event:") {
+                kind = k.trim().into();
+            } else if let Some(d) = l.strip_prefix("data:") {
+                let v: Value = serde_json::from_str(d.trim()).unwrap();
+                let data = &v["data"];
+                if kind == "item" && data["id"] == moving {
+                    if data["state"] == "running" {
+                        started = true;
+                    } else if data["ended"].is_string() {
+                        return out;
+                    }
+                }
+                if kind == "position" {
+                    out.push((
+                        v["at_ms"].as_u64().unwrap(),
+                        data["x_mm"].as_f64().unwrap(),
+                        data["y_mm"].as_f64().unwrap(),
+                        started,
+                    ));
+                }
+            }
+        }
+        out
+    });
+    assert_eq!(s.call("POST", "/api/v1/queue/start", None, None).0, 200);
+    let seen = reader.join().unwrap();
+    // On the way: strictly between the home position and the target.
+    let on_way: Vec<_> = seen
+        .iter()
+        .filter(|e| e.3 && e.1 > 1.0 && e.1 < 199.0)
+        .collect();
+    eprintln!(
+        "{} position events during the move, {} of them on the way",
+        seen.iter().filter(|e| e.3).count(),
+        on_way.len()
+    );
+    assert!(on_way.len() >= 3, "too few positions on the way: {seen:?}");
+    // The carriage moves one way: x grows along the events.
+    assert!(on_way.windows(2).all(|w| w[1].1 >= w[0].1), "{on_way:?}");
+    // Rate-limited: on the way, never two within 100 ms (a few ms of clock granularity).
+    for w in on_way.windows(2) {
+        assert!(
+            w[1].0 - w[0].0 >= 95,
+            "two position events {} ms apart",
+            w[1].0 - w[0].0
+        );
+    }
+}
+
 /// Clients that vanish while events are written to them (a close, a reset, then another write:
 /// EPIPE) leave the service answering: the process must not die of SIGPIPE, which the CLI's
 /// other commands take by default.

@@ -97,7 +97,7 @@ pub fn run(a: ServeArgs) -> anyhow::Result<i32> {
     let json = a.json;
     let conn = a.conn;
     let truth = data.join("sim-truth.json");
-    let open = Box::new(move |cancel| {
+    let open = Box::new(move |cancel, position| {
         let hw = connect(
             &conn,
             Some(truth),
@@ -105,6 +105,7 @@ pub fn run(a: ServeArgs) -> anyhow::Result<i32> {
             &LinkOptions {
                 wire_log: None,
                 cancel: Some(cancel),
+                position: Some(position),
             },
         )
         .map_err(|e| format!("{e:#}"))?;

@@ -474,6 +474,7 @@ pub fn run(a: StageArgs) -> anyhow::Result<i32> {
     let link = LinkOptions {
         wire_log: a.wire_log.clone(),
         cancel: Some(cancel),
+        position: None,
     };
     let progress = Progress::start(label(&a.action), !a.output.json);
     // Stopping takes a controller as an earlier program left it (held, moving, busy).

@@ -27,8 +27,11 @@ pub struct SimCertificates {
     pub camera: Option<String>,
 }
 
-/// Opens the devices on the hardware thread, given the flag that cancels a stage wait.
-pub type Opener = Box<dyn FnOnce(Arc<AtomicBool>) -> Result<Devices, String> + Send>;
+/// Opens the devices on the hardware thread, given the flag that cancels a stage wait and the
+/// listener to every position the controller reports (position events during a motion).
+pub type Opener = Box<
+    dyn FnOnce(Arc<AtomicBool>, crate::stage::port::PositionSink) -> Result<Devices, String> + Send,
+>;
 
 /// What the operator asked of the running item.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize)]

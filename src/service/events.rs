@@ -70,6 +70,8 @@ struct Ring {
     next: u64,
     kept: VecDeque<Arc<Event>>,
     last_position: Option<Instant>,
+    /// The last position sent: one standing still is not sent again.
+    last_place: Option<Value>,
 }
 
 /// The one publisher of events.
@@ -102,6 +104,7 @@ impl Bus {
                 next: first,
                 kept: VecDeque::with_capacity(BACKLOG),
                 last_position: None,
+                last_place: None,
             }),
             tx,
         }
@@ -132,10 +135,14 @@ impl Bus {
         {
             let mut r = self.ring.lock().unwrap_or_else(|e| e.into_inner());
             let now = Instant::now();
-            if !force && r.last_position.is_some_and(|t| now - t < POSITION_EVERY) {
+            if !force
+                && (r.last_position.is_some_and(|t| now - t < POSITION_EVERY)
+                    || r.last_place.as_ref() == Some(&data))
+            {
                 return;
             }
             r.last_position = Some(now);
+            r.last_place = Some(data.clone());
         }
         self.publish(Kind::Position, data);
     }

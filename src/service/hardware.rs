@@ -109,7 +109,13 @@ pub fn spawn(open: Opener, bus: Arc<Bus>, settings: Settings) -> Result<Handle, 
         std::thread::Builder::new()
             .name("rig-hardware".into())
             .spawn(move || {
-                let dev = match open(cancel) {
+                let sink = {
+                    let bus = bus.clone();
+                    crate::stage::port::PositionSink(Arc::new(move |p| {
+                        bus.position(position_json(p), false)
+                    }))
+                };
+                let dev = match open(cancel, sink) {
                     Ok(d) => {
                         let _ = opened_tx.send(Ok(d.stage.limits()));
                         d

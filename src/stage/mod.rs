@@ -13,7 +13,7 @@ pub mod grbl;
 mod limits_check;
 mod motion;
 pub mod native;
-mod port;
+pub mod port;
 
 pub use driver::{Driver, DriverOptions};
 pub use error::{FaultKind, Result, StageError};

@@ -419,7 +419,9 @@ impl Controller for NativeController {
 
     fn status(&mut self) -> Result<StageStatus> {
         let s = self.raw_status()?;
-        Ok(Self::to_status(&s))
+        let st = Self::to_status(&s);
+        self.port.observe(st.position);
+        Ok(st)
     }
 
     fn start_move(&mut self, target: CarriageUm, speed_um_s: f64) -> Result<()> {

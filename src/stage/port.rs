@@ -16,6 +16,19 @@ pub struct LinkOptions {
     /// Set by the operator's Ctrl-C: the next read returns [`StageError::Cancelled`] (once),
     /// so whatever was waiting gives up and the driver stops the stages.
     pub cancel: Option<Arc<AtomicBool>>,
+    /// Told every position the controller reports, also while a motion runs (the service's
+    /// position events); it must be quick and never block.
+    pub position: Option<PositionSink>,
+}
+
+/// A listener to the positions the controller reports.
+#[derive(Clone)]
+pub struct PositionSink(pub Arc<dyn Fn(crate::coords::CarriageUm) + Send + Sync>);
+
+impl std::fmt::Debug for PositionSink {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("PositionSink")
+    }
 }
 
 pub struct Port {
@@ -25,6 +38,7 @@ pub struct Port {
     wire_log: Option<std::fs::File>,
     opened: Instant,
     cancel: Option<Arc<AtomicBool>>,
+    position: Option<PositionSink>,
 }
 
 /// How long a busy port is waited for before it is reported busy ([`Port::open`]).
@@ -82,9 +96,17 @@ impl Port {
             wire_log,
             opened: Instant::now(),
             cancel: link.cancel.clone(),
+            position: link.position.clone(),
         };
         p.purge()?;
         Ok(p)
+    }
+
+    /// Passes a position the controller reported to the listener, if any.
+    pub fn observe(&self, p: crate::coords::CarriageUm) {
+        if let Some(s) = &self.position {
+            (s.0)(p);
+        }
     }
 
     /// Discards whatever is in the buffers both ways (after garbage, before a resync).

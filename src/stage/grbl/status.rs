@@ -122,6 +122,8 @@ impl GrblController {
     /// One report, for polling; decisions use [`Controller::status`].
     pub(super) fn status_once(&mut self) -> Result<StageStatus> {
         let (r, m) = self.raw_status()?;
-        Ok(self.to_status(&r, m))
+        let st = self.to_status(&r, m);
+        self.port.observe(st.position);
+        Ok(st)
     }
 }
