@@ -190,7 +190,7 @@ fn run_trial(kind: &str, spec: &str, dialect: Dialect, seed: u64, cell: &mut Cel
             DriverOptions::default(),
             &LinkOptions {
                 wire_log: Some(wire.clone()),
-                cancel: None,
+                ..Default::default()
             },
         )
         .ok()
