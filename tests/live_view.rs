@@ -2,8 +2,8 @@
 //! The page loads and follows the events; items queued from the page run (a home, a move over
 //! the film); the live frame changes when the stage is jogged from the page (by more than it
 //! changes between two frames standing still);
-//! a calibration item queued from the page shows its progress advancing, pauses and resumes
-//! from the page's buttons. Screenshots are kept in target/tmp/live-view/.
+//! a calibration item queued from the page shows its frames and its progress advancing, pauses
+//! and resumes from the page's buttons. Screenshots are kept in target/tmp/live-view/.
 
 mod common;
 
@@ -146,6 +146,7 @@ fn the_page_shows_the_camera_runs_items_and_controls_them() {
 
     // A calibration item queued from the page: its progress advances; pause and resume from
     // the page's buttons; it ends done.
+    let before = cells(&b).0;
     b.click("#add-kind option[value=calibrate_interior]");
     b.click("#add-btn");
     let first = b.wait("progress", 60, |b| {
@@ -162,6 +163,10 @@ fn the_page_shows_the_camera_runs_items_and_controls_them() {
             json!([]),
         ) == "paused")
             .then_some(())
+    });
+    // The frames the calibration took were shown as it took them.
+    b.wait("a frame of the calibration", 20, |b| {
+        (cells(b).0 > before + 1).then_some(())
     });
     b.screenshot(&shots().join("3-paused.png"));
     b.click("#run-resume");
@@ -202,7 +207,7 @@ fn the_page_shows_the_camera_runs_items_and_controls_them() {
     let mut sessions: Vec<PathBuf> = std::fs::read_dir(&store)
         .unwrap()
         .map(|e| e.unwrap().path())
-        .filter(|p| p.to_string_lossy().ends_with("-interior"))
+        .filter(|p| p.to_string_lossy().contains("-interior"))
         .collect();
     sessions.sort();
     assert_eq!(sessions.len(), 2, "{sessions:?}");

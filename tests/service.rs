@@ -234,8 +234,8 @@ fn position_events_follow_a_motion_at_most_ten_times_a_second() {
     let d = tempfile::tempdir().unwrap();
     let s = Server::start(
         &d.path().join("data"),
-        // A tenth of real time: a 250 mm move takes about a second.
-        &["--sim", "--sim-time-scale", "0.1"],
+        // A twentieth of real time: a 250 mm move takes about half a second.
+        &["--sim", "--sim-time-scale", "0.05"],
     );
     let (_, st) = s.call("GET", "/api/v1/status", None, None);
     let first = st["next_event"].as_u64().unwrap();

@@ -190,6 +190,8 @@ pub struct Rig<'a> {
     /// Set from outside to end the session before the next move (the service's pause and
     /// stop); `None`: runs to its end.
     pub interrupt: Option<&'a std::sync::atomic::AtomicBool>,
+    /// Shown every averaged image the session takes (the service's live view).
+    pub seen: Option<&'a mut dyn FnMut(&ImageF32)>,
 }
 
 impl Rig<'_> {
@@ -218,6 +220,9 @@ impl Rig<'_> {
         )?;
         if let Some(f) = &self.flat {
             f.apply(&mut c.image);
+        }
+        if let Some(seen) = self.seen.as_mut() {
+            seen(&c.image);
         }
         Ok((s, c.image))
     }

@@ -46,6 +46,8 @@ pub struct Hands<'a> {
     pub progress: &'a mut dyn FnMut(Step<'_>),
     /// Ends the session before its next move when set (the service's pause and stop).
     pub interrupt: Option<&'a AtomicBool>,
+    /// Shown every averaged image the session takes.
+    pub seen: Option<&'a mut dyn FnMut(&crate::digitise::ImageF32)>,
 }
 
 /// A pixel session's request (`rig calibrate pixel`).
@@ -98,6 +100,11 @@ fn finish<T: serde::Serialize>(
         progress: hands.progress,
         flat,
         interrupt: hands.interrupt,
+        // (Each reference re-borrowed for the session's shorter life.)
+        seen: match hands.seen {
+            Some(s) => Some(s),
+            None => None,
+        },
     });
     let dir = session.dir.clone();
     match r {

@@ -145,6 +145,7 @@ fn run_session<T>(
         camera: hw.camera.as_mut(),
         progress: &mut progress,
         interrupt: None,
+        seen: None,
     });
     steps.finish();
     let closed = hw.close();

@@ -47,6 +47,12 @@ pub fn run(rig: &mut Rig, id: ItemId, task: &Task) -> Result<Value, String> {
             json!({"item": id, "step": step, "of": of, "what": s.what, "seconds_left": left}),
         );
     };
+    let last_look = rig.last_look;
+    let mut seen = |img: &crate::digitise::ImageF32| {
+        if bus.clients() > 0 {
+            super::work::show(bus, last_look, img, json!({"item": id}));
+        }
+    };
     let sim = rig.settings.sim;
     let dev = &mut *rig.dev;
     // An interior session homes first unless the stage is homed (a pixel session always does).
@@ -56,6 +62,7 @@ pub fn run(rig: &mut Rig, id: ItemId, task: &Task) -> Result<Value, String> {
         camera: dev.camera.as_mut(),
         progress: &mut progress,
         interrupt: Some(&rig.control.pause),
+        seen: Some(&mut seen),
     };
     match task {
         Task::CalibratePixel {

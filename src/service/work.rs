@@ -148,10 +148,19 @@ fn scan(
 /// The newest tile as the live view's frame, and a preview event naming it.
 fn preview(bus: &Bus, last: &Mutex<Option<Look>>, dir: &Path, tile: &str) {
     let path = dir.join(crate::scan::run::tile_file(tile));
-    let Ok(img) = crate::digitise::output::read_tiff16_f32(&path) else {
-        return;
-    };
-    let Ok(png) = super::devices::png_of(&img) else {
+    if let Ok(img) = crate::digitise::output::read_tiff16_f32(&path) {
+        show(bus, last, &img, json!({"tile": tile}));
+    }
+}
+
+/// `img` as the live view's newest frame, and a preview event naming it (with `what`).
+pub fn show(
+    bus: &Bus,
+    last: &Mutex<Option<Look>>,
+    img: &crate::digitise::ImageF32,
+    what: serde_json::Value,
+) {
+    let Ok(png) = super::devices::png_of(img) else {
         return;
     };
     let number = {
@@ -165,8 +174,9 @@ fn preview(bus: &Bus, last: &Mutex<Option<Look>>, dir: &Path, tile: &str) {
         });
         n
     };
-    bus.publish(
-        Kind::Preview,
-        json!({"url": format!("/api/v1/live.png?n={number}"), "tile": tile}),
-    );
+    let mut data = json!({"url": format!("/api/v1/live.png?n={number}")});
+    if let (Some(d), Some(w)) = (data.as_object_mut(), what.as_object()) {
+        d.extend(w.clone());
+    }
+    bus.publish(Kind::Preview, data);
 }
