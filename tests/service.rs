@@ -36,7 +36,9 @@ fn routes(s: &Server, token: &str) -> Vec<(String, String, Option<String>)> {
         for (m, op) in ops.as_object().unwrap() {
             v.push((
                 m.to_uppercase(),
-                path.replace("{id}", "0"),
+                path.replace("{id}", "0")
+                    .replace("{kind}", "pixel")
+                    .replace("{file}", "residuals-affine.png"),
                 op["x-role"].as_str().map(String::from),
             ));
         }
@@ -225,6 +227,79 @@ fn no_client_loses_or_reorders_an_event() {
     assert_eq!(read_events(&url, Some(3), 1)[0].0, "resync");
     let (_, q) = s.call("GET", "/api/v1/queue", None, None);
     assert_eq!(q["queue"].as_array().unwrap().len(), EDITS);
+}
+
+/// An admin's lock closes the queue and the run's control to operators (423, saying who and
+/// why) but never pause, abort or halt; it is journaled (a restart keeps it); an admin lifts it.
+#[test]
+fn an_admins_lock_keeps_operators_off_the_queue_but_not_off_the_brakes() {
+    let d = tempfile::tempdir().unwrap();
+    let (file, [_obs, op, admin]) = tokens(d.path());
+    let data = d.path().join("data");
+    let args = ["--sim", "--tokens", file.to_str().unwrap()];
+    let s = Server::start(&data, &args);
+    let add = json!({"items": [{"task": {"kind": "home"}}]}).to_string();
+    assert_eq!(
+        s.call("POST", "/api/v1/lock", Some(&op), Some("{\"note\": \"x\"}"))
+            .0,
+        403
+    );
+    let (st, v) = s.call(
+        "POST",
+        "/api/v1/lock",
+        Some(&admin),
+        Some("{\"note\": \"\"}"),
+    );
+    assert_eq!((st, v["error"].as_str()), (422, Some("bad_note")), "{v}");
+    let (st, v) = s.call(
+        "POST",
+        "/api/v1/lock",
+        Some(&admin),
+        Some("{\"note\": \"aligning the lamp\"}"),
+    );
+    assert_eq!(st, 200, "{v}");
+    let (st, v) = s.call("POST", "/api/v1/queue/items", Some(&op), Some(&add));
+    assert_eq!(st, 423, "{v}");
+    assert_eq!(v["error"], "locked");
+    assert!(
+        v["message"].as_str().unwrap().contains("aligning the lamp"),
+        "{v}"
+    );
+    for path in [
+        "/api/v1/queue/start",
+        "/api/v1/run/resume",
+        "/api/v1/queue/clear",
+    ] {
+        assert_eq!(s.call("POST", path, Some(&op), None).0, 423, "{path}");
+    }
+    // The brakes stay open: nothing runs, so pause and abort say so (409), halt resets.
+    assert_eq!(s.call("POST", "/api/v1/run/pause", Some(&op), None).0, 409);
+    assert_eq!(s.call("POST", "/api/v1/run/abort", Some(&op), None).0, 409);
+    assert_eq!(s.call("POST", "/api/v1/run/halt", Some(&op), None).0, 200);
+    // The admin still may.
+    assert_eq!(
+        s.call("POST", "/api/v1/queue/items", Some(&admin), Some(&add))
+            .0,
+        200
+    );
+    // Kept across a crash.
+    s.kill();
+    let s = Server::start(&data, &args);
+    let (_, st) = s.call("GET", "/api/v1/status", Some(&op), None);
+    assert_eq!(st["lock"]["note"], "aligning the lamp", "{st}");
+    assert_eq!(
+        s.call("POST", "/api/v1/queue/items", Some(&op), Some(&add))
+            .0,
+        423
+    );
+    assert_eq!(s.call("DELETE", "/api/v1/lock", Some(&admin), None).0, 200);
+    assert_eq!(
+        s.call("POST", "/api/v1/queue/items", Some(&op), Some(&add))
+            .0,
+        200
+    );
+    let (_, q) = s.call("GET", "/api/v1/queue", Some(&op), None);
+    assert_eq!(q["queue"].as_array().unwrap().len(), 2);
 }
 
 /// Position events come during a motion, not only after it: a long move reports where the

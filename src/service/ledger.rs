@@ -132,6 +132,7 @@ fn tell(c: &Change, before: &State) -> Option<(Kind, serde_json::Value)> {
             json!({"id": running, "ended": outcome, "message": message}),
         ),
         Change::Options(o) => (Kind::Status, json!({"options": o})),
+        Change::Lock { lock } => (Kind::Status, json!({"lock": lock})),
         Change::Snapshot(_) => return None,
         other => (Kind::Queue, serde_json::to_value(other).ok()?),
     })

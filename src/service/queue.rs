@@ -180,6 +180,19 @@ pub struct State {
     pub running: Option<Item>,
     pub history: Vec<Item>,
     pub options: Options,
+    /// An admin's lock: while set, only admins change the queue or control the run (pause,
+    /// abort and halt stay open to operators: stopping is never locked out).
+    #[serde(default)]
+    pub lock: Option<Lock>,
+}
+
+/// Who locked the queue, when and why (bluesky's queue server's lock, by role).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Lock {
+    /// The token's name.
+    pub by: String,
+    pub note: String,
+    pub since_ms: u64,
 }
 
 /// A checked, resolved change: what the journal holds.
@@ -218,6 +231,9 @@ pub enum Change {
         message: Option<String>,
         result: Option<Value>,
         at_ms: u64,
+    },
+    Lock {
+        lock: Option<Lock>,
     },
     Snapshot(Box<State>),
 }
@@ -496,6 +512,7 @@ impl State {
                 }
             }
             Change::Options(o) => self.options = o,
+            Change::Lock { lock } => self.lock = lock,
             Change::Begin { id, at_ms } => {
                 if self.running.is_some() || self.queue.first().map(|i| i.id) != Some(id) {
                     return skip(&c);

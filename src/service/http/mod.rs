@@ -52,6 +52,8 @@ pub struct Route {
     pub summary: &'static str,
     /// A long-lived stream: no time limit.
     pub stream: bool,
+    /// Refused below the admin role while an admin's lock is set.
+    pub lockable: bool,
     pub handler: MethodRouter<App>,
 }
 
@@ -68,7 +70,16 @@ fn route(
         role,
         summary,
         stream: false,
+        lockable: false,
         handler,
+    }
+}
+
+impl Route {
+    /// Closed to operators while the queue is locked.
+    fn lockable(mut self) -> Route {
+        self.lockable = true;
+        self
     }
 }
 
@@ -121,56 +132,64 @@ pub fn routes() -> Vec<Route> {
             op,
             "Add items: {items: [{task, key?}], at?}",
             post(queue_api::add),
-        ),
+        )
+        .lockable(),
         route(
             Method::PATCH,
             "/api/v1/queue/items/{id}",
             op,
             "Edit a waiting item's task: {task}",
             patch(queue_api::edit),
-        ),
+        )
+        .lockable(),
         route(
             Method::DELETE,
             "/api/v1/queue/items/{id}",
             op,
             "Remove a waiting item",
             delete(queue_api::remove),
-        ),
+        )
+        .lockable(),
         route(
             Method::POST,
             "/api/v1/queue/items/{id}/move",
             op,
             "Move a waiting item: {to}",
             post(queue_api::move_item),
-        ),
+        )
+        .lockable(),
         route(
             Method::POST,
             "/api/v1/queue/clear",
             op,
             "Remove every waiting item",
             post(queue_api::clear),
-        ),
+        )
+        .lockable(),
         route(
             Method::POST,
             "/api/v1/queue/start",
             op,
             "Start the queue",
             post(queue_api::start),
-        ),
+        )
+        .lockable(),
         route(
             Method::POST,
             "/api/v1/queue/stop",
             op,
             "Stop the queue after the running item",
             post(queue_api::stop_queue),
-        ),
+        )
+        .lockable(),
         route(
             Method::PUT,
             "/api/v1/queue/options",
             op,
             "Set autostart and continue_on_failure",
             put(queue_api::options),
-        ),
+        )
+        .lockable(),
         route(
             Method::POST,
             "/api/v1/run/pause",
@@ -184,14 +203,16 @@ pub fn routes() -> Vec<Route> {
             op,
             "Resume the paused item",
             post(run_api::resume),
-        ),
+        )
+        .lockable(),
         route(
             Method::POST,
             "/api/v1/run/stop",
             op,
             "End the running item at the next tile, done",
             post(run_api::run_stop),
-        ),
+        )
+        .lockable(),
         route(
             Method::POST,
             "/api/v1/run/abort",
@@ -212,7 +233,8 @@ pub fn routes() -> Vec<Route> {
             op,
             "Jog by {dx_mm, dy_mm} (idle only)",
             post(run_api::jog),
-        ),
+        )
+        .lockable(),
         route(
             Method::GET,
             "/api/v1/live.png",
@@ -244,6 +266,20 @@ pub fn routes() -> Vec<Route> {
         ),
         route(
             Method::POST,
+            "/api/v1/lock",
+            Some(Admin),
+            "Lock the queue and run control to admins: {note} (pause, abort, halt stay open)",
+            post(run_api::lock),
+        ),
+        route(
+            Method::DELETE,
+            "/api/v1/lock",
+            Some(Admin),
+            "Unlock the queue",
+            delete(run_api::unlock),
+        ),
+        route(
+            Method::POST,
             "/api/v1/shutdown",
             Some(Admin),
             "End the service (the queue is kept)",
@@ -252,10 +288,20 @@ pub fn routes() -> Vec<Route> {
     ]
 }
 
-/// The bearer token's role, or the error for its absence.
-fn role_of(app: &App, headers: &HeaderMap) -> Result<Role, ApiError> {
+/// Who is asking: the token's name and role (with no tokens configured, "local", admin).
+#[derive(Debug, Clone)]
+pub struct Caller {
+    pub name: String,
+    pub role: Role,
+}
+
+/// The bearer token's caller, or the error for its absence.
+fn caller_of(app: &App, headers: &HeaderMap) -> Result<Caller, ApiError> {
     let Some(tokens) = &app.tokens else {
-        return Ok(Role::Admin);
+        return Ok(Caller {
+            name: "local".into(),
+            role: Role::Admin,
+        });
     };
     let token = headers
         .get(header::AUTHORIZATION)
@@ -268,13 +314,49 @@ fn role_of(app: &App, headers: &HeaderMap) -> Result<Role, ApiError> {
                 "this service needs a token: Authorization: Bearer TOKEN",
             )
         })?;
-    tokens.check(token.trim()).map(|t| t.role).ok_or_else(|| {
-        ApiError::new(
-            StatusCode::UNAUTHORIZED,
-            "unknown_token",
-            "the token is not known here",
-        )
-    })
+    tokens
+        .check(token.trim())
+        .map(|t| Caller {
+            name: t.name.clone(),
+            role: t.role,
+        })
+        .ok_or_else(|| {
+            ApiError::new(
+                StatusCode::UNAUTHORIZED,
+                "unknown_token",
+                "the token is not known here",
+            )
+        })
+}
+
+/// Checks the caller's role and the lock; the caller goes with the request.
+fn admit(app: &App, req: &mut HttpRequest, need: Role, lockable: bool) -> Result<(), ApiError> {
+    let caller = caller_of(app, req.headers())?;
+    if caller.role < need {
+        return Err(ApiError::new(
+            StatusCode::FORBIDDEN,
+            "role",
+            format!(
+                "this needs the {} role; the token has {}",
+                need.name(),
+                caller.role.name()
+            ),
+        ));
+    }
+    if lockable && caller.role < Role::Admin {
+        if let Some(l) = app.lab.ledger.read(|s| s.lock.clone()) {
+            return Err(ApiError::new(
+                StatusCode::LOCKED,
+                "locked",
+                format!(
+                    "the queue is locked by {} ({}): only an admin may change it now; pause, abort and halt stay open",
+                    l.by, l.note
+                ),
+            ));
+        }
+    }
+    req.extensions_mut().insert(caller);
+    Ok(())
 }
 
 /// Builds the router from [`routes`].
@@ -283,27 +365,15 @@ pub fn router(app: App) -> Router {
     for rt in routes() {
         let need = rt.role;
         let stream = rt.stream;
+        let lockable = rt.lockable;
         let a = app.clone();
         let guarded = rt.handler.route_layer(axum::middleware::from_fn(
-            move |req: HttpRequest, next: Next| {
+            move |mut req: HttpRequest, next: Next| {
                 let a = a.clone();
                 async move {
                     if let Some(need) = need {
-                        match role_of(&a, req.headers()) {
-                            Err(e) => return e.into_response(),
-                            Ok(have) if have < need => {
-                                return ApiError::new(
-                                    StatusCode::FORBIDDEN,
-                                    "role",
-                                    format!(
-                                        "this needs the {} role; the token has {}",
-                                        need.name(),
-                                        have.name()
-                                    ),
-                                )
-                                .into_response()
-                            }
-                            Ok(_) => {}
+                        if let Err(e) = admit(&a, &mut req, need, lockable) {
+                            return e.into_response();
                         }
                     }
                     if stream {

@@ -11,9 +11,10 @@ use serde::Deserialize;
 use serde_json::{json, Value};
 
 pub(super) async fn status(State(app): State<App>) -> Answer {
-    let (options, running, queued) = app.lab.ledger.read(|s| {
+    let (options, lock, running, queued) = app.lab.ledger.read(|s| {
         (
             s.options,
+            s.lock.clone(),
             s.running
                 .as_ref()
                 .map(|i| json!({"id": i.id, "state": i.state})),
@@ -28,6 +29,7 @@ pub(super) async fn status(State(app): State<App>) -> Answer {
     };
     ok(json!({
         "options": options,
+        "lock": lock,
         "running": running,
         "queued": queued,
         "stage": stage,

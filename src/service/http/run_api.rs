@@ -111,6 +111,50 @@ pub(super) async fn live(State(app): State<App>) -> Result<Response, ApiError> {
         .into_response())
 }
 
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct LockBody {
+    note: String,
+}
+
+/// The longest lock note, bytes.
+const MAX_NOTE: usize = 500;
+
+pub(super) async fn lock(
+    State(app): State<App>,
+    axum::Extension(caller): axum::Extension<super::Caller>,
+    Body(b): Body<LockBody>,
+) -> Answer {
+    if b.note.trim().is_empty() || b.note.len() > MAX_NOTE {
+        return Err(ApiError::new(
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "bad_note",
+            format!("say why, in 1 to {MAX_NOTE} bytes: the operators see it"),
+        ));
+    }
+    let lock = crate::service::queue::Lock {
+        by: caller.name,
+        note: b.note,
+        since_ms: crate::service::events::now_ms(),
+    };
+    app.lab.ledger.change(|_| {
+        Some(crate::service::queue::Change::Lock {
+            lock: Some(lock.clone()),
+        })
+    })?;
+    ok(json!({ "lock": lock }))
+}
+
+pub(super) async fn unlock(State(app): State<App>) -> Answer {
+    let was = app.lab.ledger.read(|s| s.lock.clone());
+    app.lab.ledger.change(|s| {
+        s.lock
+            .is_some()
+            .then_some(crate::service::queue::Change::Lock { lock: None })
+    })?;
+    ok(json!({ "was": was }))
+}
+
 pub(super) async fn shutdown(State(app): State<App>) -> Answer {
     app.shutdown.notify_one();
     ok(json!({"shutting_down": true}))
