@@ -302,6 +302,53 @@ fn an_admins_lock_keeps_operators_off_the_queue_but_not_off_the_brakes() {
     assert_eq!(q["queue"].as_array().unwrap().len(), 2);
 }
 
+/// A port scan's half-open connections (headers never finished) neither pile up nor lock
+/// others out: beyond the cap they are closed at once, and each is closed when the header
+/// time limit runs out; a real client then gets its answer.
+#[test]
+fn a_port_scan_cannot_exhaust_the_service() {
+    let d = tempfile::tempdir().unwrap();
+    let s = Server::start(
+        &d.path().join("data"),
+        &[
+            "--sim",
+            "--max-connections",
+            "40",
+            "--header-timeout",
+            "0.3",
+        ],
+    );
+    let host = s.url.trim_start_matches("http://").to_string();
+    let pid = s.child.id();
+    let fds = || std::fs::read_dir(format!("/proc/{pid}/fd")).map_or(0, |d| d.count());
+    let before = fds();
+    let mut scan: Vec<std::net::TcpStream> = (0..300)
+        .map(|_| {
+            let mut c = std::net::TcpStream::connect(&host).unwrap();
+            let _ = c.write_all(b"GET /api/v1/status HTTP/1.1\r\nHost: x\r\n");
+            c
+        })
+        .collect();
+    std::thread::sleep(Duration::from_millis(100));
+    let during = fds();
+    assert!(
+        during <= before + 45,
+        "{during} descriptors open during the scan (from {before}; the cap is 40)"
+    );
+    // Every half-open connection is closed by the service within the header limit (or at once).
+    let t0 = Instant::now();
+    for c in &mut scan {
+        c.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
+        let mut b = [0u8; 64];
+        let n = c.read(&mut b).unwrap_or(0);
+        assert!(n == 0 || b.starts_with(b"HTTP/1.1 408"), "{:?}", &b[..n]);
+    }
+    assert!(t0.elapsed() < Duration::from_secs(5));
+    let (st, _) = s.call("GET", "/api/v1/status", None, None);
+    assert_eq!(st, 200);
+    eprintln!("300 half-open connections: {during} descriptors at most (from {before}), all closed in {:.2} s", t0.elapsed().as_secs_f64());
+}
+
 /// Position events come during a motion, not only after it: a long move reports where the
 /// carriage is on its way, at most ten times a second.
 #[test]

@@ -34,6 +34,12 @@ pub struct ServeArgs {
     /// Frames averaged for a live-view frame.
     #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u32).range(1..=64))]
     pub look_frames: u32,
+    /// The most connections served at once (one more is closed at once).
+    #[arg(long, default_value_t = rig::service::listen::MAX_CONNECTIONS, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..=65536), value_name = "N")]
+    pub max_connections: usize,
+    /// Seconds a client has to send a request's headers (a half-open connection is closed then).
+    #[arg(long, default_value_t = rig::service::listen::HEADER_TIMEOUT.as_secs_f64(), value_name = "S")]
+    pub header_timeout: f64,
     /// Print the address and state as one JSON line once listening.
     #[arg(long)]
     pub json: bool,
@@ -84,6 +90,16 @@ pub fn run(a: ServeArgs) -> anyhow::Result<i32> {
         );
         return Ok(0);
     }
+    if !(0.05..=600.0).contains(&a.header_timeout) {
+        usage_bail!(
+            "--header-timeout {}: use 0.05 to 600 seconds",
+            a.header_timeout
+        );
+    }
+    let listen = rig::service::listen::Limits {
+        max_connections: a.max_connections,
+        header_timeout: std::time::Duration::from_secs_f64(a.header_timeout),
+    };
     let tokens = a.tokens.as_ref().map(|p| Tokens::load(p)).transpose()?;
     let limits = a.conn.port.limits;
     let settings = Settings {
@@ -137,6 +153,7 @@ pub fn run(a: ServeArgs) -> anyhow::Result<i32> {
             data: data.clone(),
             tokens,
             settings,
+            listen,
         },
         open,
         |s| {

@@ -15,6 +15,7 @@ pub mod hardware;
 pub mod http;
 pub mod journal;
 pub mod ledger;
+pub mod listen;
 pub mod openapi;
 pub mod queue;
 pub mod runner;

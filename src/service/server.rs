@@ -20,6 +20,7 @@ pub struct ServeOptions {
     pub data: PathBuf,
     pub tokens: Option<Tokens>,
     pub settings: Settings,
+    pub listen: super::listen::Limits,
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -114,10 +115,8 @@ pub fn serve(
                 tracing::info!("ending: the running item (if any) is paused now");
             }
         };
-        axum::serve(listener, router(app))
-            .with_graceful_shutdown(end)
-            .await
-            .map_err(ServeError::Runtime)
+        super::listen::serve(listener, router(app), opt.listen, end).await;
+        Ok::<(), ServeError>(())
     });
     // Stop the stages under a running item; it is found interrupted at the next start.
     if hw.busy_with().is_some() {
