@@ -68,7 +68,9 @@ pub enum QueueAction {
     /// The queue, the running item and the queue's options.
     List,
     /// One item wherever it is (queue, running, history): its attempts, folder, result.
-    Show { id: u64 },
+    Show {
+        id: u64,
+    },
     /// Move a waiting item.
     Move {
         id: u64,
@@ -76,7 +78,9 @@ pub enum QueueAction {
         place: Place,
     },
     /// Remove a waiting item.
-    Remove { id: u64 },
+    Remove {
+        id: u64,
+    },
     /// Remove every waiting item.
     Clear,
     /// Start the queue.
@@ -84,6 +88,13 @@ pub enum QueueAction {
     /// Stop the queue after the running item.
     Stop,
     /// Ended items.
+    /// Lock the queue and run control to admins, saying why (an admin's token); pause, abort
+    /// and halt stay open to operators.
+    Lock {
+        note: String,
+    },
+    /// Lift the lock (an admin's token).
+    Unlock,
     History,
 }
 
@@ -103,6 +114,44 @@ pub enum NewTask {
         x_mm: f64,
         #[arg(allow_hyphen_values = true)]
         y_mm: f64,
+        #[command(flatten)]
+        place: Place,
+        #[arg(long)]
+        key: Option<String>,
+    },
+    /// A pixel calibration session into the service's store (as `rig calibrate pixel`; with
+    /// the simulator, its own plate certificate).
+    CalibratePixel {
+        #[arg(long, default_value_t = 32)]
+        frames: u32,
+        #[arg(long, default_value_t = 5)]
+        grid: usize,
+        #[arg(long)]
+        grid_only: bool,
+        #[arg(long)]
+        no_flat: bool,
+        /// The plate certificate, a path on the service's machine.
+        #[arg(long, value_name = "FILE")]
+        plate_cert: Option<PathBuf>,
+        #[command(flatten)]
+        place: Place,
+        #[arg(long)]
+        key: Option<String>,
+    },
+    /// An interior orientation session into the service's store (as `rig calibrate interior`;
+    /// the newest pixel session when it runs, unless named).
+    CalibrateInterior {
+        #[arg(long, default_value_t = 32)]
+        frames: u32,
+        /// Where the film's centre lies on the carriage, roughly (mm).
+        #[arg(long, value_name = "X,Y", default_value = "125,125")]
+        film_centre: String,
+        /// A pixel session, a path on the service's machine.
+        #[arg(long, value_name = "DIR")]
+        pixel_session: Option<PathBuf>,
+        /// The film camera's certificate, a path on the service's machine.
+        #[arg(long, value_name = "FILE")]
+        camera_cert: Option<PathBuf>,
         #[command(flatten)]
         place: Place,
         #[arg(long)]
@@ -289,6 +338,37 @@ pub fn queue(a: QueueArgs) -> anyhow::Result<i32> {
                     place,
                     key,
                 ),
+                NewTask::CalibratePixel {
+                    frames,
+                    grid,
+                    grid_only,
+                    no_flat,
+                    plate_cert,
+                    place,
+                    key,
+                } => (
+                    json!({"kind": "calibrate_pixel", "frames": frames, "grid": grid,
+                           "grid_only": grid_only, "no_flat": no_flat, "plate_cert": plate_cert}),
+                    place,
+                    key,
+                ),
+                NewTask::CalibrateInterior {
+                    frames,
+                    film_centre,
+                    pixel_session,
+                    camera_cert,
+                    place,
+                    key,
+                } => {
+                    let (x, y) = super::camera_cmd::parse_pair(&film_centre, "--film-centre")?;
+                    (
+                        json!({"kind": "calibrate_interior", "frames": frames,
+                               "film_centre_mm": [x, y], "pixel_session": pixel_session,
+                               "camera_cert": camera_cert}),
+                        place,
+                        key,
+                    )
+                }
                 NewTask::Scan {
                     script,
                     name,
@@ -404,6 +484,20 @@ pub fn queue(a: QueueArgs) -> anyhow::Result<i32> {
                 Some(true) => "the queue stops when the running item ends".into(),
                 _ => "queue stopped".into(),
             });
+        }
+        QueueAction::Lock { note } => {
+            let v = c.call("POST", "/api/v1/lock", Some(json!({ "note": note })))?;
+            print(&v, json, |v| {
+                format!(
+                    "queue locked by {}: {}",
+                    v["lock"]["by"].as_str().unwrap_or("?"),
+                    v["lock"]["note"].as_str().unwrap_or("")
+                )
+            });
+        }
+        QueueAction::Unlock => {
+            let v = c.call("DELETE", "/api/v1/lock", None)?;
+            print(&v, json, |_| "queue unlocked".into());
         }
         QueueAction::History => {
             let v = c.call("GET", "/api/v1/history", None)?;
