@@ -213,14 +213,18 @@ mod tests {
     #[test]
     fn positions_are_thinned_to_ten_a_second_but_the_last_is_sent() {
         let bus = Bus::new(0);
-        for _ in 0..100 {
-            bus.position(json!({}), false);
+        let at = |x: i32| json!({"x_mm": x});
+        for i in 0..100 {
+            bus.position(at(i), false);
         }
         assert_eq!(bus.next_seq(), 1);
-        bus.position(json!({}), true);
+        bus.position(at(100), true);
         assert_eq!(bus.next_seq(), 2);
         std::thread::sleep(POSITION_EVERY);
-        bus.position(json!({}), false);
+        // Standing still: not sent again, however long.
+        bus.position(at(100), false);
+        assert_eq!(bus.next_seq(), 2);
+        bus.position(at(101), false);
         assert_eq!(bus.next_seq(), 3);
     }
 }
