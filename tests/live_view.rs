@@ -148,6 +148,7 @@ fn the_page_shows_the_camera_runs_items_and_controls_them() {
     // the page's buttons; it ends done.
     let before = cells(&b).0;
     b.click("#add-kind option[value=calibrate_interior]");
+    b.type_into("#add-frames-n", "12");
     b.click("#add-btn");
     let first = b.wait("progress", 60, |b| {
         let v = b.js(

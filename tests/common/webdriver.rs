@@ -117,6 +117,17 @@ impl Browser {
         self.call("POST", &format!("/element/{id}/click"), Some(json!({})));
     }
 
+    /// Clears a field and types `text` into it, as a person would.
+    pub fn type_into(&self, css: &str, text: &str) {
+        let id = self.find(css);
+        self.call("POST", &format!("/element/{id}/clear"), Some(json!({})));
+        self.call(
+            "POST",
+            &format!("/element/{id}/value"),
+            Some(json!({ "text": text })),
+        );
+    }
+
     /// Runs `script` (a function body; `arguments` as given) in the page; its return value.
     pub fn js(&self, script: &str, args: Value) -> Value {
         self.call(
