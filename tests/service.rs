@@ -272,6 +272,18 @@ fn an_admins_lock_keeps_operators_off_the_queue_but_not_off_the_brakes() {
     ] {
         assert_eq!(s.call("POST", path, Some(&op), None).0, 423, "{path}");
     }
+    // Jogging an unhomed stage (the admin may): the remedy named is an item, not a command.
+    let (st, v) = s.call(
+        "POST",
+        "/api/v1/stage/jog",
+        Some(&admin),
+        Some("{\"dx_mm\": 1, \"dy_mm\": 0}"),
+    );
+    assert_eq!((st, v["error"].as_str()), (409, Some("not_homed")), "{v}");
+    assert!(
+        v["message"].as_str().unwrap().contains("queue a home item"),
+        "{v}"
+    );
     // The brakes stay open: nothing runs, so pause and abort say so (409), halt resets.
     assert_eq!(s.call("POST", "/api/v1/run/pause", Some(&op), None).0, 409);
     assert_eq!(s.call("POST", "/api/v1/run/abort", Some(&op), None).0, 409);

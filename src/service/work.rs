@@ -39,7 +39,13 @@ pub fn run(rig: &mut Rig, id: ItemId, task: &Task, dir: &Path) -> Ran {
             .stage
             .move_to(CarriageUm::from_mm(*x_mm, *y_mm))
             .map(|p| Some(json!({"position": position_json(p)})))
-            .map_err(|e| e.to_string()),
+            .map_err(|e| match e {
+                // The stage's own text names a command line; here the remedy is an item.
+                crate::stage::StageError::NotHomed => {
+                    "the stage is not homed: queue a home item before this one".to_string()
+                }
+                e => e.to_string(),
+            }),
         Task::Scan { script, .. } => scan(rig, id, script, dir),
         Task::CalibratePixel { .. } | Task::CalibrateInterior { .. } => {
             super::calibration::run(rig, id, task).map(Some)

@@ -70,7 +70,14 @@ impl From<DeviceError> for ApiError {
             DeviceError::Stage(S::OutOfLimits { .. }) => {
                 (StatusCode::UNPROCESSABLE_ENTITY, "out_of_limits")
             }
-            DeviceError::Stage(S::NotHomed) => (StatusCode::CONFLICT, "not_homed"),
+            DeviceError::Stage(S::NotHomed) => {
+                // The stage's own text names a command line; here the remedy is an item.
+                return ApiError::new(
+                    StatusCode::CONFLICT,
+                    "not_homed",
+                    "the stage is not homed (after a start, a halt or a reset): queue a home item first",
+                );
+            }
             _ => (StatusCode::BAD_GATEWAY, "device"),
         };
         ApiError::new(s, k, e.to_string())
