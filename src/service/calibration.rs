@@ -4,9 +4,9 @@
 //! resumed, since one session's marks are measured in one stretch (seed 002 shows the rig's
 //! figures drifting over time).
 
+use super::devices::Rig;
 use super::events::Kind;
 use super::queue::{ItemId, Task};
-use super::work::Rig;
 use crate::calibrate::pixel::Step;
 use crate::calibrate::run::{Hands, InteriorJob, PixelJob};
 use crate::calibrate::{InteriorOptions, PixelOptions, Session};
@@ -50,7 +50,7 @@ pub fn run(rig: &mut Rig, id: ItemId, task: &Task) -> Result<Value, String> {
     let last_look = rig.last_look;
     let mut seen = |img: &crate::digitise::ImageF32| {
         if bus.clients() > 0 {
-            super::work::show(bus, last_look, img, json!({"item": id}));
+            super::devices::show(bus, last_look, img, json!({"item": id}));
         }
     };
     let sim = rig.settings.sim;

@@ -1,6 +1,8 @@
 //! What the hardware thread and the work it runs share: the devices, how a running item is
-//! interrupted, how a run ends, the live frame, and the settings the work is checked against.
+//! interrupted, how a run ends, the live frame, the settings the work is checked against, and
+//! what an item runs with (`Rig`).
 
+use super::events::{Bus, Kind};
 use super::queue::ItemId;
 use crate::camera::Camera;
 use crate::coords::CarriageUm;
@@ -163,4 +165,41 @@ pub fn png_of(img: &crate::digitise::ImageF32) -> image::ImageResult<Vec<u8>> {
         image::ImageFormat::Png,
     )?;
     Ok(out.into_inner())
+}
+
+/// What an item runs with on the hardware thread.
+pub struct Rig<'a> {
+    pub dev: &'a mut Devices,
+    pub bus: &'a Bus,
+    pub control: &'a Control,
+    pub settings: &'a Settings,
+    pub last_look: &'a Mutex<Option<Look>>,
+}
+
+/// `img` as the live view's newest frame, and a preview event naming it (with `what`).
+pub fn show(
+    bus: &Bus,
+    last: &Mutex<Option<Look>>,
+    img: &crate::digitise::ImageF32,
+    what: serde_json::Value,
+) {
+    let Ok(png) = super::devices::png_of(img) else {
+        return;
+    };
+    let number = {
+        let mut l = last.lock().unwrap_or_else(|e| e.into_inner());
+        let n = l.as_ref().map_or(1, |l| l.number + 1);
+        *l = Some(Look {
+            png: Arc::new(png),
+            number: n,
+            size: [img.width, img.height],
+            taken: std::time::Instant::now(),
+        });
+        n
+    };
+    let mut data = json!({"url": format!("/api/v1/live.png?n={number}")});
+    if let (Some(d), Some(w)) = (data.as_object_mut(), what.as_object()) {
+        d.extend(w.clone());
+    }
+    bus.publish(Kind::Preview, data);
 }

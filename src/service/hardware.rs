@@ -203,7 +203,7 @@ impl Actor {
                 } => {
                     self.busy.store(id + 1, Ordering::SeqCst);
                     let ran = super::work::run(
-                        &mut super::work::Rig {
+                        &mut super::devices::Rig {
                             dev: self.dev.as_mut().expect("open"),
                             bus: &self.bus,
                             control: &self.control,

@@ -2,7 +2,7 @@
 //! the item's own folder, continued from its manifest on every later attempt), a calibration
 //! (`calibration`).
 
-use super::devices::{position_json, Control, Devices, Ended, Look, Ran, Settings};
+use super::devices::{position_json, Ended, Look, Ran, Rig};
 use super::events::{Bus, Kind};
 use super::queue::{ItemId, Task};
 use crate::coords::CarriageUm;
@@ -10,16 +10,8 @@ use crate::scan::run::{Outcome, Progress, Reopen, RunOptions, ScanRig};
 use crate::scan::{ScanCalibration, ScanDir, ScanError, ScanScript};
 use serde_json::json;
 use std::path::Path;
-use std::sync::{Arc, Mutex};
+use std::sync::Mutex;
 use std::time::Duration;
-
-pub struct Rig<'a> {
-    pub dev: &'a mut Devices,
-    pub bus: &'a Bus,
-    pub control: &'a Control,
-    pub settings: &'a Settings,
-    pub last_look: &'a Mutex<Option<Look>>,
-}
 
 /// The script's copy in the item's folder, and the scan's folder beside it.
 pub const SCRIPT: &str = "script.toml";
@@ -155,34 +147,6 @@ fn scan(
 fn preview(bus: &Bus, last: &Mutex<Option<Look>>, dir: &Path, tile: &str) {
     let path = dir.join(crate::scan::run::tile_file(tile));
     if let Ok(img) = crate::digitise::output::read_tiff16_f32(&path) {
-        show(bus, last, &img, json!({"tile": tile}));
+        super::devices::show(bus, last, &img, json!({"tile": tile}));
     }
-}
-
-/// `img` as the live view's newest frame, and a preview event naming it (with `what`).
-pub fn show(
-    bus: &Bus,
-    last: &Mutex<Option<Look>>,
-    img: &crate::digitise::ImageF32,
-    what: serde_json::Value,
-) {
-    let Ok(png) = super::devices::png_of(img) else {
-        return;
-    };
-    let number = {
-        let mut l = last.lock().unwrap_or_else(|e| e.into_inner());
-        let n = l.as_ref().map_or(1, |l| l.number + 1);
-        *l = Some(Look {
-            png: Arc::new(png),
-            number: n,
-            size: [img.width, img.height],
-            taken: std::time::Instant::now(),
-        });
-        n
-    };
-    let mut data = json!({"url": format!("/api/v1/live.png?n={number}")});
-    if let (Some(d), Some(w)) = (data.as_object_mut(), what.as_object()) {
-        d.extend(w.clone());
-    }
-    bus.publish(Kind::Preview, data);
 }
