@@ -503,7 +503,14 @@ fn hostile_requests_are_refused_with_typed_errors() {
     let scan = |name: &str, script: &str| {
         json!({"items": [{"task": {"kind": "scan", "name": name, "script": script}}]}).to_string()
     };
-    let cases: Vec<(&str, String, Option<String>, u16, &str)> = vec![
+    let cert = |c: &str| {
+        json!({"items": [{"task": {"kind": "calibrate_pixel", "plate_cert": c}}]}).to_string()
+    };
+    let cases: Vec<(&str, String, Option<String>, u16, &str)> =
+        vec![
+        // A client cannot make the service read a file of its choosing.
+        ("POST", "/api/v1/queue/items".into(), Some(cert("/etc/passwd")), 422, "bad_task"),
+        ("POST", "/api/v1/queue/items".into(), Some(cert("../tokens.toml")), 422, "bad_task"),
         (
             "POST",
             "/api/v1/queue/items".into(),

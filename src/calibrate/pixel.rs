@@ -72,7 +72,7 @@ pub enum CalibrateError {
     #[error("{0}")]
     NotFound(String),
     /// Asked to pause (or stop) by the operator; seen before the next move.
-    #[error("interrupted by the operator before the next mark; the session ends here (a calibration's marks are measured in one stretch: resumed, it starts again)")]
+    #[error("interrupted by the operator before the next mark; the session ends here (a calibration's marks are measured in one stretch: a paused one starts a new session when resumed)")]
     Interrupted,
     #[error("the flat field at carriage {at} is not clear glass ({dark:.1} % of it is dark): clean the plate there, or calibrate with --no-flat")]
     FlatNotClear { at: CarriageUm, dark: f64 },

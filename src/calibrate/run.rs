@@ -114,8 +114,17 @@ fn finish<T: serde::Serialize>(
                 session: dir.clone(),
                 calibration: &calibration,
             };
-            session.write_results(&results).map_err(record(&dir))?;
-            let doc = serde_json::to_value(&results).map_err(|e| record(&dir)(e.into()))?;
+            let written = session
+                .write_results(&results)
+                .and_then(|_| serde_json::to_value(&results).map_err(Into::into));
+            let doc = match written {
+                Ok(d) => d,
+                Err(e) => {
+                    // Never left without an end: the record says why it failed.
+                    let _ = session.stop("failed", Some(&format!("writing the results: {e}")));
+                    return Err(record(&dir)(e));
+                }
+            };
             session.stop("done", None).map_err(record(&dir))?;
             Ok(Finished {
                 calibration,

@@ -130,7 +130,7 @@ pub enum NewTask {
         grid_only: bool,
         #[arg(long)]
         no_flat: bool,
-        /// The plate certificate, a path on the service's machine.
+        /// The plate certificate: its file name in the service's --certificates folder.
         #[arg(long, value_name = "FILE")]
         plate_cert: Option<PathBuf>,
         #[command(flatten)]
@@ -146,10 +146,10 @@ pub enum NewTask {
         /// Where the film's centre lies on the carriage, roughly (mm).
         #[arg(long, value_name = "X,Y", default_value = "125,125")]
         film_centre: String,
-        /// A pixel session, a path on the service's machine.
+        /// A pixel session: its folder's name in the service's store.
         #[arg(long, value_name = "DIR")]
         pixel_session: Option<PathBuf>,
-        /// The film camera's certificate, a path on the service's machine.
+        /// The film camera's certificate: its file name in the service's --certificates folder.
         #[arg(long, value_name = "FILE")]
         camera_cert: Option<PathBuf>,
         #[command(flatten)]

@@ -28,6 +28,9 @@ pub struct ServeArgs {
     /// only this machine can connect, with every right.
     #[arg(long, value_name = "FILE", global = true)]
     pub tokens: Option<PathBuf>,
+    /// The folder of the certificates that calibration items name (by file name only).
+    #[arg(long, value_name = "DIR")]
+    pub certificates: Option<PathBuf>,
     /// Memory a scan's plan may take, MiB.
     #[arg(long, default_value_t = rig::scan::plan::DEFAULT_MAX_MEMORY_MIB, value_name = "MIB")]
     pub max_memory: u64,
@@ -108,6 +111,7 @@ pub fn run(a: ServeArgs) -> anyhow::Result<i32> {
         max_memory_mib: a.max_memory,
         look_frames: a.look_frames,
         sim: a.conn.sim.on,
+        certificates: a.certificates.clone(),
     };
     let data = a.data.clone();
     let json = a.json;

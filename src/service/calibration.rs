@@ -74,7 +74,7 @@ pub fn run(rig: &mut Rig, id: ItemId, task: &Task) -> Result<Value, String> {
             plate_cert,
         } => {
             let plate_certificate = match plate_cert {
-                Some(p) => p.clone(),
+                Some(n) => super::task::certificate_path(n, rig.settings)?,
                 None => own("plate-cert.toml", &dev.certificates.plate)?,
             };
             let job = PixelJob {
@@ -108,7 +108,7 @@ pub fn run(rig: &mut Rig, id: ItemId, task: &Task) -> Result<Value, String> {
             camera_cert,
         } => {
             let pixel_session = match pixel_session {
-                Some(d) => d.clone(),
+                Some(n) => super::task::session_in_store(n, rig.settings)?,
                 None => crate::calibrate::session::newest(&store, "pixel")
                     .map_err(|e| format!("{}: {e}", store.display()))?
                     .ok_or_else(|| {
@@ -119,7 +119,7 @@ pub fn run(rig: &mut Rig, id: ItemId, task: &Task) -> Result<Value, String> {
                     })?,
             };
             let camera_certificate = match camera_cert {
-                Some(p) => p.clone(),
+                Some(n) => super::task::certificate_path(n, rig.settings)?,
                 None => own("camera-cert.toml", &dev.certificates.camera)?,
             };
             let job = InteriorJob {

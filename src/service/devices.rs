@@ -146,6 +146,8 @@ pub struct Settings {
     pub look_frames: u32,
     /// The hardware is the simulator (its certificates stand in for ones not given).
     pub sim: bool,
+    /// Where certificates named by items are (`--certificates`); none: only the simulator's.
+    pub certificates: Option<PathBuf>,
 }
 
 pub fn position_json(p: CarriageUm) -> serde_json::Value {

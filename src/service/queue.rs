@@ -49,7 +49,7 @@ pub enum Task {
         /// Nominal pixel spacing to start from, µm.
         #[serde(default = "default_pixel_um")]
         pixel_um: [f64; 2],
-        /// The plate certificate (a path on the service's machine); with the simulator, its own.
+        /// The plate certificate: a file name in `--certificates`; with the simulator, its own.
         #[serde(default)]
         plate_cert: Option<PathBuf>,
     },
@@ -60,10 +60,11 @@ pub enum Task {
         /// Where the film's centre lies on the carriage, roughly, mm.
         #[serde(default = "default_film_centre")]
         film_centre_mm: [f64; 2],
-        /// The pixel session to use (default: the newest in the store).
+        /// The pixel session to use, by its folder's name in the store (default: the newest).
         #[serde(default)]
         pixel_session: Option<PathBuf>,
-        /// The film camera's certificate; with the simulator, its own.
+        /// The film camera's certificate: a file name in `--certificates`; with the simulator,
+        /// its own.
         #[serde(default)]
         camera_cert: Option<PathBuf>,
     },

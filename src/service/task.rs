@@ -8,7 +8,7 @@ use super::queue::Task;
 use crate::coords::CarriageUm;
 use crate::scan::{ScanCalibration, ScanScript};
 use crate::stage::SoftLimits;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 /// The longest scan script taken, bytes.
 pub const MAX_SCRIPT: usize = 256 << 10;
@@ -111,7 +111,8 @@ pub fn check(task: &Task, limits: &SoftLimits, settings: &Settings) -> Result<()
             // Without a name, the newest pixel session when the item runs: an earlier item of
             // the queue may be the one that makes it.
             if let Some(d) = pixel_session {
-                crate::calibrate::documents::pixel_transform(d)
+                let dir = session_in_store(d, settings).map_err(|m| invalid("pixel_session", m))?;
+                crate::calibrate::documents::pixel_transform(&dir)
                     .map_err(|e| invalid("pixel_session", e.to_string()))?;
             }
             check_certificate("camera_cert", camera_cert, settings)
@@ -126,20 +127,54 @@ fn check_frames(frames: u32) -> Result<(), TaskError> {
     }
 }
 
-/// A certificate must be named on real hardware (the simulator has its own), and be a file.
+/// A certificate must be named on real hardware (the simulator has its own).
 fn check_certificate(
     field: &str,
-    path: &Option<std::path::PathBuf>,
+    name: &Option<PathBuf>,
     settings: &Settings,
 ) -> Result<(), TaskError> {
-    match path {
+    match name {
         None if settings.sim => Ok(()),
         None => Err(invalid(
             field,
-            "name the certificate (a TOML file on the service's machine; docs/calibration.md shows its format)",
+            "name the certificate: a file in the service's --certificates folder (docs/calibration.md shows its format)",
         )),
-        Some(p) if p.is_file() => Ok(()),
-        Some(p) => Err(invalid(field, format!("{} is not a file here", p.display()))),
+        Some(n) => certificate_path(n, settings)
+            .map(|_| ())
+            .map_err(|m| invalid(field, m)),
+    }
+}
+
+/// A certificate named by an item: a plain file name in `rig serve --certificates DIR`, never
+/// a path (a client must not make the service read any file it can).
+pub fn certificate_path(name: &Path, settings: &Settings) -> Result<PathBuf, String> {
+    let Some(dir) = &settings.certificates else {
+        return Err(
+            "this service takes no certificates by name: start it with --certificates DIR".into(),
+        );
+    };
+    let plain = name
+        .to_str()
+        .filter(|n| check_name("certificate", n).is_ok());
+    match plain {
+        Some(n) if dir.join(n).is_file() => Ok(dir.join(n)),
+        Some(n) => Err(format!("no certificate {n:?} in {}", dir.display())),
+        None => Err(format!(
+            "{:?}: a certificate is named by its file name in the --certificates folder",
+            name
+        )),
+    }
+}
+
+/// A pixel session named by an item: a session's folder name in the store.
+pub fn session_in_store(name: &Path, settings: &Settings) -> Result<PathBuf, String> {
+    match name.to_str().filter(|n| check_name("session", n).is_ok()) {
+        Some(n) if settings.store.join(n).is_dir() => Ok(settings.store.join(n)),
+        Some(n) => Err(format!("no session {n:?} in {}", settings.store.display())),
+        None => Err(format!(
+            "{:?}: a session is named by its folder's name in the store",
+            name
+        )),
     }
 }
 
