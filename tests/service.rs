@@ -358,6 +358,27 @@ fn a_port_scan_cannot_exhaust_the_service() {
     assert!(t0.elapsed() < Duration::from_secs(5));
     let (st, _) = s.call("GET", "/api/v1/status", None, None);
     assert_eq!(st, 200);
+    // Event streams take at most three quarters of the connections (30 of 40): the rest stay
+    // free for control, so a halt gets through with every stream taken.
+    let streams: Vec<std::net::TcpStream> = (0..30)
+        .map(|_| {
+            let mut c = std::net::TcpStream::connect(&host).unwrap();
+            c.write_all(b"GET /api/v1/events HTTP/1.1\r\nHost: x\r\n\r\n")
+                .unwrap();
+            let mut b = [0u8; 12];
+            c.read_exact(&mut b).unwrap();
+            assert_eq!(&b, b"HTTP/1.1 200");
+            c
+        })
+        .collect();
+    let one_more = common::serve::agent()
+        .get(format!("{}/api/v1/events", s.url))
+        .call()
+        .unwrap();
+    assert_eq!(one_more.status().as_u16(), 503);
+    drop(one_more);
+    assert_eq!(s.call("POST", "/api/v1/run/halt", None, None).0, 200);
+    drop(streams);
     eprintln!("300 half-open connections: {during} descriptors at most (from {before}), all closed in {:.2} s", t0.elapsed().as_secs_f64());
 }
 

@@ -19,6 +19,10 @@ pub enum LedgerError {
     /// The change could not be made durable: it was not applied.
     #[error("the journal could not be written, so nothing was changed: {0}")]
     Journal(#[from] JournalError),
+    /// An admin's lock, seen under the ledger's own lock (a request begun before the lock was
+    /// set is refused too).
+    #[error("the queue is locked by {} ({}): only an admin may change it now; pause, abort and halt stay open", .0.by, .0.note)]
+    Locked(crate::service::queue::Lock),
     #[error("{path}: record {index} is not a change the service wrote ({why}); move the journal away to start empty, or restore it")]
     Damaged {
         path: std::path::PathBuf,
@@ -96,6 +100,36 @@ impl Ledger {
         Ok(Some(c))
     }
 
+    /// As [`Ledger::request`], refused while an admin's lock is set unless `admin`.
+    pub fn request_as(&self, admin: bool, r: Request) -> Result<Option<Change>, LedgerError> {
+        let mut g = self.lock();
+        if let (false, Some(l)) = (admin, &g.state.lock) {
+            return Err(LedgerError::Locked(l.clone()));
+        }
+        let Some(c) = g.state.plan(r)? else {
+            return Ok(None);
+        };
+        self.write(&mut g, c.clone())?;
+        Ok(Some(c))
+    }
+
+    /// As [`Ledger::change`], refused while an admin's lock is set unless `admin`.
+    pub fn change_as(
+        &self,
+        admin: bool,
+        make: impl FnOnce(&State) -> Option<Change>,
+    ) -> Result<Option<Change>, LedgerError> {
+        let mut g = self.lock();
+        if let (false, Some(l)) = (admin, &g.state.lock) {
+            return Err(LedgerError::Locked(l.clone()));
+        }
+        let Some(c) = make(&g.state) else {
+            return Ok(None);
+        };
+        self.write(&mut g, c.clone())?;
+        Ok(Some(c))
+    }
+
     /// Journals and applies a change made from the state (`make` sees the state under the
     /// lock; `None`: no change).
     pub fn change(
@@ -136,4 +170,44 @@ fn tell(c: &Change, before: &State) -> Option<(Kind, serde_json::Value)> {
         Change::Snapshot(_) => return None,
         other => (Kind::Queue, serde_json::to_value(other).ok()?),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::service::queue::{Lock, Position, Task};
+
+    /// The lock is read under the ledger's own mutex: a request checked before the lock was
+    /// set is still refused when it reaches the ledger; an admin's goes through.
+    #[test]
+    fn a_lock_refuses_a_non_admins_change_at_the_ledger() {
+        let d = tempfile::tempdir().unwrap();
+        let (l, _) = Ledger::open(d.path()).unwrap();
+        let add = || Request::Add {
+            items: vec![(Task::Home, None)],
+            at: Position::Back,
+            now_ms: 0,
+        };
+        l.request_as(false, add()).unwrap();
+        l.change(|_| {
+            Some(Change::Lock {
+                lock: Some(Lock {
+                    by: "a".into(),
+                    note: "lamp".into(),
+                    since_ms: 0,
+                }),
+            })
+        })
+        .unwrap();
+        assert!(matches!(
+            l.request_as(false, add()),
+            Err(LedgerError::Locked(_))
+        ));
+        assert!(matches!(
+            l.change_as(false, |s| Some(Change::Options(s.options))),
+            Err(LedgerError::Locked(_))
+        ));
+        l.request_as(true, add()).unwrap();
+        assert_eq!(l.read(|s| s.queue.len()), 2);
+    }
 }

@@ -87,6 +87,8 @@ pub fn serve(
             limits: hw.limits,
             settings: opt.settings.clone(),
             shutdown: shutdown.clone(),
+            max_event_clients: super::http::MAX_EVENT_CLIENTS
+                .min(opt.listen.max_connections - opt.listen.max_connections.div_ceil(4)),
         };
         let listener = tokio::net::TcpListener::bind(opt.bind)
             .await

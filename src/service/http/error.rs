@@ -57,6 +57,9 @@ impl From<LedgerError> for ApiError {
     fn from(e: LedgerError) -> Self {
         match e {
             LedgerError::Queue(q) => q.into(),
+            e @ LedgerError::Locked(_) => {
+                ApiError::new(StatusCode::LOCKED, "locked", e.to_string())
+            }
             e => ApiError::new(StatusCode::SERVICE_UNAVAILABLE, "journal", e.to_string()),
         }
     }

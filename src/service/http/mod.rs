@@ -26,7 +26,8 @@ use std::time::Duration;
 pub const BODY_LIMIT: usize = 4 << 20;
 /// Every request but `/events` is answered within this.
 pub const REQUEST_TIMEOUT: Duration = Duration::from_secs(60);
-/// The most event streams at once.
+/// The most event streams at once (and at most three quarters of the connections, so that a
+/// halt or an abort always finds one free).
 pub const MAX_EVENT_CLIENTS: usize = 1000;
 /// A live frame older than this is taken again when asked for (if the hardware is free).
 const LOOK_AGE: Duration = Duration::from_millis(200);
@@ -39,6 +40,9 @@ pub struct App {
     pub limits: crate::stage::SoftLimits,
     pub settings: super::devices::Settings,
     pub shutdown: Arc<tokio::sync::Notify>,
+    /// The most event streams at once: [`MAX_EVENT_CLIENTS`], and a quarter of the
+    /// connections left for everything else.
+    pub max_event_clients: usize,
 }
 
 type Answer = Result<Json<Value>, ApiError>;

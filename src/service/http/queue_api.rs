@@ -2,6 +2,7 @@
 
 use super::error::{ApiError, Body};
 use super::{ok, Answer, App};
+use crate::service::auth::Role;
 use crate::service::hardware::Command;
 use crate::service::queue::{ItemId, Options, Place, Position, QueueError, Request, Task};
 use crate::service::runner::item_dir;
@@ -91,7 +92,11 @@ pub(super) struct AddBody {
     at: Position,
 }
 
-pub(super) async fn add(State(app): State<App>, Body(b): Body<AddBody>) -> Answer {
+pub(super) async fn add(
+    State(app): State<App>,
+    axum::Extension(caller): axum::Extension<super::Caller>,
+    Body(b): Body<AddBody>,
+) -> Answer {
     // Refused before each task is checked (a scan's check plans it).
     let queued = app.lab.ledger.read(|s| s.queue.len());
     if queued + b.items.len() > crate::service::queue::MAX_QUEUED {
@@ -109,11 +114,14 @@ pub(super) async fn add(State(app): State<App>, Body(b): Body<AddBody>) -> Answe
         })?;
     }
     let keys: Vec<Option<String>> = b.items.iter().map(|i| i.key.clone()).collect();
-    let change = app.lab.ledger.request(Request::Add {
-        items: b.items.into_iter().map(|i| (i.task, i.key)).collect(),
-        at: b.at,
-        now_ms: crate::service::events::now_ms(),
-    })?;
+    let change = app.lab.ledger.request_as(
+        caller.role == Role::Admin,
+        Request::Add {
+            items: b.items.into_iter().map(|i| (i.task, i.key)).collect(),
+            at: b.at,
+            now_ms: crate::service::events::now_ms(),
+        },
+    )?;
     // The ids in the order given: new items' from the change, repeated keys' from the state.
     let inserted: Vec<ItemId> = match &change {
         Some(crate::service::queue::Change::Insert { items, .. }) => {
@@ -154,21 +162,32 @@ pub(super) struct EditBody {
 
 pub(super) async fn edit(
     State(app): State<App>,
+    axum::Extension(caller): axum::Extension<super::Caller>,
     UrlPath(id): UrlPath<String>,
     Body(b): Body<EditBody>,
 ) -> Answer {
     let id = parse_id(&id)?;
     crate::service::task::check(&b.task, &app.limits, &app.settings)?;
-    app.lab.ledger.request(Request::Edit { id, task: b.task })?;
+    app.lab.ledger.request_as(
+        caller.role == Role::Admin,
+        Request::Edit { id, task: b.task },
+    )?;
     ok(json!({"id": id}))
 }
 
-pub(super) async fn remove(State(app): State<App>, UrlPath(id): UrlPath<String>) -> Answer {
+pub(super) async fn remove(
+    State(app): State<App>,
+    axum::Extension(caller): axum::Extension<super::Caller>,
+    UrlPath(id): UrlPath<String>,
+) -> Answer {
     let id = parse_id(&id)?;
-    app.lab.ledger.request(Request::Remove {
-        id,
-        now_ms: crate::service::events::now_ms(),
-    })?;
+    app.lab.ledger.request_as(
+        caller.role == Role::Admin,
+        Request::Remove {
+            id,
+            now_ms: crate::service::events::now_ms(),
+        },
+    )?;
     ok(json!({"id": id}))
 }
 
@@ -180,23 +199,35 @@ pub(super) struct MoveBody {
 
 pub(super) async fn move_item(
     State(app): State<App>,
+    axum::Extension(caller): axum::Extension<super::Caller>,
     UrlPath(id): UrlPath<String>,
     Body(b): Body<MoveBody>,
 ) -> Answer {
     let id = parse_id(&id)?;
-    app.lab.ledger.request(Request::Move { id, to: b.to })?;
+    app.lab
+        .ledger
+        .request_as(caller.role == Role::Admin, Request::Move { id, to: b.to })?;
     ok(json!({"id": id}))
 }
 
-pub(super) async fn clear(State(app): State<App>) -> Answer {
-    app.lab.ledger.request(Request::Clear {
-        now_ms: crate::service::events::now_ms(),
-    })?;
+pub(super) async fn clear(
+    State(app): State<App>,
+    axum::Extension(caller): axum::Extension<super::Caller>,
+) -> Answer {
+    app.lab.ledger.request_as(
+        caller.role == Role::Admin,
+        Request::Clear {
+            now_ms: crate::service::events::now_ms(),
+        },
+    )?;
     ok(json!({}))
 }
 
-pub(super) async fn start(State(app): State<App>) -> Answer {
-    app.lab.ledger.change(|s| {
+pub(super) async fn start(
+    State(app): State<App>,
+    axum::Extension(caller): axum::Extension<super::Caller>,
+) -> Answer {
+    app.lab.ledger.change_as(caller.role == Role::Admin, |s| {
         Some(crate::service::queue::Change::Options(Options {
             running: true,
             stop_after_current: false,
@@ -207,8 +238,11 @@ pub(super) async fn start(State(app): State<App>) -> Answer {
     ok(json!({"running": true}))
 }
 
-pub(super) async fn stop_queue(State(app): State<App>) -> Answer {
-    let after = app.lab.ledger.change(|s| {
+pub(super) async fn stop_queue(
+    State(app): State<App>,
+    axum::Extension(caller): axum::Extension<super::Caller>,
+) -> Answer {
+    let after = app.lab.ledger.change_as(caller.role == Role::Admin, |s| {
         Some(crate::service::queue::Change::Options(match s.running {
             Some(_) => Options {
                 stop_after_current: true,
@@ -232,8 +266,12 @@ pub(super) struct OptionsBody {
     continue_on_failure: Option<bool>,
 }
 
-pub(super) async fn options(State(app): State<App>, Body(b): Body<OptionsBody>) -> Answer {
-    let c = app.lab.ledger.change(|s| {
+pub(super) async fn options(
+    State(app): State<App>,
+    axum::Extension(caller): axum::Extension<super::Caller>,
+    Body(b): Body<OptionsBody>,
+) -> Answer {
+    let c = app.lab.ledger.change_as(caller.role == Role::Admin, |s| {
         Some(crate::service::queue::Change::Options(Options {
             autostart: b.autostart.unwrap_or(s.options.autostart),
             continue_on_failure: b

@@ -2,7 +2,7 @@
 //! client missed, and a resync for one that fell behind.
 
 use super::error::ApiError;
-use super::{App, MAX_EVENT_CLIENTS};
+use super::App;
 use crate::service::events::{Event as BusEvent, Kind};
 use axum::extract::State;
 use axum::http::{HeaderMap, StatusCode};
@@ -28,11 +28,12 @@ pub(super) async fn events(
 ) -> Result<Sse<impl futures_util::Stream<Item = Result<Event, std::convert::Infallible>>>, ApiError>
 {
     let bus = app.lab.ledger.bus.clone();
-    if bus.clients() >= MAX_EVENT_CLIENTS {
+    let most = app.max_event_clients;
+    if bus.clients() >= most {
         return Err(ApiError::new(
             StatusCode::SERVICE_UNAVAILABLE,
             "too_many_clients",
-            format!("at most {MAX_EVENT_CLIENTS} event streams at once"),
+            format!("at most {most} event streams at once (the rest of the connections are kept for control)"),
         ));
     }
     let last = headers
