@@ -684,6 +684,23 @@ fn hostile_requests_are_refused_with_typed_errors() {
         assert!(answer.starts_with("HTTP/1.1 413"), "{answer}");
         assert!(answer.contains("\"error\":\"body\""), "{answer}");
     }
+    // Another site's page cannot drive the service (a no-cors POST from the browser): the
+    // service's own page can.
+    {
+        let host = s.url.trim_start_matches("http://");
+        let post = |origin: &str| {
+            let r = common::serve::agent()
+                .post(format!("{}/api/v1/queue/start", s.url))
+                .header("Origin", origin)
+                .send_empty()
+                .unwrap();
+            r.status().as_u16()
+        };
+        assert_eq!(post("http://evil.example"), 403);
+        assert_eq!(post("null"), 403);
+        assert_eq!(post(&format!("http://{host}")), 200);
+        assert_eq!(s.call("POST", "/api/v1/queue/stop", None, None).0, 200);
+    }
     // Nothing of it was queued, and the service still answers.
     let (st, q) = s.call("GET", "/api/v1/queue", None, None);
     assert_eq!(st, 200);

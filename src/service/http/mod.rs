@@ -338,6 +338,37 @@ fn caller_of(app: &App, headers: &HeaderMap) -> Result<Caller, ApiError> {
         })
 }
 
+/// A browser's request that changes something must come from the service's own page: another
+/// site's page, open on the lab's computer, could otherwise start the queue or abort a scan on
+/// a service without tokens (a "no-cors" POST needs no preflight). Browsers send `Origin` with
+/// such requests; tools (curl, the CLI) send none and are not affected.
+fn same_origin(req: &HttpRequest) -> Result<(), ApiError> {
+    if req.method() == Method::GET || req.method() == Method::HEAD {
+        return Ok(());
+    }
+    let h = req.headers();
+    let Some(origin) = h.get(header::ORIGIN).and_then(|v| v.to_str().ok()) else {
+        return Ok(());
+    };
+    let host = h
+        .get(header::HOST)
+        .and_then(|v| v.to_str().ok())
+        .unwrap_or("");
+    let origin_host = origin
+        .strip_prefix("http://")
+        .or_else(|| origin.strip_prefix("https://"))
+        .unwrap_or("");
+    if !host.is_empty() && origin_host.eq_ignore_ascii_case(host) {
+        Ok(())
+    } else {
+        Err(ApiError::new(
+            StatusCode::FORBIDDEN,
+            "cross_origin",
+            format!("a request from the page of {origin} may not change this service (only its own page at {host} may)"),
+        ))
+    }
+}
+
 /// Checks the caller's role and the lock; the caller goes with the request.
 fn admit(app: &App, req: &mut HttpRequest, need: Role, lockable: bool) -> Result<(), ApiError> {
     let caller = caller_of(app, req.headers())?;
@@ -380,6 +411,9 @@ pub fn router(app: App) -> Router {
             move |mut req: HttpRequest, next: Next| {
                 let a = a.clone();
                 async move {
+                    if let Err(e) = same_origin(&req) {
+                        return e.into_response();
+                    }
                     if let Some(need) = need {
                         if let Err(e) = admit(&a, &mut req, need, lockable) {
                             return e.into_response();
