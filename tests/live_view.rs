@@ -190,6 +190,14 @@ fn the_page_shows_the_camera_runs_items_and_controls_them() {
         );
         (n == 3).then_some(())
     });
+    // The new interior session's residual plots are shown beside the pixel session's.
+    b.wait("the calibration's plots", 20, |b| {
+        let n = b.js(
+            "return document.querySelectorAll('#plots img').length",
+            json!([]),
+        );
+        (n.as_u64() >= Some(4)).then_some(())
+    });
     b.screenshot(&shots().join("4-done.png"));
     assert!(
         seen.windows(2).any(|w| w[1] > w[0]),

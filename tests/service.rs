@@ -38,6 +38,7 @@ fn routes(s: &Server, token: &str) -> Vec<(String, String, Option<String>)> {
                 m.to_uppercase(),
                 path.replace("{id}", "0")
                     .replace("{kind}", "pixel")
+                    .replace("{session}", "20261129T000000Z-pixel")
                     .replace("{file}", "residuals-affine.png"),
                 op["x-role"].as_str().map(String::from),
             ));

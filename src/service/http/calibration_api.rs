@@ -40,7 +40,12 @@ fn summary(store: &Path) -> Value {
                 let name = dir.file_name().map(|n| n.to_string_lossy().to_string());
                 let plots: Vec<String> = plots(&dir)
                     .into_iter()
-                    .map(|p| format!("/api/v1/calibration/{kind}/{p}"))
+                    .map(|p| {
+                        format!(
+                            "/api/v1/calibration/{kind}/{}/{p}",
+                            name.as_deref().unwrap_or("")
+                        )
+                    })
                     .collect();
                 let figures = match kind {
                     "pixel" => crate::calibrate::history::figures(&dir)
@@ -64,11 +69,12 @@ pub(super) async fn calibration(State(app): State<App>) -> Answer {
     ok(json!({"store": app.settings.store, "newest": v}))
 }
 
-/// GET /api/v1/calibration/{kind}/{file}: one of the newest session's plots (only names the
-/// listing gives are served: nothing else of the disk is reachable).
+/// GET /api/v1/calibration/{kind}/{session}/{file}: a plot of a session of the store (only
+/// sessions and plots the listings give are served: nothing else of the disk is reachable; the
+/// session is named, so a plot never belongs to a newer session than its figures).
 pub(super) async fn plot(
     State(app): State<App>,
-    UrlPath((kind, file)): UrlPath<(String, String)>,
+    UrlPath((kind, name, file)): UrlPath<(String, String, String)>,
 ) -> Result<Response, ApiError> {
     let not_found = |what: String| ApiError::new(StatusCode::NOT_FOUND, "no_plot", what);
     if !KINDS.contains(&kind.as_str()) {
@@ -78,9 +84,13 @@ pub(super) async fn plot(
     }
     let store = app.settings.store.clone();
     let bytes = tokio::task::spawn_blocking(move || -> Result<Vec<u8>, ApiError> {
-        let dir = newest(&store, &kind)
-            .map_err(|e| ApiError::new(StatusCode::INTERNAL_SERVER_ERROR, "store", e))?
-            .ok_or_else(|| not_found(format!("no {kind} session in {}", store.display())))?;
+        let dir = session::list(&store, &kind)
+            .map_err(|e| ApiError::new(StatusCode::INTERNAL_SERVER_ERROR, "store", e.to_string()))?
+            .into_iter()
+            .find(|d| d.file_name().is_some_and(|n| n == name.as_str()))
+            .ok_or_else(|| {
+                not_found(format!("no {kind} session {name:?} in {}", store.display()))
+            })?;
         if !plots(&dir).contains(&file) {
             return Err(not_found(format!(
                 "{file:?} is not a plot of {}: GET /api/v1/calibration lists them",

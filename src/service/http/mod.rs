@@ -256,9 +256,9 @@ pub fn routes() -> Vec<Route> {
         ),
         route(
             Method::GET,
-            "/api/v1/calibration/{kind}/{file}",
+            "/api/v1/calibration/{kind}/{session}/{file}",
             o,
-            "One residual plot of the newest session of a kind (PNG)",
+            "One residual plot of a calibration session (PNG)",
             get(calibration_api::plot),
         ),
         route(
