@@ -42,7 +42,7 @@ fn tile_rate(data: &Path, window: Duration) -> f64 {
 }
 
 #[test]
-#[ignore = "two minutes of load; fails today (the tile rate falls 25-40 % under the clients): issue 39"]
+#[ignore = "three minutes of load; fails today (the tile rate falls 30 % under the clients): issue 39"]
 fn a_minute_of_100_event_clients_and_10_editors_costs_no_event_and_no_tile_rate() {
     let d = tempfile::tempdir().unwrap();
     let store = d.path().join("store");
@@ -71,7 +71,7 @@ fn a_minute_of_100_event_clients_and_10_editors_costs_no_event_and_no_tile_rate(
         "--json",
     ]);
     run(&["calibrate", "interior", "--sim", "--frames", "8", "--json"]);
-    let script = "[film]\nname = \"soak\"\n\n[output]\ndir = \"unused\"\nresolution_um = 25.0\n\n[capture]\nframes = 8\noverlap = 0.2\nsettle_ms = 0\n\n[[region]]\nname = \"a\"\nphoto_mm = [-8.0, -5.0, 4.0, 5.0]\n";
+    let script = "[film]\nname = \"soak\"\n\n[output]\ndir = \"unused\"\nresolution_um = 25.0\n\n[capture]\nframes = 8\noverlap = 0.2\nsettle_ms = 0\n\n[[region]]\nname = \"a\"\nphoto_mm = [-110.0, -110.0, 110.0, 110.0]\n";
     let data = d.path().join("data");
     let s = Server::start(
         &data,
@@ -83,8 +83,9 @@ fn a_minute_of_100_event_clients_and_10_editors_costs_no_event_and_no_tile_rate(
             store.to_str().unwrap(),
         ],
     );
-    // Scans back to back for the whole run.
-    let items: Vec<Value> = (0..200)
+    // One scan of the whole photo for the whole run (scans back to back would each home
+    // first, and the windows would hold different numbers of homings).
+    let items: Vec<Value> = (0..3)
         .map(|k| json!({"task": {"kind": "scan", "name": format!("s{k}"), "script": script}}))
         .collect();
     let (st, v) = s.call(
@@ -180,7 +181,7 @@ fn a_minute_of_100_event_clients_and_10_editors_costs_no_event_and_no_tile_rate(
         (loaded / alone - 1.0) * 100.0
     );
     assert!(edits > 1000, "{edits} edits");
-    // (Tiles are counted whole: over a minute at ~0.2 a second, one tile is 8 % of the rate.)
+    // (Tiles are counted whole: over a minute at ~1.8 a second, one tile is 1 % of the rate.)
     assert!(
         loaded >= 0.95 * alone,
         "the tile rate fell from {alone:.3}/s to {loaded:.3}/s under the clients"
