@@ -62,27 +62,7 @@ fn the_page_shows_the_camera_runs_items_and_controls_them() {
     let d = tempfile::tempdir().unwrap();
     let store = d.path().join("store");
     // A pixel session for the page's calibration panel and for the interior item.
-    let out = common::rig()
-        .args([
-            "calibrate",
-            "pixel",
-            "--sim",
-            "--grid",
-            "3",
-            "--frames",
-            "8",
-            "--grid-only",
-            "--json",
-            "--store",
-        ])
-        .arg(&store)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    common::quick_pixel_session(&store);
     let s = Server::start(
         &d.path().join("data"),
         &["--sim", "--store", store.to_str().unwrap()],

@@ -46,31 +46,20 @@ fn tile_rate(data: &Path, window: Duration) -> f64 {
 fn a_minute_of_100_event_clients_and_10_editors_costs_no_event_and_no_tile_rate() {
     let d = tempfile::tempdir().unwrap();
     let store = d.path().join("store");
-    let run = |args: &[&str]| {
-        let out = common::rig()
-            .args(args)
-            .arg("--store")
-            .arg(&store)
-            .output()
-            .unwrap();
-        assert!(
-            out.status.success(),
-            "{}",
-            String::from_utf8_lossy(&out.stderr)
-        );
-    };
-    run(&[
-        "calibrate",
-        "pixel",
-        "--sim",
-        "--grid",
-        "3",
-        "--frames",
-        "8",
-        "--grid-only",
-        "--json",
-    ]);
-    run(&["calibrate", "interior", "--sim", "--frames", "8", "--json"]);
+    common::quick_pixel_session(&store);
+    common::run_ok(
+        common::rig()
+            .args([
+                "calibrate",
+                "interior",
+                "--sim",
+                "--frames",
+                "8",
+                "--json",
+                "--store",
+            ])
+            .arg(&store),
+    );
     let script = "[film]\nname = \"soak\"\n\n[output]\ndir = \"unused\"\nresolution_um = 25.0\n\n[capture]\nframes = 8\noverlap = 0.2\nsettle_ms = 0\n\n[[region]]\nname = \"a\"\nphoto_mm = [-110.0, -110.0, 110.0, 110.0]\n";
     let data = d.path().join("data");
     let s = Server::start(

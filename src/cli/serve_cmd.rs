@@ -101,7 +101,8 @@ pub fn run(a: ServeArgs) -> anyhow::Result<i32> {
     }
     let listen = rig::service::listen::Limits {
         max_connections: a.max_connections,
-        header_timeout: std::time::Duration::from_secs_f64(a.header_timeout),
+        header_timeout: std::time::Duration::try_from_secs_f64(a.header_timeout)
+            .context("--header-timeout")?,
     };
     let tokens = a.tokens.as_ref().map(|p| Tokens::load(p)).transpose()?;
     let limits = a.conn.port.limits;

@@ -41,6 +41,27 @@ pub fn run_ok(cmd: &mut Command) -> Output {
     out
 }
 
+/// A quick pixel session of the simulator into `store` (a 3 × 3 grid of 8-frame looks, no
+/// measuring mark): what the service's tests need for its calibration panel and interior items.
+pub fn quick_pixel_session(store: &Path) {
+    run_ok(
+        rig()
+            .args([
+                "calibrate",
+                "pixel",
+                "--sim",
+                "--grid",
+                "3",
+                "--frames",
+                "8",
+                "--grid-only",
+                "--json",
+                "--store",
+            ])
+            .arg(store),
+    );
+}
+
 /// `rig sim scene ARGS --out DIR/scene`, asserted to succeed; the scene's directory.
 pub fn sim_scene(dir: &Path, args: &[&str]) -> PathBuf {
     let scene = dir.join("scene");
