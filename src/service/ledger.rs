@@ -92,12 +92,7 @@ impl Ledger {
     /// Checks, journals and applies a client's request; `None`: nothing to change (a batch
     /// whose keys were all seen).
     pub fn request(&self, r: Request) -> Result<Option<Change>, LedgerError> {
-        let mut g = self.lock();
-        let Some(c) = g.state.plan(r)? else {
-            return Ok(None);
-        };
-        self.write(&mut g, c.clone())?;
-        Ok(Some(c))
+        self.request_as(true, r)
     }
 
     /// As [`Ledger::request`], refused while an admin's lock is set unless `admin`.
@@ -136,12 +131,7 @@ impl Ledger {
         &self,
         make: impl FnOnce(&State) -> Option<Change>,
     ) -> Result<Option<Change>, LedgerError> {
-        let mut g = self.lock();
-        let Some(c) = make(&g.state) else {
-            return Ok(None);
-        };
-        self.write(&mut g, c.clone())?;
-        Ok(Some(c))
+        self.change_as(true, make)
     }
 
     /// Reads the state.
