@@ -81,6 +81,23 @@ fn the_page_shows_the_camera_runs_items_and_controls_them() {
     });
     b.screenshot(&shots().join("1-loaded.png"));
 
+    // The simulator's film, lifted off and laid again from the page.
+    b.wait("the film laid", 20, |b| {
+        (b.text("#sim-film-state") == "laid").then_some(())
+    });
+    b.click("#sim-film-lift");
+    b.wait("the film lifted", 20, |b| {
+        (b.text("#sim-film-state") == "lifted").then_some(())
+    });
+    assert_eq!(
+        s.call("GET", "/api/v1/status", None, None).1["sim_film"],
+        "lifted"
+    );
+    b.click("#sim-film-lay");
+    b.wait("the film laid again", 20, |b| {
+        (b.text("#sim-film-state") == "laid").then_some(())
+    });
+
     // An item queued from the page runs: home, then the queue started from the page.
     b.click("#add-kind option[value=home]");
     b.click("#add-btn");

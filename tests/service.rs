@@ -3,7 +3,7 @@
 
 mod common;
 
-use common::serve::{call, Server};
+use common::serve::{call, wait_for, Server};
 use serde_json::{json, Value};
 use std::io::{BufRead, BufReader, Read, Write};
 use std::time::{Duration, Instant};
@@ -738,4 +738,99 @@ fn hostile_requests_are_refused_with_typed_errors() {
     eprintln!(
         "{n} hostile requests, a 10 000-item batch, a full queue, 60 control requests: each typed"
     );
+}
+
+/// The simulator's film is laid and lifted as an operator's hands do: with the film laid (as
+/// `rig serve --sim` starts) a pixel calibration cannot see the plate's crosses and fails;
+/// lifted, the same item ends done; while an item runs the film stays put (409 busy); laid
+/// again, an interior calibration sees the fiducials and ends done. The status and the
+/// command line say where the film is.
+#[test]
+fn the_simulators_film_is_lifted_for_a_pixel_calibration_and_laid_for_an_interior_one() {
+    let d = tempfile::tempdir().unwrap();
+    let store = d.path().join("store");
+    // Motions at a hundredth of real time: an item (which homes first, 0.6 s) runs long
+    // enough to be caught running.
+    let s = Server::start(
+        &d.path().join("data"),
+        &[
+            "--sim",
+            "--sim-time-scale",
+            "0.01",
+            "--store",
+            store.to_str().unwrap(),
+        ],
+    );
+    assert_eq!(
+        s.call("GET", "/api/v1/status", None, None).1["sim_film"],
+        "laid"
+    );
+    let pixel = json!({"items": [{"task": {"kind": "calibrate_pixel", "frames": 4, "grid": 3, "grid_only": true}}]}).to_string();
+    let ended = |id: u64| {
+        wait_for(&s, "/api/v1/history", 120, |v| {
+            v["history"]
+                .as_array()
+                .is_some_and(|h| h.iter().any(|i| i["id"] == id))
+        })["history"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|i| i["id"] == id)
+            .unwrap()
+            .clone()
+    };
+    let (st, v) = s.call("POST", "/api/v1/queue/items", None, Some(&pixel));
+    assert_eq!(st, 200, "{v}");
+    let covered = v["ids"][0].as_u64().unwrap();
+    assert_eq!(s.call("POST", "/api/v1/queue/start", None, None).0, 200);
+    let it = ended(covered);
+    assert_eq!(it["state"], "failed", "{it}");
+    assert!(
+        it["attempts"][0]["message"]
+            .as_str()
+            .is_some_and(|m| m.contains("film lying over the plate")),
+        "{it}"
+    );
+
+    // Lifted from the command line, as an operator would.
+    let out = common::run_ok(
+        common::rig()
+            .args(["run", "lift-film", "--server", &s.url])
+            .env_remove("RIG_TOKEN"),
+    );
+    assert!(
+        String::from_utf8_lossy(&out.stdout).contains("lifted"),
+        "{out:?}"
+    );
+    assert_eq!(
+        s.call("GET", "/api/v1/status", None, None).1["sim_film"],
+        "lifted"
+    );
+    let (st, v) = s.call("POST", "/api/v1/queue/items", None, Some(&pixel));
+    assert_eq!(st, 200, "{v}");
+    let bare = v["ids"][0].as_u64().unwrap();
+    // Started: the queue stopped after the failure (continue_on_failure is off).
+    s.call("POST", "/api/v1/queue/start", None, None);
+    wait_for(&s, "/api/v1/status", 60, |v| v["running"]["id"] == bare);
+    let (st, v) = s.call("PUT", "/api/v1/sim/film", None, Some(r#"{"laid": true}"#));
+    assert_eq!((st, v["error"].as_str()), (409, Some("busy")), "{v}");
+    let it = ended(bare);
+    assert_eq!(it["state"], "done", "{it}");
+
+    let (st, v) = s.call("PUT", "/api/v1/sim/film", None, Some(r#"{"laid": true}"#));
+    assert_eq!((st, &v["sim_film"]), (200, &json!("laid")), "{v}");
+    let (st, v) = s.call("PUT", "/api/v1/sim/film", None, Some(r#"{"laid": "yes"}"#));
+    assert_eq!(st, 422, "{v}");
+    let interior = json!({"items": [{"task": {"kind": "calibrate_interior", "frames": 4}}]});
+    let (st, v) = s.call(
+        "POST",
+        "/api/v1/queue/items",
+        None,
+        Some(&interior.to_string()),
+    );
+    assert_eq!(st, 200, "{v}");
+    let id = v["ids"][0].as_u64().unwrap();
+    s.call("POST", "/api/v1/queue/start", None, None);
+    let it = ended(id);
+    assert_eq!(it["state"], "done", "{it}");
 }

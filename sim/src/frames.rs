@@ -4,6 +4,9 @@
 use crate::camera::{expose, render_scene, CameraConfig};
 use crate::rng::Rng;
 
+/// What the camera looked at: where the measuring mark was (carriage µm), the film laid or not.
+type View = ([f64; 2], bool);
+
 /// One frame as the simulated frame grabber delivers it.
 #[derive(Debug, Clone)]
 pub struct SimFrame {
@@ -24,8 +27,8 @@ pub struct SimFrame {
 pub const BUFFERS: usize = 4;
 
 /// A stream of frames from the simulated camera, looking at the world's plate wherever the
-/// world's stage really is. Frames come at the camera's frame rate (time-scaled; never waits at
-/// time scale 0); with `drop_p` > 0 frames are lost on the way, leaving gaps in `seq`.
+/// world's stage really is. Frames come at the camera's frame rate, never faster (time-scaled;
+/// never waits at time scale 0); with `drop_p` > 0 frames are lost on the way, leaving gaps in `seq`.
 ///
 /// Like a V4L2 driver streaming into [`BUFFERS`] mmap buffers, the source fills every free
 /// buffer as soon as it can and hands out the oldest filled one: after the stage has moved, the
@@ -40,7 +43,10 @@ pub struct FrameSource {
     started: std::time::Instant,
     /// Sequence numbers lost on the way (the truth of the drop fault).
     pub dropped: Vec<u64>,
-    cache: Option<([f64; 2], Vec<f32>)>,
+    /// The last noiseless image, by where the mark was and whether the film was laid.
+    cache: Option<(View, Vec<f32>)>,
+    /// The camera clock's tick of the last frame captured (frame periods from the start).
+    tick: Option<f64>,
     /// Frames taken since the stage last moved (for the repeatable world).
     here: u64,
     /// Filled buffers not yet handed out, oldest first.
@@ -60,6 +66,7 @@ impl FrameSource {
             started: std::time::Instant::now(),
             dropped: vec![],
             cache: None,
+            tick: None,
             here: 0,
             queue: std::collections::VecDeque::new(),
         }
@@ -100,12 +107,23 @@ impl FrameSource {
             let seq = self.next_seq;
             self.next_seq += 1;
             let ts = self.world.time_scale;
-            if ts > 0.0 {
-                // A time scale or frame rate that makes the due time no duration (NaN, huge)
-                // means no waiting rather than a panic; no frame waits more than a minute.
-                let due = std::time::Duration::try_from_secs_f64(
-                    seq as f64 / self.cfg.frame_rate_hz * ts,
-                );
+            // The camera runs on its own clock: frame k can be captured at k frame periods
+            // (time-scaled) from the start, each at the first tick after the last frame and
+            // after now. A stream the host left idle does not catch up afterwards with frames
+            // faster than the frame rate (counting due times from the sequence number did, and
+            // a long scan ran as fast as the frames could be rendered, not at 25 frames a
+            // second). A period that is no duration (NaN, huge) means no waiting rather than a
+            // panic; no frame waits more than a minute.
+            let period = ts / self.cfg.frame_rate_hz;
+            if ts > 0.0 && period.is_finite() && period > 0.0 {
+                let now = self.started.elapsed().as_secs_f64();
+                let k = (now / period).ceil();
+                let k = match self.tick {
+                    Some(last) => k.max(last + 1.0),
+                    None => k,
+                };
+                self.tick = Some(k);
+                let due = std::time::Duration::try_from_secs_f64(k * period);
                 if let Some(wait) = due.ok().and_then(|d| d.checked_sub(self.started.elapsed())) {
                     std::thread::sleep(wait.min(std::time::Duration::from_secs(60)));
                 }
@@ -122,21 +140,18 @@ impl FrameSource {
                 // To the nanometre: two paths to one place may differ in a float's last bit.
                 mark_um = mark_um.map(|v| (v * 1000.0).round() / 1000.0);
             }
-            // The scene only changes when the stage moves.
+            // The scene only changes when the stage moves or the film is laid or lifted.
+            let film = self.world.film_on_carriage();
+            let key = (mark_um, film.is_some());
             let ideal = match &self.cache {
-                Some((p, img)) if *p == mark_um => {
+                Some((p, img)) if *p == key => {
                     self.here += 1;
                     img.clone()
                 }
                 _ => {
                     self.here = 0;
-                    let img = render_scene(
-                        &self.cfg,
-                        &self.world.plate,
-                        self.world.film.as_ref(),
-                        mark_um,
-                    );
-                    self.cache = Some((mark_um, img.clone()));
+                    let img = render_scene(&self.cfg, &self.world.plate, film, mark_um);
+                    self.cache = Some((key, img.clone()));
                     img
                 }
             };
@@ -161,5 +176,45 @@ impl FrameSource {
                 mark_um,
             };
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::server::{SimConfig, World};
+    use std::time::{Duration, Instant};
+
+    /// A camera at 25 frames a second, time-scaled by a half: a period of 20 ms (exposing a
+    /// frame takes a few).
+    fn source() -> FrameSource {
+        let world = World::new(&SimConfig {
+            time_scale: 0.5,
+            ..SimConfig::default()
+        });
+        FrameSource::new(world, 0.0)
+    }
+
+    #[test]
+    fn frames_never_come_faster_than_the_frame_rate_even_after_the_host_idled() {
+        let mut src = source();
+        let period = 0.5 / src.config().frame_rate_hz;
+        for _ in 0..3 {
+            src.next_frame();
+        }
+        // The host leaves the stream for 30 periods (a move), then takes 20 frames: a camera
+        // on its own clock delivers them one a period (the 4 buffered ones, filled before,
+        // aside), not in a burst making up for the idle time.
+        std::thread::sleep(Duration::from_secs_f64(30.0 * period));
+        let t0 = Instant::now();
+        for _ in 0..20 {
+            src.next_frame();
+        }
+        let took = t0.elapsed().as_secs_f64();
+        assert!(
+            took >= 19.0 * period,
+            "20 frames in {:.1} periods",
+            took / period
+        );
     }
 }

@@ -141,7 +141,11 @@ pub struct World {
     pub stage: Mutex<Stage>,
     pub camera: CameraConfig,
     pub plate: Plate,
+    /// The film of this world (when it has one), on the carriage or lifted off.
     pub film: Option<crate::film::Film>,
+    /// The film lies on the carriage (an operator lays and lifts it by hand: see
+    /// [`World::film_on_carriage`]).
+    pub film_laid: Arc<std::sync::atomic::AtomicBool>,
     pub seed: u64,
     pub time_scale: f64,
     /// See [`SimConfig::repeatable`].
@@ -199,11 +203,20 @@ impl World {
             stage: Mutex::new(stage),
             camera,
             plate,
+            film_laid: Arc::new(std::sync::atomic::AtomicBool::new(film.is_some())),
             film,
             seed: cfg.seed,
             time_scale: cfg.time_scale,
             repeatable: cfg.repeatable,
         })
+    }
+
+    /// The film the camera sees: the world's film while it is laid on the carriage (lifted, the
+    /// plate's crosses show again).
+    pub fn film_on_carriage(&self) -> Option<&crate::film::Film> {
+        self.film
+            .as_ref()
+            .filter(|_| self.film_laid.load(std::sync::atomic::Ordering::SeqCst))
     }
 
     /// The stage, even if a thread panicked while holding it (the state is plain data).
@@ -314,7 +327,7 @@ pub fn serve(
             let mut v = serde_json::to_value(&t)?;
             v["camera"] = serde_json::to_value(&world.camera)?;
             v["plate"] = serde_json::to_value(&world.plate)?;
-            v["film"] = serde_json::to_value(&world.film)?;
+            v["film"] = serde_json::to_value(world.film_on_carriage())?;
             write_atomic(p, &v)?;
         }
         Ok(())

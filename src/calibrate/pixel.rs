@@ -74,7 +74,7 @@ pub enum CalibrateError {
     /// Asked to pause (or stop) by the operator; seen before the next move.
     #[error("interrupted by the operator before the next mark; the session ends here (a calibration's marks are measured in one stretch: a paused one starts a new session when resumed)")]
     Interrupted,
-    #[error("the flat field at carriage {at} is not clear glass ({dark:.1} % of it is dark): clean the plate there, or calibrate with --no-flat")]
+    #[error("the flat field at carriage {at} is not clear glass ({dark:.1} % of it is dark): is a film lying over the plate? Lift it off (the simulator's: `rig run lift-film`); else clean the plate there, or calibrate without a flat field (--no-flat, or no_flat in a queue item)")]
     FlatNotClear { at: CarriageUm, dark: f64 },
 }
 

@@ -193,6 +193,11 @@ pub enum RunAction {
     Abort,
     /// Reset the controller now (also with nothing running).
     Halt,
+    /// Simulator only: lay the film on the carriage (for a scan or an interior calibration).
+    LayFilm,
+    /// Simulator only: lift the film off the carriage, baring the plate's crosses (for a pixel
+    /// calibration).
+    LiftFilm,
 }
 
 #[derive(Debug, Args)]
@@ -251,6 +256,7 @@ impl Client {
                         return self.answer(q.call(), &url);
                     }
                     "PATCH" => self.agent.patch(&url),
+                    "PUT" => self.agent.put(&url),
                     _ => self.agent.post(&url),
                 };
                 if let Some(a) = &auth {
@@ -532,8 +538,21 @@ pub fn run(a: RunArgs) -> anyhow::Result<i32> {
             "aborted: stages stopped, the item is back at the front",
         ),
         RunAction::Halt => ("halt", None, "halted: controller reset"),
+        RunAction::LayFilm => (
+            "PUT /api/v1/sim/film",
+            Some(json!({"laid": true})),
+            "the simulator's film is laid on the carriage",
+        ),
+        RunAction::LiftFilm => (
+            "PUT /api/v1/sim/film",
+            Some(json!({"laid": false})),
+            "the simulator's film is lifted: the plate's crosses show",
+        ),
     };
-    let v = c.call("POST", &format!("/api/v1/run/{path}"), body)?;
+    let v = match path.split_once(' ') {
+        Some((method, path)) => c.call(method, path, body)?,
+        None => c.call("POST", &format!("/api/v1/run/{path}"), body)?,
+    };
     print(&v, a.server.json, |v| match &v["id"] {
         Value::Null => what.to_string(),
         id => format!("item {id}: {what}"),

@@ -144,11 +144,17 @@ pub fn run(a: ServeArgs) -> anyhow::Result<i32> {
             },
             None => SimCertificates::default(),
         };
+        let sim_film = hw
+            .sim
+            .as_ref()
+            .filter(|s| s.world.film.is_some())
+            .map(|s| s.world.film_laid.clone());
         let (stage, camera, rest) = hw.split();
         Ok(Devices {
             stage,
             camera,
             certificates,
+            sim_film,
             close: Box::new(move || rest.close().map_err(|e| format!("{e:#}"))),
         })
     });

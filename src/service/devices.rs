@@ -19,6 +19,10 @@ pub struct Devices {
     pub camera: Box<dyn Camera>,
     /// The simulator's own certificates (TOML), for calibration items that name none.
     pub certificates: SimCertificates,
+    /// The simulator's film: laid on the carriage (true) or lifted off, as an operator's hands
+    /// do between a calibration on the plate and a scan. None on real hardware, whose film the
+    /// service never sees.
+    pub sim_film: Option<Arc<AtomicBool>>,
     pub close: Box<dyn FnOnce() -> Result<(), String>>,
 }
 
@@ -100,6 +104,8 @@ pub enum DeviceError {
     Busy(ItemId),
     #[error("the hardware thread has ended")]
     Gone,
+    #[error("there is no simulated film here: on a real rig the operator lays and lifts the film by hand")]
+    NotSimulated,
     #[error("{0}")]
     Other(String),
 }

@@ -64,6 +64,10 @@ pub struct Event {
     /// Milliseconds since the Unix epoch.
     pub at_ms: u64,
     pub data: Value,
+    /// The text every event client is sent (`{"seq", "at_ms", "data"}`), written once here
+    /// rather than once per client.
+    #[serde(skip)]
+    pub wire: String,
 }
 
 struct Ring {
@@ -113,11 +117,14 @@ impl Bus {
     /// Publishes an event; returns its sequence number.
     pub fn publish(&self, kind: Kind, data: Value) -> u64 {
         let mut r = self.ring.lock().unwrap_or_else(|e| e.into_inner());
+        let (seq, at_ms) = (r.next, now_ms());
+        let wire = serde_json::json!({"seq": seq, "at_ms": at_ms, "data": &data}).to_string();
         let e = Arc::new(Event {
-            seq: r.next,
+            seq,
             kind,
-            at_ms: now_ms(),
+            at_ms,
             data,
+            wire,
         });
         r.next += 1;
         if r.kept.len() == BACKLOG {

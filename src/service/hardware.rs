@@ -32,6 +32,11 @@ pub enum Command {
     },
     /// Take a live frame now (idle only).
     Look(Reply<Look>),
+    /// Lay the simulator's film on the carriage (true) or lift it off (idle only).
+    SimFilm {
+        laid: bool,
+        reply: Reply<()>,
+    },
     /// Run (or continue) an item.
     Run {
         id: ItemId,
@@ -55,6 +60,8 @@ pub struct Handle {
     pub last_look: Arc<Mutex<Option<Look>>>,
     /// The soft limits in force on the stage (the controller's and the operator's).
     pub limits: crate::stage::SoftLimits,
+    /// The simulator's film, laid or not ([`Devices::sim_film`]).
+    pub sim_film: Option<Arc<AtomicBool>>,
     thread: Mutex<Option<std::thread::JoinHandle<()>>>,
 }
 
@@ -117,7 +124,7 @@ pub fn spawn(open: Opener, bus: Arc<Bus>, settings: Settings) -> Result<Handle, 
                 };
                 let dev = match open(cancel, sink) {
                     Ok(d) => {
-                        let _ = opened_tx.send(Ok(d.stage.limits()));
+                        let _ = opened_tx.send(Ok((d.stage.limits(), d.sim_film.clone())));
                         d
                     }
                     Err(e) => {
@@ -138,11 +145,12 @@ pub fn spawn(open: Opener, bus: Arc<Bus>, settings: Settings) -> Result<Handle, 
             })
             .map_err(|e| format!("starting the hardware thread: {e}"))?
     };
-    let limits = opened_rx
+    let (limits, sim_film) = opened_rx
         .recv()
         .map_err(|_| "the hardware thread ended while opening the devices".to_string())??;
     Ok(Handle {
         limits,
+        sim_film,
         tx,
         control,
         busy,
@@ -190,6 +198,17 @@ impl Actor {
                     if let Ok(p) = &r {
                         self.bus.position(position_json(*p), true);
                     }
+                    let _ = reply.send(r);
+                }
+                Command::SimFilm { laid, reply } => {
+                    let r = match &dev.sim_film {
+                        Some(f) => {
+                            f.store(laid, Ordering::SeqCst);
+                            *self.last_look.lock().unwrap_or_else(|e| e.into_inner()) = None;
+                            Ok(())
+                        }
+                        None => Err(DeviceError::NotSimulated),
+                    };
                     let _ = reply.send(r);
                 }
                 Command::Look(r) => {

@@ -70,6 +70,7 @@ impl From<DeviceError> for ApiError {
         use crate::stage::StageError as S;
         let (s, k) = match &e {
             DeviceError::Busy(_) => (StatusCode::CONFLICT, "busy"),
+            DeviceError::NotSimulated => (StatusCode::CONFLICT, "not_simulated"),
             DeviceError::Stage(S::OutOfLimits { .. }) => {
                 (StatusCode::UNPROCESSABLE_ENTITY, "out_of_limits")
             }

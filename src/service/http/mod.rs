@@ -240,6 +240,14 @@ pub fn routes() -> Vec<Route> {
         )
         .lockable(),
         route(
+            Method::PUT,
+            "/api/v1/sim/film",
+            op,
+            "Simulator only: lay the film on the carriage or lift it off: {laid} (idle only)",
+            put(run_api::sim_film),
+        )
+        .lockable(),
+        route(
             Method::GET,
             "/api/v1/live.png",
             o,

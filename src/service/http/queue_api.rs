@@ -37,6 +37,10 @@ pub(super) async fn status(State(app): State<App>) -> Answer {
         "limits": {"x_mm": [app.limits.min.x_mm(), app.limits.max.x_mm()], "y_mm": [app.limits.min.y_mm(), app.limits.max.y_mm()]},
         "next_event": app.lab.ledger.bus.next_seq(),
         "event_clients": app.lab.ledger.bus.clients(),
+        // The simulator's film ("laid", "lifted"); null on real hardware.
+        "sim_film": app.lab.hw.sim_film.as_ref().map(|f| {
+            if f.load(std::sync::atomic::Ordering::SeqCst) { "laid" } else { "lifted" }
+        }),
     }))
 }
 

@@ -74,6 +74,41 @@ pub(super) async fn jog(State(app): State<App>, Body(b): Body<JogBody>) -> Answe
     ok(json!({"position": crate::service::devices::position_json(at)}))
 }
 
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct FilmBody {
+    laid: bool,
+}
+
+/// The simulator's film laid on the carriage or lifted off (what an operator's hands do
+/// before a pixel calibration on the plate, and after it for a scan).
+pub(super) async fn sim_film(State(app): State<App>, Body(b): Body<FilmBody>) -> Answer {
+    // An item running (not paused) has the film under its lens, even before the hardware
+    // thread has taken it up.
+    let running = app.lab.ledger.read(|s| {
+        s.running
+            .as_ref()
+            .filter(|i| i.state == crate::service::queue::ItemState::Running)
+            .map(|i| i.id)
+    });
+    if let Some(id) = running {
+        return Err(DeviceError::Busy(id).into());
+    }
+    app.lab
+        .hw
+        .ask(|reply| Command::SimFilm {
+            laid: b.laid,
+            reply,
+        })
+        .await?;
+    let state = if b.laid { "laid" } else { "lifted" };
+    app.lab.ledger.bus.publish(
+        crate::service::events::Kind::Status,
+        json!({"sim_film": state}),
+    );
+    ok(json!({"sim_film": state}))
+}
+
 pub(super) async fn live(State(app): State<App>) -> Result<Response, ApiError> {
     let fresh = {
         let l = app

@@ -13,7 +13,7 @@ fn sse_of(e: &BusEvent) -> Event {
     Event::default()
         .id(e.seq.to_string())
         .event(e.kind.name())
-        .data(json!({"seq": e.seq, "at_ms": e.at_ms, "data": e.data}).to_string())
+        .data(&e.wire)
 }
 
 fn resync(why: &str) -> Event {
