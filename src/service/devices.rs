@@ -26,6 +26,11 @@ pub struct Devices {
     pub close: Box<dyn FnOnce() -> Result<(), String>>,
 }
 
+/// What the service says of a stage that is not homed: the stage's own text names a command
+/// line (`rig stage home`); here the remedy is an item.
+pub const NOT_HOMED: &str =
+    "the stage is not homed (after a start, a halt or a reset): queue a home item first";
+
 /// The simulator's plate and camera certificates; empty on real hardware.
 #[derive(Debug, Clone, Default)]
 pub struct SimCertificates {

@@ -32,10 +32,7 @@ pub fn run(rig: &mut Rig, id: ItemId, task: &Task, dir: &Path) -> Ran {
             .move_to(CarriageUm::from_mm(*x_mm, *y_mm))
             .map(|p| Some(json!({"position": position_json(p)})))
             .map_err(|e| match e {
-                // The stage's own text names a command line; here the remedy is an item.
-                crate::stage::StageError::NotHomed => {
-                    "the stage is not homed: queue a home item before this one".to_string()
-                }
+                crate::stage::StageError::NotHomed => super::devices::NOT_HOMED.to_string(),
                 e => e.to_string(),
             }),
         Task::Scan { script, .. } => scan(rig, id, script, dir),

@@ -75,11 +75,10 @@ impl From<DeviceError> for ApiError {
                 (StatusCode::UNPROCESSABLE_ENTITY, "out_of_limits")
             }
             DeviceError::Stage(S::NotHomed) => {
-                // The stage's own text names a command line; here the remedy is an item.
                 return ApiError::new(
                     StatusCode::CONFLICT,
                     "not_homed",
-                    "the stage is not homed (after a start, a halt or a reset): queue a home item first",
+                    crate::service::devices::NOT_HOMED,
                 );
             }
             _ => (StatusCode::BAD_GATEWAY, "device"),
