@@ -53,6 +53,9 @@ pub enum Command {
 /// The async side's end of the hardware thread.
 pub struct Handle {
     tx: mpsc::Sender<Command>,
+    /// Held while a command is checked against `busy` and sent, and while an item is handed
+    /// over.
+    order: Mutex<()>,
     pub control: Arc<Control>,
     /// The id of the item running on the thread (0: none).
     busy: Arc<AtomicU64>,
@@ -67,8 +70,33 @@ pub struct Handle {
 
 impl Handle {
     /// Sends a command; the reply comes on the channel the command carries.
-    pub fn send(&self, c: Command) -> Result<(), DeviceError> {
+    fn send(&self, c: Command) -> Result<(), DeviceError> {
         self.tx.send(c).map_err(|_| DeviceError::Gone)
+    }
+
+    /// Hands item `id` to the thread: busy with it from now on, before the thread takes it up,
+    /// so that a question asked meanwhile is refused at once instead of waiting behind the
+    /// whole item (a status asked in that moment once waited for a pixel session's 3 s; behind
+    /// a scan it would have waited hours).
+    pub fn run(
+        &self,
+        id: ItemId,
+        task: Task,
+        dir: PathBuf,
+        reply: oneshot::Sender<Ran>,
+    ) -> Result<(), DeviceError> {
+        let _order = self.order.lock().unwrap_or_else(|e| e.into_inner());
+        self.busy.store(id + 1, Ordering::SeqCst);
+        let sent = self.send(Command::Run {
+            id,
+            task,
+            dir,
+            reply,
+        });
+        if sent.is_err() {
+            self.busy.store(0, Ordering::SeqCst);
+        }
+        sent
     }
 
     pub fn busy_with(&self) -> Option<ItemId> {
@@ -80,11 +108,16 @@ impl Handle {
 
     /// Asks a command with a reply and awaits it.
     pub async fn ask<T>(&self, make: impl FnOnce(Reply<T>) -> Command) -> Result<T, DeviceError> {
-        if let Some(id) = self.busy_with() {
-            return Err(DeviceError::Busy(id));
-        }
         let (tx, rx) = oneshot::channel();
-        self.send(make(tx))?;
+        {
+            // Checked and sent in one step with respect to [`Handle::run`]: a question is
+            // either ahead of an item on the channel or refused.
+            let _order = self.order.lock().unwrap_or_else(|e| e.into_inner());
+            if let Some(id) = self.busy_with() {
+                return Err(DeviceError::Busy(id));
+            }
+            self.send(make(tx))?;
+        }
         rx.await.map_err(|_| DeviceError::Gone)?
     }
 
@@ -149,6 +182,7 @@ pub fn spawn(open: Opener, bus: Arc<Bus>, settings: Settings) -> Result<Handle, 
         .recv()
         .map_err(|_| "the hardware thread ended while opening the devices".to_string())??;
     Ok(Handle {
+        order: Mutex::new(()),
         limits,
         sim_film,
         tx,
@@ -220,7 +254,6 @@ impl Actor {
                     dir,
                     reply,
                 } => {
-                    self.busy.store(id + 1, Ordering::SeqCst);
                     let ran = super::work::run(
                         &mut super::devices::Rig {
                             dev: self.dev.as_mut().expect("open"),

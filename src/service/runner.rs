@@ -148,12 +148,7 @@ fn outcome_of(e: Ended) -> Option<Outcome> {
 
 async fn run_once(lab: &Lab, id: ItemId, task: &Task) -> Ran {
     let (tx, rx) = oneshot::channel();
-    let sent = lab.hw.send(Command::Run {
-        id,
-        task: task.clone(),
-        dir: item_dir(&lab.data, id),
-        reply: tx,
-    });
+    let sent = lab.hw.run(id, task.clone(), item_dir(&lab.data, id), tx);
     let gone = || Ran {
         ended: Ended::Failed,
         message: Some(DeviceError::Gone.to_string()),
