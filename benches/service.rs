@@ -194,14 +194,17 @@ fn main() {
     let re_med = percentile(&mut to_reply, 0.5);
 
     // Queue reads per second, 100 items waiting, beside the HTTP floor (an unknown route).
-    let items: Vec<Value> = (0..100)
-        .map(|_| json!({"task": {"kind": "home"}}))
-        .collect();
-    post(
-        &a,
-        &format!("{}/api/v1/queue/items", s.url),
-        json!({ "items": items }),
-    );
+    let queue_100 = || {
+        let items: Vec<Value> = (0..100)
+            .map(|_| json!({"task": {"kind": "home"}}))
+            .collect();
+        post(
+            &a,
+            &format!("{}/api/v1/queue/items", s.url),
+            json!({ "items": items }),
+        );
+    };
+    queue_100();
     let rate = |path: &str| {
         let stop = Arc::new(AtomicBool::new(false));
         let workers: Vec<_> = (0..2)
@@ -234,14 +237,7 @@ fn main() {
     let idle = rss_kib(s.child.id());
     let clients: Vec<_> = (0..100).map(|_| follow_positions(&s.url)).collect();
     for _ in 0..10 {
-        let items: Vec<Value> = (0..100)
-            .map(|_| json!({"task": {"kind": "home"}}))
-            .collect();
-        post(
-            &a,
-            &format!("{}/api/v1/queue/items", s.url),
-            json!({ "items": items }),
-        );
+        queue_100();
         post(&a, &format!("{}/api/v1/queue/clear", s.url), json!({}));
     }
     std::thread::sleep(Duration::from_millis(500));

@@ -174,22 +174,7 @@ fn calibrate_usage_errors_say_what_to_do() {
 fn interior_orientation_finds_every_fiducial_and_fits_the_corners_within_a_micrometre() {
     let store = tempfile::tempdir().unwrap();
     // A quick pixel session first (the interior orientation uses the newest in the store).
-    run_ok(
-        rig()
-            .args([
-                "calibrate",
-                "pixel",
-                "--sim",
-                "--frames",
-                "8",
-                "--grid",
-                "3",
-                "--grid-only",
-                "--json",
-                "--store",
-            ])
-            .arg(store.path()),
-    );
+    quick_pixel_session(store.path());
     let out = store.path().join("interior");
     let doc = run_ok(
         rig()

@@ -83,17 +83,6 @@ pub(super) struct FilmBody {
 /// The simulator's film laid on the carriage or lifted off (what an operator's hands do
 /// before a pixel calibration on the plate, and after it for a scan).
 pub(super) async fn sim_film(State(app): State<App>, Body(b): Body<FilmBody>) -> Answer {
-    // An item running (not paused) has the film under its lens, even before the hardware
-    // thread has taken it up.
-    let running = app.lab.ledger.read(|s| {
-        s.running
-            .as_ref()
-            .filter(|i| i.state == crate::service::queue::ItemState::Running)
-            .map(|i| i.id)
-    });
-    if let Some(id) = running {
-        return Err(DeviceError::Busy(id).into());
-    }
     app.lab
         .hw
         .ask(|reply| Command::SimFilm {
