@@ -265,8 +265,12 @@ pub fn render_scene(
 /// Turns a noiseless image into one frame from the sensor: gain, dust, shot and read noise
 /// (more on the top rows), the field shift, the stripes, quantisation. `seq` is the frame
 /// number (it drives the gain flicker and seeds the noise with `seed`). Rows are exposed in
-/// parallel, each from its place in the one noise stream (every pixel takes one normal of a
-/// Box–Muller pair, two draws a pair): the frame is the same, to the bit, as drawn in order.
+/// parallel, each from its own part of the frame's noise stream ([`ROW_DRAWS`] draws apart),
+/// so that the frame is the same, to the bit, on any number of threads.
+/// Draws of the noise stream set aside for each row of a frame: a row of w pixels takes about
+/// 4/π·w, far fewer (the rows' parts never overlap).
+const ROW_DRAWS: u64 = 1 << 32;
+
 pub fn expose(cfg: &CameraConfig, ideal: &[f32], seed: u64, seq: u64) -> Vec<u16> {
     let (w, h) = (cfg.width, cfg.height);
     let mut rng = Rng::new(seed ^ seq.wrapping_mul(0x2545_F491_4F6C_DD1D) ^ 0x00CA_3E5A);
@@ -286,14 +290,10 @@ pub fn expose(cfg: &CameraConfig, ideal: &[f32], seed: u64, seq: u64) -> Vec<u16
     out.par_chunks_mut(w)
         .enumerate()
         .for_each(|(row, out_row)| {
-            // Pixel p takes component p % 2 of pair p / 2, drawn from the stream's draws
-            // 2·(p / 2) and one more (after the field's two).
-            let first = (row * w) as u64;
-            let mut rng = rng.jumped(2 * (first / 2));
+            // The row's own part of the stream (a pair of normals takes a varying number of
+            // draws, so a pixel's place in one stream would depend on the rows before it).
+            let mut rng = rng.jumped(ROW_DRAWS * row as u64);
             let mut spare = None;
-            if first % 2 == 1 {
-                spare = Some(rng.normal_pair()[1]);
-            }
             let mut t: Vec<f64> = ideal[row * w..(row + 1) * w]
                 .iter()
                 .map(|&v| v as f64)
@@ -340,63 +340,11 @@ pub fn expose(cfg: &CameraConfig, ideal: &[f32], seed: u64, seq: u64) -> Vec<u16
 mod tests {
     use super::*;
 
-    /// The frame as drawn pixel after pixel in one stream (the exposure before its rows went
-    /// parallel), for an odd and an even width and with dust.
+    /// The frame is the same, to the bit, on one thread and on several (odd and even widths,
+    /// with dust), and a different frame number draws different noise; the noise about the
+    /// ideal frame has the spread the model gives it (shot and read noise, in grey levels).
     #[test]
-    fn parallel_rows_draw_the_same_frame() {
-        fn in_order(cfg: &CameraConfig, ideal: &[f32], seed: u64, seq: u64) -> Vec<u16> {
-            let (w, h) = (cfg.width, cfg.height);
-            let mut rng = Rng::new(seed ^ seq.wrapping_mul(0x2545_F491_4F6C_DD1D) ^ 0x00CA_3E5A);
-            let sc = cfg.scale();
-            let max = ((1u64 << cfg.bit_depth) - 1) as f64;
-            let flicker = if cfg.auto_gain {
-                1.0 + 0.003 * (seq as f64 * 0.7).sin()
-            } else {
-                1.0
-            };
-            let level = cfg.white_dn8 * cfg.gain * flicker * cfg.exposure_ms / 20.0;
-            let field = cfg.field_shift_dn8 + cfg.field_jitter_dn8 * rng.normal();
-            let mut out = vec![0u16; w * h];
-            let mut spare = None;
-            for row in 0..h {
-                let top = 1.0 + cfg.top_noise_factor * (-(row as f64) / cfg.top_noise_rows).exp();
-                let read = cfg.read_noise_dn8 * top;
-                let field_dn = if row % 2 == 1 { field } else { 0.0 };
-                let mut t: Vec<f64> = ideal[row * w..(row + 1) * w]
-                    .iter()
-                    .map(|&v| v as f64)
-                    .collect();
-                for &(dc, dr, r, depth) in &cfg.dust {
-                    let dy = row as f64 - dr;
-                    if dy.abs() >= 3.0 * r {
-                        continue;
-                    }
-                    let c0 = (dc - 3.0 * r).floor().max(0.0) as usize;
-                    let c1 = ((dc + 3.0 * r).ceil().max(0.0) as usize).min(w);
-                    for (col, tv) in t.iter_mut().enumerate().take(c1).skip(c0) {
-                        let q = ((col as f64 - dc).powi(2) + dy * dy) / (r * r);
-                        if q < 9.0 {
-                            *tv *= 1.0 - (1.0 - depth) * (-q).exp();
-                        }
-                    }
-                }
-                for (col, &tv) in t.iter().enumerate() {
-                    let s = level * tv;
-                    let sigma = (cfg.shot_dn8 * s * top * top + read * read).sqrt();
-                    let z = match spare.take() {
-                        Some(z) => z,
-                        None => {
-                            let [a, b] = rng.normal_pair();
-                            spare = Some(b);
-                            a
-                        }
-                    };
-                    let v = s + sigma * z + field_dn + cfg.stripe_dn8(col);
-                    out[row * w + col] = ((v * sc).clamp(0.0, max) + 0.5) as u16;
-                }
-            }
-            out
-        }
+    fn a_frame_is_the_same_on_any_number_of_threads() {
         for width in [37, 40] {
             let mut cfg = CameraConfig::new(&mut Rng::new(3));
             cfg.width = width;
@@ -406,13 +354,48 @@ mod tests {
                 .map(|k| 0.2 + 0.6 * ((k % 17) as f32 / 17.0))
                 .collect();
             for seq in [0, 1, 5] {
-                assert_eq!(
-                    expose(&cfg, &ideal, 9, seq),
-                    in_order(&cfg, &ideal, 9, seq),
-                    "width {width}, frame {seq}"
-                );
+                let on = |threads: usize| {
+                    rayon::ThreadPoolBuilder::new()
+                        .num_threads(threads)
+                        .build()
+                        .unwrap()
+                        .install(|| expose(&cfg, &ideal, 9, seq))
+                };
+                let one = on(1);
+                assert_eq!(one, on(3), "width {width}, frame {seq}");
+                assert_eq!(one, expose(&cfg, &ideal, 9, seq));
+                assert_ne!(one, expose(&cfg, &ideal, 9, seq + 1));
             }
         }
+        // The spread: a flat frame without dust, field jitter or flicker (the stripes and the
+        // field shift are the same in every frame), many
+        // frames of it; every pixel's deviation from the mean frame over the model's σ.
+        let mut cfg = CameraConfig::new(&mut Rng::new(4));
+        (cfg.width, cfg.height) = (64, 48);
+        cfg.dust.clear();
+        cfg.auto_gain = false;
+        cfg.field_shift_dn8 = 0.0;
+        cfg.field_jitter_dn8 = 0.0;
+        let ideal = vec![0.5f32; 64 * 48];
+        let frames: Vec<Vec<u16>> = (0..40).map(|q| expose(&cfg, &ideal, 5, q)).collect();
+        let sc = cfg.scale();
+        let level = cfg.white_dn8 * cfg.gain * cfg.exposure_ms / 20.0 * 0.5;
+        let (mut ratio, mut n) = (0.0, 0usize);
+        for row in 30..48 {
+            let top = 1.0 + cfg.top_noise_factor * (-(row as f64) / cfg.top_noise_rows).exp();
+            let read = cfg.read_noise_dn8 * top;
+            let sigma = (cfg.shot_dn8 * level * top * top + read * read).sqrt() * sc;
+            for col in 0..64 {
+                let v: Vec<f64> = frames.iter().map(|f| f[row * 64 + col] as f64).collect();
+                let m = v.iter().sum::<f64>() / v.len() as f64;
+                let var = v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (v.len() - 1) as f64;
+                // Quantisation adds 1/12 of a level².
+                ratio += (var - 1.0 / 12.0) / (sigma * sigma);
+                n += 1;
+            }
+        }
+        let ratio = ratio / n as f64;
+        assert!((ratio - 1.0).abs() < 0.05, "variance / model {ratio}");
     }
 
     #[test]

@@ -23,24 +23,91 @@ fn vertical(x0: f64, y0: f64) -> FrameSensor {
 /// A texture on the ground: sinusoids of 4.4-30 m wavelength (7-48 px) in several
 /// directions. (With only waves of 20-150 px a 13-px patch is nearly a ramp, whose shift an
 /// offset mimics: the formal σ is then too small by half; real film has texture at every
-/// scale.)
+/// scale.) Each wave (a, b, phase) is 20·sin(a·x + b·y + phase).
+const WAVES: [(f64, f64, f64); 5] = [
+    (0.93, 0.21, 0.0),
+    (-0.33, 0.81, 1.0),
+    (0.57, -0.69, 2.0),
+    (0.15, 1.23, 0.5),
+    (1.41, 0.45, 2.5),
+];
+
 fn texture(x: f64, y: f64) -> f64 {
-    let waves = [
-        (0.93, 0.21, 0.0),
-        (-0.33, 0.81, 1.0),
-        (0.57, -0.69, 2.0),
-        (0.15, 1.23, 0.5),
-        (1.41, 0.45, 2.5),
-    ];
     100.0
-        + waves
+        + WAVES
             .iter()
             .map(|&(a, b, ph)| 20.0 * (a * x + b * y + ph).sin())
             .sum::<f64>()
 }
 
-/// The photo of the plane Z = PLANE with `tex`: each pixel the mean of 4 × 4 samples.
+/// Samples per pixel along each axis.
+const K: usize = 4;
+
+/// The photo of the plane Z = PLANE with `tex`: each pixel the mean of K × K samples.
 fn render(s: &FrameSensor, tex: &dyn Fn(f64, f64) -> f64, noise: f64, seed: u64) -> Textured {
+    render_with(noise, seed, |c, r| {
+        let mut v = 0.0;
+        for j in 0..K {
+            for i in 0..K {
+                let q = PixelXY::new(
+                    c as f64 + (i as f64 + 0.5) / K as f64,
+                    r as f64 + (j as f64 + 0.5) / K as f64,
+                );
+                let g = s.image_to_ground(q, PLANE).unwrap();
+                v += tex(g.x, g.y);
+            }
+        }
+        v / (K * K) as f64
+    })
+}
+
+/// [`render`] of [`texture`] in closed form: a vertical photo sees the plane through an
+/// affine map, so a wave's samples over a pixel are the wave at the pixel's centre shifted by
+/// equal steps of phase (δ₁ along its columns, δ₂ along its rows), and their mean is the wave
+/// at the centre times D(δ₁)·D(δ₂), D(δ) = (1/K)·Σᵢ cos((i − (K − 1)/2)·δ) (the sines of the
+/// symmetric shifts cancel): 5 sines a pixel instead of 80.
+fn render_texture(s: &FrameSensor, noise: f64, seed: u64) -> Textured {
+    let at = |c: f64, r: f64| {
+        let g = s.image_to_ground(PixelXY::new(c, r), PLANE).unwrap();
+        [g.x, g.y]
+    };
+    let (o, ec, er) = (at(0.0, 0.0), at(1.0, 0.0), at(0.0, 1.0));
+    let (dc, dr) = ([ec[0] - o[0], ec[1] - o[1]], [er[0] - o[0], er[1] - o[1]]);
+    // The map is affine: the far corner is where the two steps put it (to a micrometre).
+    let far = at(SIDE as f64, SIDE as f64);
+    let side = SIDE as f64;
+    assert!(
+        (far[0] - (o[0] + side * (dc[0] + dr[0]))).abs() < 1e-6
+            && (far[1] - (o[1] + side * (dc[1] + dr[1]))).abs() < 1e-6,
+        "render_texture wants a vertical photo"
+    );
+    let dirichlet = |delta: f64| {
+        (0..K)
+            .map(|i| ((i as f64 - (K as f64 - 1.0) / 2.0) * delta).cos())
+            .sum::<f64>()
+            / K as f64
+    };
+    let waves: Vec<(f64, f64, f64, f64)> = WAVES
+        .iter()
+        .map(|&(a, b, ph)| {
+            let step = |d: [f64; 2]| (a * d[0] + b * d[1]) / K as f64;
+            (a, b, ph, 20.0 * dirichlet(step(dc)) * dirichlet(step(dr)))
+        })
+        .collect();
+    render_with(noise, seed, |c, r| {
+        let (u, v) = (c as f64 + 0.5, r as f64 + 0.5);
+        let (x, y) = (o[0] + u * dc[0] + v * dr[0], o[1] + u * dc[1] + v * dr[1]);
+        100.0
+            + waves
+                .iter()
+                .map(|&(a, b, ph, amp)| amp * (a * x + b * y + ph).sin())
+                .sum::<f64>()
+    })
+}
+
+/// A SIDE × SIDE photo of `mean(c, r)` at each pixel plus white noise of σ `noise` (drawn from
+/// `seed` in the pixels' order).
+fn render_with(noise: f64, seed: u64, mean: impl Fn(usize, usize) -> f64) -> Textured {
     let mut img = ImageF32::new(SIDE, SIDE);
     let mut state = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
     let mut gauss = || {
@@ -52,24 +119,42 @@ fn render(s: &FrameSensor, tex: &dyn Fn(f64, f64) -> f64, noise: f64, seed: u64)
         };
         (-2.0 * u().max(1e-300).ln()).sqrt() * (std::f64::consts::TAU * u()).cos()
     };
-    let k = 4;
     for r in 0..SIDE {
         for c in 0..SIDE {
-            let mut v = 0.0;
-            for j in 0..k {
-                for i in 0..k {
-                    let q = PixelXY::new(
-                        c as f64 + (i as f64 + 0.5) / k as f64,
-                        r as f64 + (j as f64 + 0.5) / k as f64,
-                    );
-                    let g = s.image_to_ground(q, PLANE).unwrap();
-                    v += tex(g.x, g.y);
-                }
-            }
-            img.data[r * SIDE + c] = (v / (k * k) as f64 + noise * gauss()) as f32;
+            img.data[r * SIDE + c] = (mean(c, r) + noise * gauss()) as f32;
         }
     }
     Textured::new(img)
+}
+
+/// The closed form is the sampled mean (to the f32 pixels' rounding) for a vertical photo and for
+/// one turned by 30° about its axis, at pixels over the whole photo.
+#[test]
+fn the_textures_closed_form_is_its_sampled_mean() {
+    let mut turned = vertical(60.0, 45.0);
+    turned.camera.exterior.kappa = 30f64.to_radians();
+    for s in [vertical(100.0, 0.0), turned] {
+        let fast = render_texture(&s, 0.0, 1);
+        for (c, r) in [(0, 0), (17, 311), (300, 300), (599, 4), (451, 599)] {
+            let mut v = 0.0;
+            for j in 0..K {
+                for i in 0..K {
+                    let q = PixelXY::new(
+                        c as f64 + (i as f64 + 0.5) / K as f64,
+                        r as f64 + (j as f64 + 0.5) / K as f64,
+                    );
+                    let g = s.image_to_ground(q, PLANE).unwrap();
+                    v += texture(g.x, g.y);
+                }
+            }
+            let want = (v / (K * K) as f64) as f32;
+            let got = fast.image.data[r * SIDE + c];
+            assert!(
+                (got - want).abs() <= 1e-4,
+                "({c}, {r}): {got} against {want}"
+            );
+        }
+    }
 }
 
 struct Block {
@@ -85,7 +170,7 @@ impl Block {
         let images = sensors
             .iter()
             .enumerate()
-            .map(|(k, s)| render(s, &texture, noise, k as u64 + 1))
+            .map(|(k, s)| render_texture(s, noise, k as u64 + 1))
             .collect();
         Block { sensors, images }
     }
@@ -301,7 +386,7 @@ fn a_wrong_orientation_moves_the_point_as_its_propagated_covariance_says() {
     let mut b = Block::new(&[(100.0, 0.0), (60.0, 45.0)], 0.0);
     b.sensors[2] = vertical_sensor(GroundM::new(60.0, 45.0, Z0 + 150.0), F_MM, SIDE, PIX_MM);
     b.sensors[2].camera.exterior.kappa = 30f64.to_radians();
-    b.images[2] = render(&b.sensors[2], &texture, 0.0, 3);
+    b.images[2] = render_texture(&b.sensors[2], 0.0, 3);
     let q0 = (230, 345);
     for p in [
         AdjustParams::default(),

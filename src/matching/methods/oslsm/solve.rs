@@ -37,6 +37,7 @@
 //! grey values, so it steers where the grey values are silent and yields where they speak.
 
 use crate::coords::GroundM;
+use crate::matching::methods::oslsm::banded::BorderedBand;
 use crate::matching::methods::oslsm::grids::{Grids, Groundel};
 use crate::matching::methods::oslsm::visibility::Occluder;
 use crate::matching::methods::oslsm::PhotoView;
@@ -580,8 +581,9 @@ pub fn refine(
                 solve_mat[(i, i)] *= 1.0 + damping;
             }
         }
-        let chol = solve_mat
-            .cholesky()
+        // The posts' band and the radiometry's border ([`BorderedBand`]).
+        let bw = BorderedBand::bandwidth(&solve_mat, n_posts);
+        let chol = BorderedBand::factor(&solve_mat, n_posts, bw)
             .ok_or(OslsmError::Singular { iteration })?;
         let dx = chol.solve(&rhs);
         // Back-substitution of each groundel's dD, then the updates.
@@ -670,7 +672,7 @@ pub fn refine(
                 correlation_inflation(photos, &sees, &groundels, &st, &g, &d, &radiometry);
             let local = local_variance(&post_residuals);
             let sigma_z = (0..n_posts)
-                .map(|i| inflation * sigma0 * (local[i] * inv[(i, i)]).max(0.0).sqrt())
+                .map(|i| inflation * sigma0 * (local[i] * inv[i]).max(0.0).sqrt())
                 .collect();
             let sigma_radiometry = (0..kp)
                 .map(|k| {
@@ -678,8 +680,8 @@ pub fn refine(
                         [0.0, 0.0]
                     } else {
                         [
-                            sigma0 * inv[(rad(k), rad(k))].max(0.0).sqrt(),
-                            sigma0 * inv[(rad(k) + 3, rad(k) + 3)].max(0.0).sqrt(),
+                            sigma0 * inv[rad(k)].max(0.0).sqrt(),
+                            sigma0 * inv[rad(k) + 3].max(0.0).sqrt(),
                         ]
                     }
                 })
@@ -902,7 +904,7 @@ fn mean_share(share: &[f64], informed: &[bool]) -> f64 {
     }
 }
 
-/// The cofactor matrix for the posts' σ and the posts' texture shares, from the solution's
+/// The cofactors' diagonal (posts, then radiometry) for the σ, and the posts' texture shares, from the solution's
 /// normals `n_mat` (curvature weight `w` included) with only the texture's information
 /// counted ([`texture_share`], `noise` what the pixels' noise gives each post).
 ///
@@ -921,11 +923,13 @@ fn honest_cofactors(
     informed: &[bool],
     g: &Grids,
     w: f64,
-) -> Option<(DMatrix<f64>, Vec<f64>)> {
+) -> Option<(Vec<f64>, Vec<f64>)> {
     add_curvature(&mut n_mat, g.cols, g.rows, -w);
     let share = texture_share(&mut n_mat, noise, informed);
     add_curvature(&mut n_mat, g.cols, g.rows, w);
-    n_mat.cholesky().map(|c| (c.inverse(), share))
+    let n_posts = g.cols * g.rows;
+    let bw = BorderedBand::bandwidth(&n_mat, n_posts);
+    BorderedBand::factor(&n_mat, n_posts, bw).map(|c| (c.inverse_diagonal(), share))
 }
 
 /// How much the grey-value residuals' correlation between neighbouring groundels widens a

@@ -243,12 +243,16 @@ fn sigma_counts_the_texture_not_the_noise() {
         let mut n = 0.0;
         let mut share = 0.0;
         let mut sigma2 = 0.0;
+        let clean: Vec<ImageF32> = sensors
+            .iter()
+            .map(|s| render_with(s, &flat, &texture, [0.0, 1.0]))
+            .collect();
         for seed in 1..=4u64 {
-            let images: Vec<ImageF32> = sensors
+            let images: Vec<ImageF32> = clean
                 .iter()
                 .enumerate()
-                .map(|(k, s)| {
-                    let mut img = render_with(s, &flat, &texture, [0.0, 1.0]);
+                .map(|(k, img)| {
+                    let mut img = img.clone();
                     add_noise(&mut img, 2.0, seed * 7919 + k as u64);
                     img
                 })
