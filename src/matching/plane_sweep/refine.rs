@@ -76,37 +76,60 @@ pub enum RefineFailure {
 
 const MAX_ITERATIONS: usize = 15;
 
-/// The lanes of [`refine`]'s sums (21 used, padded to whole vectors).
-const LANES: usize = 24;
-/// Lane i sums d[PAIRS[i].0]·d[PAIRS[i].1], d = (∂/∂t, ∂/∂t_u, ∂/∂t_v, ∂/∂a, ∂/∂b, e): the
-/// normals' upper triangle row by row, then each derivative times the residual, then e·e;
-/// the padding lanes sum ∂/∂a·∂/∂a and are not read.
-const PAIRS: [(usize, usize); LANES] = [
-    (0, 0),
-    (0, 1),
-    (0, 2),
-    (0, 3),
-    (0, 4),
-    (1, 1),
-    (1, 2),
-    (1, 3),
-    (1, 4),
-    (2, 2),
-    (2, 3),
-    (2, 4),
-    (3, 3),
-    (3, 4),
-    (4, 4),
-    (0, 5),
-    (1, 5),
-    (2, 5),
-    (3, 5),
-    (4, 5),
-    (5, 5),
-    (3, 3),
-    (3, 3),
-    (3, 3),
-];
+/// Sums over a window row (then over the window) of the products of the derivative b·g
+/// (g the search window's slope along the line), the resampled grey value s and the residual
+/// e with the window offsets u (and v): named for their factors.
+#[derive(Debug, Default, Clone, Copy)]
+struct Sums {
+    gg: f64,
+    ggu: f64,
+    gguu: f64,
+    ggv: f64,
+    gguv: f64,
+    ggvv: f64,
+    g: f64,
+    gu: f64,
+    gv: f64,
+    gs: f64,
+    gsu: f64,
+    gsv: f64,
+    ge: f64,
+    geu: f64,
+    gev: f64,
+    s: f64,
+    ss: f64,
+    e: f64,
+    se: f64,
+    ee: f64,
+}
+
+impl Sums {
+    /// Adds a row's sums (over u, at offset v) to the window's.
+    #[inline(always)]
+    fn add_row(&mut self, r: &Sums, v: f64) {
+        self.gg += r.gg;
+        self.ggu += r.ggu;
+        self.gguu += r.gguu;
+        self.ggv += r.gg * v;
+        self.gguv += r.ggu * v;
+        self.ggvv += r.gg * v * v;
+        self.g += r.g;
+        self.gu += r.gu;
+        self.gv += r.g * v;
+        self.gs += r.gs;
+        self.gsu += r.gsu;
+        self.gsv += r.gs * v;
+        self.ge += r.ge;
+        self.geu += r.geu;
+        self.gev += r.ge * v;
+        self.s += r.s;
+        self.ss += r.ss;
+        self.e += r.e;
+        self.se += r.se;
+        self.ee += r.ee;
+    }
+}
+
 /// Converged when the plane changes by less than this.
 const CONVERGED: f64 = 1e-3;
 
@@ -188,40 +211,64 @@ fn refine_body<L: Fn(f64, f64, f64) -> [f64; 2]>(
                 a = mean_l - b * ms;
             }
         }
-        // The normals' upper triangle (each product once; the lower is the same numbers),
-        // the right-hand side and Σe², each a sum over the window in its order, in the lanes
-        // of one array: lane i adds `first[i]·second[i]` (UPPER's pairs of d, then d·e, e·e).
-        let mut acc = [0.0f64; LANES];
+        // The normals and the right-hand side from sums over the window: within a row v is
+        // fixed, so each row sums the products of (b·g, s, e) with 1, u and u² once, and the
+        // row's sums enter with 1, v and v² (15 sums a sample instead of the 21 products of
+        // the derivatives (∂/∂t, ∂/∂t_u, ∂/∂t_v, ∂/∂a, ∂/∂b) = (b·g, b·g·u, b·g·v, 1, s)).
+        let mut tot = Sums::default();
         for jj in 0..side {
             let v = jj as f64 - k as f64;
+            let mut row = Sums::default();
+            let o = jj * side;
             for ii in 0..side {
-                let idx = jj * side + ii;
                 let u = ii as f64 - k as f64;
-                let (l, s, g) = (lw[idx], sw[idx], gw[idx]);
+                let (l, s, g) = (lw[o + ii], sw[o + ii], gw[o + ii]);
                 let e = l - (a + b * s);
-                res[idx] = e;
-                // ∂/∂(t, t_u, t_v, a, b) of a + b·s(q(u, v)).
+                res[o + ii] = e;
                 let bg = b * g;
-                let d = [bg, bg * u, bg * v, 1.0, s, e];
-                let first: [f64; LANES] = std::array::from_fn(|i| d[PAIRS[i].0]);
-                let second: [f64; LANES] = std::array::from_fn(|i| d[PAIRS[i].1]);
-                for ((acc, x), y) in acc.iter_mut().zip(first).zip(second) {
-                    *acc += x * y;
-                }
+                let (gg, gu) = (bg * bg, bg * u);
+                row.gg += gg;
+                row.ggu += gg * u;
+                row.gguu += gg * u * u;
+                row.g += bg;
+                row.gu += gu;
+                row.gs += bg * s;
+                row.gsu += gu * s;
+                row.ge += bg * e;
+                row.geu += gu * e;
+                row.s += s;
+                row.ss += s * s;
+                row.e += e;
+                row.se += s * e;
+                row.ee += e * e;
             }
+            tot.add_row(&row, v);
         }
-        let mut up = [[0.0f64; 5]; 5];
-        for (lane, &(i, j)) in PAIRS.iter().enumerate().take(15) {
-            up[i][j] = acc[lane];
-        }
-        let rhs = V5::from_fn(|i, _| acc[15 + i]);
-        let vv = acc[20];
-        let nm = M5::from_fn(|i, j| up[i.min(j)][i.max(j)]);
-        let q_inv = nm.try_inverse().ok_or(RefineFailure::Singular)?;
-        let dx = q_inv * rhs;
+        let nm = M5::new(
+            tot.gg, tot.ggu, tot.ggv, tot.g, tot.gs, //
+            tot.ggu, tot.gguu, tot.gguv, tot.gu, tot.gsu, //
+            tot.ggv, tot.gguv, tot.ggvv, tot.gv, tot.gsv, //
+            tot.g, tot.gu, tot.gv, n, tot.s, //
+            tot.gs, tot.gsu, tot.gsv, tot.s, tot.ss,
+        );
+        let rhs = V5::new(tot.ge, tot.geu, tot.gev, tot.e, tot.se);
+        let vv = tot.ee;
+        let chol = nm.cholesky().ok_or(RefineFailure::Singular)?;
+        let dx = chol.solve(&rhs);
         if !dx.iter().all(|v| v.is_finite()) {
             return Err(RefineFailure::Singular);
         }
+        // Q_tt = (N⁻¹)₀₀ = ‖L⁻¹·e₀‖².
+        let q_tt = {
+            let l = chol.l_dirty();
+            let mut z = [0.0f64; 5];
+            z[0] = 1.0 / l[(0, 0)];
+            for i in 1..5 {
+                let s: f64 = (0..i).map(|j| l[(i, j)] * z[j]).sum();
+                z[i] = -s / l[(i, i)];
+            }
+            z.iter().map(|v| v * v).sum::<f64>()
+        };
         t += dx[0];
         tu += dx[1];
         tv += dx[2];
@@ -242,7 +289,7 @@ fn refine_body<L: Fn(f64, f64, f64) -> [f64; 2]>(
         // Converged: a step below a thousandth of a plane, or below a fifth of the plane's own
         // σ (the bilinear surface's gradient jumps at pixel borders, so the last steps jitter
         // at the level of the noise rather than shrink).
-        let sigma_t = sigma0 * q_inv[(0, 0)].sqrt();
+        let sigma_t = sigma0 * q_tt.sqrt();
         if it > 0 && (dx[0].abs() < CONVERGED || dx[0].abs() < 0.2 * sigma_t) {
             if sigma_t.is_nan() || sigma_t > 1.0 {
                 return Err(RefineFailure::Imprecise);
@@ -300,18 +347,30 @@ fn sample(
 ) -> Result<(), RefineFailure> {
     let side = 2 * k + 1;
     let (w, h) = (img.width, img.height);
+    let kf = k as f64;
+    // The window lands on a parallelogram: inside the photo when its corners are.
+    let at = |u: f64, v: f64| {
+        [
+            q0[0] + j[0][0] * u + j[1][0] * v - 0.5,
+            q0[1] + j[0][1] * u + j[1][1] * v - 0.5,
+        ]
+    };
+    for (u, v) in [(-kf, -kf), (kf, -kf), (-kf, kf), (kf, kf)] {
+        let [x, y] = at(u, v);
+        // Pixel centres at +0.5; the four neighbours must exist.
+        if !(x >= 0.0 && y >= 0.0 && x < (w - 1) as f64 && y < (h - 1) as f64) {
+            return Err(RefineFailure::OutsideImage);
+        }
+    }
     let wd = img.width;
     for jj in 0..side {
-        let v = jj as f64 - k as f64;
-        for ii in 0..side {
-            let u = ii as f64 - k as f64;
-            // Pixel centres at +0.5.
-            let x = q0[0] + j[0][0] * u + j[1][0] * v - 0.5;
-            let y = q0[1] + j[0][1] * u + j[1][1] * v - 0.5;
-            if !(x >= 0.0 && y >= 0.0 && x < (w - 1) as f64 && y < (h - 1) as f64) {
-                return Err(RefineFailure::OutsideImage);
-            }
-            let (i0, j0) = (x as usize, y as usize);
+        let v = jj as f64 - kf;
+        let row = &mut s[jj * side..(jj + 1) * side];
+        let grow = &mut g[jj * side..(jj + 1) * side];
+        for (ii, (sv, gv)) in row.iter_mut().zip(grow.iter_mut()).enumerate() {
+            let [x, y] = at(ii as f64 - kf, v);
+            // Inside by the corners (the minimum keeps a rounding at the border in).
+            let (i0, j0) = ((x as usize).min(w - 2), (y as usize).min(h - 2));
             let (fx, fy) = (x - i0 as f64, y - j0 as f64);
             let o = j0 * wd + i0;
             let (p00, p01) = (img.data[o] as f64, img.data[o + 1] as f64);
@@ -320,8 +379,8 @@ fn sample(
             let bottom = p10 + fx * (p11 - p10);
             let gx = (1.0 - fy) * (p01 - p00) + fy * (p11 - p10);
             let gy = bottom - top;
-            s[jj * side + ii] = top + fy * (bottom - top);
-            g[jj * side + ii] = gx * dir[0] + gy * dir[1];
+            *sv = top + fy * (bottom - top);
+            *gv = gx * dir[0] + gy * dir[1];
         }
     }
     Ok(())
