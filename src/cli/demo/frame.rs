@@ -25,7 +25,8 @@ pub struct DemoArgs {
     /// Simulator seed (the rig, the films, the block).
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
-    /// Fewer positions and frames in the calibrations (a quicker, slightly rougher run).
+    /// Fewer positions in the pixel calibration and fewer frames averaged in the calibrations
+    /// and the scans (a quicker, slightly noisier run).
     #[arg(long)]
     pub quick: bool,
     /// The matcher of the elevation model: "sweep" (seed 000's height sweep over every pair)
@@ -142,7 +143,13 @@ pub(super) fn s(p: &Path) -> String {
     p.display().to_string()
 }
 
-fn scan_script(path: &Path, interior: &Path, region: [f64; 4], out: &Path) -> anyhow::Result<()> {
+fn scan_script(
+    path: &Path,
+    interior: &Path,
+    region: [f64; 4],
+    out: &Path,
+    frames: &str,
+) -> anyhow::Result<()> {
     // Relative to the script's directory (as the script reads them): the demo's folder moves.
     let base = path.parent().unwrap_or(Path::new("."));
     let rel = |p: &Path| rig::scan::relative::relative_to(base, p);
@@ -159,7 +166,7 @@ dir = "{out}"
 resolution_um = 25.0
 
 [capture]
-frames = 8
+frames = {frames}
 overlap = 0.2
 settle_ms = 0
 
@@ -173,6 +180,7 @@ photo_mm = [{:.3}, {:.3}, {:.3}, {:.3}]
             region[3],
             name = path.file_stem().and_then(|n| n.to_str()).unwrap_or("photo"),
             interior = rel(interior).display(),
+            frames = frames,
             out = rel(out).display(),
         ),
     )?;
@@ -194,7 +202,11 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<i32> {
             photo.to_string(),
         ]
     };
-    let (grid, frames) = if a.quick { ("3", "8") } else { ("5", "32") };
+    let (grid, frames, scan_frames) = if a.quick {
+        ("3", "4", "4")
+    } else {
+        ("5", "32", "8")
+    };
     // 1. Pixel → carriage.
     let mut args: Vec<String> = vec!["calibrate".into(), "pixel".into()];
     args.extend(sim(1));
@@ -240,7 +252,7 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<i32> {
             read_report(&title, &run_step_beside(&title, &args, &print)?)?;
         let script = out.join(format!("scan-photo-{photo}.toml"));
         let scan_dir = out.join(format!("scan-photo-{photo}"));
-        scan_script(&script, &dir, region, &scan_dir)?;
+        scan_script(&script, &dir, region, &scan_dir, scan_frames)?;
         let mut args: Vec<String> = vec!["scan".into()];
         args.extend(sim(photo));
         args.extend(["--json".into(), "run".into(), s(&script)]);
