@@ -3,11 +3,13 @@
 //! coarse model a pixel of parallax off), blocks of 0.25 and 1 million groundels refined patch
 //! by patch. Beside each, measured in the same run: the baseline, one pass that only samples
 //! every photo at every groundel (the least any iteration must do), reported as the ratio of
-//! the adjustment's time to it per iteration; and the dense solve of one patch's normal
-//! equations (Cholesky and inverse of a 24² + 4 unknown system), reported as its share of
-//! the adjustment's time: the measurement behind keeping the patch solver dense rather than
-//! banded or sparse. Memory: the estimate the run refuses by, the process's peak resident
-//! size, and both extrapolated to a 10 000 × 10 000-groundel block.
+//! the adjustment's time to it per iteration; and the solve of one patch's normal equations
+//! (24² posts in a band two grid rows wide, 12 radiometric unknowns bordering them), as the
+//! adjustment does it (a bordered-band Cholesky, the inverse's diagonal) and, as the baseline
+//! in the same run, densely (nalgebra's Cholesky and whole inverse, as it was done before):
+//! the banded solve's share of the adjustment's time and the dense one's time over it.
+//! Memory: the estimate the run refuses by, the process's peak resident size, and both
+//! extrapolated to a 10 000 × 10 000-groundel block.
 //!
 //! `cargo bench --bench oslsm`
 
@@ -16,7 +18,9 @@ use rig::coords::{GroundM, PixelXY};
 use rig::geometry::{FrameSensor, Sensor};
 use rig::image::ImageF32;
 use rig::matching::block::orient::vertical_sensor;
+use rig::matching::methods::oslsm::banded::BorderedBand;
 use rig::matching::methods::oslsm::run::memory_bytes;
+use rig::matching::methods::oslsm::solve::NR;
 use rig::matching::methods::oslsm::{refine_block, Grids, OslsmParams, PatchLayout, PhotoView};
 use rig::matching::progress::Silent;
 use std::time::Instant;
@@ -97,14 +101,7 @@ fn main() {
     );
     println!(
         "{:>10} {:>8} {:>10} {:>6} {:>14} {:>12} {:>10} {:>10}",
-        "groundels",
-        "s",
-        "s/Mgroundel",
-        "iters",
-        "× sampling",
-        "dense solve",
-        "est. MiB",
-        "peak MiB"
+        "groundels", "s", "s/Mgroundel", "iters", "× sampling", "solve", "est. MiB", "peak MiB"
     );
     for cells in [72usize, 143] {
         let side_m = cells as f64 * POST_M;
@@ -190,30 +187,47 @@ fn main() {
                 pr.failure.as_ref().unwrap()
             );
         }
-        // The dense solve of one patch's normal equations, as the adjustment does it.
-        let nu = layout.posts * layout.posts + 4;
+        // One patch's normal equations in their shape: the posts' band (a groundel's four
+        // posts, a curvature row's three, two grid rows apart), the radiometry's border.
+        let n_posts = layout.posts * layout.posts;
+        let bw = 2 * layout.posts;
+        let nu = n_posts + 2 * NR;
         let a = DMatrix::<f64>::from_fn(nu, nu, |i, j| {
+            let far = i.abs_diff(j);
             if i == j {
                 nu as f64 + 1.0
+            } else if i < n_posts && j < n_posts && far > bw {
+                0.0
             } else {
-                1.0 / (1.0 + (i as f64 - j as f64).abs())
+                1.0 / (1.0 + far as f64)
             }
         });
-        // A factorisation per iteration, an inverse per patch (its σ, at convergence).
+        // A factorisation per iteration, the inverse's diagonal per patch (its σ).
         let reps = 5;
-        let t = Instant::now();
-        for _ in 0..reps {
+        let time = |f: &dyn Fn()| {
+            let t = Instant::now();
+            for _ in 0..reps {
+                f();
+            }
+            t.elapsed().as_secs_f64() / reps as f64
+        };
+        let factor = time(&|| {
+            std::hint::black_box(BorderedBand::factor(&a, n_posts, bw).unwrap());
+        });
+        let banded = BorderedBand::factor(&a, n_posts, bw).unwrap();
+        let inverse = time(&|| {
+            std::hint::black_box(banded.inverse_diagonal());
+        });
+        let dense_factor = time(&|| {
             std::hint::black_box(a.clone().cholesky().unwrap());
-        }
-        let factor = t.elapsed().as_secs_f64() / reps as f64;
+        });
         let chol = a.clone().cholesky().unwrap();
-        let t = Instant::now();
-        for _ in 0..reps {
+        let dense_inverse = time(&|| {
             std::hint::black_box(chol.inverse());
-        }
-        let inverse = t.elapsed().as_secs_f64() / reps as f64;
-        let solve_share =
-            (factor * iterations as f64 + inverse * patches as f64) / (secs * threads as f64);
+        });
+        let cost = |f: f64, i: f64| f * iterations as f64 + i * patches as f64;
+        let solve_share = cost(factor, inverse) / (secs * threads as f64);
+        let dense_ratio = cost(dense_factor, dense_inverse) / cost(factor, inverse);
         let per_patch_groundels = ((layout.posts - 1) * PER_CELL).pow(2) as u64;
         let est = memory_bytes(
             n as u64,
@@ -236,7 +250,7 @@ fn main() {
             (s / n.max(1) as f64).sqrt() / mpp
         };
         println!(
-            "{:>10.0} {:>8.1} {:>10.1} {:>6.1} {:>14.1} {:>11.1}% {:>10.0} {:>10.0}   ({patches} patches, {failed} failed, refined posts' RMSE {rms:.3} px)",
+            "{:>10.0} {:>8.1} {:>10.1} {:>6.1} {:>14.1} {:>11.1}% {:>10.0} {:>10.0}   ({patches} patches, {failed} failed, refined posts' RMSE {rms:.3} px; the dense solve {dense_ratio:.0} × the banded one)",
             n,
             secs,
             secs / (n / 1e6),

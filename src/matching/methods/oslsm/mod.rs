@@ -2,7 +2,7 @@
 //! reflectance solved together in object space from any number of photos, each seen through
 //! its [`crate::geometry::Sensor`] only (frame, pushbroom or RPC alike).
 
-mod banded;
+pub mod banded;
 pub mod coarse_features;
 pub mod config;
 pub mod edge_strings;
