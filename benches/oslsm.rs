@@ -212,9 +212,9 @@ fn main() {
             t.elapsed().as_secs_f64() / reps as f64
         };
         let factor = time(&|| {
-            std::hint::black_box(BorderedBand::factor(&a, n_posts, bw).unwrap());
+            std::hint::black_box(BorderedBand::factor(&a, n_posts).unwrap());
         });
-        let banded = BorderedBand::factor(&a, n_posts, bw).unwrap();
+        let banded = BorderedBand::factor(&a, n_posts).unwrap();
         let inverse = time(&|| {
             std::hint::black_box(banded.inverse_diagonal());
         });

@@ -833,4 +833,14 @@ fn the_simulators_film_is_lifted_for_a_pixel_calibration_and_laid_for_an_interio
     s.call("POST", "/api/v1/queue/start", None, None);
     let it = ended(id);
     assert_eq!(it["state"], "done", "{it}");
+    // Each calibration item's folder is its session in the store.
+    for (id, kind) in [(bare, "pixel"), (id, "interior")] {
+        let (st, v) = s.call("GET", &format!("/api/v1/items/{id}"), None, None);
+        assert_eq!(st, 200, "{v}");
+        let dir = std::path::Path::new(v["dir"].as_str().unwrap_or_else(|| panic!("{v}")));
+        assert!(
+            dir.starts_with(&store) && dir.is_dir() && dir.to_string_lossy().ends_with(kind),
+            "{v}"
+        );
+    }
 }

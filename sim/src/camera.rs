@@ -262,15 +262,15 @@ pub fn render_scene(
     img
 }
 
+/// Draws of the noise stream set aside for each row of a frame: a row of w pixels takes about
+/// 4/π·w, far fewer (the rows' parts never overlap).
+const ROW_DRAWS: u64 = 1 << 32;
+
 /// Turns a noiseless image into one frame from the sensor: gain, dust, shot and read noise
 /// (more on the top rows), the field shift, the stripes, quantisation. `seq` is the frame
 /// number (it drives the gain flicker and seeds the noise with `seed`). Rows are exposed in
 /// parallel, each from its own part of the frame's noise stream ([`ROW_DRAWS`] draws apart),
 /// so that the frame is the same, to the bit, on any number of threads.
-/// Draws of the noise stream set aside for each row of a frame: a row of w pixels takes about
-/// 4/π·w, far fewer (the rows' parts never overlap).
-const ROW_DRAWS: u64 = 1 << 32;
-
 pub fn expose(cfg: &CameraConfig, ideal: &[f32], seed: u64, seq: u64) -> Vec<u16> {
     let (w, h) = (cfg.width, cfg.height);
     let mut rng = Rng::new(seed ^ seq.wrapping_mul(0x2545_F491_4F6C_DD1D) ^ 0x00CA_3E5A);
@@ -319,7 +319,7 @@ pub fn expose(cfg: &CameraConfig, ideal: &[f32], seed: u64, seq: u64) -> Vec<u16
             for (col, (&tv, o)) in t.iter().zip(out_row.iter_mut()).enumerate() {
                 let s = level * tv;
                 let sigma = (cfg.shot_dn8 * s * top * top + read * read).sqrt();
-                // Box–Muller gives normals in pairs: both are used.
+                // The polar method gives normals in pairs: both are used.
                 let z = match spare.take() {
                     Some(z) => z,
                     None => {
@@ -396,6 +396,27 @@ mod tests {
         }
         let ratio = ratio / n as f64;
         assert!((ratio - 1.0).abs() < 0.05, "variance / model {ratio}");
+        // Neighbouring rows draw different noise (their parts of the stream do not overlap):
+        // the correlation of their deviations from the mean frame is 0 ± 4/√n.
+        let dev = |f: &[u16], row: usize, col: usize| {
+            let m = frames.iter().map(|g| g[row * 64 + col] as f64).sum::<f64>() / 40.0;
+            f[row * 64 + col] as f64 - m
+        };
+        let (mut sab, mut saa, mut sbb, mut pairs) = (0.0, 0.0, 0.0, 0usize);
+        for f in &frames {
+            for row in 30..47 {
+                for col in 0..64 {
+                    let (a, b) = (dev(f, row, col), dev(f, row + 1, col));
+                    (sab, saa, sbb) = (sab + a * b, saa + a * a, sbb + b * b);
+                    pairs += 1;
+                }
+            }
+        }
+        let r = sab / (saa * sbb).sqrt();
+        assert!(
+            r.abs() < 4.0 / (pairs as f64).sqrt(),
+            "rows correlated: {r}"
+        );
     }
 
     #[test]

@@ -126,10 +126,14 @@ mod tests {
                 "beyond ±{x}: {got} against {p}"
             );
         }
-        // Squares: mean 1, variance 2 each; their covariance 0 ± 4·2/√pairs.
+        // Squares: mean 1, variance 2 each; their covariance 0 ± 4 standard errors (a²b² has
+        // a standard deviation of √8).
         let m = pairs as f64;
         let cov = s2b2 / m - (s2[0] / m) * (s2[1] / m);
-        assert!(cov.abs() < 4.0 * 2.0 / m.sqrt(), "cov of squares {cov}");
+        assert!(
+            cov.abs() < 4.0 * 8f64.sqrt() / m.sqrt(),
+            "cov of squares {cov}"
+        );
         for k in 0..2 {
             let var = s22[k] / m - (s2[k] / m).powi(2);
             assert!((var - 2.0).abs() < 0.1, "variance of the squares {var}");

@@ -213,7 +213,7 @@ fn refine_body<L: Fn(f64, f64, f64) -> [f64; 2]>(
         }
         // The normals and the right-hand side from sums over the window: within a row v is
         // fixed, so each row sums the products of (b·g, s, e) with 1, u and u² once, and the
-        // row's sums enter with 1, v and v² (15 sums a sample instead of the 21 products of
+        // row's sums enter with 1, v and v² (14 sums a sample instead of the 21 products of
         // the derivatives (∂/∂t, ∂/∂t_u, ∂/∂t_v, ∂/∂a, ∂/∂b) = (b·g, b·g·u, b·g·v, 1, s)).
         let mut tot = Sums::default();
         for jj in 0..side {
@@ -347,6 +347,9 @@ fn sample(
 ) -> Result<(), RefineFailure> {
     let side = 2 * k + 1;
     let (w, h) = (img.width, img.height);
+    if w < 2 || h < 2 {
+        return Err(RefineFailure::OutsideImage);
+    }
     let kf = k as f64;
     // The window lands on a parallelogram: inside the photo when its corners are.
     let at = |u: f64, v: f64| {

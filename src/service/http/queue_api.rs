@@ -77,8 +77,14 @@ pub(super) async fn item(State(app): State<App>, UrlPath(id): UrlPath<String>) -
         Place::Running => ("running", None),
         Place::History => ("history", None),
     };
-    let dir = item_dir(&app.lab.data, id);
-    ok(json!({"item": it, "where": place, "index": index, "dir": dir.exists().then_some(dir)}))
+    // Its folder: a scan's under the service's data, a calibration's session in the store.
+    let dir = Some(item_dir(&app.lab.data, id))
+        .filter(|d| d.exists())
+        .or_else(|| {
+            let session = it.result.as_ref()?.get("session")?.as_str()?;
+            Some(std::path::PathBuf::from(session))
+        });
+    ok(json!({"item": it, "where": place, "index": index, "dir": dir}))
 }
 
 #[derive(Deserialize)]

@@ -73,14 +73,17 @@ fn render_texture(s: &FrameSensor, noise: f64, seed: u64) -> Textured {
     };
     let (o, ec, er) = (at(0.0, 0.0), at(1.0, 0.0), at(0.0, 1.0));
     let (dc, dr) = ([ec[0] - o[0], ec[1] - o[1]], [er[0] - o[0], er[1] - o[1]]);
-    // The map is affine: the far corner is where the two steps put it (to a micrometre).
-    let far = at(SIDE as f64, SIDE as f64);
+    // The map is affine: the other corners are where the two steps put them (to a
+    // micrometre).
     let side = SIDE as f64;
-    assert!(
-        (far[0] - (o[0] + side * (dc[0] + dr[0]))).abs() < 1e-6
-            && (far[1] - (o[1] + side * (dc[1] + dr[1]))).abs() < 1e-6,
-        "render_texture wants a vertical photo"
-    );
+    for (u, v) in [(side, 0.0), (0.0, side), (side, side)] {
+        let g = at(u, v);
+        let want = [o[0] + u * dc[0] + v * dr[0], o[1] + u * dc[1] + v * dr[1]];
+        assert!(
+            (g[0] - want[0]).abs() < 1e-6 && (g[1] - want[1]).abs() < 1e-6,
+            "render_texture wants a vertical photo"
+        );
+    }
     let dirichlet = |delta: f64| {
         (0..K)
             .map(|i| ((i as f64 - (K as f64 - 1.0) / 2.0) * delta).cos())

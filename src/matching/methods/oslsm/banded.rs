@@ -24,26 +24,29 @@ pub struct BorderedBand {
 }
 
 impl BorderedBand {
-    /// The half-bandwidth of `a`'s first `n` rows and columns: the largest |i − j| of a
-    /// non-zero there (the lower triangle is read).
+    /// The half-bandwidth of `a`'s first `n` rows and columns: the largest i − j of a non-zero
+    /// there (the lower triangle read down each column, from the bottom, only below the band
+    /// found so far).
     pub fn bandwidth(a: &DMatrix<f64>, n: usize) -> usize {
+        let n = n.min(a.nrows()).min(a.ncols());
         let mut bw = 0;
-        for i in 0..n.min(a.nrows()) {
-            if let Some(j) = (0..i.saturating_sub(bw)).find(|&j| a[(i, j)] != 0.0) {
+        for j in 0..n {
+            if let Some(i) = (j + bw + 1..n).rev().find(|&i| a[(i, j)] != 0.0) {
                 bw = i - j;
             }
         }
         bw
     }
 
-    /// Factors symmetric `a` (its lower triangle read) whose first `n` unknowns form a band of
-    /// half-width `bw`; `None` when `a` is not positive definite (a pivot ≤ 0 or not finite),
-    /// or when an entry outside that shape is not zero (the factor would be wrong).
-    pub fn factor(a: &DMatrix<f64>, n: usize, bw: usize) -> Option<Self> {
+    /// Factors symmetric `a` (its lower triangle read) whose first `n` unknowns form a band
+    /// (its width found, [`Self::bandwidth`]); `None` when `a` is not square or not positive
+    /// definite (a pivot ≤ 0 or not finite).
+    pub fn factor(a: &DMatrix<f64>, n: usize) -> Option<Self> {
         let size = a.nrows();
-        if a.ncols() != size || n > size || Self::bandwidth(a, n) > bw {
+        if a.ncols() != size || n > size {
             return None;
         }
+        let bw = Self::bandwidth(a, n);
         let m = size - n;
         let w = bw + 1;
         let mut band = vec![0.0; n * w];
@@ -243,7 +246,7 @@ mod tests {
             let n = cols * rows;
             let bw = BorderedBand::bandwidth(&a, n);
             assert_eq!(bw, (2 * cols).min(n - 1).max(cols + 1), "{cols}×{rows}");
-            let f = BorderedBand::factor(&a, n, bw).unwrap();
+            let f = BorderedBand::factor(&a, n).unwrap();
             let dense = a.clone().cholesky().unwrap();
             let b = DVector::from_fn(n + m, |i, _| (i as f64 * 0.37).sin());
             let (x, xd) = (f.solve(&b), dense.solve(&b));
@@ -260,19 +263,35 @@ mod tests {
         }
     }
 
-    /// A matrix that is not positive definite, or has an entry outside the band it is said to
-    /// have, is refused rather than factored wrongly.
+    /// A matrix that is not positive definite is refused rather than factored wrongly; an
+    /// entry far outside the posts' usual band widens the band (the factor stays right); no
+    /// posts at all (the border alone) and no border are factored too.
     #[test]
-    fn refuses_what_it_cannot_factor() {
+    fn refuses_what_it_cannot_factor_and_takes_any_band() {
         let a = normals(6, 6, 3, 5);
         let n = 36;
-        let bw = BorderedBand::bandwidth(&a, n);
-        assert!(BorderedBand::factor(&a, n, bw - 1).is_none());
         let mut b = a.clone();
         b[(20, 20)] = -1.0;
-        assert!(BorderedBand::factor(&b, n, bw).is_none());
+        assert!(BorderedBand::factor(&b, n).is_none());
         let mut c = a.clone();
         c[(38, 38)] = f64::NAN;
-        assert!(BorderedBand::factor(&c, n, bw).is_none());
+        assert!(BorderedBand::factor(&c, n).is_none());
+        assert!(BorderedBand::factor(&DMatrix::zeros(3, 4), 3).is_none());
+        let mut wide = a.clone();
+        // A positive-definite addition ([[0.02, 0.01], [0.01, 0.02]] at posts 0 and 35).
+        (wide[(35, 0)], wide[(0, 35)]) = (0.01, 0.01);
+        wide[(0, 0)] += 0.02;
+        wide[(35, 35)] += 0.02;
+        assert_eq!(BorderedBand::bandwidth(&wide, n), 35);
+        for (m, k) in [(wide, n), (a.clone(), 0), (a.clone(), 39)] {
+            let f = BorderedBand::factor(&m, k).unwrap();
+            let dense = m.clone().cholesky().unwrap();
+            let rhs = DVector::from_fn(39, |i, _| 1.0 + i as f64);
+            assert!((f.solve(&rhs) - dense.solve(&rhs)).amax() < 1e-9, "n = {k}");
+            let inv = dense.inverse();
+            for (i, d) in f.inverse_diagonal().iter().enumerate() {
+                assert!((d - inv[(i, i)]).abs() < 1e-9 * inv[(i, i)], "n = {k}, {i}");
+            }
+        }
     }
 }

@@ -582,9 +582,8 @@ pub fn refine(
             }
         }
         // The posts' band and the radiometry's border ([`BorderedBand`]).
-        let bw = BorderedBand::bandwidth(&solve_mat, n_posts);
-        let chol = BorderedBand::factor(&solve_mat, n_posts, bw)
-            .ok_or(OslsmError::Singular { iteration })?;
+        let chol =
+            BorderedBand::factor(&solve_mat, n_posts).ok_or(OslsmError::Singular { iteration })?;
         let dx = chol.solve(&rhs);
         // Back-substitution of each groundel's dD, then the updates.
         let dd: Vec<f64> = per
@@ -928,8 +927,7 @@ fn honest_cofactors(
     let share = texture_share(&mut n_mat, noise, informed);
     add_curvature(&mut n_mat, g.cols, g.rows, w);
     let n_posts = g.cols * g.rows;
-    let bw = BorderedBand::bandwidth(&n_mat, n_posts);
-    BorderedBand::factor(&n_mat, n_posts, bw).map(|c| (c.inverse_diagonal(), share))
+    BorderedBand::factor(&n_mat, n_posts).map(|c| (c.inverse_diagonal(), share))
 }
 
 /// How much the grey-value residuals' correlation between neighbouring groundels widens a
