@@ -43,22 +43,25 @@ fn texture(x: f64, y: f64) -> f64 {
 /// Samples per pixel along each axis.
 const K: usize = 4;
 
+/// The mean of `tex` over K × K samples of pixel (c, r) on the plane Z = PLANE.
+fn sampled_mean(s: &FrameSensor, tex: &dyn Fn(f64, f64) -> f64, c: usize, r: usize) -> f64 {
+    let mut v = 0.0;
+    for j in 0..K {
+        for i in 0..K {
+            let q = PixelXY::new(
+                c as f64 + (i as f64 + 0.5) / K as f64,
+                r as f64 + (j as f64 + 0.5) / K as f64,
+            );
+            let g = s.image_to_ground(q, PLANE).unwrap();
+            v += tex(g.x, g.y);
+        }
+    }
+    v / (K * K) as f64
+}
+
 /// The photo of the plane Z = PLANE with `tex`: each pixel the mean of K × K samples.
 fn render(s: &FrameSensor, tex: &dyn Fn(f64, f64) -> f64, noise: f64, seed: u64) -> Textured {
-    render_with(noise, seed, |c, r| {
-        let mut v = 0.0;
-        for j in 0..K {
-            for i in 0..K {
-                let q = PixelXY::new(
-                    c as f64 + (i as f64 + 0.5) / K as f64,
-                    r as f64 + (j as f64 + 0.5) / K as f64,
-                );
-                let g = s.image_to_ground(q, PLANE).unwrap();
-                v += tex(g.x, g.y);
-            }
-        }
-        v / (K * K) as f64
-    })
+    render_with(noise, seed, |c, r| sampled_mean(s, tex, c, r))
 }
 
 /// [`render`] of [`texture`] in closed form: a vertical photo sees the plane through an
@@ -139,18 +142,7 @@ fn the_textures_closed_form_is_its_sampled_mean() {
     for s in [vertical(100.0, 0.0), turned] {
         let fast = render_texture(&s, 0.0, 1);
         for (c, r) in [(0, 0), (17, 311), (300, 300), (599, 4), (451, 599)] {
-            let mut v = 0.0;
-            for j in 0..K {
-                for i in 0..K {
-                    let q = PixelXY::new(
-                        c as f64 + (i as f64 + 0.5) / K as f64,
-                        r as f64 + (j as f64 + 0.5) / K as f64,
-                    );
-                    let g = s.image_to_ground(q, PLANE).unwrap();
-                    v += texture(g.x, g.y);
-                }
-            }
-            let want = (v / (K * K) as f64) as f32;
+            let want = sampled_mean(&s, &texture, c, r) as f32;
             let got = fast.image.data[r * SIDE + c];
             assert!(
                 (got - want).abs() <= 1e-4,
