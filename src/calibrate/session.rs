@@ -128,6 +128,14 @@ impl Session {
         Ok(p)
     }
 
+    /// Keeps a certificate the session is measured against (the simulator's own, when none was
+    /// given) as `name` in the session, atomically; its path.
+    pub fn keep_certificate(&self, name: &str, text: &str) -> std::io::Result<PathBuf> {
+        let p = self.dir.join(name);
+        crate::atomic::write_with(&p, |w| w.write_all(text.as_bytes()))?;
+        Ok(p)
+    }
+
     /// Saves a crop of `img` around `centre` (3× enlarged, grey stretched to the crop) with the
     /// fitted centre drawn as a red cross with a gap, so the mark itself stays visible.
     pub fn save_crop(
@@ -325,6 +333,24 @@ pub fn read_descriptor<D: DeserializeOwned>(dir: &Path) -> Result<D, DocumentErr
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A kept certificate is the text given, under its name in the session, and nothing else
+    /// is left beside the session's own files (no temporary file of the atomic write).
+    #[test]
+    fn a_kept_certificate_is_the_text_given() {
+        let d = tempfile::tempdir().unwrap();
+        let s = Session::create(&d.path().join("s")).unwrap();
+        let text = "[plate]\nname = \"x\"\n";
+        let p = s.keep_certificate("plate-cert.toml", text).unwrap();
+        assert_eq!(p, s.dir.join("plate-cert.toml"));
+        assert_eq!(std::fs::read_to_string(&p).unwrap(), text);
+        let mut names: Vec<String> = std::fs::read_dir(&s.dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        names.sort();
+        assert_eq!(names, ["crops", LOG, "plate-cert.toml"], "{names:?}");
+    }
 
     #[test]
     fn utc_stamps_are_civil_dates() {

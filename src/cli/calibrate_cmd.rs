@@ -192,15 +192,14 @@ pub fn run(a: CalibrateArgs) -> anyhow::Result<i32> {
             let (session, hw) = begin(&a, out, "pixel", false)?;
             let cert_path = match (plate_cert, &hw.sim) {
                 (Some(p), _) => p.clone(),
-                (None, Some(s)) => {
-                    let p = session.dir.join("plate-cert.toml");
-                    std::fs::write(
-                        &p,
-                        rig_sim::certificates::plate_certificate(&s.world.plate, s.world.seed),
+                (None, Some(s)) => session
+                    .keep_certificate(
+                        "plate-cert.toml",
+                        &rig_sim::certificates::plate_certificate(&s.world.plate, s.world.seed),
                     )
-                    .with_context(|| format!("writing {}", p.display()))?;
-                    p
-                }
+                    .with_context(|| {
+                        format!("writing plate-cert.toml in {}", session.dir.display())
+                    })?,
                 (None, None) => unreachable!("checked above"),
             };
             let job = PixelJob {
@@ -302,18 +301,19 @@ pub fn run(a: CalibrateArgs) -> anyhow::Result<i32> {
             let cert_path = match (camera_cert, &hw.sim) {
                 (Some(p), _) => p.clone(),
                 (None, Some(s)) => {
-                    let p = session.dir.join("camera-cert.toml");
                     let film = s
                         .world
                         .film
                         .as_ref()
                         .expect("the simulator was started with a film");
-                    std::fs::write(
-                        &p,
-                        rig_sim::certificates::camera_certificate(film, s.world.seed),
-                    )
-                    .with_context(|| format!("writing {}", p.display()))?;
-                    p
+                    session
+                        .keep_certificate(
+                            "camera-cert.toml",
+                            &rig_sim::certificates::camera_certificate(film, s.world.seed),
+                        )
+                        .with_context(|| {
+                            format!("writing camera-cert.toml in {}", session.dir.display())
+                        })?
                 }
                 (None, None) => unreachable!("checked above"),
             };

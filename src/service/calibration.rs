@@ -25,16 +25,14 @@ pub fn run(rig: &mut Rig, id: ItemId, task: &Task) -> Result<Value, String> {
     };
     let session = Session::new_in_store(&store, kind)
         .map_err(|e| format!("creating a {kind} session in {}: {e}", store.display()))?;
-    let dir = session.dir.clone();
-    // The simulator's certificate, written into the session as `rig calibrate --sim` does.
-    let own = |name: &str, text: &Option<String>| -> Result<PathBuf, String> {
+    // The simulator's certificate, kept in the session as `rig calibrate --sim` keeps it.
+    let own = |session: &Session, name: &str, text: &Option<String>| -> Result<PathBuf, String> {
         let text = text
             .as_ref()
             .ok_or("no certificate given and the hardware has none of its own")?;
-        let p = dir.join(name);
-        crate::atomic::write_with(&p, |w| std::io::Write::write_all(w, text.as_bytes()))
-            .map_err(|e| format!("writing {}: {e}", p.display()))?;
-        Ok(p)
+        session
+            .keep_certificate(name, text)
+            .map_err(|e| format!("writing {}: {e}", session.dir.join(name).display()))
     };
     let bus = rig.bus;
     let t0 = Instant::now();
@@ -75,7 +73,7 @@ pub fn run(rig: &mut Rig, id: ItemId, task: &Task) -> Result<Value, String> {
         } => {
             let plate_certificate = match plate_cert {
                 Some(n) => super::task::certificate_path(n, rig.settings)?,
-                None => own("plate-cert.toml", &dev.certificates.plate)?,
+                None => own(&session, "plate-cert.toml", &dev.certificates.plate)?,
             };
             let job = PixelJob {
                 plate_certificate,
@@ -120,7 +118,7 @@ pub fn run(rig: &mut Rig, id: ItemId, task: &Task) -> Result<Value, String> {
             };
             let camera_certificate = match camera_cert {
                 Some(n) => super::task::certificate_path(n, rig.settings)?,
-                None => own("camera-cert.toml", &dev.certificates.camera)?,
+                None => own(&session, "camera-cert.toml", &dev.certificates.camera)?,
             };
             let job = InteriorJob {
                 camera_certificate,
