@@ -130,10 +130,31 @@ fn begin(
     Ok((session, hw))
 }
 
-/// Runs one session (rig::calibrate::run) with a progress display, then closes the hardware.
-/// The calibration's own error comes first; a failure to close the hardware after it is
-/// reported as well, never instead.
+/// Runs one session (rig::calibrate::run) with a progress display, closes the hardware, and
+/// prints the results (`--json`: the results document; else `print` of the calibration and
+/// its session's folder). The calibration's own error comes first; a failure to close the
+/// hardware after it is reported as well, never instead.
 fn run_session<T>(
+    a: &CalibrateArgs,
+    hw: Hardware,
+    body: impl FnOnce(Hands) -> Result<Finished<T>, SessionError>,
+    print: impl FnOnce(&T, &std::path::Path),
+) -> anyhow::Result<i32> {
+    let Finished {
+        calibration,
+        results,
+        dir,
+    } = run_closing(a, hw, body)?;
+    if a.output.json {
+        println!("{results}");
+    } else {
+        print(&calibration, &dir);
+    }
+    Ok(0)
+}
+
+/// [`run_session`]'s run: the session with a progress display, then the hardware closed.
+fn run_closing<T>(
     a: &CalibrateArgs,
     mut hw: Hardware,
     body: impl FnOnce(Hands) -> Result<Finished<T>, SessionError>,
@@ -215,19 +236,12 @@ pub fn run(a: CalibrateArgs) -> anyhow::Result<i32> {
                 },
                 sim: a.conn.sim.on,
             };
-            let Finished {
-                calibration: c,
-                results: doc,
-                dir,
-            } = run_session(&a, hw, |hands| {
-                rig::calibrate::run::pixel(session, hands, &job)
-            })?;
-            if a.output.json {
-                println!("{doc}");
-            } else {
-                print_pixel(&c, &dir);
-            }
-            Ok(0)
+            run_session(
+                &a,
+                hw,
+                |hands| rig::calibrate::run::pixel(session, hands, &job),
+                print_pixel,
+            )
         }
         CalibrateAction::History {
             scale_um,
@@ -329,19 +343,12 @@ pub fn run(a: CalibrateArgs) -> anyhow::Result<i32> {
                 film_centre_mm: centre,
                 sim: a.conn.sim.on,
             };
-            let Finished {
-                calibration: c,
-                results: doc,
-                dir,
-            } = run_session(&a, hw, |hands| {
-                rig::calibrate::run::interior(session, hands, &job)
-            })?;
-            if a.output.json {
-                println!("{doc}");
-            } else {
-                print_interior(&c, &dir);
-            }
-            Ok(0)
+            run_session(
+                &a,
+                hw,
+                |hands| rig::calibrate::run::interior(session, hands, &job),
+                print_interior,
+            )
         }
     }
 }
