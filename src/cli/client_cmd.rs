@@ -520,9 +520,12 @@ pub fn queue(a: QueueArgs) -> anyhow::Result<i32> {
 
 pub fn run(a: RunArgs) -> anyhow::Result<i32> {
     let c = client(&a.server, Some(Duration::from_secs(90)));
-    let (path, body, what) = match a.action {
+    // The run routes are POST /api/v1/run/NAME; the simulator's film is a PUT of its own.
+    let run = |name: &str| ("POST", format!("/api/v1/run/{name}"));
+    let film = || ("PUT", "/api/v1/sim/film".to_string());
+    let ((method, path), body, what) = match a.action {
         RunAction::Pause { now } => (
-            "pause",
+            run("pause"),
             Some(json!({"immediate": now})),
             if now {
                 "paused now"
@@ -530,29 +533,26 @@ pub fn run(a: RunArgs) -> anyhow::Result<i32> {
                 "pausing at the next tile"
             },
         ),
-        RunAction::Resume => ("resume", None, "resumed"),
-        RunAction::Stop => ("stop", None, "stopping at the next tile"),
+        RunAction::Resume => (run("resume"), None, "resumed"),
+        RunAction::Stop => (run("stop"), None, "stopping at the next tile"),
         RunAction::Abort => (
-            "abort",
+            run("abort"),
             None,
             "aborted: stages stopped, the item is back at the front",
         ),
-        RunAction::Halt => ("halt", None, "halted: controller reset"),
+        RunAction::Halt => (run("halt"), None, "halted: controller reset"),
         RunAction::LayFilm => (
-            "PUT /api/v1/sim/film",
+            film(),
             Some(json!({"laid": true})),
             "the simulator's film is laid on the carriage",
         ),
         RunAction::LiftFilm => (
-            "PUT /api/v1/sim/film",
+            film(),
             Some(json!({"laid": false})),
             "the simulator's film is lifted: the plate's crosses show",
         ),
     };
-    let v = match path.split_once(' ') {
-        Some((method, path)) => c.call(method, path, body)?,
-        None => c.call("POST", &format!("/api/v1/run/{path}"), body)?,
-    };
+    let v = c.call(method, &path, body)?;
     print(&v, a.server.json, |v| match &v["id"] {
         Value::Null => what.to_string(),
         id => format!("item {id}: {what}"),
