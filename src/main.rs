@@ -29,6 +29,7 @@ fn main() {
             .map(|_| 0)
             .map_err(anyhow::Error::from),
         Command::Dtm(a) => cli::dtm_cmd::run(a),
+        Command::Orient(a) => cli::orient_cmd::run(a),
         Command::Match(a) => cli::match_cmd::run(a),
         Command::Measure(a) => cli::measure_cmd::run(a),
         Command::Demo(a) => cli::demo::run(&a),

@@ -6,7 +6,9 @@
 use std::path::{Path, PathBuf};
 
 /// The core: these files and folders under `src/`.
-const CORE: [&str; 10] = [
+const CORE: [&str; 12] = [
+    "relative.rs",
+    "orientation",
     "geometry",
     "hac.rs",
     "simd.rs",

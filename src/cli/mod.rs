@@ -9,6 +9,7 @@ pub mod demo;
 pub mod dtm_cmd;
 pub mod match_cmd;
 pub mod measure_cmd;
+pub mod orient_cmd;
 pub mod shared_args;
 pub use rig::exit;
 pub mod progress_bar;
@@ -242,6 +243,26 @@ pub enum Command {
     ///
     #[command(verbatim_doc_comment, after_help = exit::TABLE)]
     Dtm(dtm_cmd::DtmArgs),
+    /// Orient a block of frame photos by one bundle adjustment (aerotriangulation).
+    ///
+    /// From approximate orientations (a flight index map's: `position` and `angles_deg` with
+    /// `position_sigma_m` and `angles_sigma_deg`; `angles_deg = [0, 0, 0]` for near-vertical) or
+    /// none (resected from the points), at least three control points (`gcp`) for the whole
+    /// block, and tie points (`tie`: image observations only). Check points (`cp`) are never
+    /// used: intersected afterwards and compared. Robust weights and data snooping remove
+    /// blunders; σ̂₀ rescales the measurements' σ once.
+    ///
+    /// Writes into DIR:
+    ///   project.toml  the same project, every photo oriented (position, angles, sigma)
+    ///   points.csv    every adjusted point's ground and σ (id,kind,x,y,z,sigma_x,…,rays)
+    ///   report.json   σ̂₀, per-photo σ and residuals, check points, precision, blunders
+    ///   report.html   the same with a residual-vector plot per photo
+    ///
+    /// Example:
+    ///   rig orient block/project.toml --out oriented && rig dtm oriented/project.toml --out dtm
+    ///
+    #[command(verbatim_doc_comment, after_help = exit::TABLE)]
+    Orient(orient_cmd::OrientArgs),
     /// Match photos outside a project: disparities of a rectified stereo pair.
     ///
     /// Example:

@@ -10,7 +10,7 @@ pub mod mosaic;
 pub mod mosaic_shares;
 pub mod plan;
 pub mod plan_plot;
-pub mod relative;
+
 pub mod run;
 pub mod script;
 pub mod sidecar;

@@ -6,9 +6,9 @@
 
 use super::manifest::{fnv64, FileRecord, MANIFEST as SCAN_MANIFEST};
 use super::mosaic::Interpolation;
-use super::relative::relative_to;
 use super::run::{mosaic_region, Reopen, ScanDir, ScanError};
 use crate::matching::methods::sweep::tiles::{check_shares, TileError, TileSpec};
+use crate::relative::relative_to;
 use serde::{Deserialize, Serialize};
 use serde_json::json;
 use std::path::{Path, PathBuf};

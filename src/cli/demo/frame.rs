@@ -152,7 +152,7 @@ fn scan_script(
 ) -> anyhow::Result<()> {
     // Relative to the script's directory (as the script reads them): the demo's folder moves.
     let base = path.parent().unwrap_or(Path::new("."));
-    let rel = |p: &Path| rig::scan::relative::relative_to(base, p);
+    let rel = |p: &Path| rig::relative::relative_to(base, p);
     std::fs::write(
         path,
         format!(

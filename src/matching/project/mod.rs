@@ -55,6 +55,19 @@ struct RawPhoto {
     scan: Option<String>,
     pushbroom: Option<String>,
     rpc: Option<String>,
+    /// With `position` and `angles_deg`: they are approximations (a flight index map's), known
+    /// to this σ, and `rig orient` (or `rig dtm`, first) adjusts them.
+    position_sigma_m: Option<f64>,
+    angles_sigma_deg: Option<f64>,
+    /// An oriented photo's σ (as `rig orient` writes it): position m, angles deg.
+    sigma: Option<RawSigma>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawSigma {
+    position_m: [f64; 3],
+    angles_deg: [f64; 3],
 }
 
 #[derive(Debug, Deserialize)]
@@ -307,8 +320,15 @@ fn read_model(path: &Path, rpc: bool) -> Result<GivenModel, String> {
 pub struct PhotoEntry {
     pub id: String,
     pub source: Source,
-    /// Given, or `None`: resected from the control points.
+    /// Given, or `None`: resected from the control points (or, in a block to orient, found
+    /// from the control and tie points).
     pub exterior: Option<Exterior>,
+    /// `position_sigma_m` and `angles_sigma_deg` (m, deg): `exterior` is an approximation to be
+    /// adjusted with the block ([`crate::orientation`]), weighted by these.
+    pub approximate: Option<[f64; 2]>,
+    /// `sigma`: the σ of an oriented photo's position (m) and angles (deg), as `rig orient`
+    /// wrote them.
+    pub sigma: Option<[[f64; 3]; 2]>,
 }
 
 /// What a point observation is for.
@@ -500,9 +520,16 @@ impl Project {
             };
             if let Some(model) = given {
                 let model = model.map_err(|e| bad(format!("{at}: {e}")))?;
-                let (Some(img), None, None, None, None) =
-                    (&p.image, &p.camera, &p.scan, &p.position, &p.angles_deg)
-                else {
+                let (Some(img), None, None, None, None, None, None, None) = (
+                    &p.image,
+                    &p.camera,
+                    &p.scan,
+                    &p.position,
+                    &p.angles_deg,
+                    &p.position_sigma_m,
+                    &p.angles_sigma_deg,
+                    &p.sigma,
+                ) else {
                     return Err(bad(format!(
                         "{at}: a photo with its pushbroom model or RPCs takes image (and no camera, scan, position or angles_deg: the model is its orientation)"
                     )));
@@ -514,6 +541,8 @@ impl Project {
                         model: Box::new(model),
                     },
                     exterior: None,
+                    approximate: None,
+                    sigma: None,
                 });
                 continue;
             }
@@ -557,10 +586,52 @@ impl Project {
                     )))
                 }
             };
+            let approximate = match (p.position_sigma_m, p.angles_sigma_deg) {
+                (None, None) => None,
+                (Some(sp), Some(sa)) => {
+                    if exterior.is_none() {
+                        return Err(bad(format!(
+                            "{at}: position_sigma_m and angles_sigma_deg say how well `position` and `angles_deg` are known: give those too (or none of the four, and the block finds the photo from its points)"
+                        )));
+                    }
+                    if !(sp.is_finite() && (0.001..=100_000.0).contains(&sp)) {
+                        return Err(bad(format!("{at}: position_sigma_m {sp}: 0.001 to 100000 m")));
+                    }
+                    if !(sa.is_finite() && (1e-6..=90.0).contains(&sa)) {
+                        return Err(bad(format!("{at}: angles_sigma_deg {sa}: 0.000001 to 90°")));
+                    }
+                    Some([sp, sa])
+                }
+                _ => {
+                    return Err(bad(format!(
+                        "{at}: give both position_sigma_m and angles_sigma_deg (how well the approximate orientation is known), or neither"
+                    )))
+                }
+            };
+            let sigma = match &p.sigma {
+                None => None,
+                Some(s) => {
+                    let ok = s
+                        .position_m
+                        .iter()
+                        .all(|v| v.is_finite() && (0.0..=1e6).contains(v))
+                        && s.angles_deg
+                            .iter()
+                            .all(|v| v.is_finite() && (0.0..=90.0).contains(v));
+                    if !ok || exterior.is_none() || approximate.is_some() {
+                        return Err(bad(format!(
+                            "{at}: sigma = {{ position_m = [3 numbers, 0 to 1e6 m], angles_deg = [3 numbers, 0 to 90°] }} is an oriented photo's, with position and angles_deg and without the approximations' position_sigma_m and angles_sigma_deg"
+                        )));
+                    }
+                    Some([s.position_m, s.angles_deg])
+                }
+            };
             photos.push(PhotoEntry {
                 id: p.id.clone(),
                 source,
                 exterior,
+                approximate,
+                sigma,
             });
         }
         let d = &raw.dem;

@@ -1,6 +1,7 @@
-//! Paths a scan's records name, relative to the record's own directory: a scan folder moved,
-//! copied to another machine or archived still names its sessions, certificate and script
-//! (`../sessions/interior-photo-1`), and holds no trace of where it was first written.
+//! Paths a record names, relative to the record's own directory: a scan folder moved, copied
+//! to another machine or archived still names its sessions, certificate and script
+//! (`../sessions/interior-photo-1`), an oriented project its photos, and neither holds a trace
+//! of where it was first written.
 
 use std::path::{Component, Path, PathBuf};
 
