@@ -3,7 +3,7 @@
 use super::shared_args::JsonOutput;
 use clap::Args;
 use rig::matching::project::Project;
-use rig::orientation::run::{geometry, orient_block};
+use rig::orientation::run::{load, orient_block};
 use rig::orientation::OrientOptions;
 use std::path::PathBuf;
 
@@ -43,10 +43,10 @@ fn scan_photo(sidecar: &std::path::Path) -> Result<rig::matching::block::photo::
 
 pub fn run(a: OrientArgs) -> anyhow::Result<i32> {
     let p = Project::load(&a.project)?;
-    let geo = geometry(&p, &scan_photo)?;
+    let photos = load(&p, &scan_photo)?;
     let o = orient_block(
         &p,
-        &geo,
+        &photos,
         OrientOptions {
             image_sigma_px: a.image_sigma,
             ..OrientOptions::default()

@@ -64,6 +64,9 @@ pub struct Ray {
     pub photo: usize,
     pub xy: PhotoMm,
     pub sigma_mm: f64,
+    /// Which variance component its σ belongs to (0: measured in the points file, 1: matched
+    /// by the rig), for [`crate::orientation::run`]'s estimate of each.
+    pub group: usize,
 }
 
 #[derive(Debug, Clone, Default)]
@@ -1047,4 +1050,30 @@ pub fn intersect_fixed(
         }
     }
     Some((GroundM::new(x.x, x.y, x.z), n.try_inverse()?))
+}
+
+/// The reduced camera system S of `block` at its start values (undamped): what each iteration
+/// factors, for the benchmark's sparse and dense solves side by side.
+pub fn reduced_at_start(block: &Block) -> Result<Reduced, BundleError> {
+    let (cams, pts, status) = start(block)?;
+    let mut by_point: Vec<Vec<usize>> = vec![Vec::new(); block.points.len()];
+    for (k, (r, s)) in block.rays.iter().zip(&status).enumerate() {
+        if *s == RayStatus::Used {
+            by_point[r.point].push(k);
+        }
+    }
+    let mut st = State {
+        block,
+        settings: Settings::default(),
+        cams,
+        pts,
+        by_point,
+        status,
+        robust: false,
+        reduced: Reduced::new(0, []),
+    };
+    st.rebuild_pattern();
+    let lin = st.linearise(&st.cams, &st.pts);
+    st.schur(&lin, 0.0);
+    Ok(st.reduced)
 }

@@ -149,6 +149,7 @@ pub fn block_of(
             photo: i,
             xy: g.frame.photo(PixelXY::new(ob.col, ob.row)),
             sigma_mm: o.image_sigma_px * photos[i].pixel_mm,
+            group: 0,
         });
     }
     Ok(Block {

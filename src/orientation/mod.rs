@@ -14,6 +14,8 @@ pub mod from_project;
 pub mod outputs;
 pub mod reduced;
 pub mod run;
+pub mod synthetic;
+pub mod ties;
 
 pub use bundle::{adjust, Adjusted, Block, BundleError, Settings};
 pub use from_project::{block_of, OrientError, OrientOptions};
