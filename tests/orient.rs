@@ -25,6 +25,8 @@ fn rotation(a: [f64; 3]) -> Matrix3<f64> {
 }
 
 type Photos = BTreeMap<String, (Vector3<f64>, Matrix3<f64>)>;
+/// A ray: the projection centre and its direction.
+type Ray = (Vector3<f64>, Vector3<f64>);
 
 fn photos_of_toml(path: &Path) -> Photos {
     let t: toml::Table = std::fs::read_to_string(path).unwrap().parse().unwrap();
@@ -58,7 +60,7 @@ fn check_rmse(photos: &Photos, points_csv: &str) -> (f64, f64, usize) {
     let truth: Value =
         serde_json::from_str(&std::fs::read_to_string(block_dir().join("truth.json")).unwrap())
             .unwrap();
-    let mut rays: BTreeMap<String, Vec<(Vector3<f64>, Vector3<f64>)>> = BTreeMap::new();
+    let mut rays: BTreeMap<String, Vec<Ray>> = BTreeMap::new();
     for line in points_csv.lines().skip(1) {
         let c: Vec<&str> = line.split(',').collect();
         if truth["points"][c[0]]["kind"] != "cp" {

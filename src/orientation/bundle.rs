@@ -222,6 +222,12 @@ fn camera(p: &BlockPhoto, e: Exterior) -> FrameCamera {
     }
 }
 
+/// Start values: each photo's exterior, each point's ground, each ray's status.
+type Start = (Vec<Exterior>, Vec<Vector3<f64>>, Vec<RayStatus>);
+
+/// A tested ray: its index, residual (mm), normalised residuals and redundancy number.
+type TestedRay = (usize, [f64; 2], Option<[f64; 2]>, f64);
+
 /// The linearised rays of one point and its own normal-equation block.
 struct PointLin {
     v: Matrix3<f64>,
@@ -577,7 +583,7 @@ impl<'a> State<'a> {
 
 /// Checks the block and finds start values: the approximate orientations, photos without one
 /// resected from control and already intersected points, tie points intersected.
-fn start(block: &Block) -> Result<(Vec<Exterior>, Vec<Vector3<f64>>, Vec<RayStatus>), BundleError> {
+fn start(block: &Block) -> Result<Start, BundleError> {
     let np = block.photos.len();
     for (k, r) in block.rays.iter().enumerate() {
         if r.photo >= np || r.point >= block.points.len() {
@@ -886,11 +892,7 @@ pub fn adjust(block: &Block, settings: Settings) -> Result<Adjusted, BundleError
             })
             .collect();
         let mut points: Vec<Option<AdjustedPoint>> = vec![None; block.points.len()];
-        let tested: Vec<(
-            usize,
-            Vec<(usize, [f64; 2], Option<[f64; 2]>, f64)>,
-            Matrix3<f64>,
-        )> = lin
+        let tested: Vec<(usize, Vec<TestedRay>, Matrix3<f64>)> = lin
             .points
             .par_iter()
             .enumerate()
