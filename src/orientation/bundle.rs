@@ -18,7 +18,7 @@
 use super::collinearity::{linearise, Rotation};
 use super::reduced::{Reduced, ReducedError};
 use crate::coords::{GroundM, PhotoMm};
-use crate::geometry::{resect, Exterior, FrameCamera, Interior};
+use crate::geometry::{intersect, resect, Exterior, FrameCamera, Interior};
 use nalgebra::{DMatrix, DVector, Matrix3, Matrix6, SMatrix, Vector2, Vector3, Vector6};
 use rayon::prelude::*;
 
@@ -182,7 +182,7 @@ pub enum BundleError {
     BadRay { ray: usize, what: String },
 }
 
-/// The ray's photo coordinate as the camera sees it with parameters `e`.
+/// The exterior whose ω, φ, κ, X₀, Y₀, Z₀ are `v` (the order of the normal equations).
 fn exterior_from(v: &Vector6<f64>) -> Exterior {
     Exterior {
         omega: v[0],
@@ -200,19 +200,10 @@ fn wrap(a: f64) -> f64 {
     (a + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU) - std::f64::consts::PI
 }
 
-/// The least-squares intersection of rays (each a centre and a direction): the point nearest
-/// all of them; `None` when they are parallel.
-pub fn intersect_rays(rays: &[(Vector3<f64>, Vector3<f64>)]) -> Option<Vector3<f64>> {
-    let mut a = Matrix3::zeros();
-    let mut b = Vector3::zeros();
-    for (c, d) in rays {
-        let d = d.normalize();
-        let m = Matrix3::identity() - d * d.transpose();
-        a += m;
-        b += m * c;
-    }
-    let x = a.try_inverse()? * b;
-    x.iter().all(|v| v.is_finite()).then_some(x)
+/// The rays' least-squares intersection ([`crate::geometry::intersect`]) as a vector.
+fn intersect_of(rays: &[(FrameCamera, PhotoMm)]) -> Option<Vector3<f64>> {
+    let g = intersect(rays).ok()?.point;
+    Some(Vector3::new(g.x, g.y, g.z))
 }
 
 fn camera(p: &BlockPhoto, e: Exterior) -> FrameCamera {
@@ -222,8 +213,14 @@ fn camera(p: &BlockPhoto, e: Exterior) -> FrameCamera {
     }
 }
 
-/// Start values: each photo's exterior, each point's ground, each ray's status.
-type Start = (Vec<Exterior>, Vec<Vector3<f64>>, Vec<RayStatus>);
+/// Start values: each photo's exterior, each point's ground, each ray's status, each point's
+/// rays in the adjustment.
+type Start = (
+    Vec<Exterior>,
+    Vec<Vector3<f64>>,
+    Vec<RayStatus>,
+    Vec<Vec<usize>>,
+);
 
 /// A tested ray: its index, residual (mm), normalised residuals and redundancy number.
 type TestedRay = (usize, [f64; 2], Option<[f64; 2]>, f64);
@@ -267,6 +264,23 @@ struct State<'a> {
 }
 
 impl<'a> State<'a> {
+    /// The block checked, at its start values, with its pattern.
+    fn begin(block: &'a Block, settings: Settings, robust: bool) -> Result<State<'a>, BundleError> {
+        let (cams, pts, status, by_point) = start(block)?;
+        let mut st = State {
+            block,
+            settings,
+            cams,
+            pts,
+            by_point,
+            status,
+            robust,
+            reduced: Reduced::new(0, []),
+        };
+        st.rebuild_pattern();
+        Ok(st)
+    }
+
     fn adjusted(&self, j: usize) -> bool {
         let n = self.by_point[j].len();
         match self.block.points[j].role {
@@ -724,13 +738,11 @@ fn start(block: &Block) -> Result<Start, BundleError> {
                 .iter()
                 .filter_map(|&k| {
                     let r = &block.rays[k];
-                    let e = cams[r.photo]?;
-                    let (o, d) = camera(&block.photos[r.photo], e).ray(r.xy);
-                    Some((o, d))
+                    Some((camera(&block.photos[r.photo], cams[r.photo]?), r.xy))
                 })
                 .collect();
             if rays.len() >= 2 {
-                pts[j] = intersect_rays(&rays);
+                pts[j] = intersect_of(&rays);
             }
         }
         let missing: Vec<usize> = (0..np).filter(|&i| cams[i].is_none()).collect();
@@ -781,15 +793,15 @@ fn start(block: &Block) -> Result<Start, BundleError> {
                     .iter()
                     .map(|&k| {
                         let r = &block.rays[k];
-                        camera(&block.photos[r.photo], cams[r.photo]).ray(r.xy)
+                        (camera(&block.photos[r.photo], cams[r.photo]), r.xy)
                     })
                     .collect();
-                intersect_rays(&rays)
+                intersect_of(&rays)
                     .unwrap_or_else(|| Vector3::new(cams[0].centre.x, cams[0].centre.y, 0.0))
             })
         })
         .collect();
-    Ok((cams, pts, status))
+    Ok((cams, pts, status, by_point))
 }
 
 /// The point's cofactor Q_pp (3 × 3) and its cross cofactors Q_pc with each of its photos,
@@ -831,24 +843,7 @@ fn point_cofactor(
 
 /// Adjusts the block: see the module's documentation.
 pub fn adjust(block: &Block, settings: Settings) -> Result<Adjusted, BundleError> {
-    let (cams, pts, status) = start(block)?;
-    let mut by_point: Vec<Vec<usize>> = vec![Vec::new(); block.points.len()];
-    for (k, (r, s)) in block.rays.iter().zip(&status).enumerate() {
-        if *s == RayStatus::Used {
-            by_point[r.point].push(k);
-        }
-    }
-    let mut st = State {
-        block,
-        settings,
-        cams,
-        pts,
-        by_point,
-        status,
-        robust: true,
-        reduced: Reduced::new(0, []),
-    };
-    st.rebuild_pattern();
+    let mut st = State::begin(block, settings, true)?;
     let mut iterations = st.converge()?;
     let mut rejected = 0;
     let mut round = 0;
@@ -965,22 +960,18 @@ pub fn adjust(block: &Block, settings: Settings) -> Result<Adjusted, BundleError
         }
         // The rejected and check rays' residuals against the adjusted block; check points
         // intersected from their rays.
+        // Each check point's rays, gathered in one pass.
+        let mut check_rays: Vec<Vec<usize>> = vec![Vec::new(); block.points.len()];
         for (k, r) in block.rays.iter().enumerate() {
-            if results[k].status == RayStatus::Used && st.adjusted(r.point) {
-                continue;
-            }
-            if results[k].status == RayStatus::Used {
+            if results[k].status == RayStatus::Used && !st.adjusted(r.point) {
                 results[k].status = RayStatus::Unused;
             }
-        }
-        for j in 0..block.points.len() {
-            if !matches!(block.points[j].role, Role::Check { .. }) {
-                continue;
+            if results[k].status == RayStatus::Check {
+                check_rays[r.point].push(k);
             }
-            let ks: Vec<usize> = (0..block.rays.len())
-                .filter(|&k| block.rays[k].point == j)
-                .collect();
-            if let Some((g, cov)) = intersect_fixed(block, &st.cams, &ks) {
+        }
+        for (j, ks) in check_rays.iter().enumerate() {
+            if let Some((g, cov)) = intersect_fixed(block, &st.cams, ks) {
                 points[j] = Some(AdjustedPoint {
                     ground: g,
                     cov,
@@ -1026,10 +1017,10 @@ pub fn intersect_fixed(
         .iter()
         .map(|&k| {
             let r = &block.rays[k];
-            camera(&block.photos[r.photo], cams[r.photo]).ray(r.xy)
+            (camera(&block.photos[r.photo], cams[r.photo]), r.xy)
         })
         .collect();
-    let mut x = intersect_rays(&rays)?;
+    let mut x = intersect_of(&rays)?;
     let mut n = Matrix3::zeros();
     for _ in 0..10 {
         n = Matrix3::zeros();
@@ -1057,24 +1048,7 @@ pub fn intersect_fixed(
 /// The reduced camera system S of `block` at its start values (undamped): what each iteration
 /// factors, for the benchmark's sparse and dense solves side by side.
 pub fn reduced_at_start(block: &Block) -> Result<Reduced, BundleError> {
-    let (cams, pts, status) = start(block)?;
-    let mut by_point: Vec<Vec<usize>> = vec![Vec::new(); block.points.len()];
-    for (k, (r, s)) in block.rays.iter().zip(&status).enumerate() {
-        if *s == RayStatus::Used {
-            by_point[r.point].push(k);
-        }
-    }
-    let mut st = State {
-        block,
-        settings: Settings::default(),
-        cams,
-        pts,
-        by_point,
-        status,
-        robust: false,
-        reduced: Reduced::new(0, []),
-    };
-    st.rebuild_pattern();
+    let mut st = State::begin(block, Settings::default(), false)?;
     let lin = st.linearise(&st.cams, &st.pts);
     st.schur(&lin, 0.0);
     Ok(st.reduced)

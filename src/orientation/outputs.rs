@@ -5,8 +5,9 @@
 //! check points' errors, the object points' precision as seed 002 Table 9 gives it, the rays
 //! data snooping removed). Each file is written atomically.
 
-use super::bundle::{RayStatus, Role};
+use super::bundle::{Block, RayStatus, Role};
 use super::run::Oriented;
+use crate::matching::products::html::escape;
 use crate::relative::relative_to;
 use serde::Serialize;
 use std::fmt::Write as _;
@@ -83,9 +84,19 @@ fn rms(v: impl Iterator<Item = f64>) -> f64 {
     }
 }
 
+/// Each photo's rays (indices into the block's), in one pass over them.
+fn rays_by_photo(b: &Block) -> Vec<Vec<usize>> {
+    let mut v = vec![Vec::new(); b.photos.len()];
+    for (k, r) in b.rays.iter().enumerate() {
+        v[r.photo].push(k);
+    }
+    v
+}
+
 impl Report {
     pub fn of(o: &Oriented, image_sigma_px: f64) -> Report {
         let (b, a) = (&o.block, &o.adjusted);
+        let by_photo = rays_by_photo(b);
         let per_photo = b
             .photos
             .iter()
@@ -93,12 +104,11 @@ impl Report {
             .map(|(i, ph)| {
                 let e = a.exteriors[i];
                 let s = a.sigma(i);
-                let used: Vec<f64> = b
-                    .rays
+                let used: Vec<f64> = by_photo[i]
                     .iter()
-                    .zip(&a.rays)
-                    .filter(|(r, x)| r.photo == i && x.status == RayStatus::Used)
-                    .map(|(_, x)| x.residual_mm[0].hypot(x.residual_mm[1]) / ph.pixel_mm)
+                    .map(|&k| &a.rays[k])
+                    .filter(|x| x.status == RayStatus::Used)
+                    .map(|x| x.residual_mm[0].hypot(x.residual_mm[1]) / ph.pixel_mm)
                     .collect();
                 PhotoLine {
                     id: ph.id.clone(),
@@ -309,12 +319,6 @@ pub fn points_csv(o: &Oriented) -> String {
     s
 }
 
-fn esc(s: &str) -> String {
-    s.replace('&', "&amp;")
-        .replace('<', "&lt;")
-        .replace('>', "&gt;")
-}
-
 /// `report.html`: the figures as tables and each photo's residual vectors (SVG), for a person.
 pub fn html(o: &Oriented, r: &Report) -> String {
     let mut h = String::new();
@@ -332,7 +336,7 @@ pub fn html(o: &Oriented, r: &Report) -> String {
         let _ = write!(
             h,
             "<tr><td>{}<td>{:.2}<td>{:.2}<td>{:.2}<td>{:.4}<td>{:.4}<td>{:.4}<td>{:.2}<td>{:.2}<td>{:.2}<td>{:.4}<td>{:.4}<td>{:.4}<td>{}<td>{}<td>{:.3}</tr>",
-            esc(&p.id), p.position[0], p.position[1], p.position[2], p.angles_deg[0], p.angles_deg[1], p.angles_deg[2],
+            escape(&p.id), p.position[0], p.position[1], p.position[2], p.angles_deg[0], p.angles_deg[1], p.angles_deg[2],
             p.sigma_position_m[0], p.sigma_position_m[1], p.sigma_position_m[2],
             p.sigma_angles_deg[0], p.sigma_angles_deg[1], p.sigma_angles_deg[2],
             p.moved_m.map_or("—".into(), |m| format!("{m:.1}")), p.rays, p.rms_px
@@ -358,13 +362,8 @@ pub fn html(o: &Oriented, r: &Report) -> String {
         .fold(0.0, f64::max)
         .max(1e-12);
     let _ = write!(h, "<h2>Residual vectors</h2><p>Blue: rays used; red: rejected. The longest used vector ({:.3} px) is drawn 30 px long.</p>", max_res / b.photos.first().map_or(1.0, |p| p.pixel_mm));
-    for (i, ph) in b.photos.iter().enumerate() {
-        let rays: Vec<_> = b
-            .rays
-            .iter()
-            .zip(&a.rays)
-            .filter(|(r, _)| r.photo == i)
-            .collect();
+    for (ph, ks) in b.photos.iter().zip(rays_by_photo(b)) {
+        let rays: Vec<_> = ks.iter().map(|&k| (&b.rays[k], &a.rays[k])).collect();
         let (mut x0, mut x1, mut y0, mut y1) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
         for (r, _) in &rays {
             x0 = x0.min(r.xy.x);
@@ -395,7 +394,7 @@ pub fn html(o: &Oriented, r: &Report) -> String {
         let _ = write!(
             h,
             "</svg><figcaption>photo {}</figcaption></figure>",
-            esc(&ph.id)
+            escape(&ph.id)
         );
     }
     if !r.blunders.is_empty() {
@@ -404,8 +403,8 @@ pub fn html(o: &Oriented, r: &Report) -> String {
             let _ = write!(
                 h,
                 "<tr><td>{}<td>{}<td>{:.2}, {:.2}<td>{}</tr>",
-                esc(&bl.point),
-                esc(&bl.photo),
+                escape(&bl.point),
+                escape(&bl.photo),
                 bl.residual_px[0],
                 bl.residual_px[1],
                 bl.w.map_or("—".into(), |w| format!("{:.1}, {:.1}", w[0], w[1]))
@@ -421,7 +420,7 @@ pub fn html(o: &Oriented, r: &Report) -> String {
             let _ = write!(
                 h,
                 "<tr><td>{}<td>{:.3}<td>{:.3}<td>{:.3}<td>{}</tr>",
-                esc(&c.id),
+                escape(&c.id),
                 c.error_m[0],
                 c.error_m[1],
                 c.error_m[2],

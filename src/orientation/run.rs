@@ -12,7 +12,8 @@
 use super::bundle::{adjust, Adjusted, Block, BlockPoint, Ray, RayStatus, Role, Settings};
 use super::from_project::{block_of, OrientError, OrientOptions};
 use super::ties::{find, SearchPhoto, TieOptions};
-use crate::geometry::{Exterior, FrameCamera};
+use crate::geometry::{Exterior, FrameCamera, FrameSensor};
+use crate::matching::block::orient::{footprint, overlap};
 use crate::matching::block::photo::{Photo, PhotoGeometry};
 use crate::matching::block::photos::load_photo;
 use crate::matching::project::Project;
@@ -25,9 +26,6 @@ pub struct Oriented {
     pub adjusted: Adjusted,
     /// σ of a measured ray (the points file's) after the variance components, px.
     pub image_sigma_px: f64,
-    /// Tie points the rig matched, and their rays.
-    pub matched_points: usize,
-    pub matched_rays: usize,
 }
 
 /// The project's photos, read whole (scans through `scan`).
@@ -95,27 +93,28 @@ fn heights(p: &Project, block: &Block, a: Option<&Adjusted>) -> [f64; 2] {
     [lo - m, hi + m]
 }
 
-/// Pairs of photos whose footprints at the middle height overlap.
+/// Pairs of photos whose footprints at the middle height overlap (as the matchers find theirs,
+/// [`footprint`] and [`overlap`]); a photo that sees no ground there takes part in none.
 fn pairs(cams: &[FrameCamera], geo: &[PhotoGeometry], z: f64) -> Vec<(usize, usize)> {
-    let prints: Vec<[f64; 4]> = cams
+    let prints: Vec<Option<[f64; 4]>> = cams
         .iter()
         .zip(geo)
         .map(|(c, g)| {
-            let mut r = [f64::MAX, f64::MAX, f64::MIN, f64::MIN];
-            for (u, v) in [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0, 1.0)] {
-                let q = crate::coords::PixelXY::new(u * g.width as f64, v * g.height as f64);
-                let p = c.at_height(g.frame.photo(q), z);
-                r = [r[0].min(p.x), r[1].min(p.y), r[2].max(p.x), r[3].max(p.y)];
-            }
-            r
+            let s = FrameSensor {
+                camera: *c,
+                frame: g.frame,
+                exterior_cov: None,
+            };
+            footprint(&s, z).ok()
         })
         .collect();
     let mut out = Vec::new();
     for i in 0..cams.len() {
         for k in i + 1..cams.len() {
-            let (a, b) = (prints[i], prints[k]);
-            if a[0] < b[2] && b[0] < a[2] && a[1] < b[3] && b[1] < a[3] {
-                out.push((i, k));
+            if let (Some(a), Some(b)) = (prints[i], prints[k]) {
+                if overlap(a, b).is_some() {
+                    out.push((i, k));
+                }
             }
         }
     }
@@ -159,7 +158,7 @@ pub fn orient_block(
     };
     let mut cams = start;
     let mut across = across;
-    let mut last: Option<(Block, Adjusted, usize, usize)> = None;
+    let mut last: Option<(Block, Adjusted)> = None;
     let hs = heights(p, &given, first_adjusted.as_ref());
     for _round in 0..2 {
         let fc: Vec<FrameCamera> = given
@@ -196,7 +195,6 @@ pub fn orient_block(
         };
         let tracks = find(&search, &pr, &o, level);
         let mut block = given.clone();
-        let mut rays = 0;
         for (n, t) in tracks.iter().enumerate() {
             block.points.push(BlockPoint {
                 id: format!("rig{:05}", n + 1),
@@ -212,18 +210,17 @@ pub fn orient_block(
                     sigma_mm: r.sigma_px * given.photos[r.photo].pixel_mm,
                     group: 1,
                 });
-                rays += 1;
             }
         }
         let (block, a) = adjust_weighted(block)?;
         cams = a.exteriors.clone();
-        last = Some((block, a, tracks.len(), rays));
+        last = Some((block, a));
         if across <= 3.0 {
             break;
         }
         across = 3.0;
     }
-    let (block, adjusted, matched_points, matched_rays) = last.expect("one round at least");
+    let (block, adjusted) = last.expect("one round at least");
     let image_sigma_px = block
         .rays
         .iter()
@@ -235,7 +232,5 @@ pub fn orient_block(
         block,
         adjusted,
         image_sigma_px,
-        matched_points,
-        matched_rays,
     })
 }

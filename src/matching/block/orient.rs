@@ -82,7 +82,8 @@ fn no_overlap(
     MatchingError::NoOverlap { z, prints, within }
 }
 
-fn overlap(a: [f64; 4], b: [f64; 4]) -> Option<[f64; 4]> {
+/// The overlap of two ground rectangles (xmin, ymin, xmax, ymax), if they overlap.
+pub fn overlap(a: [f64; 4], b: [f64; 4]) -> Option<[f64; 4]> {
     let o = [
         a[0].max(b[0]),
         a[1].max(b[1]),
