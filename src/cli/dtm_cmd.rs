@@ -141,6 +141,28 @@ fn run_project(
     }: RunOptions,
 ) -> anyhow::Result<i32> {
     use rig::matching::run::Report;
+    // A block of approximate photos is oriented first, into out/orientation/.
+    let first = rig::orientation::run::before_matching(
+        p,
+        out,
+        &scan_photo,
+        rig::orientation::OrientOptions::default(),
+    )?;
+    if let Some(f) = &first {
+        let r = &f.report;
+        eprintln!(
+            "rig dtm: the block oriented first ({} photos, {} control and {} tie points, σ̂₀ {:.3}{}); its project, covariance and report in {}",
+            r.photos,
+            r.control_points,
+            r.tie_points,
+            r.sigma0,
+            r.check_rmse_m.map_or(String::new(), |[xy, z]| format!(
+                ", check points RMSE XY {xy:.2} m, Z {z:.2} m"
+            )),
+            f.folder.display()
+        );
+    }
+    let p = first.as_ref().map_or(p, |f| &f.project);
     let photos = rig::matching::block::photos::load_photos(p, &scan_photo)?;
     let bar = super::progress_bar::Bar::new(!json);
     match rig::matching::run::run(p, &photos, out, max_memory, &bar)? {
@@ -418,6 +440,14 @@ pub fn run(a: DtmArgs) -> anyhow::Result<i32> {
         }
     };
     let p = Project::load(&project)?;
+    if a.tile.is_some() && p.photos.iter().any(|ph| ph.approximate.is_some()) {
+        eprintln!(
+            "rig dtm --tile: {}'s photos are approximate (position_sigma_m); orient the block once first: rig orient {} --out ORIENTED, then tile ORIENTED/project.toml",
+            project.display(),
+            project.display()
+        );
+        return Ok(rig::exit::USAGE);
+    }
     match a.tile {
         Some(spec) => run_tile(&p, spec, &out, a.run.max_memory, a.run.output.json),
         None => run_project(&p, &out, a.run),

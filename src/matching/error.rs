@@ -20,6 +20,8 @@ pub enum MatchingError {
     },
     #[error("{0}")]
     Heights(String),
+    #[error("[orientation] covariance: {0}")]
+    Covariance(String),
     #[error("no two photos overlap on the ground at {z:.0} m (the middle of the heights tried){within}: {prints}; check [dem] heights (do they bracket the terrain?), [dem] extent and the photos' orientations")]
     NoOverlap {
         z: f64,

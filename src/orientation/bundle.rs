@@ -546,13 +546,10 @@ impl<'a> State<'a> {
                 }
                 lambda *= 6.0;
             }
-            if !accepted {
-                // No step lowers the cost: a minimum (to rounding), if the gradient is nil.
-                return if lambda > 1e6 {
-                    Ok(it)
-                } else {
-                    Err(self.not_converged(it, &lin))
-                };
+            // No step lowers the cost even as short as a step down the gradient at λ > 10⁶:
+            // a minimum, to rounding. (Below that, the next iteration damps further.)
+            if !accepted && lambda > 1e6 {
+                return Ok(it);
             }
         }
         Err(self.not_converged(self.settings.max_iterations, &lin))

@@ -47,6 +47,8 @@ pub enum OrientError {
     Matching(#[from] crate::matching::error::MatchingError),
     #[error(transparent)]
     Project(#[from] crate::matching::project::ProjectError),
+    #[error("writing the orientation: {0}")]
+    Write(String),
 }
 
 /// The pixel's size, mm (the square root of the pixel → photo affine's determinant).

@@ -10,6 +10,7 @@
 
 pub mod bundle;
 pub mod collinearity;
+pub mod covariance;
 pub mod from_project;
 pub mod outputs;
 pub mod reduced;

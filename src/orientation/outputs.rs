@@ -1,6 +1,8 @@
 //! What `rig orient` writes into its folder: `project.toml` (the same project with every photo
 //! oriented: position, angles and their σ; every other key kept, paths relative to the
-//! folder), `points.csv` (each adjusted point's ground and σ), `report.json` and
+//! folder; `[dem] heights` from the tie points where it gave none; `[orientation] covariance`
+//! naming the next file), `points.csv` (each adjusted point's ground and σ),
+//! `covariance.csv` (the orientations' covariance, [`super::covariance`]), `report.json` and
 //! `report.html` (σ̂₀, residuals by photo and point with a residual-vector plot per photo,
 //! check points' errors, the object points' precision as seed 002 Table 9 gives it, the rays
 //! data snooping removed). Each file is written atomically.
@@ -13,7 +15,13 @@ use serde::Serialize;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
-pub const FILES: [&str; 4] = ["project.toml", "points.csv", "report.json", "report.html"];
+pub const FILES: [&str; 5] = [
+    "project.toml",
+    "points.csv",
+    super::covariance::FILE,
+    "report.json",
+    "report.html",
+];
 
 #[derive(Debug, Clone, Serialize)]
 pub struct PhotoLine {
@@ -224,6 +232,7 @@ pub fn oriented_project(
     text: &str,
     out: &Path,
     report: &Report,
+    heights: [f64; 2],
 ) -> Result<String, String> {
     let mut t: toml::Table = text
         .parse()
@@ -283,6 +292,27 @@ pub fn oriented_project(
             rel(v);
         }
     }
+    // The terrain's heights from the adjusted tie points, where the project gave none: a
+    // matcher's range from the few control points alone misses what lies beyond them.
+    if let Some(dem) = t.get_mut("dem").and_then(|v| v.as_table_mut()) {
+        if !dem.contains_key("heights") {
+            dem.insert(
+                "heights".into(),
+                toml::Value::Array(
+                    heights
+                        .iter()
+                        .map(|z| toml::Value::Float(round(*z, 1)))
+                        .collect(),
+                ),
+            );
+        }
+    }
+    let mut o = toml::Table::new();
+    o.insert(
+        "covariance".into(),
+        toml::Value::String(super::covariance::FILE.into()),
+    );
+    t.insert("orientation".into(), toml::Value::Table(o));
     let body = toml::to_string(&t).map_err(|e| e.to_string())?;
     Ok(format!(
         "# oriented by `rig orient` from {} (σ̂₀ {:.3}, {} rays, check points in report.json)\n{body}",
@@ -432,17 +462,21 @@ pub fn html(o: &Oriented, r: &Report) -> String {
     h
 }
 
-/// Writes the four files into `out` (created), each atomically.
+/// Writes [`FILES`] into `out` (created), each atomically, the project last.
 pub fn write(source: &Path, out: &Path, o: &Oriented) -> Result<Report, String> {
     std::fs::create_dir_all(out).map_err(|e| format!("cannot create {}: {e}", out.display()))?;
     let text = std::fs::read_to_string(source)
         .map_err(|e| format!("cannot read {}: {e}", source.display()))?;
     let report = Report::of(o, o.image_sigma_px);
-    let project = oriented_project(source, &text, out, &report)?;
+    let project = oriented_project(source, &text, out, &report, o.heights)?;
     let io = |e: std::io::Error| e.to_string();
-    crate::atomic::write(&out.join("project.toml"), project.as_bytes()).map_err(io)?;
     crate::atomic::write(&out.join("points.csv"), points_csv(o).as_bytes()).map_err(io)?;
+    let ids: Vec<String> = o.block.photos.iter().map(|ph| ph.id.clone()).collect();
+    let cov = super::covariance::text(&ids, &o.pairs, &|i, j| o.adjusted.between(i, j));
+    crate::atomic::write(&out.join(super::covariance::FILE), cov.as_bytes()).map_err(io)?;
     crate::atomic::write_json(&out.join("report.json"), &report).map_err(io)?;
     crate::atomic::write(&out.join("report.html"), html(o, &report).as_bytes()).map_err(io)?;
+    // Last: the project names the files above, which are then all there.
+    crate::atomic::write(&out.join("project.toml"), project.as_bytes()).map_err(io)?;
     Ok(report)
 }

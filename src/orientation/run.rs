@@ -26,6 +26,10 @@ pub struct Oriented {
     pub adjusted: Adjusted,
     /// σ of a measured ray (the points file's) after the variance components, px.
     pub image_sigma_px: f64,
+    /// The terrain's heights, m: the project's, else the adjusted points' with a margin.
+    pub heights: [f64; 2],
+    /// Pairs (i, j), i < j, of photos whose oriented footprints overlap at the middle height.
+    pub pairs: Vec<(usize, usize)>,
 }
 
 /// The project's photos, read whole (scans through `scan`).
@@ -228,9 +232,61 @@ pub fn orient_block(
         .map_or(options.image_sigma_px, |r| {
             r.sigma_mm / block.photos[r.photo].pixel_mm
         });
+    let heights = heights(p, &block, Some(&adjusted));
+    let cams: Vec<FrameCamera> = block
+        .photos
+        .iter()
+        .zip(&adjusted.exteriors)
+        .map(|(ph, e)| FrameCamera {
+            interior: ph.interior,
+            exterior: *e,
+        })
+        .collect();
+    let pairs = pairs(&cams, &geo, 0.5 * (heights[0] + heights[1]));
     Ok(Oriented {
         block,
         adjusted,
         image_sigma_px,
+        heights,
+        pairs,
     })
+}
+
+/// The folder under a `rig dtm` output directory that holds the block's orientation.
+pub const DTM_FOLDER: &str = "orientation";
+
+/// A block `rig dtm` oriented before matching: the oriented project (read back from the
+/// folder, as `rig dtm` on it would read it) and the orientation's report.
+#[derive(Debug)]
+pub struct OrientedFirst {
+    pub project: Project,
+    pub report: super::outputs::Report,
+    pub folder: std::path::PathBuf,
+}
+
+/// `rig dtm`'s first step: a project with approximate photos (`position_sigma_m`) is oriented
+/// as one block ([`orient_block`], the same as `rig orient`) into `out/orientation/`, and the
+/// oriented project, with its covariance, is what the matchers take. `None` when no photo is
+/// approximate. The output directory is checked first; nothing is written when the block
+/// fails.
+pub fn before_matching(
+    p: &Project,
+    out: &Path,
+    scan: &dyn Fn(&Path) -> Result<Photo, String>,
+    options: OrientOptions,
+) -> Result<Option<OrientedFirst>, OrientError> {
+    if p.photos.iter().all(|ph| ph.approximate.is_none()) {
+        return Ok(None);
+    }
+    crate::matching::products::write::check_out_dir(out)?;
+    let photos = load(p, scan)?;
+    let o = orient_block(p, &photos, options)?;
+    let folder = out.join(DTM_FOLDER);
+    let report = super::outputs::write(&p.path, &folder, &o).map_err(OrientError::Write)?;
+    let project = Project::load(&folder.join("project.toml"))?;
+    Ok(Some(OrientedFirst {
+        project,
+        report,
+        folder,
+    }))
 }

@@ -93,6 +93,21 @@ pub fn overlap(a: [f64; 4], b: [f64; 4]) -> Option<[f64; 4]> {
     (o[2] > o[0] && o[3] > o[1]).then_some(o)
 }
 
+/// The covariance of independent parameters with σ `[position m; angles deg]`, in the order
+/// ω, φ, κ (rad), X₀, Y₀, Z₀ (m).
+fn diagonal(sigma: [[f64; 3]; 2]) -> [[f64; 6]; 6] {
+    let [pos, ang] = sigma;
+    let s = [
+        ang[0].to_radians(),
+        ang[1].to_radians(),
+        ang[2].to_radians(),
+        pos[0],
+        pos[1],
+        pos[2],
+    ];
+    std::array::from_fn(|r| std::array::from_fn(|c| if r == c { s[r] * s[r] } else { 0.0 }))
+}
+
 /// Each corrected model's line for a report's summary.
 pub fn corrected_lines(corrected: &[(String, ControlFit)]) -> Vec<(String, String)> {
     corrected
@@ -195,7 +210,9 @@ pub fn orient(p: &Project, photos: &[PhotoGeometry]) -> Result<Oriented, Matchin
             continue;
         }
         let (exterior, cov) = match ph.exterior {
-            Some(e) => (e, None),
+            // An oriented photo's σ (as `rig orient` wrote it), each parameter independent;
+            // the block's covariance file, read below, replaces it.
+            Some(e) => (e, ph.sigma.map(diagonal)),
             None => {
                 let named: Vec<_> = control
                     .iter()
@@ -239,6 +256,18 @@ pub fn orient(p: &Project, photos: &[PhotoGeometry]) -> Result<Oriented, Matchin
     }
     // Control with a stated ground error: the resected photos share it.
     let mut shared_orientation = CrossCovariances::default();
+    // A block's orientations, correlated as its adjustment found them.
+    if let Some(path) = &p.orientation_covariance {
+        let ids: Vec<String> = p.photos.iter().map(|ph| ph.id.clone()).collect();
+        let c =
+            crate::orientation::covariance::read(path, &ids).map_err(MatchingError::Covariance)?;
+        for (k, own) in c.own.iter().enumerate() {
+            if let (Some(own), PhotoSensor::Frame(f)) = (own, &mut sensors[k]) {
+                f.exterior_cov = Some(*own);
+            }
+        }
+        shared_orientation = c.cross;
+    }
     if let (Some([sxy, sz]), false) = (p.control_sigma_m, from_control.is_empty()) {
         let (at, resected_photos): (Vec<usize>, Vec<Resected>) = from_control.into_iter().unzip();
         match block_covariance(&resected_photos, sxy, sz) {

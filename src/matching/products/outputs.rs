@@ -19,6 +19,8 @@ pub enum Writer {
     MgcmWithReference,
     /// The object-space matching (`method = "oslsm"`).
     Oslsm,
+    /// A project whose photos are approximate: the block is oriented first.
+    Orienting,
 }
 
 impl Writer {
@@ -31,6 +33,7 @@ impl Writer {
             Writer::Mgcm => "MGCM",
             Writer::MgcmWithReference => "MGCM with a reference DEM",
             Writer::Oslsm => "OSLSM",
+            Writer::Orienting => "a project with approximate photos",
         }
     }
 }
@@ -63,6 +66,8 @@ pub const ACCURACY_JSON: &str = "accuracy.json";
 pub const COARSE: &str = "coarse";
 pub const REFLECTANCE: &str = "reflectance.tif";
 pub const CONVERGENCE: &str = "convergence.png";
+/// The block's orientation, when it was run first ([`crate::orientation::run::DTM_FOLDER`]).
+pub const ORIENTATION: &str = crate::orientation::run::DTM_FOLDER;
 
 const fn file(name: &'static str, holds: &'static str, writer: Writer, data: bool) -> OutputFile {
     OutputFile {
@@ -74,7 +79,7 @@ const fn file(name: &'static str, holds: &'static str, writer: Writer, data: boo
 }
 
 /// Every file a run may write, in the order the summaries list them.
-pub const OUTPUTS: [OutputFile; 17] = [
+pub const OUTPUTS: [OutputFile; 18] = [
     file(
         DEM,
         "heights, float32 GeoTIFF, nodata −9999",
@@ -162,6 +167,12 @@ pub const OUTPUTS: [OutputFile; 17] = [
         Writer::Oslsm,
         false,
     ),
+    file(
+        ORIENTATION,
+        "the block's orientation, as `rig orient` writes it (its project.toml is the one matched)",
+        Writer::Orienting,
+        false,
+    ),
 ];
 
 /// Whether `name` is one of a run's files (an output directory holding only these, or their
@@ -175,8 +186,8 @@ pub fn is_output(name: &str) -> bool {
 pub fn listed(by: Option<Writer>, with_reference: bool) -> String {
     OUTPUTS
         .iter()
-        // The coarse model's folder is said apart (its summary names what is in it).
-        .filter(|f| f.name != COARSE)
+        // The folders are said apart (their summaries name what is in them).
+        .filter(|f| f.name != COARSE && f.name != ORIENTATION)
         .filter(|f| {
             f.writer == Writer::Every
                 || Some(f.writer) == by

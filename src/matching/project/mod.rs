@@ -260,8 +260,18 @@ struct Raw {
     dem: RawDem,
     matching: Option<Matching>,
     check: Option<RawCheck>,
+    orientation: Option<RawOrientation>,
     #[serde(default)]
     limits: Limits,
+}
+
+/// `[orientation]`: what `rig orient` found beyond each photo's own σ.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawOrientation {
+    /// The orientations' covariance, blocks of photos that see the same ground
+    /// ([`crate::orientation::covariance`]).
+    covariance: String,
 }
 
 /// A camera as the project gives it.
@@ -370,6 +380,9 @@ pub struct Project {
     pub heights: Option<[f64; 2]>,
     pub matching: Matching,
     pub reference: Option<PathBuf>,
+    /// `[orientation] covariance`: the oriented photos' covariance as `rig orient` wrote it,
+    /// correlated between photos (read by [`crate::orientation::covariance::read`]).
+    pub orientation_covariance: Option<PathBuf>,
     pub limits: Limits,
 }
 
@@ -741,6 +754,7 @@ impl Project {
             heights: d.heights,
             matching: m,
             reference: raw.check.map(|c| base.join(c.reference)),
+            orientation_covariance: raw.orientation.map(|o| base.join(o.covariance)),
             limits: raw.limits,
         })
     }
