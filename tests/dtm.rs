@@ -222,7 +222,16 @@ fn the_demo_runs_the_whole_chain_and_meets_half_the_height_step() {
         assert!(removed < 0.1 * matched, "{p}");
     }
     assert_eq!(t["crs"], "EPSG:32616");
-    assert_eq!(t["resected"].as_array().unwrap().len(), 3);
+    // The photos oriented as one block (dtm/orientation/), none resected alone, from the
+    // control points and the tie points the rig found; the model's σ carries the block's
+    // covariance.
+    assert_eq!(t["resected"].as_array().unwrap().len(), 0);
+    let o = &v["orientation"];
+    assert_eq!(o["photos"], 3);
+    assert!(o["tie_points"].as_u64().unwrap() > 100, "{o}");
+    assert!(t["orientation_sigma_m"].as_f64().unwrap() > 0.0);
+    let c = &t["comparison"];
+    assert!(c["rmse_without_plane_m"].as_f64().unwrap() <= c["rmse_m"].as_f64().unwrap());
     for f in [
         "scan-photo-1/stereo.tiff",
         "scan-photo-2/stereo.tiff",
@@ -240,7 +249,11 @@ fn the_demo_runs_the_whole_chain_and_meets_half_the_height_step() {
     // share of the sweep run in the moved copy reads the same inputs and gives the same bytes
     // as in the original (a share: the whole run again is the single run's, byte for byte, by
     // tests/format2.rs's tiles).
-    let mut read = vec![out.join("project.toml"), out.join("points.csv")];
+    let mut read = vec![
+        out.join("project.toml"),
+        out.join("points.csv"),
+        out.join("dtm/orientation/project.toml"),
+    ];
     for k in 1..=3 {
         for e in std::fs::read_dir(out.join(format!("scan-photo-{k}"))).unwrap() {
             let f = e.unwrap().path();
@@ -267,10 +280,12 @@ fn the_demo_runs_the_whole_chain_and_meets_half_the_height_step() {
         );
         serde_json::from_slice(&o.stdout).unwrap()
     };
-    let before = share(&out.join("project.toml"), &d.path().join("share-before"));
+    // (The oriented project: a block of approximations is oriented once, before any share.)
+    let oriented = "dtm/orientation/project.toml";
+    let before = share(&out.join(oriented), &d.path().join("share-before"));
     let moved = d.path().join("moved-demo");
     std::fs::rename(&out, &moved).unwrap();
-    let after = share(&moved.join("project.toml"), &d.path().join("share-after"));
+    let after = share(&moved.join(oriented), &d.path().join("share-after"));
     for key in ["project_fnv64", "inputs_fnv64", "units"] {
         assert_eq!(before[key], after[key], "{key}");
     }

@@ -316,7 +316,7 @@ pub fn oriented_project(
     let body = toml::to_string(&t).map_err(|e| e.to_string())?;
     Ok(format!(
         "# oriented by `rig orient` from {} (σ̂₀ {:.3}, {} rays, check points in report.json)\n{body}",
-        source.display(),
+        relative_to(out, source).display(),
         report.sigma0,
         report.rays_used
     ))

@@ -1,8 +1,9 @@
 //! `rig demo`: the whole chain on the built-in simulator, step by step as an operator would
 //! type it — pixel→carriage calibration, the interior orientation and a scan of each of three
 //! overlapping photos (two along the strip, one from the next strip), control points, the
-//! elevation model from a format-2 project (the photos resected from the control points, every
-//! pair swept, seed 000's method) — and a report comparing it with the simulator's true DEM. Every step is the real `rig` command,
+//! elevation model from a format-2 project (the photos oriented as one block from approximate
+//! orientations, the control points and the tie points the rig finds; every pair swept, seed
+//! 000's method) — and a report comparing it with the simulator's true DEM. Every step is the real `rig` command,
 //! printed before it runs, so the demo doubles as a worked example.
 
 use anyhow::{bail, Context};
@@ -57,6 +58,10 @@ pub enum Method {
 /// The area of photo 1 that is scanned and matched, photo mm: where photos 2 (about 92 mm
 /// along x) and 3 (the next strip, about 161 mm across y) see it too.
 const AREA: [f64; 4] = [36.0, -80.0, 56.0, -64.0];
+/// σ of the control and check points' ground, m: a GNSS survey's. (The block's datum is the
+/// control's: at 0.5 m, a 2σ draw of its noise tilted the model by 1 m per km, more than
+/// anything the orientation can do.)
+const GROUND_SIGMA_M: f64 = 0.05;
 /// Photos of the block the demo uses.
 const PHOTOS: [u32; 3] = [1, 2, 3];
 
@@ -301,15 +306,28 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<i32> {
         rig::sim_scene::CRS,
     )?;
     let mut project = format!(
-        "# Written by `rig demo`: three scanned photos, resected from their control points,\n\
-         # every pair swept (seed 000), in the simulated world's CRS.\nformat = 2\ncrs = \"{}\"\n",
+        "# Written by `rig demo`: three scanned photos with approximate orientations (a flight\n\
+         # index map's), oriented as one block from the control points and the tie points the rig\n\
+         # finds (`rig dtm` does it first, into dtm/orientation/), every pair swept (seed 000), in\n\
+         # the simulated world's CRS.\nformat = 2\ncrs = \"{}\"\n",
         rig::sim_scene::CRS
     );
     for (k, f) in sidecars.iter().enumerate() {
+        // The flight index map's centre: the true one off by some 20 m, the photo taken as
+        // vertical.
+        let e = block[k].exterior;
+        let c = rig::sim_scene::to_crs([
+            e.x0_m + 20.0 * rng.normal(),
+            e.y0_m + 20.0 * rng.normal(),
+            e.z0_m + 20.0 * rng.normal(),
+        ]);
         project.push_str(&format!(
-            "\n[[photo]]\nid = \"{}\"\nscan = \"{}\"\n",
+            "\n[[photo]]\nid = \"{}\"\nscan = \"{}\"\nposition = [{:.1}, {:.1}, {:.1}]\nangles_deg = [0, 0, 0]\nposition_sigma_m = 50\nangles_sigma_deg = 3\n",
             PHOTOS[k],
-            f.strip_prefix(&out).unwrap_or(f).display()
+            f.strip_prefix(&out).unwrap_or(f).display(),
+            c.x,
+            c.y,
+            c.z
         ));
     }
     // The DEM covers the ground of photo 1's scanned area, where all three photos overlap and
@@ -326,7 +344,7 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<i32> {
         [lo[0], lo[1], hi[0], hi[1]]
     };
     project.push_str(&format!(
-        "\n[points]\nfile = \"points.csv\"\nground_sigma_m = 0.5 # the control points were surveyed to 0.5 m (the demo adds that noise)\n\n[dem]\ncell_m = 10.0\nextent = [{:.0}, {:.0}, {:.0}, {:.0}]\nheights = [{:.0}, {:.0}]\n\n\
+        "\n[points]\nfile = \"points.csv\"\nground_sigma_m = {GROUND_SIGMA_M} # the control points were surveyed by GNSS to {GROUND_SIGMA_M} m (the demo adds that noise)\n\n[dem]\ncell_m = 10.0\nextent = [{:.0}, {:.0}, {:.0}, {:.0}]\nheights = [{:.0}, {:.0}]\n\n\
          [matching]\nmethod = \"{}\"\nwindow = 9\nthreshold = 0.5\nstride = 2 # every second pixel of the 1 m scans: still some 25 points a 10 m node\n\n[check]\nreference = \"truth-dem.tif\"\n",
         e[0],
         e[1],
@@ -351,15 +369,20 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<i32> {
     ];
     let dtm = match a.method {
         Method::Sweep => Report::Sweep(step(
-            "elevation model: every pair of the three photos swept along its mapping functions (seeds 000, 004)",
+            "elevation model: the three photos oriented as one block (bundle adjustment), then every pair swept along its mapping functions (seeds 000, 004)",
             &args,
         )?),
         Method::Mgcm => Report::Mgcm(step(
-            "elevation model: the three photos matched at once, geometrically constrained (seed 002)",
+            "elevation model: the three photos oriented as one block (bundle adjustment), then matched at once, geometrically constrained (seed 002)",
             &args,
         )?),
     };
+    // The block's orientation, as `rig dtm` wrote it before matching.
+    let orientation: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(
+        dtm_dir.join("orientation").join("report.json"),
+    )?)?;
     let report = json!({
+        "orientation": orientation,
         "seed": a.seed,
         "seconds": t0.elapsed().as_secs_f64(),
         "pixel": pixel.calibration.affine,
@@ -396,6 +419,16 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<i32> {
             sidecars[k].display()
         );
     }
+    let num = |k: &str| orientation[k].as_f64().unwrap_or(f64::NAN);
+    println!(
+        "  the block: {} photos oriented from {} control and {} tie points the rig found, σ̂₀ {:.2}; check points RMSE XY {:.2} m, Z {:.2} m",
+        orientation["photos"],
+        orientation["control_points"],
+        orientation["tie_points"],
+        num("sigma0"),
+        orientation["check_rmse_m"][0].as_f64().unwrap_or(f64::NAN),
+        orientation["check_rmse_m"][1].as_f64().unwrap_or(f64::NAN),
+    );
     match &dtm {
         Report::Sweep(r) => {
             for pr in &r.pairs {
@@ -439,9 +472,10 @@ pub fn run(a: &DemoArgs) -> anyhow::Result<i32> {
     }
     if let Some(c) = &dtm.model().comparison {
         println!(
-            "  elevation model vs the true DEM: RMSE {:.2} m ({:.3} ‰ of the 6 500 m flying height), mean {:+.2} m, max +{:.2} / {:.2} m over {} nodes; in {}",
+            "  elevation model vs the true DEM: RMSE {:.2} m ({:.3} ‰ of the 6 500 m flying height; {:.2} m with the best plane removed: what a tilt of the orientations leaves), mean {:+.2} m, max +{:.2} / {:.2} m over {} nodes; in {}",
             c.rmse_m,
             1000.0 * c.rmse_m / rig_sim::scene::FLYING_HEIGHT_M,
+            c.rmse_without_plane_m,
             c.mean_m,
             c.max_positive_m,
             c.max_negative_m,
@@ -573,6 +607,10 @@ fn demo_page(
             ),
             ("dtm/dem.tif".into(), "heights, GeoTIFF".into()),
             (
+                "dtm/orientation/report.html".into(),
+                "the block's orientation: residuals, check points, blunders".into(),
+            ),
+            (
                 "project.toml".into(),
                 "the matching project (format 2)".into(),
             ),
@@ -583,7 +621,7 @@ fn demo_page(
     Page {
         title: "rig demo".into(),
         intro: format!(
-            "The whole chain on the simulator (seed {seed}, {seconds:.0} s): calibrate the rig, orient and scan three overlapping photos, compute their elevation model, compare it with the true DEM."
+            "The whole chain on the simulator (seed {seed}, {seconds:.0} s): calibrate the rig, orient and scan three overlapping photos, orient them as a block, compute their elevation model, compare it with the true DEM."
         ),
         sections: vec![calibration, scans, model],
     }
@@ -591,7 +629,7 @@ fn demo_page(
 
 /// Appends `n` points of photo 1's scanned area to the points file: their ground (in the
 /// world's CRS) and their place in every photo that sees them, with measuring noise (5 µm on
-/// the film, 0.5 m on the ground). Pixels in the convention of docs/conventions.md (integer values at pixel
+/// the film, [`GROUND_SIGMA_M`] on the ground). Pixels in the convention of docs/conventions.md (integer values at pixel
 /// centres; the scans' grids count from the corner). Control points on a jittered grid that
 /// reaches the area's edges, check points anywhere inside.
 fn points_csv(
@@ -619,9 +657,9 @@ fn points_csv(
         let p = g0.photo(PixelXY::new(u * g0.width as f64, w * g0.height as f64));
         let g = block[0].ground_point([p.x, p.y]);
         let noisy = [
-            g[0] + 0.5 * rng.normal(),
-            g[1] + 0.5 * rng.normal(),
-            g[2] + 0.5 * rng.normal(),
+            g[0] + GROUND_SIGMA_M * rng.normal(),
+            g[1] + GROUND_SIGMA_M * rng.normal(),
+            g[2] + GROUND_SIGMA_M * rng.normal(),
         ];
         let world = rig::sim_scene::to_crs(noisy);
         for (i, (b, grid)) in block.iter().zip(grids).enumerate() {
