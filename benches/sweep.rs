@@ -30,6 +30,7 @@ fn photo(a: &AerialPhoto, g: PhotoGrid) -> (FrameSensor, ImageF32) {
         camera: rig::sim_scene::frame_camera(a),
         frame: g.into(),
         exterior_cov: None,
+        radial: Default::default(),
     };
     let img = ImageF32 {
         width: g.width,

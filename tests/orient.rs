@@ -422,3 +422,21 @@ fn rig_dtm_orients_a_block_of_approximations_first() {
         e.len()
     );
 }
+
+/// `[orientation] refraction` and `earth_curvature` are taken (the displacements at this
+/// block's 1:12 500 are below 0.02 px, so the check points keep their figures) and kept in the
+/// oriented project, beside its covariance, for the matchers.
+#[test]
+fn refraction_and_curvature_keys_are_taken_and_kept() {
+    let dir = block_copy(&|t: &str| {
+        format!("{t}\n[orientation]\nrefraction = true\nearth_curvature = true\n")
+    });
+    let (photos, _, out) = orient(&dir.path().join("project.toml"));
+    let points = std::fs::read_to_string(block_dir().join("points.csv")).unwrap();
+    let (xy, z, _) = check_rmse(&photos, &points);
+    let (txy, tz, _) = check_rmse(&truth_photos(), &points);
+    assert!(xy <= 1.25 * txy && z <= 1.25 * tz, "XY {xy:.2} Z {z:.2}");
+    let p = rig::matching::project::Project::load(&out.path().join("project.toml")).unwrap();
+    assert!(p.radial.refraction && p.radial.earth_curvature);
+    assert!(p.orientation_covariance.is_some());
+}

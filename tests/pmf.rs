@@ -13,6 +13,7 @@ fn rigorous(p: &AerialPhoto, area: [f64; 4]) -> FrameSensor {
         camera: rig::sim_scene::frame_camera(p),
         frame: PhotoGrid::covering(area, 0.025).into(),
         exterior_cov: None,
+        radial: Default::default(),
     }
 }
 

@@ -14,6 +14,7 @@ fn rigorous(p: &AerialPhoto, grid: PhotoGrid) -> FrameSensor {
         camera: rig::sim_scene::frame_camera(p),
         frame: grid.into(),
         exterior_cov: None,
+        radial: Default::default(),
     }
 }
 

@@ -105,6 +105,9 @@ pub struct FrameSensor {
     /// Covariance of the exterior orientation's ω, φ, κ (rad) and X0, Y0, Z0 (m) when it
     /// was estimated (a resection's); `None` when given as exact.
     pub exterior_cov: Option<[[f64; 6]; 6]>,
+    /// Refraction and the Earth's curvature, where the project turns them on
+    /// ([`super::radial`]): the photo shows collinearity's point displaced along its radius.
+    pub radial: super::Radial,
 }
 
 impl Sensor for FrameSensor {
@@ -113,10 +116,17 @@ impl Sensor for FrameSensor {
     }
 
     fn try_ground_to_image(&self, g: GroundM) -> Result<PixelXY, ProjectionError> {
+        let i = &self.camera.interior;
         let q = self
             .camera
             .project(g)
-            .map(|p| self.frame.pixel(p))
+            .map(|p| {
+                let z0 = self.camera.exterior.centre.z;
+                let p = self
+                    .radial
+                    .distort(p, i.principal_point, i.focal_mm, z0, g.z);
+                self.frame.pixel(p)
+            })
             .ok_or(ProjectionError::Behind)?;
         if q.col.is_finite() && q.row.is_finite() {
             Ok(q)
@@ -128,7 +138,15 @@ impl Sensor for FrameSensor {
     }
 
     fn try_image_to_ground(&self, q: PixelXY, z: f64) -> Result<GroundM, ProjectionError> {
-        let g = self.camera.at_height(self.frame.photo(q), z);
+        let i = &self.camera.interior;
+        let p = self.radial.undistort(
+            self.frame.photo(q),
+            i.principal_point,
+            i.focal_mm,
+            self.camera.exterior.centre.z,
+            z,
+        );
+        let g = self.camera.at_height(p, z);
         if [g.x, g.y].iter().all(|v| v.is_finite()) {
             Ok(g)
         } else {
@@ -325,6 +343,7 @@ mod tests {
             },
             frame: crate::geometry::PhotoGrid::covering([-10.0, -10.0, 10.0, 10.0], step).into(),
             exterior_cov: None,
+            radial: Default::default(),
         };
         let g = GroundM::new(300.0, -200.0, 400.0);
         let d = s.partials(g).unwrap();

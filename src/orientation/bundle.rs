@@ -74,6 +74,9 @@ pub struct Block {
     pub photos: Vec<BlockPhoto>,
     pub points: Vec<BlockPoint>,
     pub rays: Vec<Ray>,
+    /// Refraction and the Earth's curvature: the rays are corrected to collinearity
+    /// ([`crate::geometry::radial`]) with the heights of a first adjustment.
+    pub radial: crate::geometry::Radial,
 }
 
 #[derive(Debug, Clone, Copy)]
@@ -844,6 +847,39 @@ fn point_cofactor(
 
 /// Adjusts the block: see the module's documentation.
 pub fn adjust(block: &Block, settings: Settings) -> Result<Adjusted, BundleError> {
+    if !block.radial.any() {
+        return adjust_collinear(block, settings);
+    }
+    // The displacements change by some 10⁻⁴ of themselves per metre of height: the first
+    // adjustment's camera and point heights are good to far below that.
+    let first = adjust_collinear(block, settings)?;
+    adjust_collinear(&corrected(block, &first), settings)
+}
+
+/// `block` with each ray moved to where collinearity puts it: its refraction and curvature
+/// ([`crate::geometry::Radial::undistort`]) taken out with the heights of `at` (the point's,
+/// or the mean of the adjusted points' for a point without one).
+pub fn corrected(block: &Block, at: &Adjusted) -> Block {
+    let zs: Vec<f64> = at.points.iter().flatten().map(|p| p.ground.z).collect();
+    let mean = zs.iter().sum::<f64>() / zs.len().max(1) as f64;
+    let mut b = block.clone();
+    for r in &mut b.rays {
+        let ph = &block.photos[r.photo];
+        let z = at.points[r.point].as_ref().map_or(mean, |p| p.ground.z);
+        r.xy = block.radial.undistort(
+            r.xy,
+            ph.interior.principal_point,
+            ph.interior.focal_mm,
+            at.exteriors[r.photo].centre.z,
+            z,
+        );
+    }
+    b.radial = crate::geometry::Radial::default();
+    b
+}
+
+/// The adjustment of rays that follow collinearity.
+fn adjust_collinear(block: &Block, settings: Settings) -> Result<Adjusted, BundleError> {
     let mut st = State::begin(block, settings, true)?;
     let mut iterations = st.converge()?;
     let mut rejected = 0;

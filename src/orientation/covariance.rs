@@ -356,6 +356,7 @@ mod tests {
                     camera: cam(k, a.exteriors[k]),
                     frame: centred_grid(side, side, PIXEL_MM).into(),
                     exterior_cov: Some(a.between(k, k)),
+                    radial: Default::default(),
                 })
                 .collect();
             let pairs = [(0, 1), (1, 2)];

@@ -158,5 +158,6 @@ pub fn block_of(
         photos,
         points,
         rays,
+        radial: p.radial,
     })
 }

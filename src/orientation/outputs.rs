@@ -307,12 +307,16 @@ pub fn oriented_project(
             );
         }
     }
-    let mut o = toml::Table::new();
-    o.insert(
-        "covariance".into(),
-        toml::Value::String(super::covariance::FILE.into()),
-    );
-    t.insert("orientation".into(), toml::Value::Table(o));
+    // [orientation]: the project's (refraction, curvature) with the covariance added.
+    let o = t
+        .entry("orientation")
+        .or_insert_with(|| toml::Value::Table(toml::Table::new()));
+    if let Some(o) = o.as_table_mut() {
+        o.insert(
+            "covariance".into(),
+            toml::Value::String(super::covariance::FILE.into()),
+        );
+    }
     let body = toml::to_string(&t).map_err(|e| e.to_string())?;
     Ok(format!(
         "# oriented by `rig orient` from {} (σ̂₀ {:.3}, {} rays, check points in report.json)\n{body}",

@@ -108,6 +108,7 @@ fn pairs(cams: &[FrameCamera], geo: &[PhotoGeometry], z: f64) -> Vec<(usize, usi
                 camera: *c,
                 frame: g.frame,
                 exterior_cov: None,
+                radial: Default::default(),
             };
             footprint(&s, z).ok()
         })

@@ -30,6 +30,7 @@ pub fn vertical_sensor(centre: GroundM, focal_mm: f64, side: usize, pixel_mm: f6
         },
         frame: centred_grid(side, side, pixel_mm).into(),
         exterior_cov: None,
+        radial: Default::default(),
     }
 }
 
@@ -252,6 +253,7 @@ pub fn orient(p: &Project, photos: &[PhotoGeometry]) -> Result<Oriented, Matchin
             },
             frame: input.frame,
             exterior_cov: cov,
+            radial: p.radial,
         }));
     }
     // Control with a stated ground error: the resected photos share it.

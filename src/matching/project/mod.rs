@@ -271,7 +271,12 @@ struct Raw {
 struct RawOrientation {
     /// The orientations' covariance, blocks of photos that see the same ground
     /// ([`crate::orientation::covariance`]).
-    covariance: String,
+    covariance: Option<String>,
+    /// Atmospheric refraction and the Earth's curvature ([`crate::geometry::radial`]).
+    #[serde(default)]
+    refraction: bool,
+    #[serde(default)]
+    earth_curvature: bool,
 }
 
 /// A camera as the project gives it.
@@ -383,6 +388,9 @@ pub struct Project {
     /// `[orientation] covariance`: the oriented photos' covariance as `rig orient` wrote it,
     /// correlated between photos (read by [`crate::orientation::covariance::read`]).
     pub orientation_covariance: Option<PathBuf>,
+    /// `[orientation] refraction` and `earth_curvature`: the frame photos' radial
+    /// displacements, in the orientation and in every matcher alike.
+    pub radial: crate::geometry::Radial,
     pub limits: Limits,
 }
 
@@ -754,7 +762,16 @@ impl Project {
             heights: d.heights,
             matching: m,
             reference: raw.check.map(|c| base.join(c.reference)),
-            orientation_covariance: raw.orientation.map(|o| base.join(o.covariance)),
+            radial: raw.orientation.as_ref().map_or_else(Default::default, |o| {
+                crate::geometry::Radial {
+                    refraction: o.refraction,
+                    earth_curvature: o.earth_curvature,
+                }
+            }),
+            orientation_covariance: raw
+                .orientation
+                .and_then(|o| o.covariance)
+                .map(|c| base.join(c)),
             limits: raw.limits,
         })
     }
