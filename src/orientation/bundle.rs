@@ -536,17 +536,21 @@ impl<'a> State<'a> {
                 };
                 let next = self.linearise(&cams, &pts);
                 if next.cost <= lin.cost {
-                    let change = (lin.cost - next.cost) / lin.cost.max(1e-300);
+                    let gain = lin.cost - next.cost;
+                    let change = gain / lin.cost.max(1e-300);
+                    let noise = 1e-3 * lin.cost.sqrt().max(1.0);
                     tracing::debug!(it, cost = next.cost, change, lambda, "bundle step");
                     self.cams = cams;
                     self.pts = pts;
                     lin = next;
                     lambda = (lambda / 4.0).max(1e-12);
                     accepted = true;
-                    // Ceres's function tolerance, a tenth of its default: the cost (a χ² of some
-                    // thousands) no longer moves. Huber's linear arm can creep on, a blunder's
-                    // point drifting 10⁻⁸ of the cost a step; snooping then removes it.
-                    if change < 1e-7 {
+                    // Converged when the cost no longer moves: relatively (Ceres's function
+                    // tolerance ÷ 10), or by less than 10⁻³ of √cost, a thousandth of the spread
+                    // of a χ² of that size (√(2·redundancy)). Huber's linear arm can creep on
+                    // for hundreds of steps, a blunder's point drifting 10⁻⁵ of the cost a step;
+                    // snooping then removes the blunder.
+                    if change < 1e-7 || gain < noise {
                         return Ok(it);
                     }
                     break;
