@@ -269,35 +269,30 @@ fn bad_blocks_are_refused_by_name_and_nothing_is_written() {
             );
             img.save(dir.path().join("photo_4.tif")).unwrap();
         }
-        let out = dir.path().join("out");
-        let o = common::rig()
-            .args(["orient"])
-            .arg(dir.path().join("project.toml"))
-            .arg("--out")
-            .arg(&out)
-            .output()
-            .unwrap();
-        let err = String::from_utf8_lossy(&o.stderr);
-        assert!(!o.status.success(), "case {k}: succeeded");
-        assert!(err.contains(says), "case {k}: {err}");
+        // `rig orient`, and `rig dtm` (which orients such a block first): the cause, and
+        // nothing written.
+        let refused = |command: &str| {
+            let out = dir.path().join(command);
+            let o = common::rig()
+                .arg(command)
+                .arg(dir.path().join("project.toml"))
+                .arg("--out")
+                .arg(&out)
+                .output()
+                .unwrap();
+            let err = String::from_utf8_lossy(&o.stderr);
+            assert!(
+                !o.status.success() && err.contains(says),
+                "case {k}, rig {command}: {err}"
+            );
+            out
+        };
+        let out = refused("orient");
         assert!(
             !out.join("project.toml").exists(),
             "case {k}: wrote a project"
         );
-        // `rig dtm`, which orients such a block first, says the same and writes nothing.
-        let out = dir.path().join("dtm");
-        let o = common::rig()
-            .args(["dtm"])
-            .arg(dir.path().join("project.toml"))
-            .arg("--out")
-            .arg(&out)
-            .output()
-            .unwrap();
-        let err = String::from_utf8_lossy(&o.stderr);
-        assert!(
-            !o.status.success() && err.contains(says),
-            "case {k}, rig dtm: {err}"
-        );
+        let out = refused("dtm");
         assert!(
             !out.join("orientation").exists() && !out.join("dem.tif").exists(),
             "case {k}: rig dtm wrote"

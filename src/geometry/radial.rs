@@ -29,6 +29,16 @@ use serde::{Deserialize, Serialize};
 /// The Earth's mean radius, m.
 pub const EARTH_RADIUS_M: f64 = 6_371_000.0;
 
+/// How a point is seen: the camera's principal point and focal length (mm), its height and the
+/// ground's (m), all the displacements depend on.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Seen {
+    pub principal_point: PhotoMm,
+    pub focal_mm: f64,
+    pub camera_m: f64,
+    pub ground_m: f64,
+}
+
 /// Which radial displacements a frame photo's geometry applies.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Radial {
@@ -67,44 +77,30 @@ impl Radial {
         d
     }
 
-    /// Where the photo shows the point that collinearity puts at `ideal` (both relative to
-    /// nothing: `pp` is the principal point).
-    pub fn distort(
-        self,
-        ideal: PhotoMm,
-        pp: PhotoMm,
-        c_mm: f64,
-        camera_m: f64,
-        ground_m: f64,
-    ) -> PhotoMm {
+    /// Where the photo shows the point that collinearity puts at `ideal`.
+    pub fn distort(self, ideal: PhotoMm, at: &Seen) -> PhotoMm {
         if !self.any() {
             return ideal;
         }
+        let pp = at.principal_point;
         let (x, y) = (ideal.x - pp.x, ideal.y - pp.y);
         let r = x.hypot(y);
         if r == 0.0 {
             return ideal;
         }
-        let s = 1.0 + self.displacement_mm(r, c_mm, camera_m, ground_m) / r;
+        let s = 1.0 + self.displacement_mm(r, at.focal_mm, at.camera_m, at.ground_m) / r;
         PhotoMm::new(pp.x + s * x, pp.y + s * y)
     }
 
     /// The collinearity point of an observed `p`: [`Radial::distort`] inverted (a few
     /// fixed-point steps; the displacement is some 10⁻⁴ of r, each step gains four digits).
-    pub fn undistort(
-        self,
-        p: PhotoMm,
-        pp: PhotoMm,
-        c_mm: f64,
-        camera_m: f64,
-        ground_m: f64,
-    ) -> PhotoMm {
+    pub fn undistort(self, p: PhotoMm, at: &Seen) -> PhotoMm {
         if !self.any() {
             return p;
         }
         let mut q = p;
         for _ in 0..4 {
-            let d = self.distort(q, pp, c_mm, camera_m, ground_m);
+            let d = self.distort(q, at);
             q = PhotoMm::new(q.x + (p.x - d.x), q.y + (p.y - d.y));
         }
         q
@@ -207,8 +203,14 @@ mod tests {
         };
         let pp = PhotoMm::new(0.01, -0.02);
         let p = PhotoMm::new(93.0, -121.0);
-        let d = both.distort(p, pp, 153.0, 7000.0, 400.0);
-        let back = both.undistort(d, pp, 153.0, 7000.0, 400.0);
+        let at = Seen {
+            principal_point: pp,
+            focal_mm: 153.0,
+            camera_m: 7000.0,
+            ground_m: 400.0,
+        };
+        let d = both.distort(p, &at);
+        let back = both.undistort(d, &at);
         assert!((back.x - p.x).abs() < 1e-9 && (back.y - p.y).abs() < 1e-9);
         assert!((d.x - p.x).abs() > 1e-3);
     }

@@ -122,9 +122,13 @@ impl Sensor for FrameSensor {
             .project(g)
             .map(|p| {
                 let z0 = self.camera.exterior.centre.z;
-                let p = self
-                    .radial
-                    .distort(p, i.principal_point, i.focal_mm, z0, g.z);
+                let at = super::radial::Seen {
+                    principal_point: i.principal_point,
+                    focal_mm: i.focal_mm,
+                    camera_m: z0,
+                    ground_m: g.z,
+                };
+                let p = self.radial.distort(p, &at);
                 self.frame.pixel(p)
             })
             .ok_or(ProjectionError::Behind)?;
@@ -139,13 +143,13 @@ impl Sensor for FrameSensor {
 
     fn try_image_to_ground(&self, q: PixelXY, z: f64) -> Result<GroundM, ProjectionError> {
         let i = &self.camera.interior;
-        let p = self.radial.undistort(
-            self.frame.photo(q),
-            i.principal_point,
-            i.focal_mm,
-            self.camera.exterior.centre.z,
-            z,
-        );
+        let at = super::radial::Seen {
+            principal_point: i.principal_point,
+            focal_mm: i.focal_mm,
+            camera_m: self.camera.exterior.centre.z,
+            ground_m: z,
+        };
+        let p = self.radial.undistort(self.frame.photo(q), &at);
         let g = self.camera.at_height(p, z);
         if [g.x, g.y].iter().all(|v| v.is_finite()) {
             Ok(g)

@@ -870,13 +870,13 @@ pub fn corrected(block: &Block, at: &Adjusted) -> Block {
     for r in &mut b.rays {
         let ph = &block.photos[r.photo];
         let z = at.points[r.point].as_ref().map_or(mean, |p| p.ground.z);
-        r.xy = block.radial.undistort(
-            r.xy,
-            ph.interior.principal_point,
-            ph.interior.focal_mm,
-            at.exteriors[r.photo].centre.z,
-            z,
-        );
+        let seen = crate::geometry::radial::Seen {
+            principal_point: ph.interior.principal_point,
+            focal_mm: ph.interior.focal_mm,
+            camera_m: at.exteriors[r.photo].centre.z,
+            ground_m: z,
+        };
+        r.xy = block.radial.undistort(r.xy, &seen);
     }
     b.radial = crate::geometry::Radial::default();
     b

@@ -42,7 +42,7 @@ pub enum OrientError {
     #[error("point `{id}`: {what}")]
     Point { id: String, what: String },
     #[error(transparent)]
-    Bundle(#[from] super::BundleError),
+    Bundle(#[from] super::bundle::BundleError),
     #[error(transparent)]
     Matching(#[from] crate::matching::error::MatchingError),
     #[error(transparent)]

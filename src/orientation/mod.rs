@@ -12,6 +12,7 @@ pub mod bundle;
 pub mod collinearity;
 pub mod covariance;
 pub mod from_project;
+pub mod oriented;
 pub mod outputs;
 pub mod reduced;
 pub mod run;

@@ -8,7 +8,7 @@
 //! data snooping removed). Each file is written atomically.
 
 use super::bundle::{Block, RayStatus, Role};
-use super::run::Oriented;
+use super::oriented::Oriented;
 use crate::matching::products::html::escape;
 use crate::relative::relative_to;
 use serde::Serialize;

@@ -11,6 +11,7 @@
 
 use super::bundle::{adjust, Adjusted, Block, BlockPoint, Ray, RayStatus, Role, Settings};
 use super::from_project::{block_of, OrientError, OrientOptions};
+use super::oriented::Oriented;
 use super::ties::{find, SearchPhoto, TieOptions};
 use crate::geometry::{Exterior, FrameCamera, FrameSensor};
 use crate::matching::block::orient::{footprint, overlap};
@@ -18,19 +19,6 @@ use crate::matching::block::photo::{Photo, PhotoGeometry};
 use crate::matching::block::photos::load_photo;
 use crate::matching::project::Project;
 use std::path::Path;
-
-/// The adjusted block with the block it came from.
-#[derive(Debug, Clone)]
-pub struct Oriented {
-    pub block: Block,
-    pub adjusted: Adjusted,
-    /// σ of a measured ray (the points file's) after the variance components, px.
-    pub image_sigma_px: f64,
-    /// The terrain's heights, m: the project's, else the adjusted points' with a margin.
-    pub heights: [f64; 2],
-    /// Pairs (i, j), i < j, of photos whose oriented footprints overlap at the middle height.
-    pub pairs: Vec<(usize, usize)>,
-}
 
 /// The project's photos, read whole (scans through `scan`).
 pub fn load(
@@ -253,9 +241,6 @@ pub fn orient_block(
     })
 }
 
-/// The folder under a `rig dtm` output directory that holds the block's orientation.
-pub const DTM_FOLDER: &str = "orientation";
-
 /// A block `rig dtm` oriented before matching: the oriented project (read back from the
 /// folder, as `rig dtm` on it would read it) and the orientation's report.
 #[derive(Debug)]
@@ -282,7 +267,7 @@ pub fn before_matching(
     crate::matching::products::write::check_out_dir(out)?;
     let photos = load(p, scan)?;
     let o = orient_block(p, &photos, options)?;
-    let folder = out.join(DTM_FOLDER);
+    let folder = out.join(crate::matching::products::outputs::ORIENTATION);
     let report = super::outputs::write(&p.path, &folder, &o).map_err(OrientError::Write)?;
     let project = Project::load(&folder.join("project.toml"))?;
     Ok(Some(OrientedFirst {

@@ -66,8 +66,9 @@ pub const ACCURACY_JSON: &str = "accuracy.json";
 pub const COARSE: &str = "coarse";
 pub const REFLECTANCE: &str = "reflectance.tif";
 pub const CONVERGENCE: &str = "convergence.png";
-/// The block's orientation, when it was run first ([`crate::orientation::run::DTM_FOLDER`]).
-pub const ORIENTATION: &str = crate::orientation::run::DTM_FOLDER;
+/// The folder of the block's orientation, when `rig dtm` ran it first
+/// ([`crate::orientation::run::before_matching`]).
+pub const ORIENTATION: &str = "orientation";
 
 const fn file(name: &'static str, holds: &'static str, writer: Writer, data: bool) -> OutputFile {
     OutputFile {
