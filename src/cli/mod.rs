@@ -212,7 +212,8 @@ pub enum Command {
     ///
     /// A format-2 project (`format = 2`; see docs/elevation-models.md) names any number of photos as plain
     /// grey images with their cameras and orientations (or resected from control points, or
-    /// the rig's scans), the ground CRS, points and the DEM, and the matcher, `[matching]
+    /// approximate ones, from which the block is oriented first into DIR/orientation/ as `rig
+    /// orient` does; or the rig's scans), the ground CRS, points and the DEM, and the matcher, `[matching]
     /// method`:
     ///   "sweep"  every overlapping pair swept along its epipolar lines, the heights merged
     ///            (seed 000)
@@ -253,13 +254,19 @@ pub enum Command {
     /// blunders; σ̂₀ rescales the measurements' σ once.
     ///
     /// Writes into DIR:
-    ///   project.toml  the same project, every photo oriented (position, angles, sigma)
-    ///   points.csv    every adjusted point's ground and σ (id,kind,x,y,z,sigma_x,…,rays)
+    ///   project.toml    the same project, every photo oriented (position, angles, sigma)
+    ///   points.csv      every adjusted point's ground and σ (id,kind,x,y,z,sigma_x,…,rays)
+    ///   covariance.csv  the orientations' covariance, correlated between photos, which
+    ///                   `rig dtm` carries into every height's σ
     ///   report.json   σ̂₀, per-photo σ and residuals, check points, precision, blunders
     ///   report.html   the same with a residual-vector plot per photo
     ///
     /// Example:
     ///   rig orient block/project.toml --out oriented && rig dtm oriented/project.toml --out dtm
+    ///   rig dtm block/project.toml --out dtm    # the same: orients first, into dtm/orientation/
+    ///
+    /// `[orientation] refraction = true` and `earth_curvature = true` in the project correct
+    /// small-scale photos (docs/orientation.md says when they matter).
     ///
     #[command(verbatim_doc_comment, after_help = exit::TABLE)]
     Orient(orient_cmd::OrientArgs),
