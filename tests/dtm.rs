@@ -230,8 +230,15 @@ fn the_demo_runs_the_whole_chain_and_meets_half_the_height_step() {
     assert_eq!(o["photos"], 3);
     assert!(o["tie_points"].as_u64().unwrap() > 100, "{o}");
     assert!(t["orientation_sigma_m"].as_f64().unwrap() > 0.0);
+    // No tilt left to speak of: the RMSE with the best plane removed is most of the RMSE
+    // (the goal 0.8: seeds 1–4 give 0.80–0.93, this quick run 0.815; a tilted datum,
+    // as the old 0.5 m control gave, 0.28).
     let c = &t["comparison"];
-    assert!(c["rmse_without_plane_m"].as_f64().unwrap() <= c["rmse_m"].as_f64().unwrap());
+    let flat = c["rmse_without_plane_m"].as_f64().unwrap() / c["rmse_m"].as_f64().unwrap();
+    assert!(
+        (0.75..=1.0).contains(&flat),
+        "plane removed / as is: {flat:.3}"
+    );
     for f in [
         "scan-photo-1/stereo.tiff",
         "scan-photo-2/stereo.tiff",
