@@ -440,7 +440,7 @@ pub fn run(a: DtmArgs) -> anyhow::Result<i32> {
         }
     };
     let p = Project::load(&project)?;
-    if a.tile.is_some() && p.photos.iter().any(|ph| ph.approximate.is_some()) {
+    if a.tile.is_some() && p.has_approximate_photos() {
         eprintln!(
             "rig dtm --tile: {}'s photos are approximate (position_sigma_m); orient the block once first: rig orient {} --out ORIENTED, then tile ORIENTED/project.toml",
             project.display(),

@@ -39,6 +39,18 @@ pub struct Seen {
     pub ground_m: f64,
 }
 
+impl Seen {
+    /// A camera of `interior` at height `camera_m` seeing ground at `ground_m`.
+    pub fn of(interior: &super::Interior, camera_m: f64, ground_m: f64) -> Seen {
+        Seen {
+            principal_point: interior.principal_point,
+            focal_mm: interior.focal_mm,
+            camera_m,
+            ground_m,
+        }
+    }
+}
+
 /// Which radial displacements a frame photo's geometry applies.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Radial {

@@ -116,21 +116,11 @@ impl Sensor for FrameSensor {
     }
 
     fn try_ground_to_image(&self, g: GroundM) -> Result<PixelXY, ProjectionError> {
-        let i = &self.camera.interior;
+        let at = self.seen(g.z);
         let q = self
             .camera
             .project(g)
-            .map(|p| {
-                let z0 = self.camera.exterior.centre.z;
-                let at = super::radial::Seen {
-                    principal_point: i.principal_point,
-                    focal_mm: i.focal_mm,
-                    camera_m: z0,
-                    ground_m: g.z,
-                };
-                let p = self.radial.distort(p, &at);
-                self.frame.pixel(p)
-            })
+            .map(|p| self.frame.pixel(self.radial.distort(p, &at)))
             .ok_or(ProjectionError::Behind)?;
         if q.col.is_finite() && q.row.is_finite() {
             Ok(q)
@@ -142,14 +132,7 @@ impl Sensor for FrameSensor {
     }
 
     fn try_image_to_ground(&self, q: PixelXY, z: f64) -> Result<GroundM, ProjectionError> {
-        let i = &self.camera.interior;
-        let at = super::radial::Seen {
-            principal_point: i.principal_point,
-            focal_mm: i.focal_mm,
-            camera_m: self.camera.exterior.centre.z,
-            ground_m: z,
-        };
-        let p = self.radial.undistort(self.frame.photo(q), &at);
+        let p = self.radial.undistort(self.frame.photo(q), &self.seen(z));
         let g = self.camera.at_height(p, z);
         if [g.x, g.y].iter().all(|v| v.is_finite()) {
             Ok(g)
@@ -166,6 +149,15 @@ impl Sensor for FrameSensor {
 }
 
 impl FrameSensor {
+    /// How this camera sees ground at height `ground_m` (what its radial displacements take).
+    fn seen(&self, ground_m: f64) -> super::radial::Seen {
+        super::radial::Seen::of(
+            &self.camera.interior,
+            self.camera.exterior.centre.z,
+            ground_m,
+        )
+    }
+
     /// ∂(col, row)/∂(ω, φ, κ, X0, Y0, Z0) at `g`, px per rad and per m, by central
     /// differences over [`super::Exterior::STEPS`].
     pub fn exterior_partials(&self, g: GroundM) -> Option<[[f64; 6]; 2]> {
@@ -189,12 +181,22 @@ impl FrameSensor {
 /// J·Σ·Jᵀ: the covariance `cov` of N parameters carried to a pixel's column and row through
 /// their partials `j` (px per parameter).
 pub fn propagate<const N: usize>(j: &[[f64; N]; 2], cov: &[[f64; N]; N]) -> [[f64; 2]; 2] {
+    propagate_between(j, cov, j)
+}
+
+/// Jₐ·Σₐᵦ·Jᵦᵀ: the covariance of two pixels (rows a's column and row) whose N parameters
+/// each covary as `cov` (rows a's parameters, columns b's), through their partials.
+pub fn propagate_between<const N: usize>(
+    ja: &[[f64; N]; 2],
+    cov: &[[f64; N]; N],
+    jb: &[[f64; N]; 2],
+) -> [[f64; 2]; 2] {
     let mut c = [[0.0; 2]; 2];
     for (r, cr) in c.iter_mut().enumerate() {
         for (s, v) in cr.iter_mut().enumerate() {
             for a in 0..N {
                 for b in 0..N {
-                    *v += j[r][a] * cov[a][b] * j[s][b];
+                    *v += ja[r][a] * cov[a][b] * jb[s][b];
                 }
             }
         }

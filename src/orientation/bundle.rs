@@ -216,6 +216,17 @@ fn camera(p: &BlockPhoto, e: Exterior) -> FrameCamera {
     }
 }
 
+impl Block {
+    /// Each photo's camera with `exteriors` (in the photos' order).
+    pub fn cameras(&self, exteriors: &[Exterior]) -> Vec<FrameCamera> {
+        self.photos
+            .iter()
+            .zip(exteriors)
+            .map(|(p, e)| camera(p, *e))
+            .collect()
+    }
+}
+
 /// Start values: each photo's exterior, each point's ground, each ray's status, each point's
 /// rays in the adjustment.
 type Start = (
@@ -870,12 +881,8 @@ pub fn corrected(block: &Block, at: &Adjusted) -> Block {
     for r in &mut b.rays {
         let ph = &block.photos[r.photo];
         let z = at.points[r.point].as_ref().map_or(mean, |p| p.ground.z);
-        let seen = crate::geometry::radial::Seen {
-            principal_point: ph.interior.principal_point,
-            focal_mm: ph.interior.focal_mm,
-            camera_m: at.exteriors[r.photo].centre.z,
-            ground_m: z,
-        };
+        let seen =
+            crate::geometry::radial::Seen::of(&ph.interior, at.exteriors[r.photo].centre.z, z);
         r.xy = block.radial.undistort(r.xy, &seen);
     }
     b.radial = crate::geometry::Radial::default();

@@ -304,6 +304,7 @@ mod tests {
     #[test]
     fn a_heights_sigma_from_the_blocks_covariance_is_its_error_over_repeated_blocks() {
         use crate::coords::GroundM;
+        use crate::geometry::sensor::propagate_between;
         use crate::geometry::{intersect, FrameCamera, FrameSensor};
         use crate::matching::accuracy::orientation_error::height_sigma;
         use crate::matching::block::photo::centred_grid;
@@ -365,14 +366,7 @@ mod tests {
                     sensors[i].exterior_partials(g)?,
                     sensors[j].exterior_partials(g)?,
                 );
-                let c = a.between(i, j);
-                Some(std::array::from_fn(|r| {
-                    std::array::from_fn(|t| {
-                        (0..6)
-                            .map(|p| (0..6).map(|q| ji[r][p] * c[p][q] * jj[t][q]).sum::<f64>())
-                            .sum()
-                    })
-                }))
+                Some(propagate_between(&ji, &a.between(i, j), &jj))
             };
             let sigma = height_sigma(&sensors, &pairs, g, &cross).unwrap();
             let sigma_alone = height_sigma(&sensors, &pairs, g, &|_, _| None).unwrap();

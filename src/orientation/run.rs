@@ -154,15 +154,7 @@ pub fn orient_block(
     let mut last: Option<(Block, Adjusted)> = None;
     let hs = heights(p, &given, first_adjusted.as_ref());
     for _round in 0..2 {
-        let fc: Vec<FrameCamera> = given
-            .photos
-            .iter()
-            .zip(&cams)
-            .map(|(ph, e)| FrameCamera {
-                interior: ph.interior,
-                exterior: *e,
-            })
-            .collect();
+        let fc = given.cameras(&cams);
         let pr = pairs(&fc, &geo, 0.5 * (hs[0] + hs[1]));
         let side = geo.iter().map(|g| g.width.min(g.height)).min().unwrap_or(0);
         // The search level: the epipolar segment and the band across it a few tens of px.
@@ -222,16 +214,11 @@ pub fn orient_block(
             r.sigma_mm / block.photos[r.photo].pixel_mm
         });
     let heights = heights(p, &block, Some(&adjusted));
-    let cams: Vec<FrameCamera> = block
-        .photos
-        .iter()
-        .zip(&adjusted.exteriors)
-        .map(|(ph, e)| FrameCamera {
-            interior: ph.interior,
-            exterior: *e,
-        })
-        .collect();
-    let pairs = pairs(&cams, &geo, 0.5 * (heights[0] + heights[1]));
+    let pairs = pairs(
+        &block.cameras(&adjusted.exteriors),
+        &geo,
+        0.5 * (heights[0] + heights[1]),
+    );
     Ok(Oriented {
         block,
         adjusted,
@@ -261,7 +248,7 @@ pub fn before_matching(
     scan: &dyn Fn(&Path) -> Result<Photo, String>,
     options: OrientOptions,
 ) -> Result<Option<OrientedFirst>, OrientError> {
-    if p.photos.iter().all(|ph| ph.approximate.is_none()) {
+    if !p.has_approximate_photos() {
         return Ok(None);
     }
     crate::matching::products::write::check_out_dir(out)?;

@@ -287,12 +287,11 @@ mod tests {
         };
         for r in &mut s.block.rays {
             let i = s.block.photos[r.photo].interior;
-            let seen = crate::geometry::radial::Seen {
-                principal_point: i.principal_point,
-                focal_mm: i.focal_mm,
-                camera_m: s.exteriors[r.photo].centre.z,
-                ground_m: s.ground[r.point].z,
-            };
+            let seen = crate::geometry::radial::Seen::of(
+                &i,
+                s.exteriors[r.photo].centre.z,
+                s.ground[r.point].z,
+            );
             r.xy = radial.distort(r.xy, &seen);
         }
         let plain = heights_error(&s, &adjust(&s.block, Settings::default()).unwrap());

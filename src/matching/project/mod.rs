@@ -428,6 +428,12 @@ const MAX_PHOTOS: usize = 64;
 const MAX_GROUND_M: f64 = 1e8;
 
 impl Project {
+    /// Whether any photo's orientation is an approximation (`position_sigma_m`): the block is
+    /// to be oriented before anything matches it.
+    pub fn has_approximate_photos(&self) -> bool {
+        self.photos.iter().any(|ph| ph.approximate.is_some())
+    }
+
     /// Reads the project at `path` in whichever format it is: format 2, or format 1 (one
     /// scanned pair) as [`upgrade`] writes it in format 2, its points read from its JSON.
     pub fn load(path: &Path) -> Result<Project, ProjectError> {

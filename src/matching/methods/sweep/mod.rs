@@ -147,17 +147,7 @@ fn shared_pointing(plan: &Plan, i: usize, j: usize, g: GroundM) -> Option<[[f64;
     let c = plan.oriented.shared_orientation.between(i, j)?;
     let ji = plan.oriented.sensors[i].frame()?.exterior_partials(g)?;
     let jj = plan.oriented.sensors[j].frame()?.exterior_partials(g)?;
-    let mut out = [[0.0; 2]; 2];
-    for (r, row) in out.iter_mut().enumerate() {
-        for (s, v) in row.iter_mut().enumerate() {
-            for a in 0..6 {
-                for b in 0..6 {
-                    *v += ji[r][a] * c[a][b] * jj[s][b];
-                }
-            }
-        }
-    }
-    Some(out)
+    Some(crate::geometry::sensor::propagate_between(&ji, &c, &jj))
 }
 
 /// Adds to each node's σ the orientations' part: the σ of the mean of the heights the pairs
