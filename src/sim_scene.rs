@@ -12,6 +12,7 @@ pub fn frame_camera(p: &rig_sim::scene::AerialPhoto) -> FrameCamera {
         interior: Interior {
             focal_mm: p.focal_mm,
             principal_point: PhotoMm::new(0.0, 0.0),
+            lens: crate::geometry::Lens::NONE,
         },
         exterior: Exterior::from_degrees(
             e.omega_deg,

@@ -394,6 +394,60 @@ fn rig_dtm_orients_a_block_of_approximations_first() {
         mean.abs() <= 0.1 && rms <= 0.1,
         "mean {mean:.3} RMS {rms:.3} px"
     );
+    // Against the renderer's truth DEM: coverage of its posts that two photos see (the true
+    // orientations, the scene's conventions), and the model's σ (quality.tif) against its
+    // errors.
+    let tq = rig::matching::products::files::read_geotiff(&block_dir().join("truth_dem.tif"))
+        .unwrap();
+    let photos = truth_photos();
+    let (mut seen2, mut covered) = (0usize, 0usize);
+    for r in 0..tq.rows {
+        for c in 0..tq.cols {
+            let [x, y] = tq.node(c, r);
+            let g = Vector3::new(x, y, tq.z[r * tq.cols + c] as f64);
+            let seen = photos
+                .values()
+                .filter(|(centre, rot)| {
+                    let u = rot.transpose() * (g - centre);
+                    let (px, py) = (-153.0 * u.x / u.z, -153.0 * u.y / u.z);
+                    u.z < 0.0 && px.abs() < 116.0 && py.abs() < 116.0
+                })
+                .count();
+            if seen >= 2 {
+                seen2 += 1;
+                covered += usize::from(
+                    a.node_index(x, y)
+                        .is_some_and(|k| a.z[k].is_finite()),
+                );
+            }
+        }
+    }
+    let coverage = covered as f64 / seen2 as f64;
+    // quality.tif: band 1 σ (m), band 2 the correlation, interleaved.
+    let mut d = tiff::decoder::Decoder::new(std::io::BufReader::new(
+        std::fs::File::open(dtm.join("quality.tif")).unwrap(),
+    ))
+    .unwrap();
+    let tiff::decoder::DecodingResult::F32(q) = d.read_image().unwrap() else {
+        panic!("quality.tif is not float32");
+    };
+    assert_eq!(q.len(), 2 * a.z.len());
+    let (mut e2, mut n) = (0.0, 0usize);
+    for k in 0..a.z.len() {
+        let [x, y] = a.node(k % a.cols, k / a.cols);
+        let (z, s, zt) = (a.z[k] as f64, q[2 * k] as f64, tq.interpolate(x, y));
+        if z.is_finite() && s > 0.0 && zt.is_finite() {
+            e2 += ((z - zt) / s).powi(2);
+            n += 1;
+        }
+    }
+    let normalised = (e2 / n as f64).sqrt();
+    println!(
+        "against the truth DEM: {:.1} % of the {seen2} posts two photos see covered; RMS(error/σ) {normalised:.2} over {n} nodes",
+        100.0 * coverage
+    );
+    assert!(coverage >= 0.8, "coverage {coverage:.3}");
+    assert!((0.8..=1.25).contains(&normalised), "RMS(error/σ) {normalised:.2}");
     // The check points' ground.
     let e: Vec<f64> = truth["points"]
         .as_object()
@@ -434,4 +488,70 @@ fn refraction_and_curvature_keys_are_taken_and_kept() {
     let p = rig::matching::project::Project::load(&out.path().join("project.toml")).unwrap();
     assert!(p.radial.refraction && p.radial.earth_curvature);
     assert!(p.orientation_covariance.is_some());
+}
+
+/// Self-calibration on the renderer's block, given a camera 2 mm short of the renderer's
+/// (153 mm, principal point 0, no distortion): `[orientation] self_calibration` with all four
+/// finds the focal length, principal point and k₁, k₂ within 3 σ of the renderer's, each σ
+/// small enough to mean something, writes them (with their σ) into the oriented project, and
+/// the check points (adjusted as tie points with the calibrated camera; their ground kept in
+/// truth.json) stay within the true orientation's figures + 25 %.
+#[test]
+fn self_calibration_finds_the_renderers_camera() {
+    let dir = block_copy(&|t: &str| {
+        format!(
+            "{}\n[orientation]\nself_calibration = [\"focal\", \"principal_point\", \"k1\", \"k2\"]\n",
+            t.replace("focal_mm = 153.0", "focal_mm = 151.0")
+        )
+    });
+    let (_, report, out) = orient(&dir.path().join("project.toml"));
+    let c = &report["cameras"][0];
+    let f = |k: &str| c[k].as_f64().unwrap();
+    let v = |k: &str, i: usize| c[k][i].as_f64().unwrap();
+    let found = [
+        (f("focal_mm") - 153.0, f("sigma_focal_mm"), 1.0),
+        (v("principal_point_mm", 0), v("sigma_principal_point_mm", 0), 0.4),
+        (v("principal_point_mm", 1), v("sigma_principal_point_mm", 1), 0.4),
+        (v("distortion", 0), v("sigma_distortion", 0), 1e-3),
+        (v("distortion", 1), v("sigma_distortion", 1), 1e-3),
+    ];
+    for (k, (err, sigma, useful)) in found.iter().enumerate() {
+        assert!(
+            err.abs() < 3.0 * sigma && *sigma > 0.0 && sigma < useful,
+            "parameter {k}: error {err} σ {sigma} (useful below {useful}): {c}"
+        );
+    }
+    let p = rig::matching::project::Project::load(&out.path().join("project.toml")).unwrap();
+    let rig::matching::project::Source::Image { camera, .. } = &p.photos[0].source else {
+        panic!("an image photo")
+    };
+    assert!((camera.focal_mm - f("focal_mm")).abs() < 1e-5);
+    assert!((camera.lens.k1 - v("distortion", 0)).abs() < 1e-12);
+    // Check points: the adjusted tie points whose ground truth.json keeps.
+    let truth: Value =
+        serde_json::from_str(&std::fs::read_to_string(block_dir().join("truth.json")).unwrap())
+            .unwrap();
+    let (mut sxy, mut sz, mut n) = (0.0, 0.0, 0);
+    for line in std::fs::read_to_string(out.path().join("points.csv"))
+        .unwrap()
+        .lines()
+        .skip(1)
+    {
+        let c: Vec<&str> = line.split(',').collect();
+        let t = &truth["points"][c[0]];
+        if t["kind"] != "cp" {
+            continue;
+        }
+        let g: Vec<f64> = (0..3).map(|i| t["xyz"][i].as_f64().unwrap()).collect();
+        let x: Vec<f64> = (2..5).map(|i| c[i].parse().unwrap()).collect();
+        sxy += (x[0] - g[0]).powi(2) + (x[1] - g[1]).powi(2);
+        sz += (x[2] - g[2]).powi(2);
+        n += 1;
+    }
+    let (xy, z) = ((sxy / n as f64).sqrt(), (sz / n as f64).sqrt());
+    let points = std::fs::read_to_string(block_dir().join("points.csv")).unwrap();
+    let (txy, tz, _) = check_rmse(&truth_photos(), &points);
+    println!("self-calibrated: {c}; check points XY {xy:.2} Z {z:.2} m over {n}");
+    assert_eq!(n, 55);
+    assert!(xy <= 1.25 * txy && z <= 1.25 * tz, "XY {xy:.2} Z {z:.2}");
 }

@@ -268,6 +268,11 @@ pub enum Command {
     /// `[orientation] refraction = true` and `earth_curvature = true` in the project correct
     /// small-scale photos (docs/orientation.md says when they matter).
     ///
+    /// `[orientation] self_calibration = ["focal", "principal_point", "k1", "k2"]` (any of
+    /// them) estimates each [camera.NAME]'s interior with the block and writes it, with its σ,
+    /// into the oriented project; a parameter the block cannot determine (the focal length
+    /// over flat ground, say) is refused with what the block would need.
+    ///
     #[command(verbatim_doc_comment, after_help = exit::TABLE)]
     Orient(orient_cmd::OrientArgs),
     /// Match photos outside a project: disparities of a rectified stereo pair.

@@ -69,6 +69,14 @@ pub fn run(a: OrientArgs) -> anyhow::Result<i32> {
             l.moved_m.map_or("—".into(), |m| format!("{m:.1} m")), l.rays, l.rms_px
         );
     }
+    for c in &r.cameras {
+        println!(
+            "camera {} self-calibrated: c {:.4} ± {:.4} mm, x₀ {:.4} ± {:.4}, y₀ {:.4} ± {:.4} mm, k₁ {:.3e} ± {:.1e}, k₂ {:.3e} ± {:.1e} (± 0: held)",
+            c.camera, c.focal_mm, c.sigma_focal_mm, c.principal_point_mm[0], c.sigma_principal_point_mm[0],
+            c.principal_point_mm[1], c.sigma_principal_point_mm[1], c.distortion[0], c.sigma_distortion[0],
+            c.distortion[1], c.sigma_distortion[1]
+        );
+    }
     for p in &r.precision {
         println!(
             "tie points with {} rays: {} points, σ X {:.3} Y {:.3} Z {:.3} m",

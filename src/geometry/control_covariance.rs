@@ -243,6 +243,7 @@ mod tests {
         let interior = Interior {
             focal_mm: 153.0,
             principal_point: PhotoMm::new(0.0, 0.0),
+            lens: crate::geometry::Lens::NONE,
         };
         let ext = |x0: f64| Exterior {
             omega: 0.01,
@@ -418,6 +419,7 @@ mod tests {
         let interior = Interior {
             focal_mm: 100.0,
             principal_point: PhotoMm::new(0.0, 0.0),
+            lens: crate::geometry::Lens::NONE,
         };
         let r = Resected {
             interior,

@@ -6,6 +6,7 @@
 //! x − x₀ = −c·(r₁₁ΔX + r₂₁ΔY + r₃₁ΔZ)/(r₁₃ΔX + r₂₃ΔY + r₃₃ΔZ), likewise y with the second
 //! column (ΔX = X − X₀ …).
 
+use super::lens::Lens;
 use crate::coords::{GroundM, PhotoMm};
 use nalgebra::{Matrix3, Vector3};
 use serde::{Deserialize, Serialize};
@@ -14,6 +15,22 @@ use serde::{Deserialize, Serialize};
 pub struct Interior {
     pub focal_mm: f64,
     pub principal_point: PhotoMm,
+    /// Radial distortion ([`super::lens`]); none for the rig's scans and the simulator.
+    #[serde(default, skip_serializing_if = "Lens::is_none")]
+    pub lens: Lens,
+}
+
+impl Interior {
+    /// c, x₀, y₀ (mm), k₁, k₂: the parameters a self-calibration estimates, in its order.
+    pub fn parameters(&self) -> [f64; 5] {
+        [
+            self.focal_mm,
+            self.principal_point.x,
+            self.principal_point.y,
+            self.lens.k1,
+            self.lens.k2,
+        ]
+    }
 }
 
 /// Exterior orientation; angles in radians.
@@ -138,14 +155,19 @@ impl FrameCamera {
         }
         let f = self.interior.focal_mm;
         let pp = self.interior.principal_point;
-        Some(PhotoMm::new(pp.x - f * v.x / v.z, pp.y - f * v.y / v.z))
+        let d = self
+            .interior
+            .lens
+            .distort([-f * v.x / v.z, -f * v.y / v.z], f);
+        Some(PhotoMm::new(pp.x + d[0], pp.y + d[1]))
     }
 
     /// The ray through photo point `p`: the projection centre and a unit direction.
     pub fn ray(&self, p: PhotoMm) -> (Vector3<f64>, Vector3<f64>) {
         let pp = self.interior.principal_point;
-        let d = self.exterior.rotation()
-            * Vector3::new(p.x - pp.x, p.y - pp.y, -self.interior.focal_mm);
+        let f = self.interior.focal_mm;
+        let u = self.interior.lens.undistort([p.x - pp.x, p.y - pp.y], f);
+        let d = self.exterior.rotation() * Vector3::new(u[0], u[1], -f);
         let c = self.exterior.centre;
         (Vector3::new(c.x, c.y, c.z), d.normalize())
     }

@@ -243,6 +243,7 @@ mod tests {
                 interior: Interior {
                     focal_mm: 153.0,
                     principal_point: PhotoMm::new(0.0, 0.0),
+                    lens: crate::geometry::Lens::NONE,
                 },
                 exterior: Exterior::from_degrees(0.3, -0.2, 1.0, GroundM::new(0.0, 0.0, 6500.0)),
             },

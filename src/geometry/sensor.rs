@@ -344,6 +344,7 @@ mod tests {
                 interior: Interior {
                     focal_mm: f,
                     principal_point: PhotoMm::new(0.0, 0.0),
+                    lens: crate::geometry::Lens::NONE,
                 },
                 exterior: Exterior::from_degrees(0.0, 0.0, 0.0, GroundM::new(0.0, 0.0, z0)),
             },

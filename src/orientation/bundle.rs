@@ -77,6 +77,27 @@ pub struct Block {
     /// Refraction and the Earth's curvature: the rays are corrected to collinearity
     /// ([`crate::geometry::radial`]) with the heights of a first adjustment.
     pub radial: crate::geometry::Radial,
+    /// Cameras whose interior is estimated with the block (self-calibration).
+    pub calibrate: Vec<SelfCalibration>,
+}
+
+/// A camera whose interior the adjustment estimates with the block (Brown 1976's
+/// self-calibrating bundle): its photos share one interior, starting from the first photo's,
+/// and `free` says which of c, x₀, y₀, k₁, k₂ ([`super::collinearity::INTERIOR`]) move.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SelfCalibration {
+    pub camera: String,
+    pub photos: Vec<usize>,
+    pub free: [bool; 5],
+}
+
+/// A self-calibrated camera: its interior and the σ of c, x₀, y₀, k₁, k₂ (0 where held).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Calibrated {
+    pub camera: String,
+    pub interior: Interior,
+    pub sigma: [f64; 5],
+    pub free: [bool; 5],
 }
 
 #[derive(Debug, Clone, Copy)]
@@ -136,7 +157,11 @@ pub struct AdjustedPoint {
 #[derive(Debug, Clone)]
 pub struct Adjusted {
     pub exteriors: Vec<Exterior>,
-    /// σ̂₀²·Q of every photo's ω, φ, κ, X₀, Y₀, Z₀ (rad, m), 6n × 6n.
+    /// Each photo's interior: the block's, or its camera's as self-calibrated.
+    pub interiors: Vec<Interior>,
+    pub calibrated: Vec<Calibrated>,
+    /// σ̂₀²·Q of every photo's ω, φ, κ, X₀, Y₀, Z₀ (rad, m), then of each self-calibrated
+    /// camera's c, x₀, y₀, k₁, k₂ and an unused sixth: 6(n + cameras) square.
     pub covariance: DMatrix<f64>,
     /// Each point's adjusted ground (tie and control), or the check point's intersection;
     /// `None` where it has too few rays.
@@ -152,6 +177,18 @@ pub struct Adjusted {
 }
 
 impl Adjusted {
+    /// Each photo's adjusted camera.
+    pub fn cameras(&self) -> Vec<FrameCamera> {
+        self.interiors
+            .iter()
+            .zip(&self.exteriors)
+            .map(|(i, e)| FrameCamera {
+                interior: *i,
+                exterior: *e,
+            })
+            .collect()
+    }
+
     /// σ of photo `i`'s six parameters (rad, m).
     pub fn sigma(&self, i: usize) -> [f64; 6] {
         std::array::from_fn(|k| self.covariance[(6 * i + k, 6 * i + k)].max(0.0).sqrt())
@@ -183,6 +220,18 @@ pub enum BundleError {
     Reduced(#[from] ReducedError),
     #[error("ray {ray}: {what}")]
     BadRay { ray: usize, what: String },
+    #[error("self-calibration of camera `{camera}`: {what}")]
+    Calibration { camera: String, what: String },
+    #[error("the block cannot determine camera `{camera}`'s {parameter}: its rays leave it free to move the photos' edge ({radius_mm:.0} mm out) by {effect_um:.1} µm (1 σ; a ray's σ is {ray_um:.1} µm), and only the approximations' σ hold it; {advice}; or leave `{key}` out of [orientation] self_calibration and give the camera's certificate value")]
+    NotDeterminable {
+        camera: String,
+        parameter: &'static str,
+        key: &'static str,
+        radius_mm: f64,
+        effect_um: f64,
+        ray_um: f64,
+        advice: &'static str,
+    },
 }
 
 /// The exterior whose ω, φ, κ, X₀, Y₀, Z₀ are `v` (the order of the normal equations).
@@ -251,48 +300,121 @@ struct RayLin {
     ray: usize,
     photo: usize,
     a: SMatrix<f64, 2, 6>,
+    /// The self-calibrated camera's parameter block and the ray's partials by it (the held
+    /// parameters' columns zero).
+    cal: Option<(usize, SMatrix<f64, 2, 6>)>,
     b: SMatrix<f64, 2, 3>,
     r: Vector2<f64>,
     /// 1/σ² times the robust weight.
     w: f64,
 }
 
+impl RayLin {
+    /// The parameter blocks the ray observes and its partials by each: its photo's exterior,
+    /// and its camera's interior where that is estimated.
+    fn parts(&self) -> impl Iterator<Item = (usize, &SMatrix<f64, 2, 6>)> {
+        std::iter::once((self.photo, &self.a)).chain(self.cal.as_ref().map(|(k, m)| (*k, m)))
+    }
+}
+
 struct Lin {
     points: Vec<Option<PointLin>>,
+    /// The diagonal blocks of the direct normal equations, photos then cameras.
     u: Vec<Matrix6<f64>>,
+    /// Each photo's block with its camera's (rows: the camera's parameters).
+    cross: Vec<Matrix6<f64>>,
     g: Vec<Vector6<f64>>,
     cost: f64,
+}
+
+/// The unknowns: each photo's exterior, each self-calibrated camera's interior, each point.
+#[derive(Clone)]
+struct Params {
+    cams: Vec<Exterior>,
+    ints: Vec<Interior>,
+    pts: Vec<Vector3<f64>>,
 }
 
 /// The adjustment's working state.
 struct State<'a> {
     block: &'a Block,
     settings: Settings,
-    cams: Vec<Exterior>,
-    pts: Vec<Vector3<f64>>,
+    x: Params,
+    /// Each photo's self-calibrated camera, if any (an index into `block.calibrate`).
+    group: Vec<Option<usize>>,
     /// Active rays of each adjusted point (empty: the point is not adjusted).
     by_point: Vec<Vec<usize>>,
     status: Vec<RayStatus>,
     robust: bool,
+    /// Whether the approximations' priors enter the normal equations (off only to tell what
+    /// the rays alone determine, [`calibrated`]).
+    priors: bool,
     reduced: Reduced,
+}
+
+/// Each photo's self-calibrated camera, the cameras checked.
+fn groups(block: &Block) -> Result<Vec<Option<usize>>, BundleError> {
+    let mut group = vec![None; block.photos.len()];
+    for (g, c) in block.calibrate.iter().enumerate() {
+        let bad = |what: String| BundleError::Calibration {
+            camera: c.camera.clone(),
+            what,
+        };
+        if c.photos.is_empty() || !c.free.iter().any(|f| *f) {
+            return Err(bad("no photos or no parameter to estimate".into()));
+        }
+        for &i in &c.photos {
+            if i >= block.photos.len() || group[i].is_some() {
+                return Err(bad(format!("photo index {i} not in the block or in two cameras")));
+            }
+            if block.photos[i].interior != block.photos[c.photos[0]].interior {
+                return Err(bad(format!(
+                    "photo `{}` has another interior than `{}`: one camera, one interior",
+                    block.photos[i].id,
+                    block.photos[c.photos[0]].id
+                )));
+            }
+            group[i] = Some(g);
+        }
+    }
+    Ok(group)
 }
 
 impl<'a> State<'a> {
     /// The block checked, at its start values, with its pattern.
     fn begin(block: &'a Block, settings: Settings, robust: bool) -> Result<State<'a>, BundleError> {
+        let group = groups(block)?;
         let (cams, pts, status, by_point) = start(block)?;
+        let ints = block
+            .calibrate
+            .iter()
+            .map(|c| block.photos[c.photos[0]].interior)
+            .collect();
         let mut st = State {
             block,
             settings,
-            cams,
-            pts,
+            x: Params { cams, ints, pts },
+            group,
             by_point,
             status,
             robust,
+            priors: true,
             reduced: Reduced::new(0, []),
         };
         st.rebuild_pattern();
         Ok(st)
+    }
+
+    /// Photo `i`'s interior with the cameras' interiors `ints`.
+    fn interior(&self, ints: &[Interior], i: usize) -> Interior {
+        self.group[i].map_or(self.block.photos[i].interior, |g| ints[g])
+    }
+
+    /// Each photo's interior at the current state.
+    fn interiors(&self) -> Vec<Interior> {
+        (0..self.block.photos.len())
+            .map(|i| self.interior(&self.x.ints, i))
+            .collect()
     }
 
     fn adjusted(&self, j: usize) -> bool {
@@ -304,6 +426,11 @@ impl<'a> State<'a> {
         }
     }
 
+    /// The parameter blocks of the normal equations: photos, then self-calibrated cameras.
+    fn blocks(&self) -> usize {
+        self.block.photos.len() + self.block.calibrate.len()
+    }
+
     fn rebuild_pattern(&mut self) {
         let n = self.block.photos.len();
         let mut pairs = Vec::new();
@@ -311,22 +438,37 @@ impl<'a> State<'a> {
             if !self.adjusted(j) {
                 continue;
             }
-            let rs = &self.by_point[j];
-            for a in 0..rs.len() {
+            let parts: Vec<usize> = self.by_point[j]
+                .iter()
+                .flat_map(|&k| {
+                    let i = self.block.rays[k].photo;
+                    std::iter::once(i).chain(self.group[i].map(|g| n + g))
+                })
+                .collect();
+            for a in 0..parts.len() {
                 for b in 0..a {
-                    pairs.push((self.block.rays[rs[a]].photo, self.block.rays[rs[b]].photo));
+                    pairs.push((parts[a], parts[b]));
                 }
             }
         }
-        self.reduced = Reduced::new(n, pairs);
+        for (i, g) in self.group.iter().enumerate() {
+            if let Some(g) = g {
+                pairs.push((n + g, i));
+            }
+        }
+        self.reduced = Reduced::new(self.blocks(), pairs);
     }
 
-    fn linearise(&self, cams: &[Exterior], pts: &[Vector3<f64>]) -> Lin {
-        let rots: Vec<Rotation> = cams.iter().map(Rotation::of).collect();
+    fn linearise(&self, x: &Params) -> Lin {
+        let rots: Vec<Rotation> = x.cams.iter().map(Rotation::of).collect();
+        let ints: Vec<Interior> = (0..self.block.photos.len())
+            .map(|i| self.interior(&x.ints, i))
+            .collect();
         let k = self.settings.huber_k;
         let robust = self.robust;
         let block = self.block;
-        let points: Vec<Option<PointLin>> = (0..pts.len())
+        let n = block.photos.len();
+        let points: Vec<Option<PointLin>> = (0..x.pts.len())
             .into_par_iter()
             .map(|j| {
                 if !self.adjusted(j) {
@@ -338,14 +480,11 @@ impl<'a> State<'a> {
                 let mut rays = Vec::with_capacity(self.by_point[j].len());
                 for &ri in &self.by_point[j] {
                     let ray = &block.rays[ri];
-                    let ph = &block.photos[ray.photo];
-                    let pp = ph.interior.principal_point;
                     let Some(l) = linearise(
-                        ph.interior.focal_mm,
-                        [pp.x, pp.y],
-                        &cams[ray.photo],
+                        &ints[ray.photo],
+                        &x.cams[ray.photo],
                         &rots[ray.photo],
-                        pts[j],
+                        x.pts[j],
                     ) else {
                         // Behind the camera: a large, constant penalty (the step is refused).
                         cost += 1e12;
@@ -362,17 +501,28 @@ impl<'a> State<'a> {
                     let w = wr / (ray.sigma_mm * ray.sigma_mm);
                     v += l.d_ground.transpose() * w * l.d_ground;
                     g += l.d_ground.transpose() * (w * r);
+                    let cal = self.group[ray.photo].map(|gi| {
+                        let mut m = l.d_interior;
+                        for (c, free) in block.calibrate[gi].free.iter().enumerate() {
+                            if !free {
+                                m.column_mut(c).fill(0.0);
+                            }
+                        }
+                        m.column_mut(5).fill(0.0);
+                        (n + gi, m)
+                    });
                     rays.push(RayLin {
                         ray: ri,
                         photo: ray.photo,
                         a: l.d_exterior,
+                        cal,
                         b: l.d_ground,
                         r,
                         w,
                     });
                 }
                 if let Role::Control { ground, sigma_m } = block.points[j].role {
-                    let d = Vector3::new(ground.x, ground.y, ground.z) - pts[j];
+                    let d = Vector3::new(ground.x, ground.y, ground.z) - x.pts[j];
                     for c in 0..3 {
                         let wc = 1.0 / (sigma_m[c] * sigma_m[c]);
                         v[(c, c)] += wc;
@@ -383,22 +533,27 @@ impl<'a> State<'a> {
                 Some(PointLin { v, g, rays, cost })
             })
             .collect();
-        let n = block.photos.len();
-        let mut u = vec![Matrix6::zeros(); n];
-        let mut gc = vec![Vector6::zeros(); n];
+        let mut u = vec![Matrix6::zeros(); self.blocks()];
+        let mut gc = vec![Vector6::zeros(); self.blocks()];
+        let mut cross = vec![Matrix6::zeros(); n];
         let mut cost = 0.0;
         for p in points.iter().flatten() {
             cost += p.cost;
             for r in &p.rays {
-                u[r.photo] += r.a.transpose() * r.w * r.a;
-                gc[r.photo] += r.a.transpose() * (r.w * r.r);
+                for (b, m) in r.parts() {
+                    u[b] += m.transpose() * r.w * m;
+                    gc[b] += m.transpose() * (r.w * r.r);
+                }
+                if let Some((_, m)) = &r.cal {
+                    cross[r.photo] += m.transpose() * r.w * r.a;
+                }
             }
         }
         for (i, ph) in block.photos.iter().enumerate() {
-            let (Some(pr), Some(ap)) = (ph.prior, ph.approx) else {
+            let (Some(pr), Some(ap), true) = (ph.prior, ph.approx, self.priors) else {
                 continue;
             };
-            let d = vec_of(&ap) - vec_of(&cams[i]);
+            let d = vec_of(&ap) - vec_of(&x.cams[i]);
             for c in 0..6 {
                 let (s, dc) = if c < 3 {
                     (pr.angles_sigma_rad, wrap(d[c]))
@@ -414,6 +569,7 @@ impl<'a> State<'a> {
         Lin {
             points,
             u,
+            cross,
             g: gc,
             cost,
         }
@@ -422,6 +578,7 @@ impl<'a> State<'a> {
     /// Builds S (damped by λ) into `self.reduced` and its right side.
     fn schur(&mut self, lin: &Lin, lambda: f64) -> (DVector<f64>, Vec<Option<Matrix3<f64>>>) {
         let n = self.block.photos.len();
+        let nb = self.blocks();
         let damp6 = |m: &Matrix6<f64>| {
             let mut m = *m;
             for c in 0..6 {
@@ -449,27 +606,31 @@ impl<'a> State<'a> {
             .par_chunks(chunk)
             .map(|js| {
                 let mut blocks = vec![Matrix6::<f64>::zeros(); slots];
-                let mut rhs = vec![Vector6::<f64>::zeros(); n];
+                let mut rhs = vec![Vector6::<f64>::zeros(); nb];
                 for &j in js {
                     let (Some(p), Some(vi)) = (&lin.points[j], &vinv[j]) else {
                         continue;
                     };
-                    let ws: Vec<SMatrix<f64, 6, 3>> =
-                        p.rays.iter().map(|r| r.a.transpose() * r.w * r.b).collect();
-                    let wv: Vec<SMatrix<f64, 6, 3>> = ws.iter().map(|w| w * vi).collect();
-                    for (a, ra) in p.rays.iter().enumerate() {
-                        rhs[ra.photo] -= wv[a] * p.g;
-                        for (b, rb) in p.rays.iter().enumerate().take(a + 1) {
-                            let (hi, lo, m) = if ra.photo >= rb.photo {
-                                (ra.photo, rb.photo, wv[a] * ws[b].transpose())
+                    // W = Jᵀ·w·B of each part of each ray, and W·V⁻¹.
+                    let ws: Vec<(usize, SMatrix<f64, 6, 3>)> = p
+                        .rays
+                        .iter()
+                        .flat_map(|r| r.parts().map(move |(k, m)| (k, m.transpose() * r.w * r.b)))
+                        .collect();
+                    let wv: Vec<SMatrix<f64, 6, 3>> = ws.iter().map(|w| w.1 * vi).collect();
+                    for (a, (ka, _)) in ws.iter().enumerate() {
+                        rhs[*ka] -= wv[a] * p.g;
+                        for (b, (kb, wb)) in ws.iter().enumerate().take(a + 1) {
+                            let (hi, lo, m) = if ka >= kb {
+                                (*ka, *kb, wv[a] * wb.transpose())
                             } else {
-                                (rb.photo, ra.photo, wv[b] * ws[a].transpose())
+                                (*kb, *ka, wv[b] * ws[a].1.transpose())
                             };
                             let s = reduced.slot(hi, lo).expect("the pattern has every pair");
                             if a == b || hi != lo {
                                 blocks[s] -= m;
                             } else {
-                                // Two rays of one point in the same photo: both orders.
+                                // Two parts of one point in the same block: both orders.
                                 blocks[s] -= m + m.transpose();
                             }
                         }
@@ -478,7 +639,7 @@ impl<'a> State<'a> {
                 (blocks, rhs)
             })
             .reduce(
-                || (vec![Matrix6::zeros(); slots], vec![Vector6::zeros(); n]),
+                || (vec![Matrix6::zeros(); slots], vec![Vector6::zeros(); nb]),
                 |(mut a, mut ra), (b, rb)| {
                     a.iter_mut().zip(&b).for_each(|(x, y)| *x += y);
                     ra.iter_mut().zip(&rb).for_each(|(x, y)| *x += y);
@@ -486,58 +647,89 @@ impl<'a> State<'a> {
                 },
             );
         self.reduced.blocks = blocks;
-        let mut r = DVector::zeros(6 * n);
-        for i in 0..n {
+        let mut r = DVector::zeros(6 * nb);
+        for i in 0..nb {
             let s = self.reduced.slot(i, i).unwrap();
             self.reduced.blocks[s] += damp6(&lin.u[i]);
+            if i >= n {
+                // A held parameter: its row and column are zero; a one keeps S definite.
+                let free = self.block.calibrate[i - n].free;
+                for c in 0..6 {
+                    if c == 5 || !free[c] {
+                        self.reduced.blocks[s][(c, c)] = 1.0;
+                    }
+                }
+            }
             let v = lin.g[i] + rhs[i];
             r.fixed_rows_mut::<6>(6 * i).copy_from(&v);
+        }
+        for (i, g) in self.group.iter().enumerate() {
+            if let Some(g) = g {
+                let s = self.reduced.slot(n + g, i).unwrap();
+                self.reduced.blocks[s] += lin.cross[i];
+            }
         }
         (r, vinv)
     }
 
-    /// One Gauss–Newton step at damping λ: the new cameras and points.
-    fn step(
-        &mut self,
-        lin: &Lin,
-        lambda: f64,
-    ) -> Result<(Vec<Exterior>, Vec<Vector3<f64>>), ReducedError> {
+    /// One Gauss–Newton step at damping λ: the new unknowns.
+    fn step(&mut self, lin: &Lin, lambda: f64) -> Result<Params, ReducedError> {
+        let n = self.block.photos.len();
         let (rhs, vinv) = self.schur(lin, lambda);
         let dc = self.reduced.solve(&rhs)?;
         let cams: Vec<Exterior> = self
+            .x
             .cams
             .iter()
             .enumerate()
             .map(|(i, e)| exterior_from(&(vec_of(e) + dc.fixed_rows::<6>(6 * i))))
             .collect();
+        let ints: Vec<Interior> = self
+            .x
+            .ints
+            .iter()
+            .enumerate()
+            .map(|(g, int)| {
+                let d = dc.fixed_rows::<6>(6 * (n + g));
+                let mut int = *int;
+                int.focal_mm += d[0];
+                int.principal_point.x += d[1];
+                int.principal_point.y += d[2];
+                int.lens.k1 += d[3];
+                int.lens.k2 += d[4];
+                int
+            })
+            .collect();
         let pts: Vec<Vector3<f64>> = lin
             .points
             .par_iter()
             .zip(&vinv)
-            .zip(&self.pts)
+            .zip(&self.x.pts)
             .map(|((p, vi), x)| match (p, vi) {
                 (Some(p), Some(vi)) => {
                     let mut g = p.g;
                     for r in &p.rays {
-                        let w = r.a.transpose() * r.w * r.b;
-                        g -= w.transpose() * dc.fixed_rows::<6>(6 * r.photo);
+                        for (k, m) in r.parts() {
+                            let w = m.transpose() * r.w * r.b;
+                            g -= w.transpose() * dc.fixed_rows::<6>(6 * k);
+                        }
                     }
                     x + vi * g
                 }
                 _ => *x,
             })
             .collect();
-        Ok((cams, pts))
+        Ok(Params { cams, ints, pts })
     }
 
     /// Levenberg–Marquardt to convergence from the current state; the iterations taken.
     fn converge(&mut self) -> Result<usize, BundleError> {
         let mut lambda = 1e-3;
-        let mut lin = self.linearise(&self.cams, &self.pts);
+        let mut lin = self.linearise(&self.x);
         for it in 1..=self.settings.max_iterations {
             let mut accepted = false;
             for _ in 0..12 {
-                let (cams, pts) = match self.step(&lin, lambda) {
+                let x = match self.step(&lin, lambda) {
                     Ok(s) => s,
                     Err(ReducedError::NotPositive) if lambda < 1e8 => {
                         lambda *= 10.0;
@@ -545,14 +737,13 @@ impl<'a> State<'a> {
                     }
                     Err(e) => return Err(e.into()),
                 };
-                let next = self.linearise(&cams, &pts);
+                let next = self.linearise(&x);
                 if next.cost <= lin.cost {
                     let gain = lin.cost - next.cost;
                     let change = gain / lin.cost.max(1e-300);
                     let noise = 1e-3 * lin.cost.sqrt().max(1.0);
                     tracing::debug!(it, cost = next.cost, change, lambda, "bundle step");
-                    self.cams = cams;
-                    self.pts = pts;
+                    self.x = x;
                     lin = next;
                     lambda = (lambda / 4.0).max(1e-12);
                     accepted = true;
@@ -823,8 +1014,9 @@ fn start(block: &Block) -> Result<Start, BundleError> {
     Ok((cams, pts, status, by_point))
 }
 
-/// The point's cofactor Q_pp (3 × 3) and its cross cofactors Q_pc with each of its photos,
-/// given the cameras' Q_cc (Triggs et al. 2000, §6.1: the eliminated points' covariance).
+/// The point's cofactor Q_pp (3 × 3) and its cross cofactors Q_pc with each parameter block
+/// it observes (photos, self-calibrated cameras), given the blocks' Q_cc (Triggs et al. 2000,
+/// §6.1: the eliminated points' covariance).
 fn point_cofactor(
     p: &PointLin,
     vi: &Matrix3<f64>,
@@ -833,15 +1025,18 @@ fn point_cofactor(
     let ys: Vec<(usize, SMatrix<f64, 3, 6>)> = p
         .rays
         .iter()
-        .map(|r| (r.photo, vi * (r.a.transpose() * r.w * r.b).transpose()))
+        .flat_map(|r| {
+            r.parts()
+                .map(move |(k, m)| (k, vi * (m.transpose() * r.w * r.b).transpose()))
+        })
         .collect();
     let q =
         |i: usize, k: usize| -> Matrix6<f64> { qcc.fixed_view::<6, 6>(6 * i, 6 * k).into_owned() };
-    let mut photos: Vec<usize> = ys.iter().map(|y| y.0).collect();
-    photos.sort_unstable();
-    photos.dedup();
-    // Q_pc(j, i) = −Σ_a Y_a·Q_cc(i_a, i) for each photo i of the point.
-    let pc: Vec<(usize, SMatrix<f64, 3, 6>)> = photos
+    let mut blocks: Vec<usize> = ys.iter().map(|y| y.0).collect();
+    blocks.sort_unstable();
+    blocks.dedup();
+    // Q_pc(j, i) = −Σ_a Y_a·Q_cc(i_a, i) for each block i of the point.
+    let pc: Vec<(usize, SMatrix<f64, 3, 6>)> = blocks
         .iter()
         .map(|&i| {
             let mut m = SMatrix::<f64, 3, 6>::zeros();
@@ -858,6 +1053,25 @@ fn point_cofactor(
         qpp -= y * pci.transpose();
     }
     (qpp, pc)
+}
+
+/// J·Q·Jᵀ of one ray (2 × 2): its parts' and its point's cofactors, with their correlations.
+fn ray_cofactor(
+    r: &RayLin,
+    qpp: &Matrix3<f64>,
+    pc: &[(usize, SMatrix<f64, 3, 6>)],
+    qcc: &DMatrix<f64>,
+) -> SMatrix<f64, 2, 2> {
+    let mut jqj = r.b * qpp * r.b.transpose();
+    for (ka, ma) in r.parts() {
+        let qcp = pc.iter().find(|(i, _)| *i == ka).unwrap().1.transpose();
+        let t = ma * qcp * r.b.transpose();
+        jqj += t + t.transpose();
+        for (kb, mb) in r.parts() {
+            jqj += ma * qcc.fixed_view::<6, 6>(6 * ka, 6 * kb) * mb.transpose();
+        }
+    }
+    jqj
 }
 
 /// Adjusts the block: see the module's documentation.
@@ -898,10 +1112,16 @@ fn adjust_collinear(block: &Block, settings: Settings) -> Result<Adjusted, Bundl
     loop {
         // The final solution's cofactors, undamped, with the robust weights of the last
         // iteration.
-        let lin = st.linearise(&st.cams, &st.pts);
+        let lin = st.linearise(&st.x);
         let (_, vinv) = st.schur(&lin, 0.0);
-        let qcc = st.reduced.inverse()?;
+        let qcc = st.reduced.inverse().map_err(|e| undetermined(block, e))?;
+        let free: usize = block
+            .calibrate
+            .iter()
+            .map(|c| c.free.iter().filter(|f| **f).count())
+            .sum();
         let unknowns = 6 * block.photos.len()
+            + free
             + 3 * (0..block.points.len()).filter(|&j| st.adjusted(j)).count();
         let mut observations = 0usize;
         for (j, p) in lin.points.iter().enumerate() {
@@ -946,19 +1166,7 @@ fn adjust_collinear(block: &Block, settings: Settings) -> Result<Adjusted, Bundl
                     .rays
                     .iter()
                     .map(|r| {
-                        let qcp = pc
-                            .iter()
-                            .find(|(i, _)| *i == r.photo)
-                            .unwrap()
-                            .1
-                            .transpose();
-                        let qii = qcc
-                            .fixed_view::<6, 6>(6 * r.photo, 6 * r.photo)
-                            .into_owned();
-                        let jqj = r.a * qii * r.a.transpose()
-                            + r.a * qcp * r.b.transpose()
-                            + r.b * qcp.transpose() * r.a.transpose()
-                            + r.b * qpp * r.b.transpose();
+                        let jqj = ray_cofactor(r, &qpp, &pc, &qcc);
                         let qvv = [1.0 / r.w - jqj[(0, 0)], 1.0 / r.w - jqj[(1, 1)]];
                         let red = 0.5 * (qvv[0] + qvv[1]) * r.w;
                         let w = (qvv[0] > 1e-6 / r.w && qvv[1] > 1e-6 / r.w).then(|| {
@@ -976,7 +1184,7 @@ fn adjust_collinear(block: &Block, settings: Settings) -> Result<Adjusted, Bundl
         let mut worst_per_point: Vec<(usize, f64)> = Vec::new();
         for (j, rays, qpp) in &tested {
             points[*j] = Some(AdjustedPoint {
-                ground: GroundM::new(st.pts[*j].x, st.pts[*j].y, st.pts[*j].z),
+                ground: GroundM::new(st.x.pts[*j].x, st.x.pts[*j].y, st.x.pts[*j].z),
                 cov: qpp * sigma0 * sigma0,
                 rays: rays.len(),
             });
@@ -1008,6 +1216,15 @@ fn adjust_collinear(block: &Block, settings: Settings) -> Result<Adjusted, Bundl
         }
         // The rejected and check rays' residuals against the adjusted block; check points
         // intersected from their rays.
+        let interiors = st.interiors();
+        let cameras: Vec<FrameCamera> = interiors
+            .iter()
+            .zip(&st.x.cams)
+            .map(|(i, e)| FrameCamera {
+                interior: *i,
+                exterior: *e,
+            })
+            .collect();
         // Each check point's rays, gathered in one pass.
         let mut check_rays: Vec<Vec<usize>> = vec![Vec::new(); block.points.len()];
         for (k, r) in block.rays.iter().enumerate() {
@@ -1019,27 +1236,39 @@ fn adjust_collinear(block: &Block, settings: Settings) -> Result<Adjusted, Bundl
             }
         }
         for (j, ks) in check_rays.iter().enumerate() {
-            if let Some((g, cov)) = intersect_fixed(block, &st.cams, ks) {
+            if let Some((g, cov)) = intersect_fixed(block, &cameras, ks) {
                 points[j] = Some(AdjustedPoint {
                     ground: g,
                     cov,
                     rays: ks.len(),
                 });
-                st.pts[j] = Vector3::new(g.x, g.y, g.z);
+                st.x.pts[j] = Vector3::new(g.x, g.y, g.z);
             }
         }
         for (k, r) in block.rays.iter().enumerate() {
             if matches!(results[k].status, RayStatus::Used) {
                 continue;
             }
-            let ph = &block.photos[r.photo];
-            let p = st.pts[r.point];
-            if let Some(q) = camera(ph, st.cams[r.photo]).project(GroundM::new(p.x, p.y, p.z)) {
+            let p = st.x.pts[r.point];
+            if let Some(q) = cameras[r.photo].project(GroundM::new(p.x, p.y, p.z)) {
                 results[k].residual_mm = [r.xy.x - q.x, r.xy.y - q.y];
             }
         }
+        let calibrated = if block.calibrate.is_empty() {
+            Vec::new()
+        } else {
+            // What the rays determine without the approximations' priors.
+            st.priors = false;
+            let lin = st.linearise(&st.x);
+            st.schur(&lin, 0.0);
+            let rays_only = st.reduced.inverse();
+            st.priors = true;
+            calibrated(block, &st.x.ints, &qcc, rays_only.ok().as_ref(), sigma0, &lin)?
+        };
         return Ok(Adjusted {
-            exteriors: st.cams.clone(),
+            exteriors: st.x.cams.clone(),
+            interiors,
+            calibrated,
             covariance: qcc * (sigma0 * sigma0),
             points,
             rays: results,
@@ -1051,11 +1280,122 @@ fn adjust_collinear(block: &Block, settings: Settings) -> Result<Adjusted, Bundl
     }
 }
 
+/// Where an adjustment's normal equations are singular with cameras to calibrate: the block
+/// cannot tell their parameters from the exteriors (said for the first camera's first free
+/// parameter; [`calibrated`] names the weakest where the solve goes through).
+fn undetermined(block: &Block, e: ReducedError) -> BundleError {
+    match block.calibrate.first() {
+        Some(c) => {
+            let k = c.free.iter().position(|f| *f).unwrap_or(0);
+            let (parameter, key, advice) = PARAMETERS[k];
+            BundleError::NotDeterminable {
+                camera: c.camera.clone(),
+                parameter,
+                key,
+                radius_mm: 0.0,
+                effect_um: f64::INFINITY,
+                ray_um: 0.0,
+                advice,
+            }
+        }
+        None => e.into(),
+    }
+}
+
+/// Each interior parameter's name, its `self_calibration` key and what a block needs to
+/// determine it.
+const PARAMETERS: [(&str, &str, &str); 5] = [
+    ("focal length", "focal", "it needs relief over a good share of the flying height, or convergent photos, with control in height spread over the block"),
+    ("principal point x", "principal_point", "it needs photos turned against each other (cross strips, κ differing by 90° or more) or convergent photos"),
+    ("principal point y", "principal_point", "it needs photos turned against each other (cross strips, κ differing by 90° or more) or convergent photos"),
+    ("radial distortion k1", "k1", "it needs tie points out to the photos' edges and corners in many photos (60 % overlap, cross strips)"),
+    ("radial distortion k2", "k2", "it needs tie points out to the photos' edges and corners in many photos (60 % overlap, cross strips)"),
+];
+
+/// The self-calibrated cameras with their σ, each parameter tested. A parameter is determined
+/// by the block when the rays fix it: its σ without the approximations' priors
+/// (`rays_only`, `None` where those normal equations are singular) is at most twice its σ
+/// with them (else the flight index map's σ of the flying height, say, is what holds the focal
+/// length), and one σ of it moves a point at the rays' outermost radius by at most 100 rays'
+/// σ. Otherwise the adjustment is refused, naming the parameter. Effects at radius r
+/// (ρ = r/c): c: r·σ/c; x₀, y₀: σ; k₁: r·ρ²·σ; k₂: r·ρ⁴·σ ([`crate::geometry::lens`]).
+fn calibrated(
+    block: &Block,
+    ints: &[Interior],
+    qcc: &DMatrix<f64>,
+    rays_only: Option<&DMatrix<f64>>,
+    sigma0: f64,
+    lin: &Lin,
+) -> Result<Vec<Calibrated>, BundleError> {
+    let n = block.photos.len();
+    let mut out = Vec::new();
+    for (g, c) in block.calibrate.iter().enumerate() {
+        let int = ints[g];
+        let pp = int.principal_point;
+        let mut radius: f64 = 0.0;
+        let mut sigmas = Vec::new();
+        for p in lin.points.iter().flatten() {
+            for r in &p.rays {
+                if c.photos.contains(&r.photo) {
+                    let ray = &block.rays[r.ray];
+                    radius = radius.max((ray.xy.x - pp.x).hypot(ray.xy.y - pp.y));
+                    sigmas.push(ray.sigma_mm);
+                }
+            }
+        }
+        sigmas.sort_by(f64::total_cmp);
+        let ray_sigma = sigmas.get(sigmas.len() / 2).copied().unwrap_or(0.0) * sigma0;
+        let rho2 = (radius / int.focal_mm).powi(2);
+        let sigma: [f64; 5] = std::array::from_fn(|k| {
+            let v = qcc[(6 * (n + g) + k, 6 * (n + g) + k)];
+            if c.free[k] {
+                v.max(0.0).sqrt() * sigma0
+            } else {
+                0.0
+            }
+        });
+        for k in 0..5 {
+            if !c.free[k] {
+                continue;
+            }
+            let at_edge = match k {
+                0 => radius / int.focal_mm,
+                1 | 2 => 1.0,
+                3 => radius * rho2,
+                _ => radius * rho2 * rho2,
+            };
+            let effect = sigma[k] * at_edge;
+            let i = 6 * (n + g) + k;
+            let alone = rays_only.map_or(f64::INFINITY, |q| q[(i, i)].max(0.0).sqrt() * sigma0);
+            if !(alone <= 2.0 * sigma[k] && effect <= 100.0 * ray_sigma) {
+                let effect = alone.max(sigma[k]) * at_edge;
+                let (parameter, key, advice) = PARAMETERS[k];
+                return Err(BundleError::NotDeterminable {
+                    camera: c.camera.clone(),
+                    parameter,
+                    key,
+                    radius_mm: radius,
+                    effect_um: 1e3 * effect,
+                    ray_um: 1e3 * ray_sigma,
+                    advice,
+                });
+            }
+        }
+        out.push(Calibrated {
+            camera: c.camera.clone(),
+            interior: int,
+            sigma,
+            free: c.free,
+        });
+    }
+    Ok(out)
+}
+
 /// A point intersected from rays `ks` with the cameras held fixed (Gauss–Newton from the
 /// rays' nearest point), with its covariance from the rays' σ alone.
 pub fn intersect_fixed(
     block: &Block,
-    cams: &[Exterior],
+    cameras: &[FrameCamera],
     ks: &[usize],
 ) -> Option<(GroundM, Matrix3<f64>)> {
     if ks.len() < 2 {
@@ -1065,7 +1405,7 @@ pub fn intersect_fixed(
         .iter()
         .map(|&k| {
             let r = &block.rays[k];
-            (camera(&block.photos[r.photo], cams[r.photo]), r.xy)
+            (cameras[r.photo], r.xy)
         })
         .collect();
     let mut x = intersect_of(&rays)?;
@@ -1075,10 +1415,9 @@ pub fn intersect_fixed(
         let mut g = Vector3::zeros();
         for &k in ks {
             let r = &block.rays[k];
-            let ph = &block.photos[r.photo];
-            let pp = ph.interior.principal_point;
-            let e = &cams[r.photo];
-            let l = linearise(ph.interior.focal_mm, [pp.x, pp.y], e, &Rotation::of(e), x)?;
+            let c = &cameras[r.photo];
+            let e = &c.exterior;
+            let l = linearise(&c.interior, e, &Rotation::of(e), x)?;
             let res = Vector2::new(r.xy.x, r.xy.y) - l.xy;
             let w = 1.0 / (r.sigma_mm * r.sigma_mm);
             n += l.d_ground.transpose() * w * l.d_ground;
@@ -1097,7 +1436,7 @@ pub fn intersect_fixed(
 /// factors, for the benchmark's sparse and dense solves side by side.
 pub fn reduced_at_start(block: &Block) -> Result<Reduced, BundleError> {
     let mut st = State::begin(block, Settings::default(), false)?;
-    let lin = st.linearise(&st.cams, &st.pts);
+    let lin = st.linearise(&st.x);
     st.schur(&lin, 0.0);
     Ok(st.reduced)
 }

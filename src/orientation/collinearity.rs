@@ -5,17 +5,27 @@
 //! With u = Rᵀ(X − C) (docs/conventions.md: R = R_ω·R_φ·R_κ takes image vectors to object
 //! space): x = x₀ − c·u₁/u₃, y = y₀ − c·u₂/u₃ (Kraus 2007, "Photogrammetry", eq. 4.1-7).
 //! ∂u/∂X = Rᵀ, ∂u/∂C = −Rᵀ, ∂u/∂ω = (∂R/∂ω)ᵀ(X − C) and likewise for φ and κ.
+//!
+//! With radial distortion ([`crate::geometry::lens`]): a = u₁/u₃, b = u₂/u₃, ρ² = a² + b²,
+//! D = 1 + k₁ρ² + k₂ρ⁴, x = x₀ − c·a·D, y = y₀ − c·b·D. Then ∂x/∂c = −a·D, ∂x/∂k₁ = −c·a·ρ²,
+//! ∂x/∂k₂ = −c·a·ρ⁴, and ∂(x, y)/∂(a, b) = −c·(D·I + 2K·(a, b)ᵀ(a, b)) with K = k₁ + 2k₂ρ².
 
-use crate::geometry::Exterior;
+use crate::geometry::{Exterior, Interior};
 use nalgebra::{Matrix3, SMatrix, Vector2, Vector3};
 
+/// The interior parameters a self-calibrating adjustment can estimate, in the order of
+/// [`Linearised::d_interior`]'s columns: c, x₀, y₀ (mm), k₁, k₂; the sixth column is unused
+/// (the normal equations keep blocks of six).
+pub const INTERIOR: [&str; 5] = ["focal", "principal_point_x", "principal_point_y", "k1", "k2"];
+
 /// One ray's projection and partials: the photo point (mm), ∂(x, y)/∂(ω, φ, κ, X₀, Y₀, Z₀)
-/// (mm per rad, per m) and ∂(x, y)/∂(X, Y, Z) (mm per m).
+/// (mm per rad, per m), ∂(x, y)/∂(X, Y, Z) (mm per m) and ∂(x, y)/∂(c, x₀, y₀, k₁, k₂, —).
 #[derive(Debug, Clone, Copy)]
 pub struct Linearised {
     pub xy: Vector2<f64>,
     pub d_exterior: SMatrix<f64, 2, 6>,
     pub d_ground: SMatrix<f64, 2, 3>,
+    pub d_interior: SMatrix<f64, 2, 6>,
 }
 
 /// The rotation R and its three partials ∂R/∂ω, ∂R/∂φ, ∂R/∂κ.
@@ -43,12 +53,10 @@ impl Rotation {
     }
 }
 
-/// Projects ground point `g` through a camera of focal length `focal_mm` and principal point
-/// `pp` (mm) at exterior `e` (whose rotation is `rot`), with the partials; `None` when the
-/// point is not in front of the camera.
+/// Projects ground point `g` through a camera of interior `interior` at exterior `e` (whose
+/// rotation is `rot`), with the partials; `None` when the point is not in front of the camera.
 pub fn linearise(
-    focal_mm: f64,
-    pp: [f64; 2],
+    interior: &Interior,
     e: &Exterior,
     rot: &Rotation,
     g: Vector3<f64>,
@@ -59,18 +67,24 @@ pub fn linearise(
     if u.z >= 0.0 {
         return None;
     }
-    let c = focal_mm;
+    let c = interior.focal_mm;
+    let (k1, k2) = (interior.lens.k1, interior.lens.k2);
+    let pp = interior.principal_point;
     let iz = 1.0 / u.z;
-    let xy = Vector2::new(pp[0] - c * u.x * iz, pp[1] - c * u.y * iz);
-    // ∂(x, y)/∂u.
-    let du = SMatrix::<f64, 2, 3>::new(
-        -c * iz,
-        0.0,
-        c * u.x * iz * iz,
-        0.0,
-        -c * iz,
-        c * u.y * iz * iz,
-    );
+    let (a, b) = (u.x * iz, u.y * iz);
+    let rho2 = a * a + b * b;
+    let dd = 1.0 + rho2 * (k1 + k2 * rho2);
+    let kk = k1 + 2.0 * k2 * rho2;
+    let xy = Vector2::new(pp.x - c * a * dd, pp.y - c * b * dd);
+    // ∂(a, b)/∂u, then ∂(x, y)/∂(a, b).
+    let dab = SMatrix::<f64, 2, 3>::new(iz, 0.0, -a * iz, 0.0, iz, -b * iz);
+    let m = SMatrix::<f64, 2, 2>::new(
+        dd + 2.0 * kk * a * a,
+        2.0 * kk * a * b,
+        2.0 * kk * a * b,
+        dd + 2.0 * kk * b * b,
+    ) * -c;
+    let du = m * dab;
     let d_ground = du * rt;
     let mut d_exterior = SMatrix::<f64, 2, 6>::zeros();
     for k in 0..3 {
@@ -80,10 +94,17 @@ pub fn linearise(
     for k in 0..3 {
         d_exterior.set_column(3 + k, &(-d_ground.column(k)));
     }
+    let mut d_interior = SMatrix::<f64, 2, 6>::zeros();
+    d_interior.set_column(0, &Vector2::new(-a * dd, -b * dd));
+    d_interior[(0, 1)] = 1.0;
+    d_interior[(1, 2)] = 1.0;
+    d_interior.set_column(3, &Vector2::new(-c * a * rho2, -c * b * rho2));
+    d_interior.set_column(4, &Vector2::new(-c * a * rho2 * rho2, -c * b * rho2 * rho2));
     Some(Linearised {
         xy,
         d_exterior,
         d_ground,
+        d_interior,
     })
 }
 
@@ -101,6 +122,7 @@ mod tests {
         let interior = Interior {
             focal_mm: 153.0,
             principal_point: PhotoMm::new(0.02, -0.01),
+            lens: crate::geometry::Lens { k1: 0.03, k2: -0.01 },
         };
         let e = Exterior::from_degrees(3.0, -4.0, 25.0, GroundM::new(1000.0, 2000.0, 2500.0));
         let g = Vector3::new(1400.0, 1700.0, 350.0);
@@ -108,7 +130,7 @@ mod tests {
             interior,
             exterior: e,
         };
-        let l = linearise(153.0, [0.02, -0.01], &e, &Rotation::of(&e), g).unwrap();
+        let l = linearise(&interior, &e, &Rotation::of(&e), g).unwrap();
         let p = cam(e).project(GroundM::new(g.x, g.y, g.z)).unwrap();
         assert!((l.xy.x - p.x).abs() < 1e-9 && (l.xy.y - p.y).abs() < 1e-9);
         for k in 0..6 {
@@ -145,10 +167,39 @@ mod tests {
                 );
             }
         }
+        let at = |k: usize, by: f64| {
+            let mut i = interior;
+            match k {
+                0 => i.focal_mm += by,
+                1 => i.principal_point.x += by,
+                2 => i.principal_point.y += by,
+                3 => i.lens.k1 += by,
+                _ => i.lens.k2 += by,
+            }
+            FrameCamera {
+                interior: i,
+                exterior: e,
+            }
+            .project(GroundM::new(g.x, g.y, g.z))
+            .unwrap()
+        };
+        for k in 0..5 {
+            let h = 1e-4;
+            let (a, b) = (at(k, h), at(k, -h));
+            let num = [(a.x - b.x) / (2.0 * h), (a.y - b.y) / (2.0 * h)];
+            for r in 0..2 {
+                let tol = 1e-6 * num[r].abs().max(1e-3);
+                assert!(
+                    (l.d_interior[(r, k)] - num[r]).abs() < tol,
+                    "interior {k}, row {r}: {} vs {}",
+                    l.d_interior[(r, k)],
+                    num[r]
+                );
+            }
+        }
         // Behind the camera: no projection.
         assert!(linearise(
-            153.0,
-            [0.0, 0.0],
+            &interior,
             &e,
             &Rotation::of(&e),
             Vector3::new(1000.0, 2000.0, 3000.0)

@@ -3,7 +3,7 @@
 //! control (`gcp`, weighted by `[points] ground_sigma_m`), tie and check (`cp`, never
 //! adjusted) points, every ray in photo millimetres with its σ.
 
-use super::bundle::{Block, BlockPhoto, BlockPoint, Prior, Ray, Role};
+use super::bundle::{Block, BlockPhoto, BlockPoint, Prior, Ray, Role, SelfCalibration};
 use crate::coords::PixelXY;
 use crate::matching::block::photo::PhotoGeometry;
 use crate::matching::project::{Kind, Observation, Project, Source};
@@ -41,6 +41,8 @@ pub enum OrientError {
     },
     #[error("point `{id}`: {what}")]
     Point { id: String, what: String },
+    #[error("photo `{id}`: [orientation] self_calibration takes photos with a [camera.NAME]; this is a rig scan, whose interior is its camera certificate's: orient without self_calibration, or give the scan's image with a [camera] table")]
+    ScanCalibration { id: String },
     #[error(transparent)]
     Bundle(#[from] super::bundle::BundleError),
     #[error(transparent)]
@@ -155,9 +157,36 @@ pub fn block_of(
         });
     }
     Ok(Block {
+        calibrate: self_calibration(p, &photos)?,
         photos,
         points,
         rays,
         radial: p.radial,
     })
+}
+
+/// The cameras to calibrate with the block (`[orientation] self_calibration`): the photos of
+/// each `[camera.NAME]` share its interior. A scan's interior is its camera certificate's,
+/// one per scan: it is refused.
+fn self_calibration(p: &Project, photos: &[BlockPhoto]) -> Result<Vec<SelfCalibration>, OrientError> {
+    if !p.self_calibration.iter().any(|f| *f) {
+        return Ok(Vec::new());
+    }
+    let mut out: Vec<SelfCalibration> = Vec::new();
+    for (i, ph) in p.photos.iter().enumerate() {
+        let Source::Image { camera_name, .. } = &ph.source else {
+            return Err(OrientError::ScanCalibration {
+                id: photos[i].id.clone(),
+            });
+        };
+        match out.iter_mut().find(|c| &c.camera == camera_name) {
+            Some(c) => c.photos.push(i),
+            None => out.push(SelfCalibration {
+                camera: camera_name.clone(),
+                photos: vec![i],
+                free: p.self_calibration,
+            }),
+        }
+    }
+    Ok(out)
 }

@@ -37,6 +37,20 @@ pub struct PhotoLine {
     pub rms_px: f64,
 }
 
+/// A self-calibrated camera ([`super::bundle::Calibrated`]): its interior and σ (0 where
+/// held as given).
+#[derive(Debug, Clone, Serialize)]
+pub struct CameraLine {
+    pub camera: String,
+    pub focal_mm: f64,
+    pub principal_point_mm: [f64; 2],
+    /// k₁, k₂ ([`crate::geometry::lens`]).
+    pub distortion: [f64; 2],
+    pub sigma_focal_mm: f64,
+    pub sigma_principal_point_mm: [f64; 2],
+    pub sigma_distortion: [f64; 2],
+}
+
 #[derive(Debug, Clone, Serialize)]
 pub struct CheckLine {
     pub id: String,
@@ -76,6 +90,8 @@ pub struct Report {
     pub redundancy: f64,
     pub iterations: usize,
     pub per_photo: Vec<PhotoLine>,
+    /// The self-calibrated cameras (none unless `[orientation] self_calibration`).
+    pub cameras: Vec<CameraLine>,
     pub check: Vec<CheckLine>,
     /// RMSE of the check points, m: XY (horizontal distance) and Z.
     pub check_rmse_m: Option<[f64; 2]>,
@@ -216,6 +232,19 @@ impl Report {
             redundancy: a.redundancy,
             iterations: a.iterations,
             per_photo,
+            cameras: a
+                .calibrated
+                .iter()
+                .map(|c| CameraLine {
+                    camera: c.camera.clone(),
+                    focal_mm: c.interior.focal_mm,
+                    principal_point_mm: [c.interior.principal_point.x, c.interior.principal_point.y],
+                    distortion: [c.interior.lens.k1, c.interior.lens.k2],
+                    sigma_focal_mm: c.sigma[0],
+                    sigma_principal_point_mm: [c.sigma[1], c.sigma[2]],
+                    sigma_distortion: [c.sigma[3], c.sigma[4]],
+                })
+                .collect(),
             check,
             check_rmse_m,
             precision,
@@ -278,6 +307,39 @@ pub fn oriented_project(
             s.insert("angles_deg".into(), arr(line.sigma_angles_deg, 7));
             tab.insert("sigma".into(), toml::Value::Table(s));
         }
+    }
+    // Self-calibrated cameras: their interior as adjusted, with its σ.
+    for c in &report.cameras {
+        let Some(tab) = t
+            .get_mut("camera")
+            .and_then(|v| v.as_table_mut())
+            .and_then(|v| v.get_mut(&c.camera))
+            .and_then(|v| v.as_table_mut())
+        else {
+            continue;
+        };
+        let list = |v: &[f64], d: i32| {
+            toml::Value::Array(v.iter().map(|x| toml::Value::Float(round(*x, d))).collect())
+        };
+        // k₁ and k₂ with 10 significant digits (they are some 10⁻⁴).
+        let sig = |x: f64| toml::Value::Float(format!("{x:.9e}").parse().unwrap_or(x));
+        tab.insert("focal_mm".into(), toml::Value::Float(round(c.focal_mm, 6)));
+        tab.insert("principal_point_mm".into(), list(&c.principal_point_mm, 6));
+        tab.insert(
+            "distortion".into(),
+            toml::Value::Array(c.distortion.iter().map(|x| sig(*x)).collect()),
+        );
+        let mut s = toml::Table::new();
+        s.insert("focal_mm".into(), sig(c.sigma_focal_mm));
+        s.insert(
+            "principal_point_mm".into(),
+            toml::Value::Array(c.sigma_principal_point_mm.iter().map(|x| sig(*x)).collect()),
+        );
+        s.insert(
+            "distortion".into(),
+            toml::Value::Array(c.sigma_distortion.iter().map(|x| sig(*x)).collect()),
+        );
+        tab.insert("sigma".into(), toml::Value::Table(s));
     }
     for (table, key) in [
         ("points", "file"),
@@ -375,6 +437,18 @@ pub fn html(o: &Oriented, r: &Report) -> String {
             p.sigma_angles_deg[0], p.sigma_angles_deg[1], p.sigma_angles_deg[2],
             p.moved_m.map_or("—".into(), |m| format!("{m:.1}")), p.rays, p.rms_px
         );
+    }
+    if !r.cameras.is_empty() {
+        h.push_str("</table><h2>Self-calibrated cameras</h2><table><tr><th>camera<th>c mm<th>x₀ mm<th>y₀ mm<th>k₁<th>k₂<th>σc<th>σx₀<th>σy₀<th>σk₁<th>σk₂</tr>");
+        for c in &r.cameras {
+            let _ = write!(
+                h,
+                "<tr><td>{}<td>{:.4}<td>{:.4}<td>{:.4}<td>{:.3e}<td>{:.3e}<td>{:.4}<td>{:.4}<td>{:.4}<td>{:.1e}<td>{:.1e}</tr>",
+                escape(&c.camera), c.focal_mm, c.principal_point_mm[0], c.principal_point_mm[1],
+                c.distortion[0], c.distortion[1], c.sigma_focal_mm, c.sigma_principal_point_mm[0],
+                c.sigma_principal_point_mm[1], c.sigma_distortion[0], c.sigma_distortion[1]
+            );
+        }
     }
     h.push_str("</table><h2>Object points' precision (seed 002 Table 9)</h2><table><tr><th>rays<th>points<th>σX m<th>σY m<th>σZ m</tr>");
     for p in &r.precision {

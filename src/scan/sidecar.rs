@@ -130,6 +130,7 @@ impl ScannedPhoto {
             interior: crate::geometry::Interior {
                 focal_mm: s.camera_certificate.focal_length_mm,
                 principal_point: crate::coords::PhotoMm::new(0.0, 0.0),
+                lens: crate::geometry::Lens::NONE,
             },
             window: crate::coords::PixelWindow::whole(s.grid.width, s.grid.height),
         })

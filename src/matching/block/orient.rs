@@ -25,6 +25,7 @@ pub fn vertical_sensor(centre: GroundM, focal_mm: f64, side: usize, pixel_mm: f6
             interior: Interior {
                 focal_mm,
                 principal_point: crate::coords::PhotoMm::new(0.0, 0.0),
+                lens: crate::geometry::Lens::NONE,
             },
             exterior: crate::geometry::Exterior::from_degrees(0.0, 0.0, 0.0, centre),
         },

@@ -168,6 +168,7 @@ fn frame_and_interior(
             Interior {
                 focal_mm: camera.focal_mm,
                 principal_point: camera.principal_point,
+                lens: camera.lens,
             },
         )),
         Source::Model { path, model } => {
@@ -186,6 +187,7 @@ fn frame_and_interior(
                 Interior {
                     focal_mm: 1.0,
                     principal_point: crate::coords::PhotoMm::new(0.0, 0.0),
+                    lens: crate::geometry::Lens::NONE,
                 },
             ))
         }

@@ -40,8 +40,21 @@ struct RawCamera {
     focal_mm: f64,
     #[serde(default)]
     principal_point_mm: [f64; 2],
+    /// Radial distortion [k₁, k₂] ([`crate::geometry::lens`]: OpenCV's normalised form).
+    #[serde(default)]
+    distortion: [f64; 2],
     pixel_mm: Option<f64>,
     pixel_to_photo: Option<[f64; 6]>,
+    /// A self-calibrated camera's σ, as `rig orient` writes it (for the reader; checked).
+    sigma: Option<RawCameraSigma>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawCameraSigma {
+    focal_mm: f64,
+    principal_point_mm: [f64; 2],
+    distortion: [f64; 2],
 }
 
 #[derive(Debug, Deserialize)]
@@ -277,13 +290,28 @@ struct RawOrientation {
     refraction: bool,
     #[serde(default)]
     earth_curvature: bool,
+    /// The cameras' interior parameters the block orientation estimates: any of "focal",
+    /// "principal_point", "k1", "k2" ([`crate::orientation::bundle::SelfCalibration`]).
+    #[serde(default)]
+    self_calibration: Vec<String>,
 }
+
+/// `[orientation] self_calibration`'s names, each with the interior parameters it frees (c,
+/// x₀, y₀, k₁, k₂).
+const SELF_CALIBRATION: [(&str, [bool; 5]); 4] = [
+    ("focal", [true, false, false, false, false]),
+    ("principal_point", [false, true, true, false, false]),
+    ("k1", [false, false, false, true, false]),
+    ("k2", [false, false, false, false, true]),
+];
 
 /// A camera as the project gives it.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct Camera {
     pub focal_mm: f64,
     pub principal_point: PhotoMm,
+    /// Radial distortion ([`crate::geometry::lens`]).
+    pub lens: crate::geometry::Lens,
     /// Square pixels, mm: x = (col − (W−1)/2)·p, y = ((H−1)/2 − row)·p.
     pub pixel_mm: f64,
     /// Or any affine pixel → photo (docs/conventions.md: integer values at pixel centres):
@@ -294,8 +322,12 @@ pub struct Camera {
 /// Where a photo comes from.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub enum Source {
-    /// A plain image and its camera.
-    Image { path: PathBuf, camera: Camera },
+    /// A plain image and its camera (`[camera.NAME]`).
+    Image {
+        path: PathBuf,
+        camera_name: String,
+        camera: Camera,
+    },
     /// The rig's own scanned photo (its sidecar): image, grid and focal length from the scan.
     Scan { sidecar: PathBuf },
     /// A plain image with its own geometry: a line scanner's rigorous model or RPCs (read
@@ -391,6 +423,9 @@ pub struct Project {
     /// `[orientation] refraction` and `earth_curvature`: the frame photos' radial
     /// displacements, in the orientation and in every matcher alike.
     pub radial: crate::geometry::Radial,
+    /// `[orientation] self_calibration`: which of each camera's c, x₀, y₀, k₁, k₂ the block
+    /// orientation estimates (none: the cameras as given).
+    pub self_calibration: [bool; 5],
     pub limits: Limits,
 }
 
@@ -485,6 +520,26 @@ impl Project {
                     c.principal_point_mm
                 )));
             }
+            if !finite(&c.distortion, 1.0) {
+                return Err(bad(format!(
+                    "[camera.{name}] distortion {:?}: [k1, k2], each within ±1 (OpenCV's normalised radial coefficients; a metric camera's are some 1e-4)",
+                    c.distortion
+                )));
+            }
+            if let Some(s) = &c.sigma {
+                let v = [
+                    s.focal_mm,
+                    s.principal_point_mm[0],
+                    s.principal_point_mm[1],
+                    s.distortion[0],
+                    s.distortion[1],
+                ];
+                if !v.iter().all(|x| x.is_finite() && (0.0..=100.0).contains(x)) {
+                    return Err(bad(format!(
+                        "[camera.{name}.sigma] {v:?}: each σ within 0–100 (mm, and for k1, k2 unitless)"
+                    )));
+                }
+            }
             let (pixel_mm, pixel_to_photo) = match (c.pixel_mm, c.pixel_to_photo) {
                 (Some(p), None) if p.is_finite() && (1e-4..=1.0).contains(&p) => (p, None),
                 (Some(p), None) => {
@@ -520,6 +575,10 @@ impl Project {
                 Camera {
                     focal_mm: c.focal_mm,
                     principal_point: PhotoMm::new(c.principal_point_mm[0], c.principal_point_mm[1]),
+                    lens: crate::geometry::Lens {
+                        k1: c.distortion[0],
+                        k2: c.distortion[1],
+                    },
                     pixel_mm,
                     pixel_to_photo,
                 },
@@ -576,6 +635,7 @@ impl Project {
             let source = match (&p.image, &p.camera, &p.scan) {
                 (Some(img), Some(cam), None) => Source::Image {
                     path: base.join(img),
+                    camera_name: cam.clone(),
                     camera: *cameras.get(cam).ok_or_else(|| {
                         bad(format!(
                             "{at}: camera `{cam}` is not among [camera.*] ({})",
@@ -756,6 +816,22 @@ impl Project {
                 Some(v)
             }
         };
+        let mut self_calibration = [false; 5];
+        for name in raw
+            .orientation
+            .iter()
+            .flat_map(|o| o.self_calibration.iter())
+        {
+            let Some((_, free)) = SELF_CALIBRATION.iter().find(|(n, _)| n == name) else {
+                return Err(bad(format!(
+                    "[orientation] self_calibration names `{name}`: choose from {}",
+                    SELF_CALIBRATION.map(|(n, _)| format!("\"{n}\"")).join(", ")
+                )));
+            };
+            for (s, f) in self_calibration.iter_mut().zip(free) {
+                *s |= f;
+            }
+        }
         Ok(Project {
             path: path.to_path_buf(),
             crs: raw.crs,
@@ -774,6 +850,7 @@ impl Project {
                     earth_curvature: o.earth_curvature,
                 }
             }),
+            self_calibration,
             orientation_covariance: raw
                 .orientation
                 .and_then(|o| o.covariance)
