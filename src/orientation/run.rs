@@ -25,6 +25,7 @@ pub fn load(
     p: &Project,
     scan: &dyn Fn(&Path) -> Result<Photo, String>,
 ) -> Result<Vec<Photo>, OrientError> {
+    crate::matching::block::photos::check_held(p, &vec![None; p.photos.len()])?;
     (0..p.photos.len())
         .map(|k| Ok(load_photo(p, k, scan, None)?))
         .collect()

@@ -36,6 +36,7 @@ pub fn load_photos(
     scan: &dyn Fn(&Path) -> Result<Photo, String>,
 ) -> Result<Vec<Photo>, MatchingError> {
     let wins = windows(p, scan)?;
+    check_held(p, &wins)?;
     for (ph, w) in p.photos.iter().zip(&wins) {
         if let Some(w) = w {
             tracing::info!(
@@ -49,6 +50,45 @@ pub fn load_photos(
     (0..p.photos.len())
         .map(|k| load_photo(p, k, scan, wins[k]))
         .collect()
+}
+
+/// Bytes a photo's window takes in memory (grey values as f32).
+const BYTES_PER_PIXEL: u64 = 4;
+
+/// Refuses, before anything is read, a set of photos held at once (`windows`, `None`: whole)
+/// whose grey values alone would pass `[limits] max_memory_mb`: each photo is checked as it is
+/// read, but a block of a hundred photos each within the limit is not. The images' sizes come
+/// from their headers; a scan's from its sidecar's reader, which holds one at a time.
+pub fn check_held(p: &Project, windows: &[Option<PixelWindow>]) -> Result<(), MatchingError> {
+    let mut bytes: u64 = 0;
+    for (ph, w) in p.photos.iter().zip(windows) {
+        let path = match &ph.source {
+            Source::Scan { .. } => continue,
+            Source::Image { path, .. } | Source::Model { path, .. } => path,
+        };
+        let pixels = match w {
+            Some(w) => (w.width * w.height) as u64,
+            None => {
+                let (cols, rows) = crate::image::grey_size(path).map_err(|e| {
+                    MatchingError::Photo {
+                        id: ph.id.clone(),
+                        message: e.to_string(),
+                    }
+                })?;
+                (cols * rows) as u64
+            }
+        };
+        bytes = bytes.saturating_add(pixels.saturating_mul(BYTES_PER_PIXEL));
+    }
+    let mib = bytes >> 20;
+    if mib > p.limits.max_memory_mb {
+        return Err(MatchingError::Memory(format!(
+            "the {} photos held at once would take {mib} MiB as grey values; the limit is {} MiB: give [dem] extent to read only what sees it, split the block, or raise [limits] max_memory_mb (or --max-memory)",
+            p.photos.len(),
+            p.limits.max_memory_mb
+        )));
+    }
+    Ok(())
 }
 
 /// The window of each photo to read: the whole image where the project gives no `[dem]
@@ -231,4 +271,33 @@ pub fn load_photo(
         interior,
         window,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Two photos each within the memory limit but not together are refused before either
+    /// is read, naming the total and the limit; with the limit raised, they pass.
+    #[test]
+    fn photos_held_together_are_checked_against_the_limit() {
+        let dir = tempfile::tempdir().unwrap();
+        let img = image::GrayImage::new(1500, 1500);
+        for n in ["a.tif", "b.tif"] {
+            img.save(dir.path().join(n)).unwrap();
+        }
+        let project = |mib: u64| {
+            let text = format!(
+                "format = 2\ncrs = \"local\"\n[camera.c]\nfocal_mm = 153.0\npixel_mm = 0.02\n\
+                 [[photo]]\nid = \"a\"\nimage = \"a.tif\"\ncamera = \"c\"\nposition = [0.0, 0.0, 1000.0]\nangles_deg = [0.0, 0.0, 0.0]\n\
+                 [[photo]]\nid = \"b\"\nimage = \"b.tif\"\ncamera = \"c\"\nposition = [100.0, 0.0, 1000.0]\nangles_deg = [0.0, 0.0, 0.0]\n\
+                 [dem]\ncell_m = 10.0\nheights = [0.0, 100.0]\n[limits]\nmax_memory_mb = {mib}\n"
+            );
+            Project::parse(&text, &dir.path().join("project.toml")).unwrap()
+        };
+        // 1500² × 4 bytes = 8.6 MiB each, 17.2 together.
+        let e = check_held(&project(16), &[None, None]).unwrap_err().to_string();
+        assert!(e.contains("17 MiB") && e.contains("the limit is 16 MiB"), "{e}");
+        check_held(&project(18), &[None, None]).unwrap();
+    }
 }

@@ -458,7 +458,9 @@ pub fn format_of(text: &str) -> Result<u32, String> {
     }
 }
 
-const MAX_PHOTOS: usize = 64;
+/// A block of aerial film runs to hundreds of photos; the memory they take together is
+/// checked against `[limits]` before any is read ([`crate::matching::block::photos::check_held`]).
+const MAX_PHOTOS: usize = 1000;
 /// Coordinates of ground points and projection centres, m (any projected CRS fits).
 const MAX_GROUND_M: f64 = 1e8;
 
