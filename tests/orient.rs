@@ -397,8 +397,8 @@ fn rig_dtm_orients_a_block_of_approximations_first() {
     // Against the renderer's truth DEM: coverage of its posts that two photos see (the true
     // orientations, the scene's conventions), and the model's σ (quality.tif) against its
     // errors.
-    let tq = rig::matching::products::files::read_geotiff(&block_dir().join("truth_dem.tif"))
-        .unwrap();
+    let tq =
+        rig::matching::products::files::read_geotiff(&block_dir().join("truth_dem.tif")).unwrap();
     let photos = truth_photos();
     let (mut seen2, mut covered) = (0usize, 0usize);
     for r in 0..tq.rows {
@@ -415,10 +415,7 @@ fn rig_dtm_orients_a_block_of_approximations_first() {
                 .count();
             if seen >= 2 {
                 seen2 += 1;
-                covered += usize::from(
-                    a.node_index(x, y)
-                        .is_some_and(|k| a.z[k].is_finite()),
-                );
+                covered += usize::from(a.node_index(x, y).is_some_and(|k| a.z[k].is_finite()));
             }
         }
     }
@@ -447,7 +444,10 @@ fn rig_dtm_orients_a_block_of_approximations_first() {
         100.0 * coverage
     );
     assert!(coverage >= 0.8, "coverage {coverage:.3}");
-    assert!((0.8..=1.25).contains(&normalised), "RMS(error/σ) {normalised:.2}");
+    assert!(
+        (0.8..=1.25).contains(&normalised),
+        "RMS(error/σ) {normalised:.2}"
+    );
     // The check points' ground.
     let e: Vec<f64> = truth["points"]
         .as_object()
@@ -510,8 +510,16 @@ fn self_calibration_finds_the_renderers_camera() {
     let v = |k: &str, i: usize| c[k][i].as_f64().unwrap();
     let found = [
         (f("focal_mm") - 153.0, f("sigma_focal_mm"), 1.0),
-        (v("principal_point_mm", 0), v("sigma_principal_point_mm", 0), 0.4),
-        (v("principal_point_mm", 1), v("sigma_principal_point_mm", 1), 0.4),
+        (
+            v("principal_point_mm", 0),
+            v("sigma_principal_point_mm", 0),
+            0.4,
+        ),
+        (
+            v("principal_point_mm", 1),
+            v("sigma_principal_point_mm", 1),
+            0.4,
+        ),
         (v("distortion", 0), v("sigma_distortion", 0), 1e-3),
         (v("distortion", 1), v("sigma_distortion", 1), 1e-3),
     ];

@@ -73,8 +73,14 @@ mod tests {
     #[test]
     fn undistort_inverts_distort() {
         for lens in [
-            Lens { k1: 2e-4, k2: -1e-5 },
-            Lens { k1: -0.05, k2: 0.01 },
+            Lens {
+                k1: 2e-4,
+                k2: -1e-5,
+            },
+            Lens {
+                k1: -0.05,
+                k2: 0.01,
+            },
             Lens { k1: 0.1, k2: 0.02 },
         ] {
             for &(x, y) in &[(0.0, 0.0), (100.0, -80.0), (-3.0, 0.5), (150.0, 150.0)] {

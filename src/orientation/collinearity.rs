@@ -16,7 +16,13 @@ use nalgebra::{Matrix3, SMatrix, Vector2, Vector3};
 /// The interior parameters a self-calibrating adjustment can estimate, in the order of
 /// [`Linearised::d_interior`]'s columns: c, x₀, y₀ (mm), k₁, k₂; the sixth column is unused
 /// (the normal equations keep blocks of six).
-pub const INTERIOR: [&str; 5] = ["focal", "principal_point_x", "principal_point_y", "k1", "k2"];
+pub const INTERIOR: [&str; 5] = [
+    "focal",
+    "principal_point_x",
+    "principal_point_y",
+    "k1",
+    "k2",
+];
 
 /// One ray's projection and partials: the photo point (mm), ∂(x, y)/∂(ω, φ, κ, X₀, Y₀, Z₀)
 /// (mm per rad, per m), ∂(x, y)/∂(X, Y, Z) (mm per m) and ∂(x, y)/∂(c, x₀, y₀, k₁, k₂, —).
@@ -122,7 +128,10 @@ mod tests {
         let interior = Interior {
             focal_mm: 153.0,
             principal_point: PhotoMm::new(0.02, -0.01),
-            lens: crate::geometry::Lens { k1: 0.03, k2: -0.01 },
+            lens: crate::geometry::Lens {
+                k1: 0.03,
+                k2: -0.01,
+            },
         };
         let e = Exterior::from_degrees(3.0, -4.0, 25.0, GroundM::new(1000.0, 2000.0, 2500.0));
         let g = Vector3::new(1400.0, 1700.0, 350.0);

@@ -168,7 +168,10 @@ pub fn block_of(
 /// The cameras to calibrate with the block (`[orientation] self_calibration`): the photos of
 /// each `[camera.NAME]` share its interior. A scan's interior is its camera certificate's,
 /// one per scan: it is refused.
-fn self_calibration(p: &Project, photos: &[BlockPhoto]) -> Result<Vec<SelfCalibration>, OrientError> {
+fn self_calibration(
+    p: &Project,
+    photos: &[BlockPhoto],
+) -> Result<Vec<SelfCalibration>, OrientError> {
     if !p.self_calibration.iter().any(|f| *f) {
         return Ok(Vec::new());
     }

@@ -238,7 +238,10 @@ impl Report {
                 .map(|c| CameraLine {
                     camera: c.camera.clone(),
                     focal_mm: c.interior.focal_mm,
-                    principal_point_mm: [c.interior.principal_point.x, c.interior.principal_point.y],
+                    principal_point_mm: [
+                        c.interior.principal_point.x,
+                        c.interior.principal_point.y,
+                    ],
                     distortion: [c.interior.lens.k1, c.interior.lens.k2],
                     sigma_focal_mm: c.sigma[0],
                     sigma_principal_point_mm: [c.sigma[1], c.sigma[2]],

@@ -221,11 +221,7 @@ pub fn orient_block(
             r.sigma_mm / block.photos[r.photo].pixel_mm
         });
     let heights = heights(p, &block, Some(&adjusted));
-    let pairs = pairs(
-        &adjusted.cameras(),
-        &geo,
-        0.5 * (heights[0] + heights[1]),
-    );
+    let pairs = pairs(&adjusted.cameras(), &geo, 0.5 * (heights[0] + heights[1]));
     Ok(Oriented {
         block,
         adjusted,

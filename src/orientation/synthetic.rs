@@ -95,7 +95,11 @@ pub fn make_flown(s: Spec, f: Flight) -> Synthetic {
     let mut block = Block::default();
     let mut exteriors = Vec::new();
     for st in 0..s.strips {
-        let kappa = if f.alternate && st % 2 == 1 { 180.0 } else { 0.0 };
+        let kappa = if f.alternate && st % 2 == 1 {
+            180.0
+        } else {
+            0.0
+        };
         for k in 0..s.per_strip {
             let e = Exterior::from_degrees(
                 g.normal(),
@@ -494,7 +498,10 @@ mod tests {
                 Err(e @ BundleError::NotDeterminable { parameter, .. }) => {
                     assert!(parameter.starts_with(name), "{e}");
                     let text = e.to_string();
-                    assert!(text.contains("self_calibration") && text.contains("`film`"), "{text}");
+                    assert!(
+                        text.contains("self_calibration") && text.contains("`film`"),
+                        "{text}"
+                    );
                 }
                 Err(e) => panic!("{name}: {e}"),
                 Ok(a) => panic!("{name} estimated: {:?}", a.calibrated),

@@ -69,12 +69,11 @@ pub fn check_held(p: &Project, windows: &[Option<PixelWindow>]) -> Result<(), Ma
         let pixels = match w {
             Some(w) => (w.width * w.height) as u64,
             None => {
-                let (cols, rows) = crate::image::grey_size(path).map_err(|e| {
-                    MatchingError::Photo {
+                let (cols, rows) =
+                    crate::image::grey_size(path).map_err(|e| MatchingError::Photo {
                         id: ph.id.clone(),
                         message: e.to_string(),
-                    }
-                })?;
+                    })?;
                 (cols * rows) as u64
             }
         };
@@ -296,8 +295,13 @@ mod tests {
             Project::parse(&text, &dir.path().join("project.toml")).unwrap()
         };
         // 1500² × 4 bytes = 8.6 MiB each, 17.2 together.
-        let e = check_held(&project(16), &[None, None]).unwrap_err().to_string();
-        assert!(e.contains("17 MiB") && e.contains("the limit is 16 MiB"), "{e}");
+        let e = check_held(&project(16), &[None, None])
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("17 MiB") && e.contains("the limit is 16 MiB"),
+            "{e}"
+        );
         check_held(&project(18), &[None, None]).unwrap();
     }
 }
