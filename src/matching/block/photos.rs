@@ -61,6 +61,7 @@ const BYTES_PER_PIXEL: u64 = 4;
 /// from their headers; a scan's from its sidecar's reader, which holds one at a time.
 pub fn check_held(p: &Project, windows: &[Option<PixelWindow>]) -> Result<(), MatchingError> {
     let mut bytes: u64 = 0;
+    let mut largest: (u64, String) = (0, String::new());
     for (ph, w) in p.photos.iter().zip(windows) {
         let path = match &ph.source {
             Source::Scan { .. } => continue,
@@ -77,13 +78,18 @@ pub fn check_held(p: &Project, windows: &[Option<PixelWindow>]) -> Result<(), Ma
                 (cols * rows) as u64
             }
         };
-        bytes = bytes.saturating_add(pixels.saturating_mul(BYTES_PER_PIXEL));
+        let b = pixels.saturating_mul(BYTES_PER_PIXEL);
+        bytes = bytes.saturating_add(b);
+        if b > largest.0 {
+            largest = (b, format!("`{}` ({}, {} MiB)", ph.id, path.display(), b >> 20));
+        }
     }
     let mib = bytes >> 20;
     if mib > p.limits.max_memory_mb {
         return Err(MatchingError::Memory(format!(
-            "the {} photos held at once would take {mib} MiB as grey values; the limit is {} MiB: give [dem] extent to read only what sees it, split the block, or raise [limits] max_memory_mb (or --max-memory)",
+            "the {} photos held at once would take {mib} MiB as grey values (the largest {}); the limit is {} MiB: give [dem] extent to read only what sees it, split the block, or raise [limits] max_memory_mb (or --max-memory)",
             p.photos.len(),
+            largest.1,
             p.limits.max_memory_mb
         )));
     }
