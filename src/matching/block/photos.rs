@@ -81,7 +81,10 @@ pub fn check_held(p: &Project, windows: &[Option<PixelWindow>]) -> Result<(), Ma
         let b = pixels.saturating_mul(BYTES_PER_PIXEL);
         bytes = bytes.saturating_add(b);
         if b > largest.0 {
-            largest = (b, format!("`{}` ({}, {} MiB)", ph.id, path.display(), b >> 20));
+            largest = (
+                b,
+                format!("`{}` ({}, {} MiB)", ph.id, path.display(), b >> 20),
+            );
         }
     }
     let mib = bytes >> 20;
