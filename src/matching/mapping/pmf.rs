@@ -242,6 +242,21 @@ impl Polynomial {
         p
     }
 
+    /// The same function of variables x and y `f` times smaller and of a value `f` times
+    /// smaller (a pyramid level's pixels: x = f·x′): the normaliser's x and y and the
+    /// coefficients scaled, exactly.
+    pub fn with_xy_and_value_scaled(&self, f: f64) -> Polynomial {
+        let mut p = self.clone();
+        for k in 0..2 {
+            p.norm.centre[k] /= f;
+            p.norm.scale[k] /= f;
+        }
+        for c in &mut p.coef {
+            *c /= f;
+        }
+        p
+    }
+
     /// The polynomial less `c` (its constant term moved; one added where it has none).
     pub fn minus(&self, c: f64) -> Polynomial {
         let mut p = self.clone();
@@ -514,6 +529,15 @@ impl Mapping {
     #[inline]
     pub fn along_height(&self, x: f64, y: f64) -> Option<[AlongHeight; 2]> {
         Some([self.x.along_height(x, y)?, self.y.along_height(x, y)?])
+    }
+
+    /// The mapping between the photos' pyramid levels `f` times coarser (pixel coordinates
+    /// divided by `f`, heights as they are).
+    pub fn coarser(&self, f: f64) -> Mapping {
+        Mapping {
+            x: self.x.with_xy_and_value_scaled(f),
+            y: self.y.with_xy_and_value_scaled(f),
+        }
     }
 
     /// The mapping between spaces moved by `from` (its variables) and `to` (its values):
