@@ -280,9 +280,12 @@ pub fn oriented_project(
         let m = 10f64.powi(d);
         (x * m).round() / m
     };
-    let arr = |v: [f64; 3], d: i32| {
+    let arr = |v: &[f64], d: i32| {
         toml::Value::Array(v.iter().map(|x| toml::Value::Float(round(*x, d))).collect())
     };
+    // Values of some 10⁻⁴ (k₁, k₂ and σ) with 10 significant digits.
+    let digits = |x: f64| toml::Value::Float(format!("{x:.9e}").parse().unwrap_or(x));
+    let sig = |v: &[f64]| toml::Value::Array(v.iter().map(|x| digits(*x)).collect());
     if let Some(photos) = t.get_mut("photo").and_then(|v| v.as_array_mut()) {
         for ph in photos.iter_mut() {
             let Some(tab) = ph.as_table_mut() else {
@@ -303,11 +306,11 @@ pub fn oriented_project(
             };
             tab.remove("position_sigma_m");
             tab.remove("angles_sigma_deg");
-            tab.insert("position".into(), arr(line.position, 4));
-            tab.insert("angles_deg".into(), arr(line.angles_deg, 7));
+            tab.insert("position".into(), arr(&line.position, 4));
+            tab.insert("angles_deg".into(), arr(&line.angles_deg, 7));
             let mut s = toml::Table::new();
-            s.insert("position_m".into(), arr(line.sigma_position_m, 4));
-            s.insert("angles_deg".into(), arr(line.sigma_angles_deg, 7));
+            s.insert("position_m".into(), arr(&line.sigma_position_m, 4));
+            s.insert("angles_deg".into(), arr(&line.sigma_angles_deg, 7));
             tab.insert("sigma".into(), toml::Value::Table(s));
         }
     }
@@ -321,27 +324,16 @@ pub fn oriented_project(
         else {
             continue;
         };
-        let list = |v: &[f64], d: i32| {
-            toml::Value::Array(v.iter().map(|x| toml::Value::Float(round(*x, d))).collect())
-        };
-        // k₁ and k₂ with 10 significant digits (they are some 10⁻⁴).
-        let sig = |x: f64| toml::Value::Float(format!("{x:.9e}").parse().unwrap_or(x));
         tab.insert("focal_mm".into(), toml::Value::Float(round(c.focal_mm, 6)));
-        tab.insert("principal_point_mm".into(), list(&c.principal_point_mm, 6));
-        tab.insert(
-            "distortion".into(),
-            toml::Value::Array(c.distortion.iter().map(|x| sig(*x)).collect()),
-        );
+        tab.insert("principal_point_mm".into(), arr(&c.principal_point_mm, 6));
+        tab.insert("distortion".into(), sig(&c.distortion));
         let mut s = toml::Table::new();
-        s.insert("focal_mm".into(), sig(c.sigma_focal_mm));
+        s.insert("focal_mm".into(), digits(c.sigma_focal_mm));
         s.insert(
             "principal_point_mm".into(),
-            toml::Value::Array(c.sigma_principal_point_mm.iter().map(|x| sig(*x)).collect()),
+            sig(&c.sigma_principal_point_mm),
         );
-        s.insert(
-            "distortion".into(),
-            toml::Value::Array(c.sigma_distortion.iter().map(|x| sig(*x)).collect()),
-        );
+        s.insert("distortion".into(), sig(&c.sigma_distortion));
         tab.insert("sigma".into(), toml::Value::Table(s));
     }
     for (table, key) in [

@@ -230,6 +230,8 @@ pub enum BundleError {
     BadRay { ray: usize, what: String },
     #[error("self-calibration of camera `{camera}`: {what}")]
     Calibration { camera: String, what: String },
+    #[error("the block cannot determine camera `{camera}`'s interior: with its {parameters} free the adjustment's normal equations are singular (its rays cannot tell them from the photos' orientations); leave some out of [orientation] self_calibration and give the camera's certificate values, or give the photos approximate orientations with their σ")]
+    Singular { camera: String, parameters: String },
     #[error("the block cannot determine camera `{camera}`'s {parameter}: its rays leave it free to move the photos' edge ({radius_mm:.0} mm out) by {effect_um:.1} µm (1 σ; a ray's σ is {ray_um:.1} µm), and only the approximations' σ hold it; {advice}; or leave `{key}` out of [orientation] self_calibration and give the camera's certificate value")]
     NotDeterminable {
         camera: String,

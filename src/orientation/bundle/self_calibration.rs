@@ -5,23 +5,20 @@ use super::normal::Lin;
 use super::*;
 
 /// Where an adjustment's normal equations are singular with cameras to calibrate: the block
-/// cannot tell their parameters from the exteriors (said for the first camera's first free
-/// parameter; [`calibrated`] names the weakest where the solve goes through).
+/// cannot tell their parameters from the exteriors ([`calibrated`] names the weakest one
+/// where the solve goes through).
 pub(super) fn undetermined(block: &Block, e: ReducedError) -> BundleError {
     match block.calibrate.first() {
-        Some(c) => {
-            let k = c.free.iter().position(|f| *f).unwrap_or(0);
-            let (parameter, key, advice) = PARAMETERS[k];
-            BundleError::NotDeterminable {
-                camera: c.camera.clone(),
-                parameter,
-                key,
-                radius_mm: 0.0,
-                effect_um: f64::INFINITY,
-                ray_um: 0.0,
-                advice,
-            }
-        }
+        Some(c) => BundleError::Singular {
+            camera: c.camera.clone(),
+            parameters: PARAMETERS
+                .iter()
+                .zip(c.free)
+                .filter(|(_, f)| *f)
+                .map(|(p, _)| p.0)
+                .collect::<Vec<_>>()
+                .join(", "),
+        },
         None => e.into(),
     }
 }
@@ -52,21 +49,20 @@ pub(super) fn calibrated(
     lin: &Lin,
 ) -> Result<Vec<Calibrated>, BundleError> {
     let n = block.photos.len();
+    // Each camera's outermost ray radius and its rays' σ, in one pass over the rays.
+    let mut radius = vec![0.0f64; block.calibrate.len()];
+    let mut sigmas: Vec<Vec<f64>> = vec![Vec::new(); block.calibrate.len()];
+    for r in lin.points.iter().flatten().flat_map(|p| &p.rays) {
+        let Some((k, _)) = r.cal else { continue };
+        let (g, ray) = (k - n, &block.rays[r.ray]);
+        let pp = ints[g].principal_point;
+        radius[g] = radius[g].max((ray.xy.x - pp.x).hypot(ray.xy.y - pp.y));
+        sigmas[g].push(ray.sigma_mm);
+    }
     let mut out = Vec::new();
     for (g, c) in block.calibrate.iter().enumerate() {
         let int = ints[g];
-        let pp = int.principal_point;
-        let mut radius: f64 = 0.0;
-        let mut sigmas = Vec::new();
-        for p in lin.points.iter().flatten() {
-            for r in &p.rays {
-                if c.photos.contains(&r.photo) {
-                    let ray = &block.rays[r.ray];
-                    radius = radius.max((ray.xy.x - pp.x).hypot(ray.xy.y - pp.y));
-                    sigmas.push(ray.sigma_mm);
-                }
-            }
-        }
+        let (radius, sigmas) = (radius[g], &mut sigmas[g]);
         sigmas.sort_by(f64::total_cmp);
         let ray_sigma = sigmas.get(sigmas.len() / 2).copied().unwrap_or(0.0) * sigma0;
         let rho2 = (radius / int.focal_mm).powi(2);

@@ -619,6 +619,32 @@ pub fn planes_of(p: &SweepParams) -> usize {
 mod tests {
     use super::*;
 
+    /// x′ = x + 0.5·h, y′ = y (half a pixel of parallax a metre, along the rows), fitted over
+    /// samples spanning `extent` (x, y in px from row 10, h in m) as the pair's mapping
+    /// functions are.
+    fn half_a_pixel_a_metre(extent: [f64; 3]) -> Mapping {
+        use crate::matching::mapping::pmf::{Normaliser, Polynomial, Term};
+        let samples: Vec<([f64; 3], f64)> = (0..4)
+            .flat_map(|i| {
+                (0..3).map(move |k| {
+                    let i = i as f64;
+                    [
+                        i * extent[0] / 3.0,
+                        10.0 + i * extent[1] / 3.0,
+                        k as f64 * extent[2] / 2.0,
+                    ]
+                })
+            })
+            .map(|v| (v, v[0] + 0.5 * v[2]))
+            .collect();
+        let norm = Normaliser::over(&samples.iter().map(|s| s.0).collect::<Vec<_>>());
+        let terms = [Term(0, 0, 0), Term(1, 0, 0), Term(0, 0, 1)];
+        let x = Polynomial::fit(&terms, &norm, &samples).unwrap();
+        let ys: Vec<_> = samples.iter().map(|s| (s.0, s.0[1])).collect();
+        let y = Polynomial::fit(&[Term(0, 0, 0), Term(0, 1, 0)], &norm, &ys).unwrap();
+        Mapping { x, y }
+    }
+
     /// A correlation peak ρ(h) = ρ0·(1 − k·(h − h0)²/2) sampled at steps: σ from the second
     /// difference equals the closed form √((1 − ρ0)/(n·ρ0·k)), whatever the step.
     #[test]
@@ -648,7 +674,6 @@ mod tests {
     /// match lies outside get none.
     #[test]
     fn no_height_is_invented_where_the_right_photo_does_not_see() {
-        use crate::matching::mapping::pmf::{Normaliser, Polynomial, Term};
         let (w, h) = (160usize, 40usize);
         // A texture with detail at every scale, the same every run.
         let tex = |x: f64, y: f64| -> f32 {
@@ -671,18 +696,7 @@ mod tests {
                 right.data[r * wr + c] = tex(c as f64 - 0.5 * h0, r as f64);
             }
         }
-        let samples: Vec<([f64; 3], f64)> = (0..4)
-            .flat_map(|i| {
-                (0..3).map(move |k| [i as f64 * 50.0, 10.0 + i as f64 * 7.0, k as f64 * 50.0])
-            })
-            .map(|v| (v, v[0] + 0.5 * v[2]))
-            .collect();
-        let norm = Normaliser::over(&samples.iter().map(|s| s.0).collect::<Vec<_>>());
-        let terms = [Term(0, 0, 0), Term(1, 0, 0), Term(0, 0, 1)];
-        let x = Polynomial::fit(&terms, &norm, &samples).unwrap();
-        let ys: Vec<_> = samples.iter().map(|s| (s.0, s.0[1])).collect();
-        let y = Polynomial::fit(&[Term(0, 0, 0), Term(0, 1, 0)], &norm, &ys).unwrap();
-        let map = Mapping { x, y };
+        let map = half_a_pixel_a_metre([150.0, 21.0, 100.0]);
         let p = SweepParams {
             h_min: 0.0,
             h_max: 100.0,
@@ -725,7 +739,6 @@ mod tests {
     /// search photo's edge, which the coarse level does not cover, try every height).
     #[test]
     fn the_coarse_guide_keeps_the_heights_and_cuts_the_work() {
-        use crate::matching::mapping::pmf::{Normaliser, Polynomial, Term};
         let (w, h) = (256usize, 256usize);
         // Random grey values every 2 px, bilinear between: texture without a period, which
         // the 15 % stretch of the slope keeps correlated over a window.
@@ -759,18 +772,7 @@ mod tests {
                 right.data[r * wr + c] = tex(x, r as f64 + 0.5);
             }
         }
-        let samples: Vec<([f64; 3], f64)> = (0..4)
-            .flat_map(|i| {
-                (0..3).map(move |k| [i as f64 * 80.0, 10.0 + i as f64 * 60.0, k as f64 * 200.0])
-            })
-            .map(|v| (v, v[0] + 0.5 * v[2]))
-            .collect();
-        let norm = Normaliser::over(&samples.iter().map(|s| s.0).collect::<Vec<_>>());
-        let terms = [Term(0, 0, 0), Term(1, 0, 0), Term(0, 0, 1)];
-        let x = Polynomial::fit(&terms, &norm, &samples).unwrap();
-        let ys: Vec<_> = samples.iter().map(|s| (s.0, s.0[1])).collect();
-        let y = Polynomial::fit(&[Term(0, 0, 0), Term(0, 1, 0)], &norm, &ys).unwrap();
-        let map = Mapping { x, y };
+        let map = half_a_pixel_a_metre([240.0, 180.0, 400.0]);
         let p = SweepParams {
             h_min: 0.0,
             h_max: 400.0,
