@@ -150,3 +150,53 @@ impl PixelWindow {
         *self == PixelWindow::whole(width, height)
     }
 }
+
+/// What of an image was read, and how much smaller: `window` of it averaged over blocks of
+/// `factor` × `factor` pixels (1: as it is). The read pixel (c, r) covers the image's
+/// [col0 + c·f, col0 + (c + 1)·f) × [row0 + r·f, row0 + (r + 1)·f), so a point at read
+/// coordinates (x, y) is at (col0 + f·x, row0 + f·y) in the image's (the core keeps pixel c
+/// over [c, c + 1): see docs/conventions.md).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct PixelView {
+    pub window: PixelWindow,
+    pub factor: usize,
+}
+
+impl PixelView {
+    /// The whole of a `width × height` image, as it is.
+    pub fn whole(width: usize, height: usize) -> PixelView {
+        PixelView {
+            window: PixelWindow::whole(width, height),
+            factor: 1,
+        }
+    }
+
+    /// Whether it is the whole of a `width × height` image, as it is.
+    pub fn is_whole(&self, width: usize, height: usize) -> bool {
+        self.factor == 1 && self.window.is_whole(width, height)
+    }
+
+    /// The size of what was read, pixels (a last partial block is left out).
+    pub fn size(&self) -> (usize, usize) {
+        let f = self.factor.max(1);
+        (self.window.width / f, self.window.height / f)
+    }
+
+    /// The image's coordinates of read coordinates (x, y).
+    pub fn to_image(&self, x: f64, y: f64) -> (f64, f64) {
+        let f = self.factor.max(1) as f64;
+        (
+            self.window.col0 as f64 + f * x,
+            self.window.row0 as f64 + f * y,
+        )
+    }
+
+    /// The read coordinates of the image's (x, y).
+    pub fn to_read(&self, x: f64, y: f64) -> (f64, f64) {
+        let f = self.factor.max(1) as f64;
+        (
+            (x - self.window.col0 as f64) / f,
+            (y - self.window.row0 as f64) / f,
+        )
+    }
+}

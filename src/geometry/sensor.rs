@@ -7,7 +7,7 @@
 //! row), as everywhere in the core; ground coordinates are `GroundM` in the project's CRS.
 
 use super::{FrameCamera, PixelToPhoto};
-use crate::coords::{GroundM, PixelWindow, PixelXY};
+use crate::coords::{GroundM, PixelView, PixelXY};
 
 /// Why a sensor could not map a point, so that a failure reaches the user with its cause (and
 /// the caller names the photo and the point) instead of a bare "not seen".
@@ -236,60 +236,64 @@ impl PhotoSensor {
         }
     }
 
-    /// The sensor as seen through `window` of its image (itself for the whole image).
-    pub fn windowed(self, window: PixelWindow) -> PhotoSensor {
+    /// The sensor as seen through `view` of its image (itself for the whole image as it is).
+    pub fn viewed(self, view: PixelView) -> PhotoSensor {
         let (w, h) = self.image_size();
-        if window.is_whole(w, h) {
+        if view.is_whole(w, h) {
             return self;
         }
-        PhotoSensor::Window(Box::new(Windowed {
-            sensor: self,
-            window,
-        }))
+        PhotoSensor::Window(Box::new(Windowed { sensor: self, view }))
     }
 }
 
-/// A sensor through a window of its image: the window's pixel (c, r) is the image's
-/// (c + col0, r + row0).
+/// A sensor through a view of its image ([`PixelView`]): the view's point (x, y) is the
+/// image's (col0 + f·x, row0 + f·y), so its pixels are f times larger: the partials divide
+/// by f, the pointing covariance by f².
 #[derive(Debug, Clone)]
 pub struct Windowed {
     pub sensor: PhotoSensor,
-    pub window: PixelWindow,
+    pub view: PixelView,
 }
 
 impl Windowed {
-    fn shift(&self) -> (f64, f64) {
-        (self.window.col0 as f64, self.window.row0 as f64)
+    fn f(&self) -> f64 {
+        self.view.factor.max(1) as f64
     }
 }
 
 impl Sensor for Windowed {
     fn image_size(&self) -> (usize, usize) {
-        (self.window.width, self.window.height)
+        self.view.size()
     }
 
     fn try_ground_to_image(&self, g: GroundM) -> Result<PixelXY, ProjectionError> {
         let q = self.sensor.try_ground_to_image(g)?;
-        let (c0, r0) = self.shift();
-        Ok(PixelXY::new(q.col - c0, q.row - r0))
+        let (x, y) = self.view.to_read(q.col, q.row);
+        Ok(PixelXY::new(x, y))
     }
 
     fn try_image_to_ground(&self, q: PixelXY, z: f64) -> Result<GroundM, ProjectionError> {
-        let (c0, r0) = self.shift();
-        self.sensor
-            .try_image_to_ground(PixelXY::new(q.col + c0, q.row + r0), z)
+        let (x, y) = self.view.to_image(q.col, q.row);
+        self.sensor.try_image_to_ground(PixelXY::new(x, y), z)
     }
 
     fn partials(&self, g: GroundM) -> Option<[[f64; 3]; 2]> {
-        self.sensor.partials(g)
+        let f = self.f();
+        self.sensor
+            .partials(g)
+            .map(|d| d.map(|row| row.map(|v| v / f)))
     }
 
     fn height_partials(&self, g: GroundM) -> Option<[f64; 2]> {
-        self.sensor.height_partials(g)
+        let f = self.f();
+        self.sensor.height_partials(g).map(|d| d.map(|v| v / f))
     }
 
     fn pointing_covariance(&self, g: GroundM) -> Option<[[f64; 2]; 2]> {
-        self.sensor.pointing_covariance(g)
+        let f2 = self.f() * self.f();
+        self.sensor
+            .pointing_covariance(g)
+            .map(|c| c.map(|row| row.map(|v| v / f2)))
     }
 }
 
@@ -331,6 +335,7 @@ impl Sensor for PhotoSensor {
 mod tests {
     use super::*;
     use crate::coords::PhotoMm;
+    use crate::coords::PixelWindow;
     use crate::geometry::{Exterior, Interior};
 
     /// A vertical photo (ω = φ = κ = 0) of focal length f from (0, 0, Z0): x = f·X/(Z0 − Z),
@@ -374,10 +379,11 @@ mod tests {
             .is_none());
     }
 
-    /// A sensor through a window of its image sees at window pixel q what the whole image
-    /// shows at q + (col0, row0), both ways; the whole window is the sensor itself.
+    /// A sensor through a view of its image sees at view point q what the whole image shows at
+    /// (col0, row0) + f·q, both ways; its partials are those of its own projection (taken
+    /// here by central differences); the whole image as it is is the sensor itself.
     #[test]
-    fn a_window_shifts_the_pixels_and_nothing_else() {
+    fn a_view_shifts_and_scales_the_pixels_and_nothing_else() {
         let s = PhotoSensor::Pushbroom(crate::geometry::pushbroom::fixtures::spot_like(12.0));
         let win = PixelWindow {
             col0: 1200,
@@ -385,33 +391,54 @@ mod tests {
             width: 300,
             height: 200,
         };
-        let w = s.clone().windowed(win);
-        assert_eq!(w.image_size(), (300, 200));
-        for (c, r, z) in [
-            (0.0, 0.0, 100.0),
-            (150.5, 99.25, 900.0),
-            (300.0, 200.0, -50.0),
-        ] {
-            let g = w.try_image_to_ground(PixelXY::new(c, r), z).unwrap();
-            let whole = s
-                .try_image_to_ground(PixelXY::new(c + 1200.0, r + 700.0), z)
-                .unwrap();
-            assert_eq!((g.x, g.y), (whole.x, whole.y));
-            let q = w.try_ground_to_image(g).unwrap();
-            assert!(
-                (q.col - c).abs() < 1e-6 && (q.row - r).abs() < 1e-6,
-                "{q:?}"
-            );
-            assert_eq!(w.partials(g), s.partials(g));
-            // The height's column alone is that column, to the bit, through the window too.
-            let d = s.partials(g).unwrap();
-            assert_eq!(s.height_partials(g), Some([d[0][2], d[1][2]]));
-            assert_eq!(w.height_partials(g), Some([d[0][2], d[1][2]]));
+        for factor in [1usize, 4] {
+            let w = s.clone().viewed(PixelView {
+                window: win,
+                factor,
+            });
+            let fl = factor as f64;
+            assert_eq!(w.image_size(), (300 / factor, 200 / factor));
+            for (c, r, z) in [(0.0, 0.0, 100.0), (37.5, 24.25, 900.0), (75.0, 50.0, -50.0)] {
+                let g = w.try_image_to_ground(PixelXY::new(c, r), z).unwrap();
+                let whole = s
+                    .try_image_to_ground(PixelXY::new(1200.0 + fl * c, 700.0 + fl * r), z)
+                    .unwrap();
+                assert_eq!((g.x, g.y), (whole.x, whole.y));
+                let q = w.try_ground_to_image(g).unwrap();
+                assert!(
+                    (q.col - c).abs() < 1e-6 && (q.row - r).abs() < 1e-6,
+                    "{q:?}"
+                );
+                let d = w.partials(g).unwrap();
+                for (k, h) in [(0usize, 0.5), (1, 0.5), (2, 0.5)] {
+                    let mut a = [g.x, g.y, g.z];
+                    let mut b = a;
+                    a[k] += h;
+                    b[k] -= h;
+                    let qa = w
+                        .try_ground_to_image(GroundM::new(a[0], a[1], a[2]))
+                        .unwrap();
+                    let qb = w
+                        .try_ground_to_image(GroundM::new(b[0], b[1], b[2]))
+                        .unwrap();
+                    let num = [(qa.col - qb.col) / (2.0 * h), (qa.row - qb.row) / (2.0 * h)];
+                    for i in 0..2 {
+                        assert!(
+                            (d[i][k] - num[i]).abs() < 1e-4 * num[i].abs().max(1e-3),
+                            "×{factor} ∂{i}/∂{k}: {} vs {}",
+                            d[i][k],
+                            num[i]
+                        );
+                    }
+                }
+                // The height's column alone is that column, to the bit, through the view too.
+                assert_eq!(w.height_partials(g), Some([d[0][2], d[1][2]]));
+            }
+            assert!(w.frame().is_none());
         }
         assert!(matches!(
-            s.clone().windowed(PixelWindow::whole(3000, 3000)),
+            s.clone().viewed(PixelView::whole(3000, 3000)),
             PhotoSensor::Pushbroom(_)
         ));
-        assert!(w.frame().is_none());
     }
 }

@@ -4,7 +4,7 @@
 
 pub mod window;
 
-pub use window::{grey_size, load_grey_window};
+pub use window::{grey_size, load_grey_reduced, load_grey_window};
 
 /// A single-channel floating-point image, row-major.
 #[derive(Debug, Clone, PartialEq)]
@@ -97,6 +97,27 @@ impl ImageF32 {
 
     pub fn row(&self, row: usize) -> &[f32] {
         &self.data[row * self.width..(row + 1) * self.width]
+    }
+
+    /// The image averaged over blocks of `f` × `f` pixels: a pyramid level, whose pixel c
+    /// covers [c·f, (c + 1)·f) of this one's, so coordinates scale by `f` exactly (a last
+    /// partial block is left out).
+    pub fn averaged(&self, f: usize) -> ImageF32 {
+        let f = f.max(1);
+        let (w, h) = (self.width / f, self.height / f);
+        let mut out = ImageF32::new(w, h);
+        let norm = 1.0 / (f * f) as f32;
+        for r in 0..h {
+            for c in 0..w {
+                let mut sum = 0.0f32;
+                for y in r * f..(r + 1) * f {
+                    let row = &self.data[y * self.width + c * f..y * self.width + (c + 1) * f];
+                    sum += row.iter().sum::<f32>();
+                }
+                out.data[r * w + c] = sum * norm;
+            }
+        }
+        out
     }
 
     /// The part from column `c0`, row `r0`, at most `w` × `h` (clipped to the image).

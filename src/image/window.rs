@@ -55,12 +55,81 @@ pub fn load_grey_window(
     win: PixelWindow,
     max_bytes: u64,
 ) -> std::io::Result<ImageF32> {
-    fits(path, win.width as u64, win.height as u64, max_bytes)?;
+    load_grey_reduced(path, win, 1, max_bytes)
+}
+
+/// [`load_grey_window`] averaged over blocks of `factor` × `factor` pixels as it is read
+/// ([`ImageF32::averaged`]'s level: its pixel c covers the window's [c·f, (c + 1)·f), a last
+/// partial block left out). A TIFF is streamed a row of strips or tiles at a time, so memory
+/// holds the level and one such row, never the window at full size: a 19 000² film scan
+/// read at a 16th of its size takes 5.6 MiB and a few strips. `max_bytes` bounds both.
+pub fn load_grey_reduced(
+    path: &Path,
+    win: PixelWindow,
+    factor: usize,
+    max_bytes: u64,
+) -> std::io::Result<ImageF32> {
+    let f = factor.max(1);
+    let (ow, oh) = (win.width / f, win.height / f);
+    if ow == 0 || oh == 0 {
+        return Err(invalid(
+            path,
+            format!(
+                "its window of {} × {} px has no whole block of {f} × {f} px to average",
+                win.width, win.height
+            ),
+        ));
+    }
+    fits(path, ow as u64, oh as u64, max_bytes)?;
     if is_png(path)? {
+        // A PNG has no strips: it is read whole (within the limit) and cut.
         let whole = super::load_grey(path, max_bytes)?;
         check_within(path, win, whole.width, whole.height)?;
-        return Ok(whole.window(win.col0, win.row0, win.width, win.height));
+        let part = whole.window(win.col0, win.row0, win.width, win.height);
+        return Ok(if f == 1 { part } else { part.averaged(f) });
     }
+    let mut out = ImageF32::new(ow, oh);
+    // Sums of the level's row in progress, f64 so that 4 096 16-bit values add exactly.
+    let mut acc = vec![0.0f64; ow];
+    let norm = 1.0 / (f * f) as f64;
+    let used = (ow * f, oh * f);
+    each_row(
+        path,
+        win,
+        max_bytes.saturating_sub(4 * (ow * oh) as u64),
+        |r, row| {
+            if r >= used.1 {
+                return;
+            }
+            if f == 1 {
+                out.data[r * ow..(r + 1) * ow].copy_from_slice(row);
+                return;
+            }
+            for (a, block) in acc.iter_mut().zip(row[..used.0].chunks_exact(f)) {
+                *a += block.iter().map(|&v| v as f64).sum::<f64>();
+            }
+            if (r + 1) % f == 0 {
+                let dst = &mut out.data[(r / f) * ow..(r / f + 1) * ow];
+                for (d, a) in dst.iter_mut().zip(acc.iter_mut()) {
+                    *d = (*a * norm) as f32;
+                    *a = 0.0;
+                }
+            }
+        },
+    )?;
+    check_values(&out.data, path, false)?;
+    Ok(out)
+}
+
+/// Calls `sink` with each row of `win` of the TIFF at `path`, top to bottom (its index within
+/// the window and its grey values), decoding one row of strips or tiles at a time; the rows
+/// of such a row are gathered in a buffer of at most `max_bytes`.
+fn each_row(
+    path: &Path,
+    win: PixelWindow,
+    max_bytes: u64,
+    mut sink: impl FnMut(usize, &[f32]),
+) -> std::io::Result<()> {
     let bad = |what: String| invalid(path, what);
     let mut d = open_tiff(path, MAX_CHUNK_BYTES)?;
     let (w, h) = d.dimensions().map_err(|e| bad(e.to_string()))?;
@@ -75,14 +144,28 @@ pub fn load_grey_window(
     let (cw, ch) = (cw as usize, ch as usize);
     let chunk_bytes = cw as u64 * ch as u64 * bits.div_ceil(8);
     if chunk_bytes > MAX_CHUNK_BYTES {
-        return rows_of_uncompressed_strips(&mut d, path, win, (w, h), bits as usize);
+        return rows_of_uncompressed_strips(&mut d, path, win, (w, h), bits as usize, sink);
     }
     let across = match d.get_chunk_type() {
         ChunkType::Strip => 1,
         ChunkType::Tile => w.div_ceil(cw),
     };
-    let mut out = ImageF32::new(win.width, win.height);
+    // One row of chunks within the window.
+    let band_bytes = 4 * (ch as u64) * (win.width as u64);
+    if band_bytes > max_bytes {
+        return Err(bad(format!(
+            "a row of its {} ({ch} rows × {} columns) needs {} MiB as it is read; the limit is {} MiB",
+            if across == 1 { "strips" } else { "tiles" },
+            win.width,
+            band_bytes >> 20,
+            max_bytes >> 20
+        )));
+    }
+    let mut band = vec![0.0f32; ch * win.width];
     for ty in win.row0 / ch..=(win.row0 + win.height - 1) / ch {
+        let y0 = ty * ch;
+        let r_from = win.row0.max(y0);
+        let mut r_to = r_from;
         for tx in win.col0 / cw..=(win.col0 + win.width - 1) / cw {
             let index = (ty * across + tx) as u32;
             let (dw, dh) = d.chunk_data_dimensions(index);
@@ -98,20 +181,22 @@ pub fn load_grey_window(
                 ));
             }
             // The chunk's pixels within the window.
-            let (x0, y0) = (tx * cw, ty * ch);
+            let x0 = tx * cw;
             let c_from = win.col0.max(x0);
             let c_to = (win.col0 + win.width).min(x0 + dw);
-            let r_from = win.row0.max(y0);
-            let r_to = (win.row0 + win.height).min(y0 + dh);
+            r_to = (win.row0 + win.height).min(y0 + dh);
             for r in r_from..r_to {
                 let src = &chunk[(r - y0) * dw + (c_from - x0)..][..c_to - c_from];
-                let at = (r - win.row0) * win.width + (c_from - win.col0);
-                out.data[at..at + src.len()].copy_from_slice(src);
+                let at = (r - r_from) * win.width + (c_from - win.col0);
+                band[at..at + src.len()].copy_from_slice(src);
             }
         }
+        for r in r_from..r_to {
+            let k = r - r_from;
+            sink(r - win.row0, &band[k * win.width..(k + 1) * win.width]);
+        }
     }
-    check_values(&out.data, path, false)?;
-    Ok(out)
+    Ok(())
 }
 
 fn check_within(path: &Path, win: PixelWindow, w: usize, h: usize) -> std::io::Result<()> {
@@ -130,7 +215,7 @@ fn check_within(path: &Path, win: PixelWindow, w: usize, h: usize) -> std::io::R
     Ok(())
 }
 
-/// The window's rows straight from the file: an uncompressed, one-band image in strips too
+/// The window's rows straight from the file, each handed to `sink`: an uncompressed, one-band image in strips too
 /// large to decode whole. Each row of the window is one contiguous run of bytes.
 fn rows_of_uncompressed_strips(
     d: &mut Decoder<BufReader<std::fs::File>>,
@@ -138,7 +223,8 @@ fn rows_of_uncompressed_strips(
     win: PixelWindow,
     (w, h): (usize, usize),
     bits: usize,
-) -> std::io::Result<ImageF32> {
+    mut sink: impl FnMut(usize, &[f32]),
+) -> std::io::Result<()> {
     let bad = |what: String| invalid(path, what);
     let tag = |d: &mut Decoder<BufReader<std::fs::File>>, t: Tag| {
         d.find_tag_unsigned::<u64>(t)
@@ -174,7 +260,7 @@ fn rows_of_uncompressed_strips(
     }
     let file = d.inner();
     let mut raw = vec![0u8; win.width * bytes];
-    let mut out = ImageF32::new(win.width, win.height);
+    let mut row_values = vec![0.0f32; win.width];
     for r in 0..win.height {
         let row = win.row0 + r;
         let strip = row / rows_per_strip;
@@ -182,11 +268,10 @@ fn rows_of_uncompressed_strips(
         file.seek(SeekFrom::Start(at))
             .and_then(|_| file.read_exact(&mut raw))
             .map_err(|e| bad(format!("row {row} cannot be read: {e}")))?;
-        let dst = &mut out.data[r * win.width..(r + 1) * win.width];
-        decode_row(&raw, bits, format, little, dst, path)?;
+        decode_row(&raw, bits, format, little, &mut row_values, path)?;
+        sink(r, &row_values);
     }
-    check_values(&out.data, path, false)?;
-    Ok(out)
+    Ok(())
 }
 
 /// One row of raw samples (`bits` wide, TIFF SampleFormat `format`) as f32.
@@ -306,6 +391,23 @@ mod tests {
                 let got = load_grey_window(f, win, 1 << 30).unwrap();
                 let want = whole.window(win.col0, win.row0, win.width, win.height);
                 assert_eq!(got, want, "{} {win:?}", f.display());
+                // Read at a level 2, 4, 8 times smaller: the window cut, then averaged in
+                // blocks (the level's values are means of integers, exact in f32 here).
+                for factor in [2usize, 4, 8] {
+                    if win.width < factor || win.height < factor {
+                        continue;
+                    }
+                    let got = load_grey_reduced(f, win, factor, 1 << 30).unwrap();
+                    let want = want.averaged(factor);
+                    assert_eq!((got.width, got.height), (want.width, want.height));
+                    for (a, b) in got.data.iter().zip(&want.data) {
+                        assert!(
+                            (a - b).abs() <= 1e-3 * b.abs().max(1.0),
+                            "{} {win:?} ×{factor}: {a} vs {b}",
+                            f.display()
+                        );
+                    }
+                }
             }
         }
         // The row-by-row reader of a strip too large to decode whole, on the one-strip file.
@@ -316,11 +418,15 @@ mod tests {
             width: 101,
             height: 9,
         };
-        let rows = rows_of_uncompressed_strips(&mut dec, &files[1], win, (w, h), 16).unwrap();
+        let mut rows = ImageF32::new(win.width, win.height);
+        rows_of_uncompressed_strips(&mut dec, &files[1], win, (w, h), 16, |r, v| {
+            rows.data[r * win.width..(r + 1) * win.width].copy_from_slice(v)
+        })
+        .unwrap();
         assert_eq!(rows, whole.window(17, 33, 101, 9));
         // And it refuses the compressed one, saying what to do.
         let mut dec = open_tiff(&files[0], 1 << 30).unwrap();
-        let e = rows_of_uncompressed_strips(&mut dec, &files[0], win, (w, h), 16)
+        let e = rows_of_uncompressed_strips(&mut dec, &files[0], win, (w, h), 16, |_, _| {})
             .unwrap_err()
             .to_string();
         assert!(e.contains("strips.tif") && e.contains("TILED=YES"), "{e}");

@@ -132,7 +132,7 @@ impl ScannedPhoto {
                 principal_point: crate::coords::PhotoMm::new(0.0, 0.0),
                 lens: crate::geometry::Lens::NONE,
             },
-            window: crate::coords::PixelWindow::whole(s.grid.width, s.grid.height),
+            view: crate::coords::PixelView::whole(s.grid.width, s.grid.height),
         })
     }
 }

@@ -308,11 +308,11 @@ pub fn orient(p: &Project, photos: &[PhotoGeometry]) -> Result<Oriented, Matchin
             [lo - m, hi + m]
         }
     };
-    // Each photo's sensor seen through the window of its image that was read.
+    // Each photo's sensor seen through the view of its image that was read.
     let sensors: Vec<PhotoSensor> = sensors
         .into_iter()
         .zip(photos)
-        .map(|(s, g)| s.windowed(g.window))
+        .map(|(s, g)| s.viewed(g.view))
         .collect();
     let mid = 0.5 * (heights[0] + heights[1]);
     let prints: Vec<[f64; 4]> = sensors

@@ -2,7 +2,7 @@
 //! its pixels, which photo point each pixel shows, the camera's interior orientation, and its
 //! geometry without the pixels.
 
-use crate::coords::PixelWindow;
+use crate::coords::PixelView;
 use crate::geometry::{Interior, PhotoGrid, PixelToPhoto};
 use crate::image::ImageF32;
 
@@ -10,13 +10,13 @@ use crate::image::ImageF32;
 /// point (mm) each pixel shows, and the camera's interior orientation.
 #[derive(Debug, Clone)]
 pub struct Photo {
-    /// The pixels read: the whole image, or [`Photo::window`] of it.
+    /// The pixels read: the whole image, or [`Photo::view`] of it.
     pub image: ImageF32,
     /// Which photo point each pixel of the whole image shows (its size is the whole image's).
     pub frame: PixelToPhoto,
     pub interior: Interior,
-    /// Where `image` lies in the whole image.
-    pub window: crate::coords::PixelWindow,
+    /// Where `image` lies in the whole image, and how much smaller it was read.
+    pub view: crate::coords::PixelView,
 }
 
 /// The grid of a plain image with square pixels of `pixel_mm`, its centre on the photo
@@ -54,9 +54,9 @@ pub struct PhotoGeometry {
     /// The whole image's size, pixels.
     pub width: usize,
     pub height: usize,
-    /// The part of it that was read (the matchers see this part; their sensors are shifted
-    /// to it).
-    pub window: PixelWindow,
+    /// The part of it that was read, and at which level (the matchers see this; their
+    /// sensors are seen through it).
+    pub view: PixelView,
 }
 
 impl Photo {
@@ -66,7 +66,7 @@ impl Photo {
             interior: self.interior,
             width: self.frame.width,
             height: self.frame.height,
-            window: self.window,
+            view: self.view,
         }
     }
 }

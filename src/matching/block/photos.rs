@@ -6,7 +6,7 @@
 //! with a margin for the matchers' templates; each photo's sensor is then seen through the
 //! same window ([`crate::geometry::PhotoSensor::windowed`]), so pixels and geometry agree.
 
-use crate::coords::{GroundM, PixelWindow};
+use crate::coords::{GroundM, PixelView, PixelWindow, PixelXY};
 use crate::geometry::{Interior, Sensor};
 use crate::matching::block::orient::orient;
 use crate::matching::block::photo::centred_grid;
@@ -35,40 +35,45 @@ pub fn load_photos(
     p: &Project,
     scan: &dyn Fn(&Path) -> Result<Photo, String>,
 ) -> Result<Vec<Photo>, MatchingError> {
-    let wins = windows(p, scan)?;
-    check_held(p, &wins)?;
-    for (ph, w) in p.photos.iter().zip(&wins) {
-        if let Some(w) = w {
+    let views = views(p, scan)?;
+    check_held(p, &views)?;
+    for (ph, v) in p.photos.iter().zip(&views) {
+        if let Some(v) = v {
+            let w = v.window;
             tracing::info!(
                 photo = %ph.id,
                 columns = %format!("{} … {}", w.col0, w.col0 + w.width),
                 rows = %format!("{} … {}", w.row0, w.row0 + w.height),
-                "reading the window that sees the extent"
+                factor = v.factor,
+                "reading the part that sees the area, averaged over blocks of factor² pixels"
             );
         }
     }
     (0..p.photos.len())
-        .map(|k| load_photo(p, k, scan, wins[k]))
+        .map(|k| load_photo(p, k, scan, views[k]))
         .collect()
 }
 
-/// Bytes a photo's window takes in memory (grey values as f32).
+/// Bytes a photo's view takes in memory (grey values as f32).
 const BYTES_PER_PIXEL: u64 = 4;
 
-/// Refuses, before anything is read, a set of photos held at once (`windows`, `None`: whole)
+/// Refuses, before anything is read, a set of photos held at once (`views`, `None`: whole)
 /// whose grey values alone would pass `[limits] max_memory_mb`: each photo is checked as it is
 /// read, but a block of a hundred photos each within the limit is not. The images' sizes come
 /// from their headers; a scan's from its sidecar's reader, which holds one at a time.
-pub fn check_held(p: &Project, windows: &[Option<PixelWindow>]) -> Result<(), MatchingError> {
+pub fn check_held(p: &Project, views: &[Option<PixelView>]) -> Result<(), MatchingError> {
     let mut bytes: u64 = 0;
     let mut largest: (u64, String) = (0, String::new());
-    for (ph, w) in p.photos.iter().zip(windows) {
+    for (ph, w) in p.photos.iter().zip(views) {
         let path = match &ph.source {
             Source::Scan { .. } => continue,
             Source::Image { path, .. } | Source::Model { path, .. } => path,
         };
         let pixels = match w {
-            Some(w) => (w.width * w.height) as u64,
+            Some(v) => {
+                let (c, r) = v.size();
+                (c * r) as u64
+            }
             None => {
                 let (cols, rows) =
                     crate::image::grey_size(path).map_err(|e| MatchingError::Photo {
@@ -99,27 +104,86 @@ pub fn check_held(p: &Project, windows: &[Option<PixelWindow>]) -> Result<(), Ma
     Ok(())
 }
 
-/// The window of each photo to read: the whole image where the project gives no `[dem]
-/// extent` (or the photo is one of the rig's scans, read whole), else the part that sees the
-/// extent at the heights searched, with [`MARGIN_PX`].
-pub fn windows(
+/// Pixels a side below which a photo is matched as scanned whatever its pixels on the ground:
+/// a sweep of a photo this size takes seconds, and finer pixels than the cell needs still add
+/// precision to each post (see [`level_for`]).
+pub const MIN_LEVEL_SIDE: usize = 1024;
+
+/// The pyramid level `photo_level = "auto"` reads a photo at: the coarsest L whose pixels,
+/// 2ᴸ × `gsd_m` on the ground, are at most half the model's cell (two samples a post: the
+/// grid shows nothing finer, Nyquist) and whose `side` / 2ᴸ keeps [`MIN_LEVEL_SIDE`] pixels.
+/// A film scanned at 12–25 µm (9 000–19 000 px) with posts of a few metres is read 4–16 times
+/// smaller; the sweep's work then follows the model, not the scan (seed 002 matches down a
+/// pyramid; it is the level its last step would need).
+pub fn level_for(gsd_m: f64, cell_m: f64, side: usize) -> u8 {
+    let mut level = 0u8;
+    while level < crate::matching::project::MAX_PHOTO_LEVEL {
+        let f = 1usize << (level + 1);
+        if !(gsd_m.is_finite() && gsd_m * f as f64 <= 0.5 * cell_m && side / f >= MIN_LEVEL_SIDE) {
+            break;
+        }
+        level += 1;
+    }
+    level
+}
+
+/// The view of each photo to read (`None`: the whole image as it is, as a rig scan always is):
+/// where the project gives its `[dem] extent`, the part of the image that sees it at the
+/// heights searched, with [`MARGIN_PX`]; at `[dem] photo_level`, or the level [`level_for`]
+/// picks from each photo's pixel on the ground at its centre.
+pub fn views(
     p: &Project,
     scan: &dyn Fn(&Path) -> Result<Photo, String>,
-) -> Result<Vec<Option<PixelWindow>>, MatchingError> {
-    let Some(extent) = p.extent else {
-        return Ok(vec![None; p.photos.len()]);
-    };
+) -> Result<Vec<Option<PixelView>>, MatchingError> {
+    let is_scan = |k: usize| matches!(p.photos[k].source, Source::Scan { .. });
+    let needs_geometry = p.extent.is_some() || p.photo_level.is_none();
+    if !needs_geometry || (0..p.photos.len()).all(is_scan) {
+        let level = p.photo_level.unwrap_or(0);
+        return (0..p.photos.len())
+            .map(|k| {
+                let path = match &p.photos[k].source {
+                    Source::Image { path, .. } | Source::Model { path, .. } if level > 0 => path,
+                    _ => return Ok(None),
+                };
+                let (w, h) = crate::image::grey_size(path).map_err(|e| MatchingError::Photo {
+                    id: p.photos[k].id.clone(),
+                    message: e.to_string(),
+                })?;
+                Ok(Some(PixelView {
+                    window: PixelWindow::whole(w, h),
+                    factor: 1 << level,
+                }))
+            })
+            .collect();
+    }
     let whole = (0..p.photos.len())
         .map(|k| whole_geometry(p, k, scan))
         .collect::<Result<Vec<_>, _>>()?;
     let oriented = orient(p, &whole)?;
+    let mid = 0.5 * (oriented.heights[0] + oriented.heights[1]);
     Ok(oriented
         .sensors
         .iter()
-        .zip(&p.photos)
-        .map(|(s, ph)| match ph.source {
-            Source::Scan { .. } => None,
-            _ => Some(window_seeing(s, extent, oriented.heights)),
+        .enumerate()
+        .map(|(k, s)| {
+            if is_scan(k) {
+                return None;
+            }
+            let (w, h) = s.image_size();
+            let window = match p.extent {
+                Some(extent) => window_seeing(s, extent, oriented.heights),
+                None => PixelWindow::whole(w, h),
+            };
+            let level = p.photo_level.unwrap_or_else(|| {
+                let centre = PixelXY::new(0.5 * w as f64, 0.5 * h as f64);
+                let gsd = s.ground_pixel_m(centre, mid).unwrap_or(f64::NAN);
+                level_for(gsd, p.cell_m, window.width.min(window.height))
+            });
+            let view = PixelView {
+                window,
+                factor: 1 << level,
+            };
+            (!view.is_whole(w, h)).then_some(view)
         })
         .collect())
 }
@@ -189,7 +253,7 @@ fn whole_geometry(
                 interior,
                 width: w,
                 height: h,
-                window: PixelWindow::whole(w, h),
+                view: PixelView::whole(w, h),
             })
         }
     }
@@ -245,12 +309,12 @@ fn frame_and_interior(
     }
 }
 
-/// Loads photo `k` of the project: `window` of its image (`None`: the whole image).
+/// Loads photo `k` of the project: `view` of its image (`None`: the whole image as it is).
 pub fn load_photo(
     p: &Project,
     k: usize,
     scan: &dyn Fn(&Path) -> Result<Photo, String>,
-    window: Option<PixelWindow>,
+    view: Option<PixelView>,
 ) -> Result<Photo, MatchingError> {
     let max = p.limits.max_memory_mb << 20;
     let ph = &p.photos[k];
@@ -263,10 +327,10 @@ pub fn load_photo(
         Source::Image { path, .. } | Source::Model { path, .. } => path,
     };
     let (w, h) = crate::image::grey_size(path).map_err(|e| err(e.to_string()))?;
-    let window = window.unwrap_or(PixelWindow::whole(w, h));
-    let image = crate::image::load_grey_window(path, window, max).map_err(|e| {
+    let view = view.unwrap_or(PixelView::whole(w, h));
+    let image = crate::image::load_grey_reduced(path, view.window, view.factor, max).map_err(|e| {
         let hint = if p.extent.is_none() && e.to_string().contains("the limit is") {
-            ": give the project's [dem] extent to read only the part of each image that sees it, or raise --max-memory"
+            ": give the project's [dem] extent to read only the part of each image that sees it, a coarser [dem] photo_level, or raise --max-memory"
         } else {
             ""
         };
@@ -277,7 +341,7 @@ pub fn load_photo(
         image,
         frame,
         interior,
-        window,
+        view,
     })
 }
 

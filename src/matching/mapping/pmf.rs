@@ -232,27 +232,26 @@ impl Polynomial {
         top
     }
 
-    /// The same polynomial of variables moved by `d` (each new variable is the old one − d):
-    /// only the centre of the normalisation moves, so the value is the same expression.
-    pub fn with_variables_moved(&self, d: [f64; 3]) -> Polynomial {
+    /// The same function of variables in other units: old variable k = `u[k].scale` · new +
+    /// `u[k].offset`. Only the normaliser changes (u = (old − c)/s = (new − (c − b)/a)/(s/a)),
+    /// so the value is the same expression, exactly.
+    pub fn with_variables_in(&self, u: [Units; 3]) -> Polynomial {
         let mut p = self.clone();
-        for (c, d) in p.norm.centre.iter_mut().zip(d) {
-            *c -= d;
+        for ((c, s), u) in p.norm.centre.iter_mut().zip(&mut p.norm.scale).zip(u) {
+            *c = (*c - u.offset) / u.scale;
+            *s /= u.scale;
         }
         p
     }
 
-    /// The same function of variables x and y `f` times smaller and of a value `f` times
-    /// smaller (a pyramid level's pixels: x = f·x′): the normaliser's x and y and the
-    /// coefficients scaled, exactly.
-    pub fn with_xy_and_value_scaled(&self, f: f64) -> Polynomial {
-        let mut p = self.clone();
-        for k in 0..2 {
-            p.norm.centre[k] /= f;
-            p.norm.scale[k] /= f;
-        }
-        for c in &mut p.coef {
-            *c /= f;
+    /// The same function with its value in other units: old value = `u.scale` · new +
+    /// `u.offset`.
+    pub fn with_value_in(&self, u: Units) -> Polynomial {
+        let mut p = self.minus(u.offset);
+        if u.scale != 1.0 {
+            for c in &mut p.coef {
+                *c /= u.scale;
+            }
         }
         p
     }
@@ -534,20 +533,35 @@ impl Mapping {
     /// The mapping between the photos' pyramid levels `f` times coarser (pixel coordinates
     /// divided by `f`, heights as they are).
     pub fn coarser(&self, f: f64) -> Mapping {
-        Mapping {
-            x: self.x.with_xy_and_value_scaled(f),
-            y: self.y.with_xy_and_value_scaled(f),
-        }
+        let px = Units {
+            scale: f,
+            offset: 0.0,
+        };
+        self.in_units([px, px, Units::SAME], [px, px])
     }
 
-    /// The mapping between spaces moved by `from` (its variables) and `to` (its values):
-    /// each new coordinate is the old one − the offset.
-    pub fn moved(&self, from: [f64; 3], to: [f64; 2]) -> Mapping {
+    /// The same mapping of variables and to values in other units ([`Units`]).
+    pub fn in_units(&self, from: [Units; 3], to: [Units; 2]) -> Mapping {
         Mapping {
-            x: self.x.with_variables_moved(from).minus(to[0]),
-            y: self.y.with_variables_moved(from).minus(to[1]),
+            x: self.x.with_variables_in(from).with_value_in(to[0]),
+            y: self.y.with_variables_in(from).with_value_in(to[1]),
         }
     }
+}
+
+/// A change of a coordinate's units: the old value = `scale` · the new + `offset` (a window's
+/// pixels: scale 1, offset its corner; a pyramid level's: scale its factor).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Units {
+    pub scale: f64,
+    pub offset: f64,
+}
+
+impl Units {
+    pub const SAME: Units = Units {
+        scale: 1.0,
+        offset: 0.0,
+    };
 }
 
 #[cfg(test)]

@@ -5,10 +5,10 @@
 //! three heights (seed 004 §4), the check points then at the cells' centres at two heights in
 //! between. Image coordinates are pixels of each photo (continuous, corner origin).
 
-use crate::coords::{GroundM, PixelXY};
+use crate::coords::{GroundM, PixelView, PixelXY};
 use crate::geometry::Sensor;
 use crate::matching::mapping::pmf::{
-    extend, select, select_order, Mapping, PmfError, Polynomial, Sample, Selection,
+    extend, select, select_order, Mapping, PmfError, Polynomial, Sample, Selection, Units,
 };
 use serde::{Deserialize, Serialize};
 
@@ -127,25 +127,55 @@ impl Default for SampleGrid {
     }
 }
 
+/// A view's pixel units in its image's: image = f · view + the window's corner.
+fn view_units(v: PixelView) -> [Units; 2] {
+    let f = v.factor.max(1) as f64;
+    [
+        Units {
+            scale: f,
+            offset: v.window.col0 as f64,
+        },
+        Units {
+            scale: f,
+            offset: v.window.row0 as f64,
+        },
+    ]
+}
+
 impl PmfSet {
-    /// The same mappings for pixels counted from other origins: each photo's pixel becomes the
-    /// old one − its offset (`left`, `right`: (col, row)), as a window read from each image
-    /// counts them. The ground is unchanged.
-    pub fn moved(&self, left: [f64; 2], right: [f64; 2]) -> PmfSet {
-        let (l, r) = ([left[0], left[1], 0.0], [right[0], right[1], 0.0]);
-        let none = [0.0; 3];
+    /// The same mappings for each photo's pixels in other units: old pixel = `scale` · new +
+    /// `offset` (per photo: `left`, `right`, each [col, row]), as a view read from each image
+    /// counts them ([`crate::coords::PixelView`]), or back. The ground is unchanged.
+    pub fn in_pixels(&self, left: [Units; 2], right: [Units; 2]) -> PmfSet {
+        let s = Units::SAME;
+        let (l, r) = ([left[0], left[1], s], [right[0], right[1], s]);
         PmfSet {
-            left_to_right: self.left_to_right.moved(l, right),
-            right_to_left: self.right_to_left.as_ref().map(|m| m.moved(r, left)),
-            left_to_ground: self.left_to_ground.moved(l, [0.0; 2]),
-            right_to_ground: self.right_to_ground.moved(r, [0.0; 2]),
-            ground_to_left: self.ground_to_left.moved(none, left),
-            ground_to_right: self.ground_to_right.moved(none, right),
-            height: self
-                .height
-                .with_variables_moved([left[0], left[1], right[0]]),
+            left_to_right: self.left_to_right.in_units(l, right),
+            right_to_left: self.right_to_left.as_ref().map(|m| m.in_units(r, left)),
+            left_to_ground: self.left_to_ground.in_units(l, [s, s]),
+            right_to_ground: self.right_to_ground.in_units(r, [s, s]),
+            ground_to_left: self.ground_to_left.in_units([s; 3], left),
+            ground_to_right: self.ground_to_right.in_units([s; 3], right),
+            height: self.height.with_variables_in([left[0], left[1], right[0]]),
             report: self.report.clone(),
         }
+    }
+
+    /// The mappings of whole images' pixels in the pixels of `left` and `right` views of them.
+    pub fn in_views(&self, left: PixelView, right: PixelView) -> PmfSet {
+        self.in_pixels(view_units(left), view_units(right))
+    }
+
+    /// The mappings of views' pixels in their whole images' pixels (the inverse of
+    /// [`PmfSet::in_views`]).
+    pub fn from_views(&self, left: PixelView, right: PixelView) -> PmfSet {
+        let back = |v: PixelView| {
+            view_units(v).map(|u| Units {
+                scale: 1.0 / u.scale,
+                offset: -u.offset / u.scale,
+            })
+        };
+        self.in_pixels(back(left), back(right))
     }
 
     /// All six mappings from control and check points, terms chosen from the full form of
@@ -330,58 +360,76 @@ mod tests {
         (spot_like(-20.0), spot_like(20.0))
     }
 
-    /// Moved mappings read the same geometry in the new pixels: at points of a SPOT pair,
-    /// every mapping of the moved set, given the moved pixels, gives the moved values (a
-    /// second computation: the original set with the offsets added back by hand).
+    /// Mappings in views' pixels read the same geometry: at points of a SPOT pair, every
+    /// mapping of the set in the views, given the views' pixels, gives the views' values (a
+    /// second computation: the original set, the pixels converted by hand); back from the
+    /// views, the same values as the original.
     #[test]
-    fn moved_mappings_hold_the_same_geometry_in_window_pixels() {
+    fn mappings_in_views_hold_the_same_geometry() {
+        use crate::coords::PixelWindow;
         let (l, r) = pair();
         let s = PmfSet::from_sensors(&l, &r, [0.0, 2000.0], 2).unwrap();
-        let (dl, dr) = ([1234.5, -77.25], [-301.0, 4096.0]);
-        let m = s.moved(dl, dr);
-        for (x, y, h) in [
-            (100.0, 200.0, 50.0),
-            (2900.0, 1500.0, 1800.0),
-            (0.0, 0.0, 0.0),
+        let view = |col0: usize, row0: usize, factor: usize| PixelView {
+            window: PixelWindow {
+                col0,
+                row0,
+                width: 4000,
+                height: 4000,
+            },
+            factor,
+        };
+        for (vl, vr) in [
+            (view(1234, 77, 1), view(301, 4096, 1)),
+            (view(1234, 77, 4), view(300, 16, 8)),
         ] {
-            let close = |a: [f64; 2], b: [f64; 2]| {
-                assert!(
-                    (a[0] - b[0]).abs() < 1e-6 && (a[1] - b[1]).abs() < 1e-6,
-                    "{a:?} {b:?}"
-                )
+            let m = s.in_views(vl, vr);
+            let to_l = |p: [f64; 2]| {
+                let (x, y) = vl.to_read(p[0], p[1]);
+                [x, y]
             };
-            let (lw, g) = ([x - dl[0], y - dl[1]], s.left_to_ground.eval([x, y, h]));
-            let q = s.left_to_right.eval([x, y, h]);
-            close(
-                m.left_to_right.eval([lw[0], lw[1], h]),
-                [q[0] - dr[0], q[1] - dr[1]],
-            );
-            close(m.left_to_ground.eval([lw[0], lw[1], h]), g);
-            let back = s.right_to_left.as_ref().unwrap().eval([q[0], q[1], h]);
-            let mb = m.right_to_left.as_ref().unwrap();
-            close(
-                mb.eval([q[0] - dr[0], q[1] - dr[1], h]),
-                [back[0] - dl[0], back[1] - dl[1]],
-            );
-            close(
-                m.right_to_ground.eval([q[0] - dr[0], q[1] - dr[1], h]),
-                s.right_to_ground.eval([q[0], q[1], h]),
-            );
-            let gl = s.ground_to_left.eval([g[0], g[1], h]);
-            close(
-                m.ground_to_left.eval([g[0], g[1], h]),
-                [gl[0] - dl[0], gl[1] - dl[1]],
-            );
-            let gr = s.ground_to_right.eval([g[0], g[1], h]);
-            close(
-                m.ground_to_right.eval([g[0], g[1], h]),
-                [gr[0] - dr[0], gr[1] - dr[1]],
-            );
-            let z = s.height.eval([x, y, q[0]]);
-            assert!((m.height.eval([lw[0], lw[1], q[0] - dr[0]]) - z).abs() < 1e-6);
+            let to_r = |p: [f64; 2]| {
+                let (x, y) = vr.to_read(p[0], p[1]);
+                [x, y]
+            };
+            let back = m.from_views(vl, vr);
+            for (x, y, h) in [
+                (100.0, 200.0, 50.0),
+                (2900.0, 1500.0, 1800.0),
+                (0.0, 0.0, 0.0),
+            ] {
+                let close = |a: [f64; 2], b: [f64; 2]| {
+                    assert!(
+                        (a[0] - b[0]).abs() < 1e-6 && (a[1] - b[1]).abs() < 1e-6,
+                        "{a:?} {b:?}"
+                    )
+                };
+                let (lw, g) = (to_l([x, y]), s.left_to_ground.eval([x, y, h]));
+                let q = s.left_to_right.eval([x, y, h]);
+                let rw = to_r(q);
+                close(m.left_to_right.eval([lw[0], lw[1], h]), rw);
+                close(back.left_to_right.eval([x, y, h]), q);
+                close(m.left_to_ground.eval([lw[0], lw[1], h]), g);
+                let bl = s.right_to_left.as_ref().unwrap().eval([q[0], q[1], h]);
+                let mb = m.right_to_left.as_ref().unwrap();
+                close(mb.eval([rw[0], rw[1], h]), to_l(bl));
+                close(
+                    m.right_to_ground.eval([rw[0], rw[1], h]),
+                    s.right_to_ground.eval([q[0], q[1], h]),
+                );
+                let gl = s.ground_to_left.eval([g[0], g[1], h]);
+                close(m.ground_to_left.eval([g[0], g[1], h]), to_l(gl));
+                let gr = s.ground_to_right.eval([g[0], g[1], h]);
+                close(m.ground_to_right.eval([g[0], g[1], h]), to_r(gr));
+                let z = s.height.eval([x, y, q[0]]);
+                assert!((m.height.eval([lw[0], lw[1], rw[0]]) - z).abs() < 1e-6);
+                assert!((back.height.eval([x, y, q[0]]) - z).abs() < 1e-6);
+            }
         }
-        // No offset: the same set, to the last bit.
-        assert_eq!(s.moved([0.0; 2], [0.0; 2]), s);
+        // The whole images as they are: the same set, to the last bit.
+        assert_eq!(
+            s.in_views(PixelView::whole(9, 9), PixelView::whole(9, 9)),
+            s
+        );
     }
 
     /// Seed 004's check of the mapping functions: every one of the six, on seed 004's own

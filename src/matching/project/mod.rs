@@ -101,12 +101,17 @@ enum GroundSigma {
     PlanHeight([f64; 2]),
 }
 
+/// The coarsest `[dem] photo_level` a project may give: photos 64 times smaller.
+pub const MAX_PHOTO_LEVEL: u8 = 6;
+
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 struct RawDem {
     cell_m: f64,
     extent: Option<[f64; 4]>,
     heights: Option<[f64; 2]>,
+    /// "auto" or a pyramid level 0 … 6 (see [`Project::photo_level`]).
+    photo_level: Option<toml::Value>,
 }
 
 fn d_window() -> usize {
@@ -415,6 +420,10 @@ pub struct Project {
     pub cell_m: f64,
     pub extent: Option<[f64; 4]>,
     pub heights: Option<[f64; 2]>,
+    /// `[dem] photo_level`: the pyramid level the photos are read at, 2ᴸ times smaller than
+    /// scanned (`None`: "auto", chosen from the cell: see
+    /// [`crate::matching::block::photos::level_for`]).
+    pub photo_level: Option<u8>,
     pub matching: Matching,
     pub reference: Option<PathBuf>,
     /// `[orientation] covariance`: the oriented photos' covariance as `rig orient` wrote it,
@@ -744,6 +753,18 @@ impl Project {
                 )));
             }
         }
+        let photo_level = match &d.photo_level {
+            None => None,
+            Some(toml::Value::String(a)) if a == "auto" => None,
+            Some(toml::Value::Integer(l)) if (0..=MAX_PHOTO_LEVEL as i64).contains(l) => {
+                Some(*l as u8)
+            }
+            Some(v) => {
+                return Err(bad(format!(
+                    "[dem] photo_level {v}: \"auto\" or a pyramid level 0 … {MAX_PHOTO_LEVEL} (the photos read 2^level times smaller; 0: as scanned)"
+                )))
+            }
+        };
         let mut m = raw
             .matching
             .unwrap_or_else(|| toml::from_str("").expect("every [matching] key has a default"));
@@ -844,6 +865,7 @@ impl Project {
             cell_m: d.cell_m,
             extent: d.extent,
             heights: d.heights,
+            photo_level,
             matching: m,
             reference: raw.check.map(|c| base.join(c.reference)),
             radial: raw.orientation.as_ref().map_or_else(Default::default, |o| {

@@ -407,25 +407,6 @@ const GUIDE_PLANES: usize = 32;
 /// … or a photo's shorter side fewer pixels than this.
 const GUIDE_SIDE: usize = 64;
 
-/// `img` averaged over blocks of `f` × `f` pixels (a pyramid level: its pixel c covers
-/// [c·f, (c + 1)·f) of the original's, so coordinates scale by `f` exactly).
-fn averaged(img: &ImageF32, f: usize) -> ImageF32 {
-    let (w, h) = (img.width / f, img.height / f);
-    let mut out = ImageF32::new(w, h);
-    let norm = 1.0 / (f * f) as f32;
-    for r in 0..h {
-        for c in 0..w {
-            let mut sum = 0.0f32;
-            for y in r * f..(r + 1) * f {
-                let row = &img.data[y * img.width + c * f..y * img.width + (c + 1) * f];
-                sum += row.iter().sum::<f32>();
-            }
-            out.data[r * w + c] = sum * norm;
-        }
-    }
-    out
-}
-
 /// Map columns of a tile of the coarse-to-fine sweep.
 const TILE_COLS: usize = 64;
 
@@ -467,8 +448,8 @@ fn guide(
         ..p.clone()
     };
     let coarse = sweep(
-        &averaged(left, f),
-        &averaged(right, f),
+        &left.averaged(f),
+        &right.averaged(f),
         &map.coarser(f as f64),
         &coarse_p,
     );

@@ -397,10 +397,7 @@ pub fn finish(run: &Run, plan: &Plan, parts: Vec<PairPart>) -> Result<SweepRepor
         &report.summary(),
     )?;
     // Each pair's mappings in the whole images' pixels, for `mappings = "file"`.
-    let whole = |k: usize| {
-        let w = run.photos[k].window;
-        [-(w.col0 as f64), -(w.row0 as f64)]
-    };
+    let view = |k: usize| run.photos[k].view;
     let mappings = MappingsFile {
         pairs: plan
             .pairs
@@ -408,7 +405,7 @@ pub fn finish(run: &Run, plan: &Plan, parts: Vec<PairPart>) -> Result<SweepRepor
             .map(|pair| PairMappings {
                 left: p.photos[pair.left].id.clone(),
                 right: p.photos[pair.right].id.clone(),
-                mappings: pair.pmfs.moved(whole(pair.left), whole(pair.right)),
+                mappings: pair.pmfs.from_views(view(pair.left), view(pair.right)),
             })
             .collect(),
     };

@@ -4,7 +4,7 @@
 //! photos share (seed 000), its height step and parameters, its work
 //! checked against the budget.
 
-use crate::coords::PixelWindow;
+use crate::coords::PixelView;
 use crate::geometry::{PhotoSensor, Sensor};
 use crate::matching::block::orient::{orient, Oriented};
 use crate::matching::block::photo::PhotoGeometry;
@@ -60,15 +60,17 @@ impl Plan {
 }
 
 /// The points of `kind` with ground coordinates that photos `a` and `b` both show, as seed
-/// 000 fits a pair's mappings to them: each photo's pixel in the window of it that was read.
+/// 000 fits a pair's mappings to them: each photo's pixel in the view of it that was read.
 fn shared_points(
     obs: &[Observation],
     kind: Kind,
-    (a, wa): (&str, PixelWindow),
-    (b, wb): (&str, PixelWindow),
+    (a, wa): (&str, PixelView),
+    (b, wb): (&str, PixelView),
 ) -> Vec<StereoPoint> {
-    let in_window =
-        |o: &Observation, w: PixelWindow| [o.col - w.col0 as f64, o.row - w.row0 as f64];
+    let in_window = |o: &Observation, w: PixelView| {
+        let (x, y) = w.to_read(o.col, o.row);
+        [x, y]
+    };
     // Photo b's points by id: a points file may hold a million observations.
     // The first of an id, as a search from the top would find it.
     let mut in_b: std::collections::HashMap<&str, &Observation> = Default::default();
@@ -144,25 +146,21 @@ pub fn plan(
         };
         let pmfs = match (&given, m.mappings) {
             (Some((f, given)), _) => {
-                let (a, b) = (photos[i].window, photos[j].window);
                 let set = given
                     .pair(li, ri)
                     .map_err(|message| MatchingError::GivenMappings {
                         path: (*f).clone(),
                         message,
                     })?;
-                set.moved(
-                    [a.col0 as f64, a.row0 as f64],
-                    [b.col0 as f64, b.row0 as f64],
-                )
+                set.in_views(photos[i].view, photos[j].view)
             }
             (None, Mappings::Points) => {
                 let shared = |kind| {
                     shared_points(
                         &oriented.observations,
                         kind,
-                        (li, photos[i].window),
-                        (ri, photos[j].window),
+                        (li, photos[i].view),
+                        (ri, photos[j].view),
                     )
                 };
                 PmfSet::from_points_with(m.order, set, &shared(Kind::Gcp), &shared(Kind::Cp))
@@ -196,19 +194,17 @@ pub fn plan(
             },
             cell_m: p.cell_m,
         };
-        let (a, b) = (&photos[i].window, &photos[j].window);
-        estimate((a.width, a.height), (b.width, b.height), &params, &budget).map_err(|source| {
-            MatchingError::Pair {
-                left: li.clone(),
-                right: ri.clone(),
-                cause: source,
-            }
+        let (a, b) = (photos[i].view.size(), photos[j].view.size());
+        estimate(a, b, &params, &budget).map_err(|source| MatchingError::Pair {
+            left: li.clone(),
+            right: ri.clone(),
+            cause: source,
         })?;
         pairs.push(PlannedPair {
             left: i,
             right: j,
             pmfs,
-            layout: SweepLayout::new(a.width, a.height, &params.sweep),
+            layout: SweepLayout::new(a.0, a.1, &params.sweep),
             params,
         });
     }

@@ -10,7 +10,7 @@
 //! single run: the merged outputs are the single run's, byte for byte.
 
 use crate::matching::block::photo::Photo;
-use crate::matching::block::photos::{load_photo, load_photos, windows};
+use crate::matching::block::photos::{load_photo, load_photos, views};
 use crate::matching::methods::context::{prepare, Run};
 use crate::matching::methods::sweep::height_sweep::SweptBands;
 use crate::matching::methods::sweep::plan::plan;
@@ -586,7 +586,7 @@ pub fn sweep_share(
     prepare_dir(out)?;
     let mut geometry = Vec::new();
     let mut pixels = Vec::new();
-    let wins = windows(p, scan)?;
+    let wins = views(p, scan)?;
     for (k, &w) in wins.iter().enumerate() {
         let ph = load_photo(p, k, scan, w)?;
         geometry.push(ph.geometry());
