@@ -349,6 +349,25 @@ pub fn load_photo(
 mod tests {
     use super::*;
 
+    /// "auto": the coarsest level with pixels at most half a cell and [`MIN_LEVEL_SIDE`] a
+    /// side. A 12 800 px scan of 0.0625 m pixels, 1 m posts: 0.5 m at level 3 (1 600 px);
+    /// the same film at 800 px (1 m pixels): as scanned; a 600 px photo of 5 m pixels under
+    /// 80 m posts: as scanned (below 1 024 px a side whatever the cell); a pixel of no size
+    /// (a sensor that cannot say): as scanned; never beyond the deepest level.
+    #[test]
+    fn auto_keeps_two_pixels_a_post_and_a_thousand_a_side() {
+        assert_eq!(level_for(0.0625, 1.0, 12_800), 3);
+        assert_eq!(level_for(0.25, 1.0, 3_200), 1);
+        assert_eq!(level_for(1.0, 1.0, 800), 0);
+        assert_eq!(level_for(5.4, 80.0, 640), 0);
+        assert_eq!(level_for(5.4, 80.0, 4_096), 2);
+        assert_eq!(level_for(f64::NAN, 1.0, 12_800), 0);
+        assert_eq!(
+            level_for(0.001, 1000.0, 1 << 30),
+            crate::matching::project::MAX_PHOTO_LEVEL
+        );
+    }
+
     /// Two photos each within the memory limit but not together are refused before either
     /// is read, naming the total and the limit; with the limit raised, they pass.
     #[test]

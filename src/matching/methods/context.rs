@@ -58,6 +58,43 @@ impl Run<'_> {
         report: &impl Serialize,
         summary: &[(String, String)],
     ) -> Result<(), MatchingError> {
+        // Every method's report says which part of each photo it matched, and how much
+        // smaller it was read ([`crate::matching::block::photos::views`]).
+        let read: Vec<PhotoRead> = self
+            .project
+            .photos
+            .iter()
+            .zip(self.photos)
+            .map(|(ph, photo)| PhotoRead {
+                id: ph.id.clone(),
+                window: photo.view.window,
+                factor: photo.view.factor,
+                size: photo.view.size(),
+            })
+            .collect();
+        let mut report = serde_json::to_value(report).map_err(|e| MatchingError::Write {
+            dir: self.out.to_path_buf(),
+            cause: std::io::Error::other(e),
+        })?;
+        if let Some(o) = report.as_object_mut() {
+            o.insert(
+                "photos_read".into(),
+                serde_json::to_value(&read).unwrap_or_default(),
+            );
+        }
+        let mut summary = summary.to_vec();
+        if let Some(f) = read.iter().map(|r| r.factor).max().filter(|&f| f > 1) {
+            summary.insert(
+                0,
+                (
+                    "photos read".into(),
+                    format!(
+                        "averaged over blocks of up to {f} × {f} pixels as they were read ([dem] photo_level; \"auto\": two pixels a post of {} m)",
+                        self.project.cell_m
+                    ),
+                ),
+            );
+        }
         write_model(
             self.out,
             &figures.grid,
@@ -67,14 +104,24 @@ impl Run<'_> {
             sensors,
             self.reference.zip(figures.comparison.as_ref()),
             self.project.crs,
-            report,
-            summary,
+            &report,
+            &summary,
         )
         .map_err(|cause| MatchingError::Write {
             dir: self.out.to_path_buf(),
             cause,
         })
     }
+}
+
+/// Which part of a photo a run matched (`window`, the whole image's pixels), averaged over
+/// blocks of `factor` × `factor` pixels into `size`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PhotoRead {
+    pub id: String,
+    pub window: crate::coords::PixelWindow,
+    pub factor: usize,
+    pub size: (usize, usize),
 }
 
 /// The head of a multiphoto method's report.json (flattened into its top level): what was

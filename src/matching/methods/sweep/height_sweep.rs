@@ -269,24 +269,45 @@ fn sweep_bands_guided(
     let all_planes = planes_of(p);
     let guide = guided.then(|| guide(left, right, map, p, &l)).flatten();
     let (lp, rp) = (Prepared::new(left), Prepared::new(right));
-    progress.begin("sweep (rows)", rows.len() as u64);
+    // Each band's tiles and their heights: one tile of every height, or those the coarser
+    // level leaves open. The progress counts their candidates, so that its time left holds
+    // where bands the coarse level saw take a few heights and the others all of them.
+    let band_rows = |b: usize| (b * BAND_ROWS, ((b + 1) * BAND_ROWS).min(l.rows));
+    let band_tiles: Vec<Vec<(usize, usize, usize, usize)>> = bands
+        .clone()
+        .map(|b| {
+            guide
+                .as_ref()
+                .map_or_else(|| vec![(0, cols, 0, all_planes)], |g| g.tiles(b, &l, k))
+        })
+        .collect();
+    let work = |b: usize, tiles: &[(usize, usize, usize, usize)]| -> u64 {
+        let (j0, j1) = band_rows(b);
+        tiles
+            .iter()
+            .map(|&(i0, i1, _, n)| ((j1 - j0) * (i1 - i0) * n) as u64)
+            .sum()
+    };
+    let total: u64 = bands
+        .clone()
+        .zip(&band_tiles)
+        .map(|(b, t)| work(b, t))
+        .sum();
+    progress.begin("sweep (candidate heights)", total);
     type Band = (Vec<f32>, Vec<f32>, Vec<f32>, u64);
     let parts: Vec<Band> = bands
         .clone()
+        .zip(band_tiles)
+        .collect::<Vec<_>>()
         .into_par_iter()
-        .map(|b| {
-            let (j0, j1) = (b * BAND_ROWS, ((b + 1) * BAND_ROWS).min(l.rows));
+        .map(|(b, tiles)| {
+            let (j0, j1) = band_rows(b);
             let rows_px: Vec<usize> = (j0..j1).map(|j| l.row0 + j * s).collect();
             let rows_n = rows_px.len();
             let n = rows_n * cols;
             let (mut h, mut corr, mut sigma) =
                 (vec![f32::NAN; n], vec![f32::NAN; n], vec![f32::NAN; n]);
             let mut tried = 0u64;
-            // The band's tiles and their heights: one tile of every height, or those the
-            // coarser level leaves open.
-            let tiles = guide
-                .as_ref()
-                .map_or_else(|| vec![(0, cols, 0, all_planes)], |g| g.tiles(b, &l, k));
             for (i0, i1, first_plane, n_planes) in tiles {
                 let tile_cols = i1 - i0;
                 let h0 = p.h_min + first_plane as f64 * p.h_step;
@@ -374,7 +395,7 @@ fn sweep_bands_guided(
                     }
                 }
             }
-            progress.advance((j1 - j0) as u64);
+            progress.advance(tried);
             (h, corr, sigma, tried)
         })
         .collect();
