@@ -24,6 +24,7 @@ import tifffile
 ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
 ap.add_argument('--rig', default='target/release/rig')
 ap.add_argument('--scene', required=True)
+ap.add_argument('--project', default='project.toml', help="the scene's format-2 project file (rig sim scene: block.toml)")
 ap.add_argument('--factors', default='1,4,16')
 ap.add_argument('--photos', default='1,2', help='ids of the two photos of the pair')
 ap.add_argument('--work', default='/tmp/film-scaling')
@@ -75,7 +76,7 @@ def make(k):
         return d
     shutil.rmtree(d, ignore_errors=True)
     os.makedirs(d)
-    text = open(os.path.join(args.scene, 'project.toml')).read()
+    text = open(os.path.join(args.scene, args.project)).read()
     # Only the pair's photos.
     blocks = re.split(r'(?m)^(?=\[\[photo\]\])', text)
     head, photos = blocks[0], blocks[1:]
@@ -88,8 +89,19 @@ def make(k):
         pid = re.search(r'id\s*=\s*"([^"]+)"', body).group(1)
         if pid in keep:
             kept.append(body)
-            img = re.search(r'image\s*=\s*"([^"]+)"', body).group(1)
-            upsample(os.path.join(args.scene, img), os.path.join(d, img), k)
+            img = re.search(r'image\s*=\s*"([^"]+)"', body)
+            if img:
+                upsample(os.path.join(args.scene, img.group(1)), os.path.join(d, img.group(1)), k)
+            else:
+                # One of the rig's scans: its sidecar's grid k times finer, the same corner.
+                side = re.search(r'scan\s*=\s*"([^"]+)"', body).group(1)
+                j = json.load(open(os.path.join(args.scene, side)))
+                upsample(os.path.join(args.scene, j['image']), os.path.join(d, j['image']), k)
+                g = j['grid']
+                g['step_mm'] /= k
+                g['width'] *= k
+                g['height'] *= k
+                json.dump(j, open(os.path.join(d, side), 'w'), indent=1)
     head = re.sub(r'pixel_mm\s*=\s*([0-9.eE+-]+)',
                   lambda m: f'pixel_mm = {float(m.group(1)) / k!r}', head)
     open(os.path.join(d, 'project.toml'), 'w').write(head + ''.join(kept) + tail)
@@ -107,7 +119,10 @@ def make(k):
             f[ri] = repr((float(f[ri]) + 0.5) * k - 0.5)
             out.append(','.join(f))
         open(os.path.join(d, 'points.csv'), 'w').write('\n'.join(out) + '\n')
-    shutil.copy(os.path.join(args.scene, 'truth_dem.tif'), d)
+    ref = re.search(r'reference\s*=\s*"([^"]+)"', text).group(1)
+    shutil.copy(os.path.join(args.scene, ref), os.path.join(d, 'truth_dem.tif'))
+    t = open(os.path.join(d, 'project.toml')).read().replace(f'"{ref}"', '"truth_dem.tif"')
+    open(os.path.join(d, 'project.toml'), 'w').write(t)
     open(done, 'w').close()
     return d
 
@@ -169,21 +184,53 @@ def judge(out, d):
 def run(d, k):
     out = os.path.join(d, 'out')
     shutil.rmtree(out, ignore_errors=True)
-    cmd = [RIG, 'dtm', os.path.join(d, 'project.toml'), '--out', out, '--json'] + args.rig_args.split()
+    cmd = [RIG, 'dtm', os.path.join(d, 'project.toml'), '--out', out] + args.rig_args.split()
     # Each run in its own process under /usr/bin/time: the peak resident memory is this
     # child's alone.
     t0 = time.time()
-    r = subprocess.run(['/usr/bin/time', '-f', '%M'] + cmd, capture_output=True, text=True)
+    env = dict(os.environ, RIG_LOG_EVERY_S='0.5')
+    r = subprocess.run(['/usr/bin/time', '-f', '%M'] + cmd, capture_output=True, text=True, env=env)
     secs = time.time() - t0
     if r.returncode != 0:
         return {'factor': k, 'failed': r.stderr[-1500:]}
     peak_kib = int(r.stderr.strip().splitlines()[-1])
-    with tifffile.TiffFile(os.path.join(d, f'photo_{keep[0]}.tif')) as t:
-        h, w = t.pages[0].shape
-    res = {'factor': k, 'photo_px': [w, h], 'megapixels': 2 * w * h / 1e6, 'seconds': secs,
-           'peak_mib': peak_kib / 1024}
+    read = json.load(open(os.path.join(out, 'report.json')))['photos_read']
+    r0 = read[0]
+    w, h = r0['window']['width'], r0['window']['height']
+    mpx = sum(r['window']['width'] * r['window']['height'] for r in read) / 1e6
+    res = {'factor': k, 'photo_px': [w, h], 'megapixels': mpx, 'seconds': secs,
+           'peak_mib': peak_kib / 1024, 'read_factor': r0['factor']}
     res.update(judge(out, d))
+    res.update(time_left(r.stderr))
     return res
+
+
+def time_left(log):
+    """How honest the progress lines' time left was: for each step of at least 4 s, each line
+    after its first tenth whose step still had a tenth and at least 2 s to go (the last
+    seconds, where one thread finishes the last band, are left out), |said - true| / true, the
+    true time left being the step's end ('done in') less the line's time. The worst such
+    error over the steps, and the step it was in."""
+    said = {}
+    worst = (0.0, '')
+    for ln in log.splitlines():
+        m = re.match(r'(.*): (\d+)/(\d+) after ([0-9.]+) s \(.*about ([0-9.]+) s left\)', ln)
+        if m:
+            said.setdefault(m.group(1), []).append((float(m.group(4)), float(m.group(5)),
+                                                     int(m.group(2)) / max(int(m.group(3)), 1)))
+            continue
+        m = re.match(r'(.*): \d+/\d+ done in ([0-9.]+) s', ln)
+        if m and m.group(1) in said:
+            end = float(m.group(2))
+            if end < 4:
+                continue
+            for at, left, share in said.pop(m.group(1)):
+                true = end - at
+                if share >= 0.1 and true >= max(2, 0.1 * end):
+                    e = abs(left - true) / true
+                    if e > worst[0]:
+                        worst = (e, m.group(1))
+    return {'time_left_worst_error': worst[0], 'time_left_worst_step': worst[1]}
 
 
 os.makedirs(args.work, exist_ok=True)
@@ -200,12 +247,13 @@ if args.json:
     print(json.dumps(rows, indent=1))
 else:
     print(f"{'photos':>14} {'pixels':>7} {'time s':>8} {'peak MiB':>9} {'s/Mpx vs 1x':>11} "
-          f"{'RMSE m':>7} {'NMAD m':>7} {'cover %':>7} {'RMS e/s':>7}")
+          f"{'read 1/':>7} {'RMSE m':>7} {'NMAD m':>7} {'cover %':>7} {'RMS e/s':>7} {'ETA err':>7}")
     for r in rows:
         if 'failed' in r:
             print(f"x{r['factor']}: FAILED\n{r['failed']}")
             continue
         ratio = (r['seconds'] / r['megapixels']) / (base['seconds'] / base['megapixels'])
         print(f"{r['photo_px'][0]:>6} x {r['photo_px'][1]:<6} {r['factor'] ** 2:>6}x {r['seconds']:>8.1f} "
-              f"{r['peak_mib']:>9.0f} {ratio:>11.3f} {r['rmse_m']:>7.2f} {r['nmad_m']:>7.2f} "
-              f"{r['coverage_percent']:>7.1f} {r['rms_error_over_sigma']:>7.2f}")
+              f"{r['peak_mib']:>9.0f} {ratio:>11.3f} {r['read_factor']:>7} {r['rmse_m']:>7.2f} {r['nmad_m']:>7.2f} "
+              f"{r['coverage_percent']:>7.1f} {r['rms_error_over_sigma']:>7.2f} "
+              f"{100 * r['time_left_worst_error']:>6.0f}% {r['time_left_worst_step']}")

@@ -166,4 +166,25 @@ fn a_pair_scanned_four_times_finer_gives_the_same_model_at_the_level_auto_picks(
         nodes(&b),
         nodes(&a)
     );
+    // As scanned (level 0) the two 2 400² photos take 43 MiB as grey values: under a limit of
+    // 30 MiB the run is refused before a pixel is read, with the figure and the way out;
+    // "auto" fits (2 × 5.5 MiB).
+    let text = std::fs::read_to_string(large.join("project.toml")).unwrap();
+    let level0 = text.replace("[dem]\n", "[dem]\nphoto_level = 0\n");
+    assert_ne!(level0, text);
+    std::fs::write(large.join("level0.toml"), level0).unwrap();
+    let r = Command::new(env!("CARGO_BIN_EXE_rig"))
+        .arg("dtm")
+        .arg(large.join("level0.toml"))
+        .args(["--max-memory", "30", "--out"])
+        .arg(large.join("out0"))
+        .output()
+        .unwrap();
+    let e = String::from_utf8_lossy(&r.stderr);
+    assert!(!r.status.success());
+    assert!(
+        e.contains("43 MiB") && e.contains("the limit is 30 MiB") && e.contains("photo_level"),
+        "{e}"
+    );
+    assert!(!e.contains("reading photos"), "refused after reading: {e}");
 }

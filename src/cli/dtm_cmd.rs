@@ -126,8 +126,17 @@ fn upgrade(project: &std::path::Path, out: Option<PathBuf>) -> anyhow::Result<i3
 }
 
 /// The rig's own scans come through the scan's hand-over.
-fn scan_photo(sidecar: &std::path::Path) -> Result<rig::matching::block::photo::Photo, String> {
-    ScannedPhoto::load_photo(sidecar).map_err(|e| e.to_string())
+fn scan_photo(sidecar: &std::path::Path) -> Result<rig::matching::block::photo::ScanImage, String> {
+    ScannedPhoto::hand_over(sidecar).map_err(|e| e.to_string())
+}
+
+/// The project with `--max-memory` over its `[limits] max_memory_mb`.
+fn with_memory(p: &Project, max_memory: Option<u64>) -> Project {
+    let mut p = p.clone();
+    if let Some(m) = max_memory {
+        p.limits.max_memory_mb = m;
+    }
+    p
 }
 
 /// A project: photos loaded (scans through the scan's hand-over), its method run.
@@ -141,6 +150,8 @@ fn run_project(
     }: RunOptions,
 ) -> anyhow::Result<i32> {
     use rig::matching::run::Report;
+    // --max-memory holds for the photos read as for the matching.
+    let p = &with_memory(p, max_memory);
     // A block of approximate photos is oriented first, into out/orientation/.
     let first = rig::orientation::run::before_matching(
         p,
@@ -163,8 +174,9 @@ fn run_project(
         );
     }
     let p = first.as_ref().map_or(p, |f| &f.project);
-    let photos = rig::matching::block::photos::load_photos(p, &scan_photo)?;
+    rig::matching::run::preflight(p, &scan_photo, max_memory)?;
     let bar = super::progress_bar::Bar::new(!json);
+    let photos = rig::matching::block::photos::load_photos(p, &scan_photo, &bar)?;
     match rig::matching::run::run(p, &photos, out, max_memory, &bar)? {
         Report::Mgcm(r) => print_mgcm(&r, out, json, strict),
         Report::Oslsm(r) => print_oslsm(&r, out, json, strict),
@@ -449,7 +461,13 @@ pub fn run(a: DtmArgs) -> anyhow::Result<i32> {
         return Ok(rig::exit::USAGE);
     }
     match a.tile {
-        Some(spec) => run_tile(&p, spec, &out, a.run.max_memory, a.run.output.json),
+        Some(spec) => run_tile(
+            &with_memory(&p, a.run.max_memory),
+            spec,
+            &out,
+            a.run.max_memory,
+            a.run.output.json,
+        ),
         None => run_project(&p, &out, a.run),
     }
 }

@@ -37,8 +37,8 @@ fn sigma_px(s: &str) -> Result<f64, String> {
     }
 }
 
-fn scan_photo(sidecar: &std::path::Path) -> Result<rig::matching::block::photo::Photo, String> {
-    rig::scan::ScannedPhoto::load_photo(sidecar).map_err(|e| e.to_string())
+fn scan_photo(sidecar: &std::path::Path) -> Result<rig::matching::block::photo::ScanImage, String> {
+    rig::scan::ScannedPhoto::hand_over(sidecar).map_err(|e| e.to_string())
 }
 
 pub fn run(a: OrientArgs) -> anyhow::Result<i32> {

@@ -1,7 +1,7 @@
 //! The core's progress drawn as an `indicatif` bar on standard error: the step's name, a bar,
 //! the count, the rate and the time left. When standard error is not a terminal (a run left
 //! in the background with its output in a log) a plain line instead at the start, at most
-//! every [`LOG_EVERY`] and at the end of each step; nothing with `--json`.
+//! every [`log_every`] and at the end of each step; nothing with `--json`.
 
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use rig::matching::progress::Progress;
@@ -9,8 +9,31 @@ use std::io::IsTerminal;
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
-/// How often a log line is written at the most (not a terminal).
+/// How often a log line is written at the most (not a terminal), by default.
 pub const LOG_EVERY: Duration = Duration::from_secs(60);
+
+/// The environment variable that sets it, seconds (0.1 … 3600): a script that follows a long
+/// run's time left (benches/film_scaling.py checks it against the step's real end).
+pub const LOG_EVERY_VAR: &str = "RIG_LOG_EVERY_S";
+
+/// How often a log line is written at the most: [`LOG_EVERY_VAR`] where it holds a number
+/// within range, else [`LOG_EVERY`] (a bad value is said once, not obeyed).
+pub fn log_every() -> Duration {
+    static EVERY: std::sync::OnceLock<Duration> = std::sync::OnceLock::new();
+    *EVERY.get_or_init(|| match std::env::var(LOG_EVERY_VAR) {
+        Err(_) => LOG_EVERY,
+        Ok(v) => match v.trim().parse::<f64>() {
+            Ok(s) if (0.1..=3600.0).contains(&s) => Duration::from_secs_f64(s),
+            _ => {
+                eprintln!(
+                    "{LOG_EVERY_VAR}={v:?} is not 0.1 … 3600 seconds: progress lines every {} s",
+                    LOG_EVERY.as_secs()
+                );
+                LOG_EVERY
+            }
+        },
+    })
+}
 
 pub struct Bar {
     bar: Mutex<Option<ProgressBar>>,
@@ -36,14 +59,42 @@ impl Bar {
         let (pos, len) = (b.position(), b.length().unwrap_or(0));
         let secs = b.elapsed().as_secs_f64();
         if last {
-            eprintln!("{what}: {pos}/{len} done in {secs:.0} s");
+            eprintln!("{what}: {pos}/{len} done in {secs:.1} s");
         } else {
             eprintln!(
-                "{what}: {pos}/{len} after {secs:.0} s ({:.2}/s, about {:.0} s left)",
-                b.per_sec(),
-                b.eta().as_secs_f64()
+                "{what}: {pos}/{len} after {secs:.1} s ({:.2}/s, about {:.1} s left)",
+                pos as f64 / secs.max(1e-9),
+                time_left(b.elapsed(), pos, len).as_secs_f64()
             );
         }
+    }
+}
+
+/// The time a step has left at the rate it has kept since it began: its units are chosen to
+/// cost alike (the sweep counts candidate heights and least squares in them), so the average
+/// over the whole step is steadier than a recent window's (indicatif's own, which a slow first
+/// band of each thread threw 50 % off).
+pub fn time_left(elapsed: Duration, pos: u64, len: u64) -> Duration {
+    if pos == 0 {
+        return Duration::ZERO;
+    }
+    let s = elapsed.as_secs_f64() * (len.saturating_sub(pos)) as f64 / pos as f64;
+    Duration::from_secs_f64(s.min(1e7))
+}
+
+/// [`time_left`] as the bar's `{left}`.
+#[derive(Clone)]
+struct Left;
+
+impl indicatif::style::ProgressTracker for Left {
+    fn clone_box(&self) -> Box<dyn indicatif::style::ProgressTracker> {
+        Box::new(self.clone())
+    }
+    fn tick(&mut self, _: &indicatif::ProgressState, _: Instant) {}
+    fn reset(&mut self, _: &indicatif::ProgressState, _: Instant) {}
+    fn write(&self, state: &indicatif::ProgressState, w: &mut dyn std::fmt::Write) {
+        let left = time_left(state.elapsed(), state.pos(), state.len().unwrap_or(0));
+        let _ = write!(w, "{}", indicatif::HumanDuration(left));
     }
 }
 
@@ -58,9 +109,9 @@ impl Progress for Bar {
             },
         );
         if let Ok(style) =
-            ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} ({per_sec}, {eta} left)")
+            ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} ({per_sec}, {left} left)")
         {
-            b.set_style(style.progress_chars("=> "));
+            b.set_style(style.progress_chars("=> ").with_key("left", Left));
         }
         b.set_message(what.to_string());
         if let Some(Ok(mut l)) = self.log.as_ref().map(|l| l.lock()) {
@@ -77,7 +128,7 @@ impl Progress for Bar {
             if let Some(b) = g.as_ref() {
                 b.inc(n);
                 if let Some(Ok(mut l)) = self.log.as_ref().map(|l| l.lock()) {
-                    if l.1.elapsed() >= LOG_EVERY {
+                    if l.1.elapsed() >= log_every() {
                         Self::log_line(&l.0, b, false);
                         l.1 = Instant::now();
                     }

@@ -4,7 +4,7 @@
 
 pub mod window;
 
-pub use window::{grey_size, load_grey_reduced, load_grey_window};
+pub use window::{grey_size, load_grey_reduced, load_grey_reduced_with, load_grey_window};
 
 /// A single-channel floating-point image, row-major.
 #[derive(Debug, Clone, PartialEq)]

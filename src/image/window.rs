@@ -69,6 +69,18 @@ pub fn load_grey_reduced(
     factor: usize,
     max_bytes: u64,
 ) -> std::io::Result<ImageF32> {
+    load_grey_reduced_with(path, win, factor, max_bytes, &|_| {})
+}
+
+/// [`load_grey_reduced`], calling `pixels_read(n)` as each `n` pixels of the window are read
+/// (a 19 000² scan takes seconds: the caller's progress).
+pub fn load_grey_reduced_with(
+    path: &Path,
+    win: PixelWindow,
+    factor: usize,
+    max_bytes: u64,
+    pixels_read: &dyn Fn(u64),
+) -> std::io::Result<ImageF32> {
     let f = factor.max(1);
     let (ow, oh) = (win.width / f, win.height / f);
     if ow == 0 || oh == 0 {
@@ -98,6 +110,9 @@ pub fn load_grey_reduced(
         win,
         max_bytes.saturating_sub(4 * (ow * oh) as u64),
         |r, row| {
+            if r % 256 == 255 {
+                pixels_read(256 * win.width as u64);
+            }
             if r >= used.1 {
                 return;
             }
@@ -117,6 +132,7 @@ pub fn load_grey_reduced(
             }
         },
     )?;
+    pixels_read((win.height % 256) as u64 * win.width as u64);
     check_values(&out.data, path, false)?;
     Ok(out)
 }

@@ -72,14 +72,14 @@ pub enum MatchingError {
 /// grid.
 #[derive(Debug, thiserror::Error)]
 pub enum DtmError {
-    #[error("the sweep would try up to {candidates:.3e} candidate heights ({pixels} pixels × {heights} heights); the limit is {limit:.3e}: narrow h_min … h_max, take a larger h_step or stride, or raise [limits] max_candidates_g")]
+    #[error("the sweep would try up to {candidates:.3e} candidate heights ({pixels} pixels × {heights} heights); the limit is {limit:.3e}: narrow h_min … h_max, take a larger h_step or stride, read the photos smaller ([dem] photo_level), or raise [limits] max_candidates_g")]
     TooMuchWork {
         candidates: f64,
         pixels: u64,
         heights: u64,
         limit: f64,
     },
-    #[error("the run would hold about {mib:.0} MiB (photos, height map, points); the limit is {limit_mib} MiB: take a larger stride, or raise [limits] max_memory_mb (or --max-memory)")]
+    #[error("the run would hold about {mib:.0} MiB (photos, height map, points); the limit is {limit_mib} MiB: take a larger stride, read the photos smaller ([dem] photo_level), or raise [limits] max_memory_mb (or --max-memory)")]
     TooMuchMemory { mib: f64, limit_mib: u64 },
     #[error(transparent)]
     Grid(#[from] GridError),

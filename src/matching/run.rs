@@ -52,6 +52,24 @@ impl Report {
     }
 }
 
+/// What can be refused before a pixel is read: the photos' views held at once against the
+/// memory limit and, for the sweep, every pair's work and memory from the views' sizes (a
+/// 12 800² pair at `photo_level = 0` is refused in a second, not after reading 400 Mpx).
+pub fn preflight(
+    p: &Project,
+    scan: &crate::matching::block::photo::ScanReader,
+    max_memory_mb: Option<u64>,
+) -> Result<(), MatchingError> {
+    use crate::matching::block::photos::{check_held, geometries, views};
+    let v = views(p, scan)?;
+    check_held(p, &v)?;
+    if p.matching.method == Method::Sweep {
+        let g = geometries(p, scan, &v)?;
+        crate::matching::methods::sweep::plan::plan(p, &g, max_memory_mb)?;
+    }
+    Ok(())
+}
+
 /// Runs project `p`'s method on its loaded `photos` into `out`.
 pub fn run(
     p: &Project,

@@ -23,7 +23,7 @@ use std::path::Path;
 /// The project's photos, read whole (scans through `scan`).
 pub fn load(
     p: &Project,
-    scan: &dyn Fn(&Path) -> Result<Photo, String>,
+    scan: &crate::matching::block::photo::ScanReader,
 ) -> Result<Vec<Photo>, OrientError> {
     crate::matching::block::photos::check_held(p, &vec![None; p.photos.len()])?;
     (0..p.photos.len())
@@ -248,7 +248,7 @@ pub struct OrientedFirst {
 pub fn before_matching(
     p: &Project,
     out: &Path,
-    scan: &dyn Fn(&Path) -> Result<Photo, String>,
+    scan: &crate::matching::block::photo::ScanReader,
     options: OrientOptions,
 ) -> Result<Option<OrientedFirst>, OrientError> {
     if !p.has_approximate_photos() {

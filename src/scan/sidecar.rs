@@ -118,12 +118,36 @@ impl ScannedPhoto {
         Ok((s, px))
     }
 
-    /// The photo as the matching core takes it (the hand-over): the image in its grey counts,
-    /// its photo grid and the camera's interior orientation.
-    pub fn load_photo(json: &Path) -> Result<crate::matching::block::photo::Photo, SidecarError> {
-        let (s, px) = Self::load(json)?;
-        Ok(crate::matching::block::photo::Photo {
-            image: crate::image::ImageF32::from_u16(s.grid.width, s.grid.height, &px),
+    /// The scan as the matching core takes it (the hand-over): its image file, its photo grid
+    /// and the camera's interior orientation; the core reads the pixels it needs. The image's
+    /// size is checked against the grid from its header alone.
+    pub fn hand_over(
+        json: &Path,
+    ) -> Result<crate::matching::block::photo::ScanImage, SidecarError> {
+        let bad = |message: String| SidecarError::Bad {
+            path: json.to_path_buf(),
+            message,
+        };
+        let text = std::fs::read_to_string(json).map_err(|e| bad(e.to_string()))?;
+        let s: ScannedPhoto = serde_json::from_str(&text).map_err(|e| bad(e.to_string()))?;
+        if s.format != FORMAT {
+            return Err(bad(format!(
+                "format `{}`, expected `{FORMAT}` (a scanned-photo sidecar)",
+                s.format
+            )));
+        }
+        let img = json.with_file_name(&s.image);
+        let (w, h) = crate::image::grey_size(&img)?;
+        if (w, h) != (s.grid.width, s.grid.height) {
+            return Err(bad(format!(
+                "{} is {w}×{h}, the grid says {}×{}",
+                img.display(),
+                s.grid.width,
+                s.grid.height
+            )));
+        }
+        Ok(crate::matching::block::photo::ScanImage {
+            image: img,
             frame: s.grid.into(),
             // The certificate gives the focal length; the principal point is taken at the
             // fiducial centre (the photo coordinates' origin).
@@ -132,7 +156,6 @@ impl ScannedPhoto {
                 principal_point: crate::coords::PhotoMm::new(0.0, 0.0),
                 lens: crate::geometry::Lens::NONE,
             },
-            view: crate::coords::PixelView::whole(s.grid.width, s.grid.height),
         })
     }
 }

@@ -19,6 +19,18 @@ pub struct Photo {
     pub view: crate::coords::PixelView,
 }
 
+/// A scan as the hardware side hands it to the core: its image file and which photo point each
+/// of its pixels shows; the core reads the pixels it needs (a window, a pyramid level) itself.
+#[derive(Debug, Clone)]
+pub struct ScanImage {
+    pub image: std::path::PathBuf,
+    pub frame: PixelToPhoto,
+    pub interior: Interior,
+}
+
+/// How the core gets a scan from its sidecar: the hardware side's hand-over.
+pub type ScanReader<'a> = dyn Fn(&std::path::Path) -> Result<ScanImage, String> + 'a;
+
 /// The grid of a plain image with square pixels of `pixel_mm`, its centre on the photo
 /// coordinates' origin: x = (col − (W−1)/2)·p, y = ((H−1)/2 − row)·p at pixel centres.
 pub fn centred_grid(width: usize, height: usize, pixel_mm: f64) -> PhotoGrid {

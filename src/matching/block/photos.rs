@@ -11,11 +11,11 @@ use crate::geometry::{Interior, Sensor};
 use crate::matching::block::orient::orient;
 use crate::matching::block::photo::centred_grid;
 use crate::matching::block::photo::frame_of;
-use crate::matching::block::photo::Photo;
 use crate::matching::block::photo::PhotoGeometry;
+use crate::matching::block::photo::{Photo, ScanReader};
 use crate::matching::error::MatchingError;
+use crate::matching::progress::Progress;
 use crate::matching::project::{GivenModel, Project, Source};
-use std::path::Path;
 
 /// Pixels read beyond where the extent projects, for the matchers' templates and search
 /// windows at the edge of the area (the sweep's and the least-squares patches' few tens of
@@ -30,10 +30,11 @@ const SAMPLES: usize = 9;
 const UNSEEN_SIDE: usize = 64;
 
 /// Loads the project's photos (scans come through `scan`, the hardware side's hand-over), each
-/// within the project's memory limit: the windows of [`windows`].
+/// within the project's memory limit: the views of [`views`], their pixels counted on `progress`.
 pub fn load_photos(
     p: &Project,
-    scan: &dyn Fn(&Path) -> Result<Photo, String>,
+    scan: &ScanReader,
+    progress: &dyn Progress,
 ) -> Result<Vec<Photo>, MatchingError> {
     let views = views(p, scan)?;
     check_held(p, &views)?;
@@ -49,9 +50,18 @@ pub fn load_photos(
             );
         }
     }
-    (0..p.photos.len())
-        .map(|k| load_photo(p, k, scan, views[k]))
-        .collect()
+    let pixels: u64 = (0..p.photos.len())
+        .map(|k| match views[k] {
+            Some(v) => Ok((v.window.width * v.window.height) as u64),
+            None => size_of(p, k, scan).map(|(w, h)| (w * h) as u64),
+        })
+        .sum::<Result<u64, _>>()?;
+    progress.begin("reading photos (pixels)", pixels);
+    let photos = (0..p.photos.len())
+        .map(|k| load_photo_with(p, k, scan, views[k], progress))
+        .collect();
+    progress.end();
+    photos
 }
 
 /// Bytes a photo's view takes in memory (grey values as f32).
@@ -95,7 +105,7 @@ pub fn check_held(p: &Project, views: &[Option<PixelView>]) -> Result<(), Matchi
     let mib = bytes >> 20;
     if mib > p.limits.max_memory_mb {
         return Err(MatchingError::Memory(format!(
-            "the {} photos held at once would take {mib} MiB as grey values (the largest {}); the limit is {} MiB: give [dem] extent to read only what sees it, split the block, or raise [limits] max_memory_mb (or --max-memory)",
+            "the {} photos held at once would take {mib} MiB as grey values (the largest {}); the limit is {} MiB: give [dem] extent to read only what sees it, read them smaller ([dem] photo_level), split the block, or raise [limits] max_memory_mb (or --max-memory)",
             p.photos.len(),
             largest.1,
             p.limits.max_memory_mb
@@ -131,24 +141,15 @@ pub fn level_for(gsd_m: f64, cell_m: f64, side: usize) -> u8 {
 /// where the project gives its `[dem] extent`, the part of the image that sees it at the
 /// heights searched, with [`MARGIN_PX`]; at `[dem] photo_level`, or the level [`level_for`]
 /// picks from each photo's pixel on the ground at its centre.
-pub fn views(
-    p: &Project,
-    scan: &dyn Fn(&Path) -> Result<Photo, String>,
-) -> Result<Vec<Option<PixelView>>, MatchingError> {
-    let is_scan = |k: usize| matches!(p.photos[k].source, Source::Scan { .. });
-    let needs_geometry = p.extent.is_some() || p.photo_level.is_none();
-    if !needs_geometry || (0..p.photos.len()).all(is_scan) {
+pub fn views(p: &Project, scan: &ScanReader) -> Result<Vec<Option<PixelView>>, MatchingError> {
+    if p.extent.is_none() && p.photo_level.is_some() {
         let level = p.photo_level.unwrap_or(0);
         return (0..p.photos.len())
             .map(|k| {
-                let path = match &p.photos[k].source {
-                    Source::Image { path, .. } | Source::Model { path, .. } if level > 0 => path,
-                    _ => return Ok(None),
-                };
-                let (w, h) = crate::image::grey_size(path).map_err(|e| MatchingError::Photo {
-                    id: p.photos[k].id.clone(),
-                    message: e.to_string(),
-                })?;
+                if level == 0 {
+                    return Ok(None);
+                }
+                let (w, h) = size_of(p, k, scan)?;
                 Ok(Some(PixelView {
                     window: PixelWindow::whole(w, h),
                     factor: 1 << level,
@@ -164,11 +165,7 @@ pub fn views(
     Ok(oriented
         .sensors
         .iter()
-        .enumerate()
-        .map(|(k, s)| {
-            if is_scan(k) {
-                return None;
-            }
+        .map(|s| {
             let (w, h) = s.image_size();
             let window = match p.extent {
                 Some(extent) => window_seeing(s, extent, oriented.heights),
@@ -186,6 +183,30 @@ pub fn views(
             (!view.is_whole(w, h)).then_some(view)
         })
         .collect())
+}
+
+/// Every photo's geometry as it will be read through `views` (from `views`), without a
+/// pixel: what a plan needs to refuse a run before the photos are read.
+pub fn geometries(
+    p: &Project,
+    scan: &ScanReader,
+    views: &[Option<PixelView>],
+) -> Result<Vec<PhotoGeometry>, MatchingError> {
+    (0..p.photos.len())
+        .map(|k| {
+            let mut g = whole_geometry(p, k, scan)?;
+            if let Some(v) = views[k] {
+                g.view = v;
+            }
+            Ok(g)
+        })
+        .collect()
+}
+
+/// Photo `k`'s image size, from its header (or its scan's sidecar).
+fn size_of(p: &Project, k: usize, scan: &ScanReader) -> Result<(usize, usize), MatchingError> {
+    let g = whole_geometry(p, k, scan)?;
+    Ok((g.width, g.height))
 }
 
 /// The pixels of sensor `s` that see `extent` (xmin, ymin, xmax, ymax) at the heights
@@ -231,12 +252,12 @@ pub fn window_seeing(s: &dyn Sensor, extent: [f64; 4], heights: [f64; 2]) -> Pix
     }
 }
 
-/// Photo `k`'s geometry over its whole image, from the image's header alone (a scan is
-/// loaded: the rig's scans are read whole).
+/// Photo `k`'s geometry over its whole image, from the image's header (and a scan's sidecar)
+/// alone.
 fn whole_geometry(
     p: &Project,
     k: usize,
-    scan: &dyn Fn(&Path) -> Result<Photo, String>,
+    scan: &ScanReader,
 ) -> Result<PhotoGeometry, MatchingError> {
     let ph = &p.photos[k];
     let err = |message: String| MatchingError::Photo {
@@ -244,7 +265,16 @@ fn whole_geometry(
         message,
     };
     match &ph.source {
-        Source::Scan { sidecar } => Ok(scan(sidecar).map_err(err)?.geometry()),
+        Source::Scan { sidecar } => {
+            let s = scan(sidecar).map_err(err)?;
+            Ok(PhotoGeometry {
+                frame: s.frame,
+                interior: s.interior,
+                width: s.frame.width,
+                height: s.frame.height,
+                view: PixelView::whole(s.frame.width, s.frame.height),
+            })
+        }
         Source::Image { path, .. } | Source::Model { path, .. } => {
             let (w, h) = crate::image::grey_size(path).map_err(|e| err(e.to_string()))?;
             let (frame, interior) = frame_and_interior(p, k, w, h)?;
@@ -313,8 +343,19 @@ fn frame_and_interior(
 pub fn load_photo(
     p: &Project,
     k: usize,
-    scan: &dyn Fn(&Path) -> Result<Photo, String>,
+    scan: &ScanReader,
     view: Option<PixelView>,
+) -> Result<Photo, MatchingError> {
+    load_photo_with(p, k, scan, view, &crate::matching::progress::Silent)
+}
+
+/// [`load_photo`], its pixels counted on `progress` as they are read.
+fn load_photo_with(
+    p: &Project,
+    k: usize,
+    scan: &ScanReader,
+    view: Option<PixelView>,
+    progress: &dyn Progress,
 ) -> Result<Photo, MatchingError> {
     let max = p.limits.max_memory_mb << 20;
     let ph = &p.photos[k];
@@ -322,13 +363,24 @@ pub fn load_photo(
         id: ph.id.clone(),
         message,
     };
+    let handed;
     let path = match &ph.source {
-        Source::Scan { sidecar } => return scan(sidecar).map_err(err),
+        Source::Scan { sidecar } => {
+            handed = scan(sidecar).map_err(err)?;
+            &handed.image
+        }
         Source::Image { path, .. } | Source::Model { path, .. } => path,
     };
     let (w, h) = crate::image::grey_size(path).map_err(|e| err(e.to_string()))?;
     let view = view.unwrap_or(PixelView::whole(w, h));
-    let image = crate::image::load_grey_reduced(path, view.window, view.factor, max).map_err(|e| {
+    let image = crate::image::load_grey_reduced_with(
+        path,
+        view.window,
+        view.factor,
+        max,
+        &|n| progress.advance(n),
+    )
+    .map_err(|e| {
         let hint = if p.extent.is_none() && e.to_string().contains("the limit is") {
             ": give the project's [dem] extent to read only the part of each image that sees it, a coarser [dem] photo_level, or raise --max-memory"
         } else {
@@ -336,7 +388,21 @@ pub fn load_photo(
         };
         err(format!("{e}{hint}"))
     })?;
-    let (frame, interior) = frame_and_interior(p, k, w, h)?;
+    let (frame, interior) = match &ph.source {
+        Source::Scan { .. } => {
+            let g = whole_geometry(p, k, scan)?;
+            if (g.width, g.height) != (w, h) {
+                return Err(err(format!(
+                    "its image {} is {w} × {h} px, its sidecar's grid {} × {}",
+                    path.display(),
+                    g.width,
+                    g.height
+                )));
+            }
+            (g.frame, g.interior)
+        }
+        _ => frame_and_interior(p, k, w, h)?,
+    };
     Ok(Photo {
         image,
         frame,

@@ -281,11 +281,16 @@ fn sweep_bands_guided(
                 .map_or_else(|| vec![(0, cols, 0, all_planes)], |g| g.tiles(b, &l, k))
         })
         .collect();
+    let refine_units = if p.refine && p.subpixel == Subpixel::Lsm {
+        LSM_UNITS
+    } else {
+        0
+    };
     let work = |b: usize, tiles: &[(usize, usize, usize, usize)]| -> u64 {
         let (j0, j1) = band_rows(b);
         tiles
             .iter()
-            .map(|&(i0, i1, _, n)| ((j1 - j0) * (i1 - i0) * n) as u64)
+            .map(|&(i0, i1, _, n)| ((j1 - j0) * (i1 - i0) * (n + refine_units)) as u64)
             .sum()
     };
     let total: u64 = bands
@@ -293,7 +298,7 @@ fn sweep_bands_guided(
         .zip(&band_tiles)
         .map(|(b, t)| work(b, t))
         .sum();
-    progress.begin("sweep (candidate heights)", total);
+    progress.begin("sweep (candidate heights, least squares counted)", total);
     type Band = (Vec<f32>, Vec<f32>, Vec<f32>, u64);
     let parts: Vec<Band> = bands
         .clone()
@@ -395,7 +400,7 @@ fn sweep_bands_guided(
                     }
                 }
             }
-            progress.advance(tried);
+            progress.advance(tried + (rows_n * cols * refine_units) as u64);
             (h, corr, sigma, tried)
         })
         .collect();
@@ -422,6 +427,12 @@ fn sweep_bands_guided(
         candidates,
     }
 }
+
+/// What least squares at a pixel costs in the sweep's progress, in candidate heights: 13 µs
+/// against 31 ns a candidate (a 1 600² pair of `rig sim scene` read from 3 200 px scans, 2.4
+/// million pixels refined: 21.3 s with it, 5.7 s with the parabola). Counted for every pixel
+/// of a band (most are matched), so that the time left holds where bands differ in heights.
+const LSM_UNITS: usize = 400;
 
 /// The coarse level's guide stops where it would have fewer planes than this …
 const GUIDE_PLANES: usize = 32;

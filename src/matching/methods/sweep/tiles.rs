@@ -572,7 +572,7 @@ pub fn sweep_share(
     spec: TileSpec,
     out: &Path,
     max_memory_mb: Option<u64>,
-    scan: &dyn Fn(&Path) -> Result<Photo, String>,
+    scan: &crate::matching::block::photo::ScanReader,
     progress: &dyn Progress,
 ) -> Result<Share, TileError> {
     let project = p.path.as_path();
@@ -627,7 +627,7 @@ pub fn merge(
     dirs: &[PathBuf],
     out: &Path,
     max_memory_mb: Option<u64>,
-    scan: &dyn Fn(&Path) -> Result<Photo, String>,
+    scan: &crate::matching::block::photo::ScanReader,
     progress: &dyn Progress,
 ) -> Result<(Project, SweepReport), TileError> {
     let mut set = Vec::new();
@@ -648,7 +648,7 @@ pub fn merge(
     }
     let p = Project::load(&m0.project).map_err(MatchingError::from)?;
     let reference = prepare(&p, out)?;
-    let photos = load_photos(&p, scan)?;
+    let photos = load_photos(&p, scan, progress)?;
     let geometry: Vec<_> = photos.iter().map(|ph| ph.geometry()).collect();
     let plan = plan(&p, &geometry, max_memory_mb)?;
     let pixels: Vec<String> = photos.iter().map(|ph| pixels_fnv64(&ph.image)).collect();
