@@ -173,7 +173,10 @@ fn elevation_model_from_a_rendered_pair_meets_half_the_height_step() {
     );
     // Where standard error is not a terminal (here: a pipe, as a log file) the progress
     // comes as plain lines, a step's start and end, with no bar redrawn in place.
-    assert!(e.contains("sweep (rows): 0/"), "{e}");
+    assert!(
+        e.contains("sweep (candidate heights, least squares counted): 0/"),
+        "{e}"
+    );
     assert!(!e.contains('\r') && !e.contains("=>"), "{e}");
     // A project with a bad value names the file and the field.
     let bad = scene.join("bad.toml");
