@@ -223,8 +223,12 @@ pub enum Command {
     ///            object-space adjustment (seed 001), from the sweep's model in coarse/ or
     ///            a DEM file; reflectance.tif, convergence.png
     /// A format-1 project (a scanned pair: `rig sim scene` writes one) is read as the format-2
-    /// project `rig dtm upgrade` writes and swept as above. Outputs in DIR, each written whole or not at all (a killed run can be run
-    /// again):
+    /// project `rig dtm upgrade` writes and swept as above.
+    /// Film at its real size (9 000–19 000 px scans) is read at a pyramid level, streamed:
+    /// `[dem] photo_level = "auto"` keeps two pixels a post (0: as scanned; report.json's
+    /// photos_read says what was read), and a run too large for --max-memory or the sweep's
+    /// limits is refused before a pixel is read.
+    /// Outputs in DIR, each written whole or not at all (a killed run can be run again):
     ///   dem.tif      heights, Deflate float32 GeoTIFF in the project's CRS, nodata −9999
     ///   quality.tif  band 1 each height's standard deviation (m), band 2 its correlation
     ///   ortho.tif    orthophoto on the DEM grid (grey values of the most nadir photo)

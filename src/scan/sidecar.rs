@@ -93,6 +93,14 @@ pub enum SidecarError {
 impl ScannedPhoto {
     /// Reads a sidecar and the image it names: what the matching core starts from.
     pub fn load(json: &Path) -> Result<(ScannedPhoto, Vec<u16>), SidecarError> {
+        let (s, img) = Self::read(json)?;
+        let (w, h, px) = crate::digitise::output::read_tiff16(&img)?;
+        s.check_size(json, &img, w, h)?;
+        Ok((s, px))
+    }
+
+    /// The sidecar at `json` and the path of the image it names.
+    fn read(json: &Path) -> Result<(ScannedPhoto, PathBuf), SidecarError> {
         let bad = |message: String| SidecarError::Bad {
             path: json.to_path_buf(),
             message,
@@ -106,16 +114,23 @@ impl ScannedPhoto {
             )));
         }
         let img = json.with_file_name(&s.image);
-        let (w, h, px) = crate::digitise::output::read_tiff16(&img)?;
-        if (w, h) != (s.grid.width, s.grid.height) {
-            return Err(bad(format!(
-                "{} is {w}×{h}, the grid says {}×{}",
-                img.display(),
-                s.grid.width,
-                s.grid.height
-            )));
+        Ok((s, img))
+    }
+
+    /// The image `img` (`w × h`) must be the size the grid says.
+    fn check_size(&self, json: &Path, img: &Path, w: usize, h: usize) -> Result<(), SidecarError> {
+        if (w, h) != (self.grid.width, self.grid.height) {
+            return Err(SidecarError::Bad {
+                path: json.to_path_buf(),
+                message: format!(
+                    "{} is {w}×{h}, the grid says {}×{}",
+                    img.display(),
+                    self.grid.width,
+                    self.grid.height
+                ),
+            });
         }
-        Ok((s, px))
+        Ok(())
     }
 
     /// The scan as the matching core takes it (the hand-over): its image file, its photo grid
@@ -124,28 +139,9 @@ impl ScannedPhoto {
     pub fn hand_over(
         json: &Path,
     ) -> Result<crate::matching::block::photo::ScanImage, SidecarError> {
-        let bad = |message: String| SidecarError::Bad {
-            path: json.to_path_buf(),
-            message,
-        };
-        let text = std::fs::read_to_string(json).map_err(|e| bad(e.to_string()))?;
-        let s: ScannedPhoto = serde_json::from_str(&text).map_err(|e| bad(e.to_string()))?;
-        if s.format != FORMAT {
-            return Err(bad(format!(
-                "format `{}`, expected `{FORMAT}` (a scanned-photo sidecar)",
-                s.format
-            )));
-        }
-        let img = json.with_file_name(&s.image);
+        let (s, img) = Self::read(json)?;
         let (w, h) = crate::image::grey_size(&img)?;
-        if (w, h) != (s.grid.width, s.grid.height) {
-            return Err(bad(format!(
-                "{} is {w}×{h}, the grid says {}×{}",
-                img.display(),
-                s.grid.width,
-                s.grid.height
-            )));
-        }
+        s.check_size(json, &img, w, h)?;
         Ok(crate::matching::block::photo::ScanImage {
             image: img,
             frame: s.grid.into(),
