@@ -236,6 +236,16 @@ impl PhotoSensor {
         }
     }
 
+    /// How many of its image's pixels a pixel of this sensor spans a side (a view read at a
+    /// pyramid level: 2ᴸ; else 1): what converts [`FrameSensor::exterior_partials`], in the
+    /// image's pixels, to this sensor's.
+    pub fn pixel_factor(&self) -> f64 {
+        match self {
+            PhotoSensor::Window(w) => w.f(),
+            _ => 1.0,
+        }
+    }
+
     /// The sensor as seen through `view` of its image (itself for the whole image as it is).
     pub fn viewed(self, view: PixelView) -> PhotoSensor {
         let (w, h) = self.image_size();

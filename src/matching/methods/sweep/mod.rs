@@ -141,13 +141,16 @@ impl SweepReport {
     }
 }
 
-/// Cov(δq_i, δq_j) (px²) at `g` of photos `i` and `j` resected from shared control:
-/// J_i·C_ij·J_jᵀ.
+/// Cov(δq_i, δq_j) (px² of the pixels read) at `g` of photos `i` and `j` resected from shared
+/// control: J_i·C_ij·J_jᵀ, the partials (the whole images' pixels) divided by each view's
+/// factor.
 fn shared_pointing(plan: &Plan, i: usize, j: usize, g: GroundM) -> Option<[[f64; 2]; 2]> {
     let c = plan.oriented.shared_orientation.between(i, j)?;
-    let ji = plan.oriented.sensors[i].frame()?.exterior_partials(g)?;
-    let jj = plan.oriented.sensors[j].frame()?.exterior_partials(g)?;
-    Some(crate::geometry::sensor::propagate_between(&ji, &c, &jj))
+    let (si, sj) = (&plan.oriented.sensors[i], &plan.oriented.sensors[j]);
+    let ji = si.frame()?.exterior_partials(g)?;
+    let jj = sj.frame()?.exterior_partials(g)?;
+    let f = si.pixel_factor() * sj.pixel_factor();
+    Some(crate::geometry::sensor::propagate_between(&ji, &c, &jj).map(|r| r.map(|v| v / f)))
 }
 
 /// Adds to each node's σ the orientations' part: the σ of the mean of the heights the pairs
