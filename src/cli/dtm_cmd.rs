@@ -217,7 +217,7 @@ fn print_mgcm(
     let doubtful = few || !r.warnings.is_empty();
     let code = exit_code(doubtful, strict);
     if json {
-        println!("{}", serde_json::to_string(r)?);
+        println!("{}", json_report(out, r)?);
         return Ok(code);
     }
     for (k, v) in r.summary() {
@@ -249,7 +249,7 @@ fn print_oslsm(
     }
     let code = exit_code(!r.warnings.is_empty(), strict);
     if json {
-        println!("{}", serde_json::to_string(r)?);
+        println!("{}", json_report(out, r)?);
         return Ok(code);
     }
     for (k, v) in r.summary() {
@@ -333,6 +333,18 @@ fn merge(
 }
 
 /// The report of a sweep (single or merged).
+/// The run's report for `--json`: report.json as it was written (with what every run adds,
+/// `photos_read`), on one line; the method's own report where it cannot be read back.
+fn json_report(out: &std::path::Path, r: &impl serde::Serialize) -> anyhow::Result<String> {
+    let written = std::fs::read_to_string(out.join(rig::matching::products::outputs::REPORT_JSON))
+        .ok()
+        .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok());
+    Ok(match written {
+        Some(v) => serde_json::to_string(&v)?,
+        None => serde_json::to_string(r)?,
+    })
+}
+
 fn print_sweep(
     p: &Project,
     r: &SweepReport,
@@ -349,7 +361,7 @@ fn print_sweep(
     }
     let code = exit_code(warned, strict);
     if json {
-        println!("{}", serde_json::to_string(r)?);
+        println!("{}", json_report(out, r)?);
         return Ok(code);
     }
     println!(
