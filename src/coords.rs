@@ -176,6 +176,11 @@ impl PixelView {
         self.factor == 1 && self.window.is_whole(width, height)
     }
 
+    /// The image's pixels a read pixel spans a side (a factor of 0 is taken as 1).
+    pub fn scale(&self) -> f64 {
+        self.factor.max(1) as f64
+    }
+
     /// The size of what was read, pixels (a last partial block is left out).
     pub fn size(&self) -> (usize, usize) {
         let f = self.factor.max(1);
@@ -184,7 +189,7 @@ impl PixelView {
 
     /// The image's coordinates of read coordinates (x, y).
     pub fn to_image(&self, x: f64, y: f64) -> (f64, f64) {
-        let f = self.factor.max(1) as f64;
+        let f = self.scale();
         (
             self.window.col0 as f64 + f * x,
             self.window.row0 as f64 + f * y,
@@ -193,7 +198,7 @@ impl PixelView {
 
     /// The read coordinates of the image's (x, y).
     pub fn to_read(&self, x: f64, y: f64) -> (f64, f64) {
-        let f = self.factor.max(1) as f64;
+        let f = self.scale();
         (
             (x - self.window.col0 as f64) / f,
             (y - self.window.row0 as f64) / f,

@@ -174,9 +174,9 @@ fn run_project(
         );
     }
     let p = first.as_ref().map_or(p, |f| &f.project);
-    rig::matching::run::preflight(p, &scan_photo, max_memory)?;
+    let views = rig::matching::run::preflight(p, &scan_photo, max_memory)?;
     let bar = super::progress_bar::Bar::new(!json);
-    let photos = rig::matching::block::photos::load_photos(p, &scan_photo, &bar)?;
+    let photos = rig::matching::block::photos::load_viewed(p, &scan_photo, &views, &bar)?;
     match rig::matching::run::run(p, &photos, out, max_memory, &bar)? {
         Report::Mgcm(r) => print_mgcm(&r, out, json, strict),
         Report::Oslsm(r) => print_oslsm(&r, out, json, strict),
@@ -332,7 +332,6 @@ fn merge(
     print_sweep(&p, &r, out, json, strict)
 }
 
-/// The report of a sweep (single or merged).
 /// The run's report for `--json`: report.json as it was written (with what every run adds,
 /// `photos_read`), on one line; the method's own report where it cannot be read back.
 fn json_report(out: &std::path::Path, r: &impl serde::Serialize) -> anyhow::Result<String> {
@@ -345,6 +344,7 @@ fn json_report(out: &std::path::Path, r: &impl serde::Serialize) -> anyhow::Resu
     })
 }
 
+/// The report of a sweep (single or merged).
 fn print_sweep(
     p: &Project,
     r: &SweepReport,

@@ -23,7 +23,9 @@ pub fn log_every() -> Duration {
     *EVERY.get_or_init(|| match std::env::var(LOG_EVERY_VAR) {
         Err(_) => LOG_EVERY,
         Ok(v) => match v.trim().parse::<f64>() {
-            Ok(s) if (0.1..=3600.0).contains(&s) => Duration::from_secs_f64(s),
+            Ok(s) if (0.1..=3600.0).contains(&s) => {
+                Duration::try_from_secs_f64(s).unwrap_or(LOG_EVERY)
+            }
             _ => {
                 eprintln!(
                     "{LOG_EVERY_VAR}={v:?} is not 0.1 … 3600 seconds: progress lines every {} s",
@@ -79,7 +81,7 @@ pub fn time_left(elapsed: Duration, pos: u64, len: u64) -> Duration {
         return Duration::ZERO;
     }
     let s = elapsed.as_secs_f64() * (len.saturating_sub(pos)) as f64 / pos as f64;
-    Duration::from_secs_f64(s.min(1e7))
+    Duration::try_from_secs_f64(s.min(1e7)).unwrap_or(Duration::ZERO)
 }
 
 /// [`time_left`] as the bar's `{left}`.

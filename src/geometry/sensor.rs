@@ -241,7 +241,7 @@ impl PhotoSensor {
     /// image's pixels, to this sensor's.
     pub fn pixel_factor(&self) -> f64 {
         match self {
-            PhotoSensor::Window(w) => w.f(),
+            PhotoSensor::Window(w) => w.view.scale(),
             _ => 1.0,
         }
     }
@@ -265,12 +265,6 @@ pub struct Windowed {
     pub view: PixelView,
 }
 
-impl Windowed {
-    fn f(&self) -> f64 {
-        self.view.factor.max(1) as f64
-    }
-}
-
 impl Sensor for Windowed {
     fn image_size(&self) -> (usize, usize) {
         self.view.size()
@@ -288,19 +282,19 @@ impl Sensor for Windowed {
     }
 
     fn partials(&self, g: GroundM) -> Option<[[f64; 3]; 2]> {
-        let f = self.f();
+        let f = self.view.scale();
         self.sensor
             .partials(g)
             .map(|d| d.map(|row| row.map(|v| v / f)))
     }
 
     fn height_partials(&self, g: GroundM) -> Option<[f64; 2]> {
-        let f = self.f();
+        let f = self.view.scale();
         self.sensor.height_partials(g).map(|d| d.map(|v| v / f))
     }
 
     fn pointing_covariance(&self, g: GroundM) -> Option<[[f64; 2]; 2]> {
-        let f2 = self.f() * self.f();
+        let f2 = self.view.scale() * self.view.scale();
         self.sensor
             .pointing_covariance(g)
             .map(|c| c.map(|row| row.map(|v| v / f2)))

@@ -3,6 +3,7 @@
 //! path fails first), hands the method named by `[matching] method` one [`Run`], and returns
 //! its report; every method writes its model through [`Run::write_model`].
 
+use crate::coords::PixelView;
 use crate::matching::block::photo::Photo;
 use crate::matching::methods::context::{prepare, Run};
 use crate::matching::methods::mgcm::run::MgcmReport;
@@ -55,19 +56,20 @@ impl Report {
 /// What can be refused before a pixel is read: the photos' views held at once against the
 /// memory limit and, for the sweep, every pair's work and memory from the views' sizes (a
 /// 12 800² pair at `photo_level = 0` is refused in a second, not after reading 400 Mpx).
+/// Returns the views, for [`crate::matching::block::photos::load_viewed`].
 pub fn preflight(
     p: &Project,
     scan: &crate::matching::block::photo::ScanReader,
     max_memory_mb: Option<u64>,
-) -> Result<(), MatchingError> {
+) -> Result<Vec<Option<PixelView>>, MatchingError> {
     use crate::matching::block::photos::{check_held, geometries, views};
     let v = views(p, scan)?;
-    check_held(p, &v)?;
+    check_held(p, scan, &v)?;
     if p.matching.method == Method::Sweep {
         let g = geometries(p, scan, &v)?;
         crate::matching::methods::sweep::plan::plan(p, &g, max_memory_mb)?;
     }
-    Ok(())
+    Ok(v)
 }
 
 /// Runs project `p`'s method on its loaded `photos` into `out`.

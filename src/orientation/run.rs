@@ -25,7 +25,7 @@ pub fn load(
     p: &Project,
     scan: &crate::matching::block::photo::ScanReader,
 ) -> Result<Vec<Photo>, OrientError> {
-    crate::matching::block::photos::check_held(p, &vec![None; p.photos.len()])?;
+    crate::matching::block::photos::check_held(p, scan, &vec![None; p.photos.len()])?;
     (0..p.photos.len())
         .map(|k| Ok(load_photo(p, k, scan, None)?))
         .collect()

@@ -1,10 +1,11 @@
 //! A project's photos read for the matching: whole, or, when the project gives its `[dem]
-//! extent`, only the window of each image that sees that area. A full satellite scene is
-//! 40 000 × 40 000 px; a DEM of a square kilometre needs a few thousand pixels of it, and only
-//! those are read (strip- or tile-wise, [`crate::image::load_grey_window`]). The window is
-//! where the extent's ground projects through the photo's sensor at every height searched,
-//! with a margin for the matchers' templates; each photo's sensor is then seen through the
-//! same window ([`crate::geometry::PhotoSensor::windowed`]), so pixels and geometry agree.
+//! extent`, only the window of each image that sees that area, and at the pyramid level its
+//! posts need ([`level_for`]). A full satellite scene is 40 000 × 40 000 px; a DEM of a square
+//! kilometre needs a few thousand pixels of it, and only those are read (strip- or tile-wise,
+//! averaged as they are read: [`crate::image::load_grey_reduced`]). The window is where the
+//! extent's ground projects through the photo's sensor at every height searched, with a
+//! margin for the matchers' templates; each photo's sensor is then seen through the same view
+//! ([`crate::geometry::PhotoSensor::viewed`]), so pixels and geometry agree.
 
 use crate::coords::{GroundM, PixelView, PixelWindow, PixelXY};
 use crate::geometry::{Interior, Sensor};
@@ -37,8 +38,19 @@ pub fn load_photos(
     progress: &dyn Progress,
 ) -> Result<Vec<Photo>, MatchingError> {
     let views = views(p, scan)?;
-    check_held(p, &views)?;
-    for (ph, v) in p.photos.iter().zip(&views) {
+    check_held(p, scan, &views)?;
+    load_viewed(p, scan, &views, progress)
+}
+
+/// Loads the project's photos through `views` (from [`views`], checked by [`check_held`]),
+/// their pixels counted on `progress`.
+pub fn load_viewed(
+    p: &Project,
+    scan: &ScanReader,
+    views: &[Option<PixelView>],
+    progress: &dyn Progress,
+) -> Result<Vec<Photo>, MatchingError> {
+    for (ph, v) in p.photos.iter().zip(views) {
         if let Some(v) = v {
             let w = v.window;
             tracing::info!(
@@ -70,29 +82,24 @@ const BYTES_PER_PIXEL: u64 = 4;
 /// Refuses, before anything is read, a set of photos held at once (`views`, `None`: whole)
 /// whose grey values alone would pass `[limits] max_memory_mb`: each photo is checked as it is
 /// read, but a block of a hundred photos each within the limit is not. The images' sizes come
-/// from their headers; a scan's from its sidecar's reader, which holds one at a time.
-pub fn check_held(p: &Project, views: &[Option<PixelView>]) -> Result<(), MatchingError> {
+/// from their headers, a scan's from its hand-over (the core reads its pixels as an image's).
+pub fn check_held(
+    p: &Project,
+    scan: &ScanReader,
+    views: &[Option<PixelView>],
+) -> Result<(), MatchingError> {
     let mut bytes: u64 = 0;
     let mut largest: (u64, String) = (0, String::new());
-    for (ph, w) in p.photos.iter().zip(views) {
+    for (k, (ph, v)) in p.photos.iter().zip(views).enumerate() {
         let path = match &ph.source {
-            Source::Scan { .. } => continue,
+            Source::Scan { sidecar } => sidecar,
             Source::Image { path, .. } | Source::Model { path, .. } => path,
         };
-        let pixels = match w {
-            Some(v) => {
-                let (c, r) = v.size();
-                (c * r) as u64
-            }
-            None => {
-                let (cols, rows) =
-                    crate::image::grey_size(path).map_err(|e| MatchingError::Photo {
-                        id: ph.id.clone(),
-                        message: e.to_string(),
-                    })?;
-                (cols * rows) as u64
-            }
+        let (cols, rows) = match v {
+            Some(v) => v.size(),
+            None => size_of(p, k, scan)?,
         };
+        let pixels = (cols * rows) as u64;
         let b = pixels.saturating_mul(BYTES_PER_PIXEL);
         bytes = bytes.saturating_add(b);
         if b > largest.0 {
@@ -137,7 +144,7 @@ pub fn level_for(gsd_m: f64, cell_m: f64, side: usize) -> u8 {
     level
 }
 
-/// The view of each photo to read (`None`: the whole image as it is, as a rig scan always is):
+/// The view of each photo to read (`None`: the whole image as it is):
 /// where the project gives its `[dem] extent`, the part of the image that sees it at the
 /// heights searched, with [`MARGIN_PX`]; at `[dem] photo_level`, or the level [`level_for`]
 /// picks from each photo's pixel on the ground at its centre.
@@ -363,14 +370,15 @@ fn load_photo_with(
         id: ph.id.clone(),
         message,
     };
-    let handed;
-    let path = match &ph.source {
+    // A scan's image and grid come from its hand-over; an image's grid from the project.
+    let (path, handed) = match &ph.source {
         Source::Scan { sidecar } => {
-            handed = scan(sidecar).map_err(err)?;
-            &handed.image
+            let s = scan(sidecar).map_err(err)?;
+            (s.image, Some((s.frame, s.interior)))
         }
-        Source::Image { path, .. } | Source::Model { path, .. } => path,
+        Source::Image { path, .. } | Source::Model { path, .. } => (path.clone(), None),
     };
+    let path = path.as_path();
     let (w, h) = crate::image::grey_size(path).map_err(|e| err(e.to_string()))?;
     let view = view.unwrap_or(PixelView::whole(w, h));
     let image = crate::image::load_grey_reduced_with(
@@ -388,20 +396,19 @@ fn load_photo_with(
         };
         err(format!("{e}{hint}"))
     })?;
-    let (frame, interior) = match &ph.source {
-        Source::Scan { .. } => {
-            let g = whole_geometry(p, k, scan)?;
-            if (g.width, g.height) != (w, h) {
+    let (frame, interior) = match handed {
+        Some((frame, interior)) => {
+            if (frame.width, frame.height) != (w, h) {
                 return Err(err(format!(
                     "its image {} is {w} × {h} px, its sidecar's grid {} × {}",
                     path.display(),
-                    g.width,
-                    g.height
+                    frame.width,
+                    frame.height
                 )));
             }
-            (g.frame, g.interior)
+            (frame, interior)
         }
-        _ => frame_and_interior(p, k, w, h)?,
+        None => frame_and_interior(p, k, w, h)?,
     };
     Ok(Photo {
         image,
@@ -414,6 +421,7 @@ fn load_photo_with(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::matching::block::photo::ScanImage;
 
     /// "auto": the coarsest level with pixels at most half a cell and [`MIN_LEVEL_SIDE`] a
     /// side. A 12 800 px scan of 0.0625 m pixels, 1 m posts: 0.5 m at level 3 (1 600 px);
@@ -452,14 +460,17 @@ mod tests {
             );
             Project::parse(&text, &dir.path().join("project.toml")).unwrap()
         };
+        let no_scans = |_: &std::path::Path| -> Result<ScanImage, String> {
+            Err("no scans in this project".into())
+        };
         // 1500² × 4 bytes = 8.6 MiB each, 17.2 together.
-        let e = check_held(&project(16), &[None, None])
+        let e = check_held(&project(16), &no_scans, &[None, None])
             .unwrap_err()
             .to_string();
         assert!(
             e.contains("17 MiB") && e.contains("the limit is 16 MiB"),
             "{e}"
         );
-        check_held(&project(18), &[None, None]).unwrap();
+        check_held(&project(18), &no_scans, &[None, None]).unwrap();
     }
 }

@@ -129,7 +129,7 @@ impl Default for SampleGrid {
 
 /// A view's pixel units in its image's: image = f · view + the window's corner.
 fn view_units(v: PixelView) -> [Units; 2] {
-    let f = v.factor.max(1) as f64;
+    let f = v.scale();
     [
         Units {
             scale: f,
