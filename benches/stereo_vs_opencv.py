@@ -334,6 +334,55 @@ def quality(disp, gt, nonocc, border=4):
 
 
 # ---------------------------------------------------------------- report
+JOB = os.path.join(os.path.dirname(os.path.abspath(__file__)), "opencv_pair_job.py")
+
+
+def whole_jobs(rig, paths, work, rig_args, fast_args, n, gt, nonocc):
+    """Whole processes, interleaved, n rounds: the rig's default and fast modes against
+    OpenCV's StereoSGBM (3-way, block 3) and StereoBM as Python jobs (opencv_pair_job.py:
+    interpreter, imports, reading the PNGs, matching, writing a float TIFF). Each round runs
+    the four once, in turn, so that a drift of the machine's speed moves them alike; each
+    round's peer seconds / rig seconds is a paired ratio. Returns the medians, the ratios'
+    medians and quartiles, and each job's quality on its last output."""
+    jobs = {
+        "rig default": rig_cmd(rig, paths, os.path.join(work, "job_rig"), rig_args),
+        "rig fast": rig_cmd(rig, paths, os.path.join(work, "job_rig_fast"), fast_args),
+        "OpenCV SGBM 3-way block 3 (job)": [sys.executable, JOB, "sgbm3way", paths["left"], paths["right"],
+                                            os.path.join(work, "job_sgbm.tif"), str(NDISP), str(THREADS)],
+        "OpenCV StereoBM (job)": [sys.executable, JOB, "bm", paths["left"], paths["right"],
+                                  os.path.join(work, "job_bm.tif"), str(NDISP), str(THREADS)],
+    }
+    outs = {"rig default": os.path.join(work, "job_rig", "disparity.tif"),
+            "rig fast": os.path.join(work, "job_rig_fast", "disparity.tif"),
+            "OpenCV SGBM 3-way block 3 (job)": os.path.join(work, "job_sgbm.tif"),
+            "OpenCV StereoBM (job)": os.path.join(work, "job_bm.tif")}
+    times = {k: [] for k in jobs}
+    for name, cmd in jobs.items():  # one untimed run each: the page cache and the venv warm
+        p = subprocess.run(cmd, capture_output=True, text=True)
+        if p.returncode != 0:
+            return dict(error=f"{name} failed: {p.stderr.strip()[-300:]}")
+    for _ in range(n):
+        for name, cmd in jobs.items():
+            t0 = time.perf_counter()
+            subprocess.run(cmd, capture_output=True, text=True, check=True)
+            times[name].append(time.perf_counter() - t0)
+    med = {k: statistics.median(v) for k, v in times.items()}
+
+    def ratio(peer, mine):
+        r = [a / b for a, b in zip(times[peer], times[mine])]
+        q = statistics.quantiles(r, n=4) if len(r) >= 2 else [r[0]] * 3
+        return dict(median=statistics.median(r), q1=q[0], q3=q[2])
+    quality_of = {}
+    for k, f in outs.items():
+        try:
+            quality_of[k] = quality(tifffile.imread(f).astype(np.float32), gt, nonocc)
+        except (OSError, ValueError):
+            quality_of[k] = None
+    return dict(rounds=n, median_seconds=med, quality=quality_of,
+                sgbm_over_rig_default=ratio("OpenCV SGBM 3-way block 3 (job)", "rig default"),
+                bm_over_rig_fast=ratio("OpenCV StereoBM (job)", "rig fast"))
+
+
 def table(rows, rig_row):
     cols = ("method", "seconds", "Mcand/s", "rig/peer", "bad1 no", "bad2 no", "bad1 all",
             "bad2 all", "invalid%", "RMSE<=2")
@@ -370,6 +419,11 @@ def main():
     ap.add_argument("--noise", type=float, default=1.5, help="Gaussian noise sigma in grey levels")
     ap.add_argument("--supersample", type=int, default=4, help="samples per pixel side (default 4)")
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--jobs", type=int, default=9,
+                    help="interleaved rounds of whole processes (rig default and fast, OpenCV "
+                         "SGBM 3-way and StereoBM jobs); 0: none")
+    ap.add_argument("--fast-args", default="--filter none",
+                    help='the rig\'s fast mode (default "--filter none")')
     a = ap.parse_args()
     W, H = (int(v) for v in a.size.lower().split("x"))
     os.makedirs(a.work, exist_ok=True)
@@ -428,8 +482,13 @@ def main():
                  load_average_at_start=load, noise_sigma=a.noise, supersample=a.supersample, seed=a.seed, border=4,
                  throughput_unit="width*height*64 pixel-candidates per second")
     ratios["rig_throughput_over_bm_paired"] = paired
+    jobs = None
+    if a.jobs > 0:
+        log(f"whole processes: {a.jobs} interleaved rounds")
+        jobs = whole_jobs(a.rig, paths, a.work, a.rig_args, a.fast_args, a.jobs, gt, nonocc)
     if a.json:
-        print(json.dumps(dict(setup=setup, sanity=sanity, methods=rows, ratios=ratios), indent=2))
+        print(json.dumps(dict(setup=setup, sanity=sanity, methods=rows, ratios=ratios, jobs=jobs),
+                         indent=2))
         return
     print(f"{W}x{H}, disparities 0..{NDISP - 1}, OpenCV {cv2.__version__} on {cv2.getNumThreads()} "
           f"threads ({os.cpu_count()} CPUs), median of {a.repeat} runs; bad-k in % (no = "
@@ -442,6 +501,19 @@ def main():
     if paired:
         print(f"rig throughput / StereoBM, {paired['pairs']} interleaved pairs: median "
               f"{paired['median']:.3f} (quartiles {paired['q1']:.3f}-{paired['q3']:.3f})")
+    if jobs and "error" not in jobs:
+        print(f"whole processes, median of {jobs['rounds']} interleaved rounds (seconds; bad-2 "
+              f"non-occluded / all):")
+        for k, v in jobs["median_seconds"].items():
+            q = jobs["quality"].get(k) or {}
+            print(f"  {k:<34} {v:6.3f} s   bad-2 {f(q.get('bad2_nonocc'))} / {f(q.get('bad2_all'))}")
+        for k, lab in (("sgbm_over_rig_default", "SGBM 3-way job / rig default"),
+                       ("bm_over_rig_fast", "StereoBM job / rig fast")):
+            r = jobs[k]
+            print(f"  {lab}: {r['median']:.2f} (quartiles {r['q1']:.2f}-{r['q3']:.2f}; "
+                  f"above 1: the rig is faster)")
+    elif jobs:
+        print(f"whole processes: {jobs['error']}")
     sc = rig_row.get("sigma_check")
     if sc:
         print(f"rig sigma.tif on {sc['pixels']} pixels within 2 px: RMS(true error / sigma) "

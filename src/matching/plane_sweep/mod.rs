@@ -128,7 +128,8 @@ pub struct Cells {
     pub col0: usize,
     pub stride: usize,
     pub cols: usize,
-    /// Pixel rows, ascending, each at least `k` from the photo's top and bottom.
+    /// Pixel rows, each at least `k` from the photo's top and bottom: ascending, or (for the
+    /// disparity sweep, [`sweep_shifts`]) descending.
     pub rows: Vec<usize>,
 }
 
@@ -211,17 +212,20 @@ struct Running {
 }
 
 impl Running {
-    /// The rows to subtract and to add to move the window to `top..=bottom`.
+    /// The rows to subtract and to add to move the window to `top..=bottom` (of the same
+    /// height), down the photo or up it; afresh where the two do not overlap.
     fn moves(
         &mut self,
         top: usize,
         bottom: usize,
     ) -> (std::ops::Range<usize>, std::ops::Range<usize>, bool) {
-        let reset = self.empty || top > self.bottom;
+        let reset = self.empty || top > self.bottom || bottom < self.top;
         let r = if reset {
             (0..0, top..bottom + 1, true)
-        } else {
+        } else if top >= self.top {
             (self.top..top, self.bottom + 1..bottom + 1, false)
+        } else {
+            (bottom + 1..self.bottom + 1, top..self.top, false)
         };
         self.top = top;
         self.bottom = bottom;
@@ -410,6 +414,7 @@ fn shifts_body<F: CellSink>(
         empty: true,
     };
     let mut rrow = vec![0.0f32; wr];
+    let mut rrow_in = vec![0.0f32; wr];
     let (mut lst, mut rst) = (RowStats::new(wl), RowStats::new(wr));
     // Right window mean·n and inverse deviation per column, reversed (index wr − 1 − x) so
     // that the planes of one reference column read them ascending; NaN where unseen.
@@ -424,6 +429,38 @@ fn shifts_body<F: CellSink>(
         if reset {
             vlw.iter_mut().for_each(|v| *v = 0.0);
         }
+        // A window moving by whole rows: each row that leaves paired with one that enters,
+        // so that the sums are read and written once for both.
+        let paired = !reset && sub.len() == add.len() && sub.end <= right_h && add.end <= right_h;
+        if paired {
+            for (rs, ra) in sub.clone().zip(add.clone()) {
+                rrow.copy_from_slice(&right.img.data[rs * wr..(rs + 1) * wr]);
+                rrow.reverse();
+                rrow_in.copy_from_slice(&right.img.data[ra * wr..(ra + 1) * wr]);
+                rrow_in.reverse();
+                let lrow_out = &left.img.data[rs * wl..(rs + 1) * wl];
+                let lrow_in = &left.img.data[ra * wl..(ra + 1) * wl];
+                for c in 0..wl {
+                    let (lo, li) = (-lrow_out[c], lrow_in[c]);
+                    // As below, for both rows.
+                    let x0 = c as i64 - first;
+                    let p_lo = (x0 - (wr as i64 - 1)).max(0);
+                    let p_hi = x0.min(np as i64 - 1);
+                    if p_lo > p_hi {
+                        continue;
+                    }
+                    let (p_lo, p_hi) = (p_lo as usize, p_hi as usize);
+                    let i0 = (wr as i64 - 1 - x0 + p_lo as i64) as usize;
+                    let d = &mut vlw[c * np + p_lo..c * np + p_hi + 1];
+                    let so = &rrow[i0..i0 + d.len()];
+                    let si = &rrow_in[i0..i0 + d.len()];
+                    for ((d, so), si) in d.iter_mut().zip(so).zip(si) {
+                        *d += lo * so + li * si;
+                    }
+                }
+            }
+        }
+        let (sub, add) = if paired { (0..0, 0..0) } else { (sub, add) };
         for (rows, sign) in [(sub, -1.0f32), (add, 1.0f32)] {
             for rr in rows {
                 if rr >= right_h {

@@ -7,7 +7,7 @@
 use crate::image::ImageF32;
 use crate::matching::methods::pair::block_match::{block_match, BlockParams};
 use crate::matching::methods::pair::sgm::{
-    aggregate_halves, dequantise, quantise, SgmParams, Q_UNSCORED, Q_UNSEEN,
+    aggregate_halves, dequantise, quantise, SgmParams, Streamed,
 };
 use crate::matching::methods::sweep::height_sweep::{height_sigma_or_nan, HeightMap};
 use crate::matching::methods::sweep::regions::{remove_wrong_heights, RegionParams};
@@ -29,7 +29,7 @@ pub enum Filter {
     None,
     /// Seed 000's region filter (§2.3) on the disparities.
     Regions,
-    /// Semi-global aggregation along 8 paths before the winner (Hirschmüller 2008).
+    /// Semi-global aggregation along 5 or 8 paths before the winner (Hirschmüller 2008).
     Sgm,
 }
 
@@ -99,8 +99,12 @@ pub struct PairStats {
     pub lsm_refined: usize,
     /// Why least squares failed, and how often (the parabola's value was kept).
     pub lsm_failures: BTreeMap<String, usize>,
-    /// Seconds of the semi-global aggregation (0 without it), and of the whole match.
+    /// Seconds of the semi-global aggregation where it is a step of its own (8 paths; 0
+    /// otherwise), of the σ's self-match ([`crate::matching::methods::pair::match_pair`]), and
+    /// of the whole match, σ included.
     pub seconds_aggregate: f64,
+    #[serde(default)]
+    pub seconds_sigma: f64,
     pub seconds_total: f64,
 }
 
@@ -134,7 +138,9 @@ pub enum PairError {
     Threshold(f64),
     #[error("--uniqueness {0} %: from 0 (no test) to 99 %")]
     Uniqueness(f64),
-    #[error("matching needs about {need_mib:.0} MiB; the limit is {limit_mib} MiB: crop the photos, narrow the disparities, {}or raise --max-memory", if *volume { "use --filter none or regions (no cost volume kept), " } else { "" })]
+    #[error("--paths {0}: 5 (streamed, the default) or 8 (the whole volume kept)")]
+    Paths(u8),
+    #[error("matching needs about {need_mib:.0} MiB; the limit is {limit_mib} MiB: crop the photos, narrow the disparities, {}or raise --max-memory", if *volume { "use --paths 5 or --filter none or regions (no cost volume kept), " } else { "" })]
     Memory {
         need_mib: f64,
         limit_mib: u64,
@@ -166,6 +172,11 @@ fn band_rows(rows: usize) -> usize {
     b
 }
 
+/// Whether matching keeps a volume of scores (SGM along 8 paths).
+fn keeps_volume(p: &PairParams) -> bool {
+    p.filter == Filter::Sgm && p.sgm.paths == 8
+}
+
 /// Bytes that matching `left` against `right` holds at once: the photos (as read, and
 /// prepared), the outputs and matches, each thread's running sums and picks, and for SGM the
 /// whole score volume (16-bit codes) with, while it is aggregated, the two sweeps' sums.
@@ -181,6 +192,14 @@ pub fn bytes_needed(w: usize, h: usize, wr: usize, p: &PairParams) -> f64 {
     // and right-photo winners, a row's scores, and the rows of sums; block matching's own.
     let bands = threads
         * match p.filter {
+            Filter::Sgm if p.sgm.paths == 5 => {
+                // The sweep's column sums, the row's scores and costs, the paths' rows.
+                4.0 * np * w as f64
+                    + 6.0 * np * cols
+                    + crate::matching::methods::pair::sgm::streamed_bytes(cols, np)
+                    + 40.0 * cols
+                    + 64.0 * (w + wr) as f64
+            }
             Filter::Sgm => {
                 4.0 * np * (w as f64 + cols) + 40.0 * BAND as f64 * cols + 64.0 * (w + wr) as f64
             }
@@ -193,7 +212,7 @@ pub fn bytes_needed(w: usize, h: usize, wr: usize, p: &PairParams) -> f64 {
             ),
         };
     let volume = match p.filter {
-        Filter::Sgm => {
+        Filter::Sgm if p.sgm.paths == 8 => {
             cols * rows * np * 2.0
                 + crate::matching::methods::pair::sgm::bytes_needed(cols * rows, np, cols)
         }
@@ -238,6 +257,9 @@ fn check(left: &ImageF32, right: &ImageF32, p: &PairParams) -> Result<(), PairEr
     if !(0.0..=0.99).contains(&p.uniqueness) {
         return Err(PairError::Uniqueness(p.uniqueness * 100.0));
     }
+    if !crate::matching::methods::pair::sgm::PATHS.contains(&p.sgm.paths) {
+        return Err(PairError::Paths(p.sgm.paths));
+    }
     Ok(())
 }
 
@@ -260,31 +282,31 @@ impl CellSink for Codes<'_> {
 }
 
 built_per_cpu! {
-    /// One row of the SGM path: each cell's pick on the aggregated costs (chosen score −S,
-    /// S = forward + backward sums; unseen planes NaN, unscored cells −∞ throughout), its raw
-    /// correlations from the codes, and, with `lr`, the right photo's best plane for each right
-    /// column x (u32::MAX where none), the best over the cells that meet x on the chosen scores.
-    /// Built per CPU (see `simd`).
+    /// One row of SGM's picks: each cell's pick on the aggregated costs `sum` (cell i's
+    /// planes from `i·stride`; the chosen score −S; unseen planes NaN, unscored cells −∞ throughout), its raw correlations from `raw`,
+    /// and, with `lr`, the right photo's best plane for each right column x (u32::MAX where
+    /// none), the best over the cells that meet x on the chosen scores. Built per CPU (see
+    /// `simd`).
     #[allow(clippy::too_many_arguments)]
-    fn sgm_row[](
-        raw: &[i16],
-        fwd: &[u16],
-        bwd: &[u16],
+    fn pick_row[](
+        raw: &[f32],
+        sum: &[u16],
+        stride: usize,
         np: usize,
         col0: usize,
         first: i64,
         wr: usize,
         lr: bool,
         uniqueness: f32,
-    ) -> (RowPicks, Vec<u32>) = sgm_row_body;
+    ) -> (RowPicks, Vec<u32>) = pick_row_body;
 }
 
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
-fn sgm_row_body(
-    raw: &[i16],
-    fwd: &[u16],
-    bwd: &[u16],
+fn pick_row_body(
+    raw: &[f32],
+    sum: &[u16],
+    stride: usize,
     np: usize,
     col0: usize,
     first: i64,
@@ -297,18 +319,20 @@ fn sgm_row_body(
     let mut picks = RowPicks::default();
     let mut rb = RightBest::new(wr, np);
     for i in 0..cols {
-        let o = i * np;
-        let (rc, a, b) = (&raw[o..o + np], &fwd[o..o + np], &bwd[o..o + np]);
-        if rc.iter().fold(true, |t, &q| t & (q == Q_UNSCORED)) {
+        let (rc, s) = (
+            &raw[i * np..(i + 1) * np],
+            &sum[i * stride..i * stride + np],
+        );
+        if rc.iter().fold(true, |t, &q| t & (q == f32::NEG_INFINITY)) {
             cell.fill(f32::NEG_INFINITY);
         } else {
             for p in 0..np {
-                let s = -(a[p] as f32 + b[p] as f32);
-                cell[p] = if rc[p] == Q_UNSEEN { f32::NAN } else { s };
+                let v = -(s[p] as f32);
+                cell[p] = if rc[p].is_nan() { f32::NAN } else { v };
             }
         }
         let win = winner(&cell, Unseen::Skip);
-        let mut pick = Pick::new(win, np, |p| dequantise(rc[p]));
+        let mut pick = Pick::new(win, np, |p| rc[p]);
         // The sub-plane peak of the aggregated costs, as Hirschmüller (2008, §2.4) takes it:
         // smoother than the raw correlations' (on the benchmark pair, RMSE 0.17 against
         // 0.24 px for the pixels within 2 px), which give the σ only.
@@ -333,6 +357,68 @@ fn sgm_row_body(
     (picks, out)
 }
 
+built_per_cpu! {
+    /// The disparities alone of one row's cells (into `d`, from the row's first cell; NaN
+    /// where none) from the scores `raw` and the aggregated costs `sum` (cell i's planes from
+    /// `i·stride`), with no threshold, uniqueness or left-right check: what [`pick_row`] and
+    /// [`finish_row`] give then, in a fraction of the time (the σ's self-match runs four
+    /// times over the photo). Built per CPU (see `simd`).
+    fn self_row[](raw: &[f32], sum: &[u16], stride: usize, np: usize, first: i64, d: &mut [f32]) = self_row_body;
+}
+
+#[inline(always)]
+fn self_row_body(raw: &[f32], sum: &[u16], stride: usize, np: usize, first: i64, d: &mut [f32]) {
+    let cols = (raw.len() / np.max(1)).min(d.len());
+    for (i, out) in d[..cols].iter_mut().enumerate() {
+        let (rc, s) = (
+            &raw[i * np..(i + 1) * np],
+            &sum[i * stride..i * stride + np],
+        );
+        *out = f32::NAN;
+        if rc.iter().fold(true, |t, &q| t & (q == f32::NEG_INFINITY)) {
+            continue;
+        }
+        // The first of the lowest costs among the seen planes (winner's rule on −S).
+        let mut at = usize::MAX;
+        let mut best = u32::MAX;
+        for p in 0..np {
+            if !rc[p].is_nan() && (s[p] as u32) < best {
+                best = s[p] as u32;
+                at = p;
+            }
+        }
+        // None; a neighbour unseen; at an end of the range.
+        if at == usize::MAX
+            || (at > 0 && rc[at - 1].is_nan())
+            || (at + 1 < np && rc[at + 1].is_nan())
+            || (np > 1 && (at == 0 || at == np - 1))
+        {
+            continue;
+        }
+        if at == 0 || at + 1 == np {
+            // A single plane: no neighbours, no sub-plane place.
+            *out = (first as f64 + at as f64) as f32;
+            continue;
+        }
+        let (agg, den) = parabola(-(s[at - 1] as f64), -(s[at] as f64), -(s[at + 1] as f64));
+        let (lo, hi) = (rc[at - 1], rc[at + 1]);
+        let raw_off = if lo.is_finite() && hi.is_finite() {
+            parabola(lo as f64, rc[at] as f64, hi as f64).0
+        } else {
+            f64::NAN
+        };
+        // The aggregated costs' place is kept in f32 the general way (RowPicks::offset).
+        let off = if den < 0.0 {
+            agg as f32 as f64
+        } else if !raw_off.is_nan() {
+            raw_off
+        } else {
+            0.0
+        };
+        *out = (first as f64 + at as f64 + off) as f32;
+    }
+}
+
 /// One pixel row of the three outputs (disparity, correlation, σ), NaN where no match.
 struct OutRow<'a> {
     d: &'a mut [f32],
@@ -348,6 +434,8 @@ struct Ctx<'a> {
     planes: Planes<'a>,
     k: usize,
     np: usize,
+    /// Correlations and σ wanted, not only disparities.
+    full: bool,
 }
 
 /// The rows of the three outputs, each made NaN by the thread that takes it.
@@ -391,6 +479,8 @@ struct Rules {
     lr: Option<f64>,
     /// Pixels in a window (for σ).
     n: usize,
+    /// Whether the correlation and σ are wanted (the σ's self-match wants disparities only).
+    full: bool,
 }
 
 built_per_cpu! {
@@ -416,6 +506,7 @@ fn finish_row_body(pk: &RowPicks, rb: &[u32], rules: &Rules, fates: &mut [u8], o
         threshold,
         lr,
         n: nw,
+        full,
     } = *rules;
     let (pl_, rho_, lo_, hi_, off_, un_) = (
         &pk.plane[..n],
@@ -455,8 +546,12 @@ fn finish_row_body(pk: &RowPicks, rb: &[u32], rules: &Rules, fates: &mut [u8], o
         let rho = rho as f64;
         let (off, den) = place(lo_[i], rho, hi_[i], off_[i]);
         let t = first as f64 + pl as f64 + off;
-        let (top, curvature) = peak_top(lo_[i], rho, hi_[i], den);
-        let sd = height_sigma_or_nan(top, curvature, 1.0, nw);
+        let sd = if full {
+            let (top, curvature) = peak_top(lo_[i], rho, hi_[i], den);
+            height_sigma_or_nan(top, curvature, 1.0, nw)
+        } else {
+            f64::NAN
+        };
         let ok = f == MATCH;
         d[i] = if ok { t as f32 } else { f32::NAN };
         corr[i] = if ok { rho as f32 } else { f32::NAN };
@@ -553,6 +648,7 @@ fn row_matches(x: &Ctx, r: usize, picks: &RowPicks, rb: &[u32], mut out: OutRow)
         threshold: p.threshold,
         lr: p.lr_tolerance,
         n: p.window * p.window,
+        full: x.full,
     };
     let mut fates = vec![0u8; picks.len()];
     finish_row(picks, rb, &rules, &mut fates, &mut out);
@@ -628,13 +724,47 @@ pub fn match_pair_alone(
     max_memory_mb: u64,
     progress: &dyn crate::matching::progress::Progress,
 ) -> Result<DisparityMap, PairError> {
+    match_with(left, right, p, max_memory_mb, progress, true, None)
+}
+
+/// The disparities alone (the correlation and σ NaN): what the σ's self-match needs. With
+/// `every_other = Some(parity)` and SGM's 5 streamed paths, only the rows of that parity
+/// (counted from the first with a full window) are matched, their vertical paths stepping
+/// two rows; the rest NaN.
+pub(super) fn disparities_alone(
+    left: &ImageF32,
+    right: &ImageF32,
+    p: &PairParams,
+    max_memory_mb: u64,
+    every_other: Option<usize>,
+) -> Result<DisparityMap, PairError> {
+    match_with(
+        left,
+        right,
+        p,
+        max_memory_mb,
+        &crate::matching::progress::Silent,
+        false,
+        every_other.filter(|_| p.filter == Filter::Sgm && p.sgm.paths == 5),
+    )
+}
+
+fn match_with(
+    left: &ImageF32,
+    right: &ImageF32,
+    p: &PairParams,
+    max_memory_mb: u64,
+    progress: &dyn crate::matching::progress::Progress,
+    full: bool,
+    every_other: Option<usize>,
+) -> Result<DisparityMap, PairError> {
     check(left, right, p)?;
     let need = bytes_needed(left.width, left.height, right.width, p);
     if need > max_memory_mb as f64 * 1048576.0 {
         return Err(PairError::Memory {
             need_mib: need / 1048576.0,
             limit_mib: max_memory_mb,
-            volume: p.filter == Filter::Sgm,
+            volume: keeps_volume(p),
         });
     }
     let t0 = std::time::Instant::now();
@@ -644,7 +774,10 @@ pub fn match_pair_alone(
     let first = p.d_min;
     let (lp, rp) = rayon::join(|| Prepared::new(left), || Prepared::new(right));
     let cols = w - 2 * k;
-    let rows: Vec<usize> = (k..h - k).collect();
+    let rows: Vec<usize> = match every_other {
+        Some(parity) => (k + parity % 2..h - k).step_by(2).collect(),
+        None => (k..h - k).collect(),
+    };
     let band = band_rows(rows.len());
     let bands: Vec<&[usize]> = rows.chunks(band).collect();
     let x = Ctx {
@@ -654,6 +787,7 @@ pub fn match_pair_alone(
         planes: Planes::Shifts { first, count: np },
         k,
         np,
+        full,
     };
     let wr = right.width;
     let cells_of = |b: &[usize]| Cells {
@@ -677,6 +811,12 @@ pub fn match_pair_alone(
         &mut sigma[k * w..(h - k) * w],
     );
     let counts: PairStats = match p.filter {
+        Filter::Sgm if p.sgm.paths == 5 => {
+            progress.begin("match (rows)", rows.len() as u64);
+            let st = match_streamed(&x, &lp, &rp, &rows, (dm, cm, sm), progress);
+            progress.end();
+            st
+        }
         Filter::Sgm => {
             // The whole volume, in 16-bit codes, each band written in place.
             progress.begin("score (rows)", rows.len() as u64);
@@ -698,23 +838,32 @@ pub fn match_pair_alone(
             let st = out_rows(dm, cm, sm, w)
                 .zip(rows.par_iter())
                 .enumerate()
-                .map(|(j, (out, &r))| {
-                    let row = j * row_len..(j + 1) * row_len;
-                    let (picks, rb) = sgm_row(
-                        &vol[row.clone()],
-                        &fwd[row.clone()],
-                        &bwd[row],
-                        np,
-                        k,
-                        first,
-                        wr,
-                        p.lr_tolerance.is_some(),
-                        p.uniqueness as f32,
-                    );
-                    let m = row_matches(&x, r, &picks, &rb, out);
-                    progress.advance(1);
-                    m
-                })
+                .map_init(
+                    || (vec![0.0f32; row_len], vec![0u16; row_len]),
+                    |(raw, sum), (j, (out, &r))| {
+                        let row = j * row_len..(j + 1) * row_len;
+                        for (v, &q) in raw.iter_mut().zip(&vol[row.clone()]) {
+                            *v = dequantise(q);
+                        }
+                        for ((v, &a), &b) in sum.iter_mut().zip(&fwd[row.clone()]).zip(&bwd[row]) {
+                            *v = a.saturating_add(b);
+                        }
+                        let (picks, rb) = pick_row(
+                            raw,
+                            sum,
+                            np,
+                            np,
+                            k,
+                            first,
+                            wr,
+                            p.lr_tolerance.is_some(),
+                            p.uniqueness as f32,
+                        );
+                        let m = row_matches(&x, r, &picks, &rb, out);
+                        progress.advance(1);
+                        m
+                    },
+                )
                 .reduce(PairStats::default, PairStats::add);
             progress.end();
             st
@@ -810,6 +959,152 @@ pub fn match_pair_alone(
     })
 }
 
+/// The rows of SGM's five streamed paths (see [`crate::matching::methods::pair::sgm`]): the
+/// upper half of `rows` (ascending; consecutive, or every other row) from the top down on
+/// one thread, the lower half from the bottom up on the other, each row's scores aggregated,
+/// picked and matched as soon as the sweep gives them, into `out` (the three outputs' rows
+/// from pixel row k on). Nothing the size of the photo is kept but the outputs.
+fn match_streamed(
+    x: &Ctx,
+    lp: &Prepared,
+    rp: &Prepared,
+    rows: &[usize],
+    out: (&mut [f32], &mut [f32], &mut [f32]),
+    progress: &dyn crate::matching::progress::Progress,
+) -> PairStats {
+    let (w, k) = (x.left.width, x.k);
+    let mid = rows.len() / 2;
+    let (upper, lower) = rows.split_at(mid);
+    // The outputs from pixel row k; the lower half's from its first row.
+    let split = lower.first().map_or(0, |&r| r - k);
+    let (d, corr, sigma) = out;
+    let (d0, d1) = d.split_at_mut(split * w);
+    let (c0, c1) = corr.split_at_mut(split * w);
+    let (s0, s1) = sigma.split_at_mut(split * w);
+    let down: Vec<usize> = upper.to_vec();
+    let up: Vec<usize> = lower.iter().rev().copied().collect();
+    let (a, b) = rayon::join(
+        || stream_half(x, lp, rp, &down, k, (d0, c0, s0), progress),
+        || stream_half(x, lp, rp, &up, k + split, (d1, c1, s1), progress),
+    );
+    a.add(b)
+}
+
+/// One half of [`match_streamed`]: `travel` the rows in the order of travel, `out` the
+/// outputs' rows from pixel row `row0` down (every row of the half, matched or not).
+fn stream_half(
+    x: &Ctx,
+    lp: &Prepared,
+    rp: &Prepared,
+    travel: &[usize],
+    row0: usize,
+    out: (&mut [f32], &mut [f32], &mut [f32]),
+    progress: &dyn crate::matching::progress::Progress,
+) -> PairStats {
+    // Rows left out (a self-match over every other row) have no match.
+    for v in [&mut *out.0, &mut *out.1, &mut *out.2] {
+        v.fill(f32::NAN);
+    }
+    if travel.is_empty() {
+        return PairStats::default();
+    }
+    let (k, np) = (x.k, x.np);
+    let cols = x.left.width - 2 * k;
+    let mut sink = StreamRows {
+        x,
+        agg: Streamed::new(cols, np, &x.p.sgm),
+        raw: vec![0.0; cols * np],
+        cols,
+        np,
+        rows: Vec::new(),
+        row0,
+        out,
+        stats: PairStats::default(),
+        progress,
+    };
+    // In bands, each summed afresh (the running sums' f32 rounding stays that of a band).
+    for band in travel.chunks(BAND) {
+        sink.rows = band.to_vec();
+        let cells = Cells {
+            col0: k,
+            stride: 1,
+            cols,
+            rows: band.to_vec(),
+        };
+        sweep_shifts(lp, rp, x.p.d_min, np, k, &cells, &mut [], &mut sink);
+    }
+    sink.stats
+}
+
+/// The sweep's sink for [`stream_half`]: a row's scores as they come, and the row
+/// aggregated, picked and matched when its last cell is in.
+struct StreamRows<'a, 'o> {
+    x: &'a Ctx<'a>,
+    agg: Streamed,
+    raw: Vec<f32>,
+    cols: usize,
+    np: usize,
+    /// The pixel rows of the band swept.
+    rows: Vec<usize>,
+    /// The pixel row of the outputs' first row.
+    row0: usize,
+    out: (&'o mut [f32], &'o mut [f32], &'o mut [f32]),
+    stats: PairStats,
+    progress: &'a dyn crate::matching::progress::Progress,
+}
+
+impl StreamRows<'_, '_> {
+    fn finish(&mut self, r: usize) {
+        let p = self.x.p;
+        let stride = self.agg.stride();
+        let sum = self.agg.row(&self.raw);
+        let w = self.x.left.width;
+        let o = (r - self.row0) * w..(r - self.row0 + 1) * w;
+        if !self.x.full
+            && p.subpixel == Subpixel::Parabola
+            && p.lr_tolerance.is_none()
+            && p.uniqueness <= 0.0
+            && p.threshold <= -1.0
+        {
+            // The σ's self-match: the disparities alone, as the general way gives them.
+            let d = &mut self.out.0[o][self.x.k..];
+            self_row(&self.raw, sum, stride, self.np, p.d_min, d);
+            self.progress.advance(1);
+            return;
+        }
+        let (picks, rb) = pick_row(
+            &self.raw,
+            sum,
+            stride,
+            self.np,
+            self.x.k,
+            p.d_min,
+            self.x.right.width,
+            p.lr_tolerance.is_some(),
+            p.uniqueness as f32,
+        );
+        let out = OutRow {
+            d: &mut self.out.0[o.clone()],
+            corr: &mut self.out.1[o.clone()],
+            sigma: &mut self.out.2[o],
+        };
+        let st = row_matches(self.x, r, &picks, &rb, out);
+        self.stats = std::mem::take(&mut self.stats).add(st);
+        self.progress.advance(1);
+    }
+}
+
+impl CellSink for StreamRows<'_, '_> {
+    #[inline(always)]
+    fn cell(&mut self, j: usize, i: usize, s: &[f32]) {
+        let np = self.np;
+        self.raw[i * np..(i + 1) * np].copy_from_slice(s);
+        if i + 1 == self.cols {
+            self.finish(self.rows[j]);
+        }
+    }
+}
+
 fn failure_name(e: RefineFailure) -> String {
     format!("{e:?}").to_lowercase()
 }
@@ -837,6 +1132,99 @@ mod tests {
             assert!((top - a).abs() < 1e-5, "top {top} for {a}");
         }
         assert_eq!(peak_top(-0.1, 0.9, 0.2, -1.6).1, -1.6);
+    }
+
+    /// A textured pair: the right photo the left shifted by `d` px (smooth lattice noise).
+    fn textured_pair(w: usize, h: usize, d: f64) -> (ImageF32, ImageF32) {
+        let f = |x: f64, y: f64| {
+            100.0
+                + 30.0 * (x * 0.31 + y * 0.17).sin()
+                + 20.0 * (x * 0.13 - y * 0.41).cos()
+                + 12.0 * (x * 0.71 + y * 0.53).sin() * (y * 0.23).cos()
+        };
+        let mut l = ImageF32::new(w, h);
+        let mut r = ImageF32::new(w, h);
+        for y in 0..h {
+            for x in 0..w {
+                l.data[y * w + x] = f(x as f64, y as f64) as f32;
+                r.data[y * w + x] = f(x as f64 + d, y as f64) as f32;
+            }
+        }
+        (l, r)
+    }
+
+    /// The σ's self-match takes the disparities the quick way ([`self_row`]): they are the
+    /// general way's, to the bit, on every row it matches, with SGM's 5 streamed paths.
+    #[test]
+    fn the_quick_disparities_are_the_general_ones() {
+        let (l, r) = textured_pair(60, 40, 1.3);
+        let p = PairParams {
+            d_min: -2,
+            d_max: 2,
+            threshold: -1.0,
+            lr_tolerance: None,
+            uniqueness: 0.0,
+            ..PairParams::default()
+        };
+        let full = match_pair_alone(&l, &r, &p, 4096, &crate::matching::progress::Silent).unwrap();
+        let quick = disparities_alone(&l, &r, &p, 4096, None).unwrap();
+        assert!(full.stats.matched > 1000, "{:?}", full.stats);
+        for (a, b) in full.d.iter().zip(&quick.d) {
+            assert!(
+                a.to_bits() == b.to_bits() || (a.is_nan() && b.is_nan()),
+                "{a} vs {b}"
+            );
+        }
+        // Every other row: those rows matched, the rest NaN.
+        let half = disparities_alone(&l, &r, &p, 4096, Some(1)).unwrap();
+        let k = p.window / 2;
+        for y in k..40 - k {
+            let row = &half.d[y * 60..(y + 1) * 60];
+            let matched = row.iter().filter(|v| v.is_finite()).count();
+            if (y - k) % 2 == 1 {
+                assert!(matched > 40, "row {y}: {matched}");
+            } else {
+                assert_eq!(matched, 0, "row {y}");
+            }
+        }
+    }
+
+    /// Matching down the photo and up it (the streamed halves) finds the shift of a
+    /// fronto-parallel pair everywhere, with 5 paths and with 8.
+    #[test]
+    fn both_halves_find_the_shift() {
+        let (l, r) = textured_pair(80, 61, 3.25);
+        for paths in [5u8, 8] {
+            let mut p = PairParams {
+                d_min: 0,
+                d_max: 8,
+                ..PairParams::default()
+            };
+            p.sgm.paths = paths;
+            let m = match_pair_alone(&l, &r, &p, 4096, &crate::matching::progress::Silent).unwrap();
+            let k = p.window / 2;
+            let mut n = 0;
+            // Each half's mean: the parabola's pixel locking moves both alike.
+            let mut halves = [(0.0f64, 0usize); 2];
+            for y in k..61 - k {
+                for x in 12..80 - k {
+                    let v = m.d[y * 80 + x];
+                    if v.is_finite() {
+                        assert!((v - 3.25).abs() < 0.5, "{paths} paths, ({x}, {y}): {v}");
+                        n += 1;
+                        let hf = &mut halves[usize::from(y >= 30)];
+                        hf.0 += v as f64;
+                        hf.1 += 1;
+                    }
+                }
+            }
+            assert!(n > 50 * 50, "{paths} paths: {n} matched");
+            let mean = |h: (f64, usize)| h.0 / h.1 as f64;
+            assert!(
+                (mean(halves[0]) - mean(halves[1])).abs() < 0.05,
+                "{paths} paths: {halves:?}"
+            );
+        }
     }
 
     /// Bands never above BAND rows, every row in one, and an even number of them wherever
@@ -877,12 +1265,14 @@ mod tests {
         assert!(e.to_string().contains("at least 3 × 3"), "{e}");
         let big = ImageF32::new(2000, 2000);
         p.d_max = 255;
-        for (filter, hint) in [
-            (Filter::Sgm, true),
-            (Filter::None, false),
-            (Filter::Regions, false),
+        for (filter, paths, hint) in [
+            (Filter::Sgm, 8, true),
+            (Filter::Sgm, 5, false),
+            (Filter::None, 5, false),
+            (Filter::Regions, 5, false),
         ] {
             p.filter = filter;
+            p.sgm.paths = paths;
             let e = match_pair_alone(&big, &big, &p, 16, &crate::matching::progress::Silent)
                 .unwrap_err();
             let e = e.to_string();

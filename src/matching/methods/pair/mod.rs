@@ -36,6 +36,7 @@ pub fn match_pair(
             *s = (*s * *s + v).sqrt();
         }
     }
-    m.stats.seconds_total += t0.elapsed().as_secs_f64();
+    m.stats.seconds_sigma = t0.elapsed().as_secs_f64();
+    m.stats.seconds_total += m.stats.seconds_sigma;
     Ok(m)
 }

@@ -1,31 +1,50 @@
-//! Semi-global aggregation (Hirschmüller 2008, eq. 13–14) of a plane sweep's scores along 8
-//! paths: for each path direction r, L_r(p, d) = C(p, d) + min(L_r(p − r, d),
-//! L_r(p − r, d ± 1) + P1, min_i L_r(p − r, i) + P2) − min_k L_r(p − r, k), and
-//! S(p, d) = Σ_r L_r(p, d). The cost is C = (1 − NCC)·COST_SCALE; a plane the search photo
-//! does not see, or could not score, costs as much as an uncorrelated window, so it neither
-//! attracts nor repels the paths. Two sweeps over the cells: the first carries the paths that
-//! come from the left, above-left, above and above-right; the second the four opposite ones.
+//! Semi-global aggregation (Hirschmüller 2008, eq. 13–14) of a plane sweep's scores: for
+//! each path direction r, L_r(p, d) = C(p, d) + min(L_r(p − r, d), L_r(p − r, d ± 1) + P1,
+//! min_i L_r(p − r, i) + P2) − min_k L_r(p − r, k), and S(p, d) = Σ_r L_r(p, d). The cost is
+//! C = (1 − NCC)·COST_SCALE; a plane the search photo does not see, or could not score, costs
+//! as much as an uncorrelated window, so it neither attracts nor repels the paths.
+//!
+//! Two ways, by the number of paths:
+//! - **5 paths, streamed** ([`Streamed`]): the paths along the row both ways and the three that
+//!   come from the row before (diagonal behind, straight, diagonal ahead), in one pass over
+//!   the rows with nothing kept but the last row's path costs: OpenCV's StereoSGBM is such a
+//!   single pass over 5 directions by default (its documentation), where Hirschmüller (2008,
+//!   §2.3) asks for at least 8 for a good coverage. The photo is matched in two halves
+//!   on two threads, the upper from the top edge down and the lower from the bottom edge up, so
+//!   that every path starts at the photo's edge.
+//! - **8 paths** ([`aggregate_halves`]): two sweeps over a whole volume of scores, the first
+//!   carrying the paths that come from the left, above-left, above and above-right, the second
+//!   the four opposite ones.
 
 use serde::{Deserialize, Serialize};
 
 /// Cost of a score: NCC 1 → 0, NCC 0 → COST_SCALE, NCC −1 → 2·COST_SCALE.
 pub const COST_SCALE: f32 = 256.0;
 
-/// The penalties, in cost units (COST_SCALE is an NCC of 0).
+/// The penalties, in cost units (COST_SCALE is an NCC of 0), and the paths.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct SgmParams {
     /// For a change of one plane between neighbours (slanted surfaces).
     pub p1: u16,
     /// For a larger change (discontinuities).
     pub p2: u16,
+    /// 5 (streamed, no volume kept) or 8 (two sweeps over the whole volume).
+    pub paths: u8,
 }
+
+/// The path counts there are.
+pub const PATHS: [u8; 2] = [5, 8];
 
 impl Default for SgmParams {
     fn default() -> Self {
         // An NCC of 0.75 against 1.0 costs 64: a change of one plane is paid like that, a
         // jump like two uncorrelated windows (chosen on the benchmark's rendered pair, where
         // P1 from 16 to 64 and P2 from 96 to 768 moved bad-2 between 2 % and 3 %).
-        SgmParams { p1: 64, p2: 512 }
+        SgmParams {
+            p1: 64,
+            p2: 512,
+            paths: 5,
+        }
     }
 }
 
@@ -74,6 +93,198 @@ fn cost(q: i16) -> u16 {
     } else {
         c
     }
+}
+
+/// Cost of a score (an NCC, NaN unseen, −∞ unscored), as [`cost`] gives it for the score's
+/// code: round((1 − NCC)·COST_SCALE), COST_SCALE where not scored. Selects, not branches, so
+/// that a row's costs are taken on vector lanes.
+#[inline(always)]
+pub fn cost_of(s: f32) -> u16 {
+    let c = ((1.0 - s.clamp(-1.0, 1.0)) * COST_SCALE + 0.5) as u16;
+    if s.is_finite() {
+        c
+    } else {
+        COST_SCALE as u16
+    }
+}
+
+/// Lanes of a vector of u16 (AVX2): [`Streamed`] keeps each cell's planes padded to a
+/// multiple, so that a step is whole vectors whatever the number of planes (a search of ±2
+/// planes, as the σ's self-match has, would otherwise run one lane at a time).
+const LANES: usize = 16;
+
+/// The cost of a padding plane, and the path cost it keeps: never a path's minimum, never a
+/// neighbour's way in (a saturating add leaves it where it is).
+const PAD: u16 = u16::MAX;
+
+/// Bytes [`Streamed`] holds for rows `cols` wide of `planes`: the path costs of the row before
+/// and of this one (three paths), the row's costs and its sums, padded (see [`LANES`]).
+pub fn streamed_bytes(cols: f64, planes: f64) -> f64 {
+    let padded = (planes / LANES as f64).ceil() * LANES as f64;
+    (6.0 * (padded + 2.0) + 2.0 * padded) * cols * 2.0 + 6.0 * cols * 2.0
+}
+
+/// Semi-global aggregation along five paths in one pass over the rows (see the module's
+/// doc): give it each row's scores in the order of travel, and it gives back the row's S. It
+/// keeps the three paths' costs of the row before and nothing else. Each cell's planes lie
+/// [`Streamed::stride`] apart in the sums, the planes beyond the real ones padding; a path's
+/// costs are kept with a padding plane either side as well (a slot of stride + 2), so that a
+/// step reads the neighbours below and above as whole vectors, without a copy.
+pub struct Streamed {
+    np: usize,
+    stride: usize,
+    cols: usize,
+    p: SgmParams,
+    /// Path costs of the row before and of this one (diagonal behind, straight, diagonal
+    /// ahead) in slots, and each cell's minimum over its planes.
+    prev: [Vec<u16>; 3],
+    cur: [Vec<u16>; 3],
+    prev_min: [Vec<u16>; 3],
+    cur_min: [Vec<u16>; 3],
+    /// The path along the row: this cell's slot and the one before.
+    along: Vec<u16>,
+    along_prev: Vec<u16>,
+    started: bool,
+    cost: Vec<u16>,
+    sum: Vec<u16>,
+}
+
+impl Streamed {
+    pub fn new(cols: usize, np: usize, p: &SgmParams) -> Streamed {
+        let stride = np.div_ceil(LANES).max(1) * LANES;
+        let slots = || vec![PAD; cols * (stride + 2)];
+        let mins = || vec![0u16; cols];
+        Streamed {
+            np,
+            stride,
+            cols,
+            p: *p,
+            prev: [slots(), slots(), slots()],
+            cur: [slots(), slots(), slots()],
+            prev_min: [mins(), mins(), mins()],
+            cur_min: [mins(), mins(), mins()],
+            along: vec![PAD; stride + 2],
+            along_prev: vec![PAD; stride + 2],
+            started: false,
+            cost: vec![PAD; cols * stride],
+            sum: vec![PAD; cols * stride],
+        }
+    }
+
+    /// How far apart the cells' planes lie in [`Streamed::row`]'s sums.
+    pub fn stride(&self) -> usize {
+        self.stride
+    }
+
+    /// The sums S of the next row (cell i's plane p at `i·stride + p`) from its scores
+    /// `scores[i·planes + p]` (an NCC, NaN unseen, −∞ unscored; columns left to right).
+    pub fn row(&mut self, scores: &[f32]) -> &[u16] {
+        stream_row(self, scores);
+        &self.sum
+    }
+}
+
+built_per_cpu! {
+    /// One row of [`Streamed`]: the costs, the paths along the row forward and the three
+    /// from the row before, then the path along the row backward. Built per CPU (see `simd`).
+    fn stream_row[](s: &mut Streamed, scores: &[f32]) = stream_row_body;
+}
+
+/// One step of a path on padded planes: the slot `out` (this cell's path costs between a
+/// padding plane either side) from the predecessor's slot `prev` (`m` the minimum of its
+/// costs) and this cell's costs `c`; returns the minimum of the costs written.
+#[inline(always)]
+fn padded_step(c: &[u16], prev: Option<(&[u16], u16)>, p1: u16, p2: u16, out: &mut [u16]) -> u16 {
+    let n = c.len();
+    let out = &mut out[1..n + 1];
+    let Some((prev, m)) = prev else {
+        out.copy_from_slice(c);
+        return c.iter().fold(u16::MAX, |a, &b| a.min(b));
+    };
+    let jump = m.saturating_add(p2);
+    let mut low = u16::MAX;
+    for ((((o, &cc), &here), &below), &above) in out
+        .iter_mut()
+        .zip(c)
+        .zip(&prev[1..n + 1])
+        .zip(&prev[..n])
+        .zip(&prev[2..n + 2])
+    {
+        let v = here
+            .min(below.saturating_add(p1))
+            .min(above.saturating_add(p1))
+            .min(jump);
+        let x = cc.saturating_add(v - m);
+        *o = x;
+        low = low.min(x);
+    }
+    low
+}
+
+#[inline(always)]
+fn stream_row_body(s: &mut Streamed, scores: &[f32]) {
+    let (np, st, cols) = (s.np, s.stride, s.cols);
+    let g = st + 2;
+    let (p1, p2) = (s.p.p1, s.p.p2);
+    if np == 0 || scores.len() != cols * np {
+        return;
+    }
+    for i in 0..cols {
+        for (c, &v) in s.cost[i * st..i * st + np]
+            .iter_mut()
+            .zip(&scores[i * np..(i + 1) * np])
+        {
+            *c = cost_of(v);
+        }
+    }
+    let mut along_min = 0u16;
+    for i in 0..cols {
+        let cc = &s.cost[i * st..(i + 1) * st];
+        along_min = padded_step(
+            cc,
+            (i > 0).then_some((&s.along_prev[..], along_min)),
+            p1,
+            p2,
+            &mut s.along,
+        );
+        std::mem::swap(&mut s.along, &mut s.along_prev);
+        let dst = &mut s.sum[i * st..(i + 1) * st];
+        dst.copy_from_slice(&s.along_prev[1..st + 1]);
+        // From the row before: diagonal behind, straight, diagonal ahead.
+        for (k, di) in [-1i64, 0, 1].into_iter().enumerate() {
+            let pi = i as i64 + di;
+            let prev = (s.started && pi >= 0 && (pi as usize) < cols).then(|| {
+                let pi = pi as usize;
+                (&s.prev[k][pi * g..(pi + 1) * g], s.prev_min[k][pi])
+            });
+            let out = &mut s.cur[k][i * g..(i + 1) * g];
+            s.cur_min[k][i] = padded_step(cc, prev, p1, p2, out);
+            for (d, v) in dst.iter_mut().zip(&out[1..st + 1]) {
+                *d = d.saturating_add(*v);
+            }
+        }
+    }
+    // Along the row backward.
+    for i in (0..cols).rev() {
+        let cc = &s.cost[i * st..(i + 1) * st];
+        along_min = padded_step(
+            cc,
+            (i + 1 < cols).then_some((&s.along_prev[..], along_min)),
+            p1,
+            p2,
+            &mut s.along,
+        );
+        std::mem::swap(&mut s.along, &mut s.along_prev);
+        for (d, v) in s.sum[i * st..(i + 1) * st]
+            .iter_mut()
+            .zip(&s.along_prev[1..st + 1])
+        {
+            *d = d.saturating_add(*v);
+        }
+    }
+    std::mem::swap(&mut s.prev, &mut s.cur);
+    std::mem::swap(&mut s.prev_min, &mut s.cur_min);
+    s.started = true;
 }
 
 /// Bytes [`aggregate`] needs for a volume of `cells` × `planes` (rows `cols` wide), beside the
@@ -235,7 +446,11 @@ mod tests {
         }
         let codes = |v: &[f32]| v.iter().map(|&x| quantise(x)).collect::<Vec<i16>>();
         // Penalties below the evidence's cost difference (384 − 3 for the strong cell).
-        let pen = SgmParams { p1: 24, p2: 128 };
+        let pen = SgmParams {
+            p1: 24,
+            p2: 128,
+            paths: 8,
+        };
         let sum = aggregate(&codes(&v), cols, rows, np, &pen);
         let best = |i: usize, j: usize| {
             let o = (j * cols + i) * np;
@@ -268,6 +483,116 @@ mod tests {
         assert_eq!(dequantise(quantise(f32::NEG_INFINITY)), f32::NEG_INFINITY);
         assert_eq!(dequantise(quantise(7.0)), 1.0);
         assert_eq!(dequantise(quantise(-7.0)), -1.0);
+    }
+
+    /// Random scores with unseen (NaN) and unscored (−∞) planes among them.
+    fn random_scores(n: usize, mut seed: u64) -> Vec<f32> {
+        (0..n)
+            .map(|_| {
+                seed = seed
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                match seed >> 60 {
+                    0 => f32::NAN,
+                    1 => f32::NEG_INFINITY,
+                    _ => ((seed >> 33) as f64 / (1u64 << 31) as f64 * 2.0 - 1.0) as f32,
+                }
+            })
+            .collect()
+    }
+
+    /// The plain recurrence of one path (dx, dy) over a whole volume of costs `c`, in u32.
+    fn one_path(
+        c: &[u32],
+        cols: usize,
+        rows: usize,
+        np: usize,
+        p: &SgmParams,
+        dx: i64,
+        dy: i64,
+    ) -> Vec<u32> {
+        let mut l = vec![0u32; c.len()];
+        let js: Vec<i64> = if dy >= 0 {
+            (0..rows as i64).collect()
+        } else {
+            (0..rows as i64).rev().collect()
+        };
+        let is: Vec<i64> = if dx >= 0 {
+            (0..cols as i64).collect()
+        } else {
+            (0..cols as i64).rev().collect()
+        };
+        for &j in &js {
+            for &i in &is {
+                let o = ((j as usize) * cols + i as usize) * np;
+                let (pi, pj) = (i - dx, j - dy);
+                if pi < 0 || pj < 0 || pi >= cols as i64 || pj >= rows as i64 {
+                    l[o..o + np].copy_from_slice(&c[o..o + np]);
+                    continue;
+                }
+                let q = ((pj as usize) * cols + pi as usize) * np;
+                let m = *l[q..q + np].iter().min().unwrap();
+                for d in 0..np {
+                    let mut best = l[q + d];
+                    if d > 0 {
+                        best = best.min(l[q + d - 1] + p.p1 as u32);
+                    }
+                    if d + 1 < np {
+                        best = best.min(l[q + d + 1] + p.p1 as u32);
+                    }
+                    best = best.min(m + p.p2 as u32);
+                    l[o + d] = c[o + d] + best - m;
+                }
+            }
+        }
+        l
+    }
+
+    /// The plain costs: round((1 − NCC)·256), COST_SCALE where not scored.
+    fn plain_costs(v: &[f32]) -> Vec<u32> {
+        v.iter()
+            .map(|&s| {
+                if s.is_finite() {
+                    ((1.0 - s as f64) * COST_SCALE as f64).round() as u32
+                } else {
+                    COST_SCALE as u32
+                }
+            })
+            .collect()
+    }
+
+    /// The streamed aggregation equals the plain recurrences of its five paths (along the
+    /// row both ways, and from the row before: above-left, above, above-right) run on their
+    /// own over a whole volume, for plane counts below, at and above a vector's lanes.
+    #[test]
+    fn streamed_equals_five_separate_paths() {
+        for (np, seed) in [(5usize, 3u64), (16, 5), (21, 9), (1, 11)] {
+            let (cols, rows) = (9usize, 7usize);
+            let v = random_scores(cols * rows * np, seed);
+            let p = SgmParams::default();
+            let c = plain_costs(&v);
+            let mut want = vec![0u32; c.len()];
+            for (dx, dy) in [(1i64, 0i64), (-1, 0), (1, 1), (0, 1), (-1, 1)] {
+                for (w, x) in want
+                    .iter_mut()
+                    .zip(one_path(&c, cols, rows, np, &p, dx, dy))
+                {
+                    *w += x;
+                }
+            }
+            let mut s = Streamed::new(cols, np, &p);
+            let st = s.stride();
+            assert!(st >= np && st.is_multiple_of(LANES));
+            for j in 0..rows {
+                let sum = s.row(&v[j * cols * np..(j + 1) * cols * np]).to_vec();
+                for i in 0..cols {
+                    for d in 0..np {
+                        let w = want[(j * cols + i) * np + d].min(u16::MAX as u32) as u16;
+                        assert_eq!(sum[i * st + d], w, "np {np}: row {j}, cell {i}, plane {d}");
+                    }
+                }
+            }
+        }
     }
 
     /// The two-sweep aggregation equals a plain one that runs each of the 8 paths on its

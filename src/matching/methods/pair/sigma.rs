@@ -21,7 +21,7 @@
 //! independent (the self-offset is a function of the noise-free texture to first order).
 
 use crate::image::ImageF32;
-use crate::matching::methods::pair::matcher::{match_pair_alone, Filter, PairError, PairParams};
+use crate::matching::methods::pair::matcher::{disparities_alone, Filter, PairError, PairParams};
 
 /// Disparities searched in the photo's match against itself: the winner is 0 or 1, and ±2
 /// keep it off the ends of the range (a winner at an end is refused).
@@ -38,8 +38,9 @@ const PHASES: [f64; 4] = [0.0, 0.25, 0.5, 0.75];
 const LANCZOS_A: i64 = 8;
 
 /// The estimator's error variance (px²) at each pixel of `left` for matching with `p`: the
-/// mean, over the phases and over the pixel's window, of the squared errors that the same
-/// matcher makes on the photo against itself shifted by each phase; NaN where none.
+/// mean over the pixel's window of the squared errors that the same matcher makes on the
+/// photo against itself shifted by each phase (each pixel's mean over its phases first);
+/// NaN where none.
 pub fn estimator_variance(
     left: &ImageF32,
     p: &PairParams,
@@ -61,9 +62,13 @@ pub fn estimator_variance(
     };
     let (w, h) = (left.width, left.height);
     let k = p.window / 2;
+    // Each pixel's squared errors over the phases it was matched at.
     let mut sum = vec![0.0f64; w * h];
     let mut count = vec![0u8; w * h];
-    for phase in PHASES {
+    for (j, phase) in PHASES.into_iter().enumerate() {
+        // Phases 0 and ½ on every other row, ¼ and ¾ on the rows between (with SGM's 5
+        // streamed paths): each (2k + 1)² box below still holds all four, at half the work.
+        let parity = j % 2;
         let shifted;
         let right = if phase == 0.0 {
             left
@@ -71,41 +76,20 @@ pub fn estimator_variance(
             shifted = shift_rows(left, phase);
             &shifted
         };
-        let m = match_pair_alone(
-            left,
-            right,
-            &q,
-            max_memory_mb,
-            &crate::matching::progress::Silent,
-        )?;
-        let sq: Vec<f64> =
-            m.d.iter()
-                .map(|&v| {
-                    if v.is_finite() {
-                        (v as f64 - phase).powi(2)
-                    } else {
-                        f64::NAN
-                    }
-                })
-                .collect();
-        for ((s, c), v) in sum.iter_mut().zip(&mut count).zip(box_mean(&sq, w, h, k)) {
+        let m = disparities_alone(left, right, &q, max_memory_mb, Some(parity))?;
+        for ((s, c), &v) in sum.iter_mut().zip(&mut count).zip(&m.d) {
             if v.is_finite() {
-                *s += v as f64;
+                *s += (v as f64 - phase).powi(2);
                 *c += 1;
             }
         }
     }
-    Ok(sum
+    let mean: Vec<f64> = sum
         .iter()
         .zip(&count)
-        .map(|(&s, &c)| {
-            if c > 0 {
-                (s / c as f64) as f32
-            } else {
-                f32::NAN
-            }
-        })
-        .collect())
+        .map(|(&s, &c)| if c > 0 { s / c as f64 } else { f64::NAN })
+        .collect();
+    Ok(box_mean(&mean, w, h, k))
 }
 
 /// `img` shifted along its rows so that out(x) = img(x + phase): the disparity of `img`
@@ -132,23 +116,28 @@ fn shift_rows(img: &ImageF32, phase: f64) -> ImageF32 {
         })
         .collect();
     let norm: f64 = taps.iter().map(|t| t.1).sum();
+    let weights: Vec<f64> = taps.iter().map(|t| t.1 / norm).collect();
     let mut out = ImageF32::new(w, h);
-    for r in 0..h {
-        let row = &img.data[r * w..(r + 1) * w];
-        for c in 0..w {
-            let mut v = 0.0f64;
-            let mut ok = true;
-            for &(j, wt) in &taps {
-                let x = c as i64 + j;
-                if x < 0 || x >= w as i64 {
-                    ok = false;
-                    break;
-                }
-                v += wt * row[x as usize] as f64;
+    use rayon::prelude::*;
+    // Columns whose taps c − a + 1 … c + a all lie in the row; NaN beyond them, and where a
+    // tap is NaN (the sum is).
+    let (c0, c1) = ((a - 1) as usize, (w as i64 - a).max(0) as usize);
+    out.data
+        .par_chunks_mut(w.max(1))
+        .enumerate()
+        .for_each(|(r, o)| {
+            let row = &img.data[r * w..(r + 1) * w];
+            o.fill(f32::NAN);
+            for c in c0..c1.max(c0) {
+                let src = &row[c + 1 - a as usize..c + 1 + a as usize];
+                let v: f64 = src
+                    .iter()
+                    .zip(&weights)
+                    .map(|(&x, &wt)| wt * x as f64)
+                    .sum();
+                o[c] = v as f32;
             }
-            out.data[r * w + c] = if ok { (v / norm) as f32 } else { f32::NAN };
-        }
-    }
+        });
     out
 }
 
