@@ -291,6 +291,7 @@ built_per_cpu! {
     fn pick_row[](
         raw: &[f32],
         sum: &[u16],
+        place_sum: Option<&[u16]>,
         stride: usize,
         np: usize,
         col0: usize,
@@ -306,6 +307,7 @@ built_per_cpu! {
 fn pick_row_body(
     raw: &[f32],
     sum: &[u16],
+    place_sum: Option<&[u16]>,
     stride: usize,
     np: usize,
     col0: usize,
@@ -336,7 +338,20 @@ fn pick_row_body(
         // The sub-plane peak of the aggregated costs, as Hirschmüller (2008, §2.4) takes it:
         // smoother than the raw correlations' (on the benchmark pair, RMSE 0.17 against
         // 0.24 px for the pixels within 2 px), which give the σ only.
-        pick.offset = win.and_then(|w| w.parabola()).map(|(off, _)| off as f32);
+        pick.offset = match (win, place_sum) {
+            // The place on the paths along the row alone (see `Streamed::row`) where they
+            // peak there.
+            (Some(w), Some(h)) if w.plane > 0 && w.plane + 1 < np => {
+                let o = i * stride + w.plane;
+                let (off, den) = parabola(-(h[o - 1] as f64), -(h[o] as f64), -(h[o + 1] as f64));
+                if den < 0.0 {
+                    Some(off as f32)
+                } else {
+                    w.parabola().map(|(off, _)| off as f32)
+                }
+            }
+            _ => win.and_then(|w| w.parabola()).map(|(off, _)| off as f32),
+        };
         // The chosen scores are −S: the cost is S, from one cost unit.
         pick.unique = win.is_none_or(|w| unique(&cell, w.plane, uniqueness, 1.0, |v| -v));
         picks.push(&pick);
@@ -363,11 +378,19 @@ built_per_cpu! {
     /// `i·stride`), with no threshold, uniqueness or left-right check: what [`pick_row`] and
     /// [`finish_row`] give then, in a fraction of the time (the σ's self-match runs four
     /// times over the photo). Built per CPU (see `simd`).
-    fn self_row[](raw: &[f32], sum: &[u16], stride: usize, np: usize, first: i64, d: &mut [f32]) = self_row_body;
+    fn self_row[](raw: &[f32], sum: &[u16], along: &[u16], stride: usize, np: usize, first: i64, d: &mut [f32]) = self_row_body;
 }
 
 #[inline(always)]
-fn self_row_body(raw: &[f32], sum: &[u16], stride: usize, np: usize, first: i64, d: &mut [f32]) {
+fn self_row_body(
+    raw: &[f32],
+    sum: &[u16],
+    along: &[u16],
+    stride: usize,
+    np: usize,
+    first: i64,
+    d: &mut [f32],
+) {
     let cols = (raw.len() / np.max(1)).min(d.len());
     for (i, out) in d[..cols].iter_mut().enumerate() {
         let (rc, s) = (
@@ -400,7 +423,15 @@ fn self_row_body(raw: &[f32], sum: &[u16], stride: usize, np: usize, first: i64,
             *out = (first as f64 + at as f64) as f32;
             continue;
         }
-        let (agg, den) = parabola(-(s[at - 1] as f64), -(s[at] as f64), -(s[at + 1] as f64));
+        // As pick_row: the place on the paths along the row where they peak, else on S.
+        let h = &along[i * stride..i * stride + np];
+        let (agg_h, den_h) = parabola(-(h[at - 1] as f64), -(h[at] as f64), -(h[at + 1] as f64));
+        let (agg_s, den_s) = parabola(-(s[at - 1] as f64), -(s[at] as f64), -(s[at + 1] as f64));
+        let (agg, den) = if den_h < 0.0 {
+            (agg_h, den_h)
+        } else {
+            (agg_s, den_s)
+        };
         let (lo, hi) = (rc[at - 1], rc[at + 1]);
         let raw_off = if lo.is_finite() && hi.is_finite() {
             parabola(lo as f64, rc[at] as f64, hi as f64).0
@@ -728,15 +759,16 @@ pub fn match_pair_alone(
 }
 
 /// The disparities alone (the correlation and σ NaN): what the σ's self-match needs. With
-/// `every_other = Some(parity)` and SGM's 5 streamed paths, only the rows of that parity
-/// (counted from the first with a full window) are matched, their vertical paths stepping
-/// two rows; the rest NaN.
+/// `rows = Some((j, step))` and SGM's 5 streamed paths, only every `step`-th row from the j-th
+/// with a full window is matched, the paths from the row before stepping `step` rows (the
+/// sub-plane place comes from the paths along the row, which see the row alone); the rest
+/// NaN.
 pub(super) fn disparities_alone(
     left: &ImageF32,
     right: &ImageF32,
     p: &PairParams,
     max_memory_mb: u64,
-    every_other: Option<usize>,
+    rows: Option<(usize, usize)>,
 ) -> Result<DisparityMap, PairError> {
     match_with(
         left,
@@ -745,7 +777,7 @@ pub(super) fn disparities_alone(
         max_memory_mb,
         &crate::matching::progress::Silent,
         false,
-        every_other.filter(|_| p.filter == Filter::Sgm && p.sgm.paths == 5),
+        rows.filter(|_| p.filter == Filter::Sgm && p.sgm.paths == 5),
     )
 }
 
@@ -756,7 +788,7 @@ fn match_with(
     max_memory_mb: u64,
     progress: &dyn crate::matching::progress::Progress,
     full: bool,
-    every_other: Option<usize>,
+    subset: Option<(usize, usize)>,
 ) -> Result<DisparityMap, PairError> {
     check(left, right, p)?;
     let need = bytes_needed(left.width, left.height, right.width, p);
@@ -774,8 +806,8 @@ fn match_with(
     let first = p.d_min;
     let (lp, rp) = rayon::join(|| Prepared::new(left), || Prepared::new(right));
     let cols = w - 2 * k;
-    let rows: Vec<usize> = match every_other {
-        Some(parity) => (k + parity % 2..h - k).step_by(2).collect(),
+    let rows: Vec<usize> = match subset {
+        Some((j, step)) => (k + j % step.max(1)..h - k).step_by(step.max(1)).collect(),
         None => (k..h - k).collect(),
     };
     let band = band_rows(rows.len());
@@ -851,6 +883,7 @@ fn match_with(
                         let (picks, rb) = pick_row(
                             raw,
                             sum,
+                            None,
                             np,
                             np,
                             k,
@@ -1057,7 +1090,7 @@ impl StreamRows<'_, '_> {
     fn finish(&mut self, r: usize) {
         let p = self.x.p;
         let stride = self.agg.stride();
-        let sum = self.agg.row(&self.raw);
+        let (sum, along) = self.agg.row(&self.raw);
         let w = self.x.left.width;
         let o = (r - self.row0) * w..(r - self.row0 + 1) * w;
         if !self.x.full
@@ -1068,13 +1101,14 @@ impl StreamRows<'_, '_> {
         {
             // The σ's self-match: the disparities alone, as the general way gives them.
             let d = &mut self.out.0[o][self.x.k..];
-            self_row(&self.raw, sum, stride, self.np, p.d_min, d);
+            self_row(&self.raw, sum, along, stride, self.np, p.d_min, d);
             self.progress.advance(1);
             return;
         }
         let (picks, rb) = pick_row(
             &self.raw,
             sum,
+            Some(along),
             stride,
             self.np,
             self.x.k,
@@ -1168,6 +1202,21 @@ mod tests {
         };
         let full = match_pair_alone(&l, &r, &p, 4096, &crate::matching::progress::Silent).unwrap();
         let quick = disparities_alone(&l, &r, &p, 4096, None).unwrap();
+        // Every fourth row: the place on the paths along the row is the row's own, so those
+        // rows' disparities are the same wherever the rows before were taken from.
+        let quarter = disparities_alone(&l, &r, &p, 4096, Some((2, 4))).unwrap();
+        let k = p.window / 2;
+        let (mut same, mut n) = (0, 0);
+        for y in (k + 2..40 - k).step_by(4) {
+            for x in 0..60 {
+                let (a, b) = (quick.d[y * 60 + x], quarter.d[y * 60 + x]);
+                if a.is_finite() {
+                    n += 1;
+                    same += usize::from((a - b).abs() < 1e-3);
+                }
+            }
+        }
+        assert!(n > 300 && same * 100 >= n * 95, "{same} of {n} the same");
         assert!(full.stats.matched > 1000, "{:?}", full.stats);
         for (a, b) in full.d.iter().zip(&quick.d) {
             assert!(
@@ -1176,7 +1225,7 @@ mod tests {
             );
         }
         // Every other row: those rows matched, the rest NaN.
-        let half = disparities_alone(&l, &r, &p, 4096, Some(1)).unwrap();
+        let half = disparities_alone(&l, &r, &p, 4096, Some((1, 2))).unwrap();
         let k = p.window / 2;
         for y in k..40 - k {
             let row = &half.d[y * 60..(y + 1) * 60];

@@ -147,6 +147,8 @@ pub struct Streamed {
     started: bool,
     cost: Vec<u16>,
     sum: Vec<u16>,
+    /// The two paths along the row alone (see [`Streamed::row`]).
+    along_sum: Vec<u16>,
 }
 
 impl Streamed {
@@ -168,6 +170,7 @@ impl Streamed {
             started: false,
             cost: vec![PAD; cols * stride],
             sum: vec![PAD; cols * stride],
+            along_sum: vec![PAD; cols * stride],
         }
     }
 
@@ -177,10 +180,15 @@ impl Streamed {
     }
 
     /// The sums S of the next row (cell i's plane p at `i·stride + p`) from its scores
-    /// `scores[i·planes + p]` (an NCC, NaN unseen, −∞ unscored; columns left to right).
-    pub fn row(&mut self, scores: &[f32]) -> &[u16] {
+    /// `scores[i·planes + p]` (an NCC, NaN unseen, −∞ unscored; columns left to right), and
+    /// the sums of the two paths along the row alone. Those two come from both sides, so that
+    /// their pull towards the neighbours' disparities cancels: the sub-plane place is taken
+    /// on them (the three paths from the row before all come from one side, and on a surface
+    /// that slopes down the photo they pull the place one way: on the benchmark pair's roof
+    /// the sub-pixel RMSE was 0.27 px on S against 0.18 px with 8 paths).
+    pub fn row(&mut self, scores: &[f32]) -> (&[u16], &[u16]) {
         stream_row(self, scores);
-        &self.sum
+        (&self.sum, &self.along_sum)
     }
 }
 
@@ -250,6 +258,7 @@ fn stream_row_body(s: &mut Streamed, scores: &[f32]) {
         std::mem::swap(&mut s.along, &mut s.along_prev);
         let dst = &mut s.sum[i * st..(i + 1) * st];
         dst.copy_from_slice(&s.along_prev[1..st + 1]);
+        s.along_sum[i * st..(i + 1) * st].copy_from_slice(&s.along_prev[1..st + 1]);
         // From the row before: diagonal behind, straight, diagonal ahead.
         for (k, di) in [-1i64, 0, 1].into_iter().enumerate() {
             let pi = i as i64 + di;
@@ -275,11 +284,13 @@ fn stream_row_body(s: &mut Streamed, scores: &[f32]) {
             &mut s.along,
         );
         std::mem::swap(&mut s.along, &mut s.along_prev);
-        for (d, v) in s.sum[i * st..(i + 1) * st]
+        for ((d, h), v) in s.sum[i * st..(i + 1) * st]
             .iter_mut()
+            .zip(&mut s.along_sum[i * st..(i + 1) * st])
             .zip(&s.along_prev[1..st + 1])
         {
             *d = d.saturating_add(*v);
+            *h = h.saturating_add(*v);
         }
     }
     std::mem::swap(&mut s.prev, &mut s.cur);
@@ -584,7 +595,7 @@ mod tests {
             let st = s.stride();
             assert!(st >= np && st.is_multiple_of(LANES));
             for j in 0..rows {
-                let sum = s.row(&v[j * cols * np..(j + 1) * cols * np]).to_vec();
+                let sum = s.row(&v[j * cols * np..(j + 1) * cols * np]).0.to_vec();
                 for i in 0..cols {
                     for d in 0..np {
                         let w = want[(j * cols + i) * np + d].min(u16::MAX as u32) as u16;

@@ -66,9 +66,9 @@ pub fn estimator_variance(
     let mut sum = vec![0.0f64; w * h];
     let mut count = vec![0u8; w * h];
     for (j, phase) in PHASES.into_iter().enumerate() {
-        // Phases 0 and ½ on every other row, ¼ and ¾ on the rows between (with SGM's 5
-        // streamed paths): each (2k + 1)² box below still holds all four, at half the work.
-        let parity = j % 2;
+        // With SGM's 5 streamed paths each phase on every fourth row (the place comes from
+        // the paths along the row, which see the row alone): each box below, at least 5
+        // rows tall, holds all four, at a quarter of the work.
         let shifted;
         let right = if phase == 0.0 {
             left
@@ -76,7 +76,7 @@ pub fn estimator_variance(
             shifted = shift_rows(left, phase);
             &shifted
         };
-        let m = disparities_alone(left, right, &q, max_memory_mb, Some(parity))?;
+        let m = disparities_alone(left, right, &q, max_memory_mb, Some((j, PHASES.len())))?;
         for ((s, c), &v) in sum.iter_mut().zip(&mut count).zip(&m.d) {
             if v.is_finite() {
                 *s += (v as f64 - phase).powi(2);
@@ -89,7 +89,9 @@ pub fn estimator_variance(
         .zip(&count)
         .map(|(&s, &c)| if c > 0 { s / c as f64 } else { f64::NAN })
         .collect();
-    Ok(box_mean(&mean, w, h, k))
+    let streamed = q.filter == Filter::Sgm && q.sgm.paths == 5;
+    let ky = if streamed { k.max(PHASES.len() / 2) } else { k };
+    Ok(box_mean(&mean, w, h, k, ky))
 }
 
 /// `img` shifted along its rows so that out(x) = img(x + phase): the disparity of `img`
@@ -141,36 +143,72 @@ fn shift_rows(img: &ImageF32, phase: f64) -> ImageF32 {
     out
 }
 
-/// The mean of the finite values in the (2k + 1)² box around each pixel (clipped at the
-/// photo's edges); NaN where there are none.
-fn box_mean(v: &[f64], w: usize, h: usize, k: usize) -> Vec<f32> {
-    // Summed-area tables of the values and of their count.
-    let mut s = vec![0.0f64; (w + 1) * (h + 1)];
-    let mut n = vec![0u32; (w + 1) * (h + 1)];
-    for r in 0..h {
-        let (mut rs, mut rn) = (0.0, 0u32);
-        for c in 0..w {
-            let x = v[r * w + c];
-            if x.is_finite() {
-                rs += x;
-                rn += 1;
-            }
-            let o = (r + 1) * (w + 1) + c + 1;
-            s[o] = s[o - (w + 1)] + rs;
-            n[o] = n[o - (w + 1)] + rn;
-        }
+/// The mean of the finite values in the (2kx + 1) × (2ky + 1) box around each pixel
+/// (clipped at the photo's edges); NaN where there are none. Separable: each row's sums
+/// along the row, then each column's down the rows, both in f64 and in parallel.
+fn box_mean(v: &[f64], w: usize, h: usize, kx: usize, ky: usize) -> Vec<f32> {
+    use rayon::prelude::*;
+    if w == 0 || h == 0 {
+        return Vec::new();
     }
-    let mut out = vec![f32::NAN; w * h];
-    for r in 0..h {
-        let (r0, r1) = (r.saturating_sub(k), (r + k + 1).min(h));
-        for c in 0..w {
-            let (c0, c1) = (c.saturating_sub(k), (c + k + 1).min(w));
-            let at = |rr: usize, cc: usize| rr * (w + 1) + cc;
-            let cnt = n[at(r1, c1)] + n[at(r0, c0)] - n[at(r0, c1)] - n[at(r1, c0)];
-            if cnt > 0 {
-                let sum = s[at(r1, c1)] + s[at(r0, c0)] - s[at(r0, c1)] - s[at(r1, c0)];
-                out[r * w + c] = (sum.max(0.0) / cnt as f64) as f32;
+    // Along the rows: the box's sum and count of the finite values at each pixel.
+    let mut hs = vec![0.0f64; w * h];
+    let mut hn = vec![0u32; w * h];
+    hs.par_chunks_mut(w)
+        .zip(hn.par_chunks_mut(w))
+        .enumerate()
+        .for_each(|(r, (s, n))| {
+            let row = &v[r * w..(r + 1) * w];
+            // Prefix sums, then the box from two of them.
+            let mut ps = vec![0.0f64; w + 1];
+            let mut pn = vec![0u32; w + 1];
+            for c in 0..w {
+                let x = row[c];
+                let ok = x.is_finite();
+                ps[c + 1] = ps[c] + if ok { x } else { 0.0 };
+                pn[c + 1] = pn[c] + u32::from(ok);
             }
+            for c in 0..w {
+                let (c0, c1) = (c.saturating_sub(kx), (c + kx + 1).min(w));
+                s[c] = ps[c1] - ps[c0];
+                n[c] = pn[c1] - pn[c0];
+            }
+        });
+    // Down the columns, in strips of columns.
+    let mut out = vec![f32::NAN; w * h];
+    const STRIP: usize = 64;
+    let strips: Vec<usize> = (0..w).step_by(STRIP).collect();
+    let cols: Vec<Vec<f32>> = strips
+        .par_iter()
+        .map(|&c0| {
+            let c1 = (c0 + STRIP).min(w);
+            let m = c1 - c0;
+            let mut ps = vec![0.0f64; (h + 1) * m];
+            let mut pn = vec![0u32; (h + 1) * m];
+            for r in 0..h {
+                for j in 0..m {
+                    ps[(r + 1) * m + j] = ps[r * m + j] + hs[r * w + c0 + j];
+                    pn[(r + 1) * m + j] = pn[r * m + j] + hn[r * w + c0 + j];
+                }
+            }
+            let mut o = vec![f32::NAN; h * m];
+            for r in 0..h {
+                let (r0, r1) = (r.saturating_sub(ky), (r + ky + 1).min(h));
+                for j in 0..m {
+                    let cnt = pn[r1 * m + j] - pn[r0 * m + j];
+                    if cnt > 0 {
+                        let sum = ps[r1 * m + j] - ps[r0 * m + j];
+                        o[r * m + j] = (sum.max(0.0) / cnt as f64) as f32;
+                    }
+                }
+            }
+            o
+        })
+        .collect();
+    for (&c0, o) in strips.iter().zip(&cols) {
+        let m = (c0 + STRIP).min(w) - c0;
+        for r in 0..h {
+            out[r * w + c0..r * w + c0 + m].copy_from_slice(&o[r * m..(r + 1) * m]);
         }
     }
     out
@@ -184,10 +222,53 @@ mod tests {
     #[test]
     fn box_mean_of_the_finite_values() {
         let v = [1.0, f64::NAN, 3.0, 5.0];
-        let m = box_mean(&v, 2, 2, 1);
+        let m = box_mean(&v, 2, 2, 1, 1);
         assert!(m.iter().all(|&x| (x - 3.0).abs() < 1e-6), "{m:?}");
-        let m0 = box_mean(&v, 2, 2, 0);
+        let m0 = box_mean(&v, 2, 2, 0, 0);
         assert!(m0[1].is_nan() && m0[3] == 5.0, "{m0:?}");
+    }
+
+    /// The separable box mean is the plain one: each box's finite values summed and
+    /// counted, over photos wider than a strip, boxes wider than tall and taller than wide.
+    #[test]
+    fn box_mean_is_the_plain_mean() {
+        let (w, h) = (150usize, 37usize);
+        let mut seed = 17u64;
+        let v: Vec<f64> = (0..w * h)
+            .map(|_| {
+                seed = seed
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                if seed >> 61 == 0 {
+                    f64::NAN
+                } else {
+                    (seed >> 40) as f64 / (1u64 << 24) as f64
+                }
+            })
+            .collect();
+        for (kx, ky) in [(2, 2), (1, 2), (3, 0), (0, 4)] {
+            let got = box_mean(&v, w, h, kx, ky);
+            for r in 0..h {
+                for c in 0..w {
+                    let (mut s, mut n) = (0.0, 0);
+                    for rr in r.saturating_sub(ky)..(r + ky + 1).min(h) {
+                        for cc in c.saturating_sub(kx)..(c + kx + 1).min(w) {
+                            let x = v[rr * w + cc];
+                            if x.is_finite() {
+                                s += x;
+                                n += 1;
+                            }
+                        }
+                    }
+                    let g = got[r * w + c];
+                    if n == 0 {
+                        assert!(g.is_nan());
+                    } else {
+                        assert!((g as f64 - s / n as f64).abs() < 1e-5, "({c}, {r}): {g}");
+                    }
+                }
+            }
+        }
     }
 
     /// The shift moves a smooth row by the phase: out(x) = img(x + phase).
