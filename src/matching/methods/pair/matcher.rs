@@ -173,7 +173,7 @@ fn band_rows(rows: usize) -> usize {
 }
 
 /// Whether matching keeps a volume of scores (SGM along 8 paths).
-fn keeps_volume(p: &PairParams) -> bool {
+pub(super) fn keeps_volume(p: &PairParams) -> bool {
     p.filter == Filter::Sgm && p.sgm.paths == 8
 }
 
@@ -221,7 +221,7 @@ pub fn bytes_needed(w: usize, h: usize, wr: usize, p: &PairParams) -> f64 {
     images + bands + volume
 }
 
-fn check(left: &ImageF32, right: &ImageF32, p: &PairParams) -> Result<(), PairError> {
+pub(super) fn check(left: &ImageF32, right: &ImageF32, p: &PairParams) -> Result<(), PairError> {
     if left.height != right.height {
         return Err(PairError::Rows {
             left: left.height,

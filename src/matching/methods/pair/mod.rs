@@ -18,7 +18,8 @@ use crate::image::ImageF32;
 
 /// Matches a rectified pair. Each disparity's σ holds the noise's share (from the
 /// correlation's curvature, or least squares' normal matrix) and the sub-pixel estimator's own
-/// error on the left photo's texture ([`sigma`]).
+/// error on the left photo's texture ([`sigma`]). The two run side by side (so that neither's
+/// serial steps leave a core idle), within the memory limit together.
 pub fn match_pair(
     left: &ImageF32,
     right: &ImageF32,
@@ -26,17 +27,32 @@ pub fn match_pair(
     max_memory_mb: u64,
     progress: &dyn crate::matching::progress::Progress,
 ) -> Result<DisparityMap, PairError> {
-    let mut m = match_pair_alone(left, right, p, max_memory_mb, progress)?;
+    matcher::check(left, right, p)?;
+    let q = sigma::self_params(p);
+    let need = matcher::bytes_needed(left.width, left.height, right.width, p)
+        + matcher::bytes_needed(left.width, left.height, left.width, &q);
+    if need > max_memory_mb as f64 * 1048576.0 {
+        return Err(PairError::Memory {
+            need_mib: need / 1048576.0,
+            limit_mib: max_memory_mb,
+            volume: matcher::keeps_volume(p),
+        });
+    }
     let t0 = std::time::Instant::now();
-    progress.begin("σ (the estimator on its own photo)", 1);
-    let var = sigma::estimator_variance(left, p, max_memory_mb)?;
-    progress.end();
+    let (m, var) = rayon::join(
+        || match_pair_alone(left, right, p, max_memory_mb, progress),
+        || {
+            let var = sigma::estimator_variance(left, p, max_memory_mb);
+            (var, t0.elapsed().as_secs_f64())
+        },
+    );
+    let (mut m, (var, seconds_sigma)) = (m?, (var.0?, var.1));
     for (s, &v) in m.sigma.iter_mut().zip(&var) {
         if s.is_finite() && v.is_finite() {
             *s = (*s * *s + v).sqrt();
         }
     }
-    m.stats.seconds_sigma = t0.elapsed().as_secs_f64();
-    m.stats.seconds_total += m.stats.seconds_sigma;
+    m.stats.seconds_sigma = seconds_sigma;
+    m.stats.seconds_total = t0.elapsed().as_secs_f64();
     Ok(m)
 }

@@ -46,20 +46,7 @@ pub fn estimator_variance(
     p: &PairParams,
     max_memory_mb: u64,
 ) -> Result<Vec<f32>, PairError> {
-    let q = PairParams {
-        d_min: -SELF_RANGE,
-        d_max: SELF_RANGE,
-        // Every pixel kept: the checks would remove nothing true, only time.
-        threshold: -1.0,
-        filter: if p.filter == Filter::Sgm {
-            Filter::Sgm
-        } else {
-            Filter::None
-        },
-        lr_tolerance: None,
-        uniqueness: 0.0,
-        ..p.clone()
-    };
+    let q = self_params(p);
     let (w, h) = (left.width, left.height);
     let k = p.window / 2;
     // Each pixel's squared errors over the phases it was matched at.
@@ -92,6 +79,24 @@ pub fn estimator_variance(
     let streamed = q.filter == Filter::Sgm && q.sgm.paths == 5;
     let ky = if streamed { k.max(PHASES.len() / 2) } else { k };
     Ok(box_mean(&mean, w, h, k, ky))
+}
+
+/// The self-match's parameters for a match with `p`.
+pub(super) fn self_params(p: &PairParams) -> PairParams {
+    PairParams {
+        d_min: -SELF_RANGE,
+        d_max: SELF_RANGE,
+        // Every pixel kept: the checks would remove nothing true, only time.
+        threshold: -1.0,
+        filter: if p.filter == Filter::Sgm {
+            Filter::Sgm
+        } else {
+            Filter::None
+        },
+        lr_tolerance: None,
+        uniqueness: 0.0,
+        ..p.clone()
+    }
 }
 
 /// `img` shifted along its rows so that out(x) = img(x + phase): the disparity of `img`
