@@ -371,6 +371,22 @@ impl<F: FnMut(usize, usize, &[f32])> CellSink for F {
     }
 }
 
+/// The planes p_lo..=p_hi of reference column c that meet the right photo (`wr` wide) by
+/// column x = c − first − p (0 ≤ x ≤ wr − 1), and the reversed index wr − 1 − x of plane
+/// p_lo; None where none does.
+#[inline(always)]
+fn span_in_right(c: usize, first: i64, wr: usize, np: usize) -> Option<(usize, usize, usize)> {
+    let x0 = c as i64 - first;
+    let p_lo = (x0 - (wr as i64 - 1)).max(0);
+    let p_hi = x0.min(np as i64 - 1);
+    if p_lo > p_hi {
+        return None;
+    }
+    // In i64 first: wr − 1 − x0 is negative where x0 lies beyond the right photo.
+    let i0 = (wr as i64 - 1 - x0 + p_lo) as usize;
+    Some((p_lo as usize, p_hi as usize, i0))
+}
+
 built_per_cpu! {
     /// Disparities: the search window of plane p is the right photo's window moved by a whole
     /// pixel, so Σw and 1/√var(w) are the right photo's own, per column; only Σl·w is summed per
@@ -442,15 +458,9 @@ fn shifts_body<F: CellSink>(
                 let lrow_in = &left.img.data[ra * wl..(ra + 1) * wl];
                 for c in 0..wl {
                     let (lo, li) = (-lrow_out[c], lrow_in[c]);
-                    // As below, for both rows.
-                    let x0 = c as i64 - first;
-                    let p_lo = (x0 - (wr as i64 - 1)).max(0);
-                    let p_hi = x0.min(np as i64 - 1);
-                    if p_lo > p_hi {
+                    let Some((p_lo, p_hi, i0)) = span_in_right(c, first, wr, np) else {
                         continue;
-                    }
-                    let (p_lo, p_hi) = (p_lo as usize, p_hi as usize);
-                    let i0 = (wr as i64 - 1 - x0 + p_lo as i64) as usize;
+                    };
                     let d = &mut vlw[c * np + p_lo..c * np + p_hi + 1];
                     let so = &rrow[i0..i0 + d.len()];
                     let si = &rrow_in[i0..i0 + d.len()];
@@ -471,17 +481,9 @@ fn shifts_body<F: CellSink>(
                 let lrow = &left.img.data[rr * wl..(rr + 1) * wl];
                 for c in 0..wl {
                     let l = sign * lrow[c];
-                    // Right column x = c − first − p, reversed index wr − 1 − x; valid p:
-                    // 0 ≤ x ≤ wr − 1.
-                    let x0 = c as i64 - first;
-                    let p_lo = (x0 - (wr as i64 - 1)).max(0);
-                    let p_hi = x0.min(np as i64 - 1);
-                    if p_lo > p_hi {
+                    let Some((p_lo, p_hi, i0)) = span_in_right(c, first, wr, np) else {
                         continue;
-                    }
-                    let (p_lo, p_hi) = (p_lo as usize, p_hi as usize);
-                    // In i64 first: wr − 1 − x0 is negative where x0 lies beyond the right photo.
-                    let i0 = (wr as i64 - 1 - x0 + p_lo as i64) as usize;
+                    };
                     let d = &mut vlw[c * np + p_lo..c * np + p_hi + 1];
                     let s = &rrow[i0..i0 + d.len()];
                     for (d, s) in d.iter_mut().zip(s) {

@@ -613,34 +613,12 @@ mod tests {
     #[test]
     fn equals_eight_separate_paths() {
         let (cols, rows, np) = (7usize, 6usize, 5usize);
-        let mut seed = 7u64;
-        let v: Vec<f32> = (0..cols * rows * np)
-            .map(|_| {
-                seed = seed
-                    .wrapping_mul(6364136223846793005)
-                    .wrapping_add(1442695040888963407);
-                match seed >> 60 {
-                    0 => f32::NAN,
-                    1 => f32::NEG_INFINITY,
-                    _ => ((seed >> 33) as f64 / (1u64 << 31) as f64 * 2.0 - 1.0) as f32,
-                }
-            })
-            .collect();
+        let v = random_scores(cols * rows * np, 7);
         let q: Vec<i16> = v.iter().map(|&x| quantise(x)).collect();
         let p = SgmParams::default();
         let got = aggregate(&q, cols, rows, np, &p);
-        // The costs the plain way: round((1 − NCC)·256), COST_SCALE where not scored.
-        let c: Vec<u32> = q
-            .iter()
-            .map(|&x| {
-                let s = dequantise(x);
-                if s.is_finite() {
-                    ((1.0 - s as f64) * COST_SCALE as f64).round() as u32
-                } else {
-                    COST_SCALE as u32
-                }
-            })
-            .collect();
+        // The costs the plain way, of the scores the codes stand for.
+        let c = plain_costs(&q.iter().map(|&x| dequantise(x)).collect::<Vec<f32>>());
         let mut want = vec![0u32; c.len()];
         for (dx, dy) in [
             (1i64, 0i64),
@@ -652,41 +630,10 @@ mod tests {
             (1, -1),
             (-1, 1),
         ] {
-            let mut l = vec![0u32; c.len()];
-            let js: Vec<i64> = if dy >= 0 {
-                (0..rows as i64).collect()
-            } else {
-                (0..rows as i64).rev().collect()
-            };
-            let is: Vec<i64> = if dx >= 0 {
-                (0..cols as i64).collect()
-            } else {
-                (0..cols as i64).rev().collect()
-            };
-            for &j in &js {
-                for &i in &is {
-                    let o = ((j as usize) * cols + i as usize) * np;
-                    let (pi, pj) = (i - dx, j - dy);
-                    if pi < 0 || pj < 0 || pi >= cols as i64 || pj >= rows as i64 {
-                        l[o..o + np].copy_from_slice(&c[o..o + np]);
-                        continue;
-                    }
-                    let q = ((pj as usize) * cols + pi as usize) * np;
-                    let m = *l[q..q + np].iter().min().unwrap();
-                    for d in 0..np {
-                        let mut best = l[q + d];
-                        if d > 0 {
-                            best = best.min(l[q + d - 1] + p.p1 as u32);
-                        }
-                        if d + 1 < np {
-                            best = best.min(l[q + d + 1] + p.p1 as u32);
-                        }
-                        best = best.min(m + p.p2 as u32);
-                        l[o + d] = c[o + d] + best - m;
-                    }
-                }
-            }
-            for (w, x) in want.iter_mut().zip(&l) {
+            for (w, x) in want
+                .iter_mut()
+                .zip(one_path(&c, cols, rows, np, &p, dx, dy))
+            {
                 *w += x;
             }
         }
