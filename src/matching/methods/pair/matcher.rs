@@ -173,8 +173,29 @@ fn band_rows(rows: usize) -> usize {
 }
 
 /// Whether matching keeps a volume of scores (SGM along 8 paths).
-pub(super) fn keeps_volume(p: &PairParams) -> bool {
+fn keeps_volume(p: &PairParams) -> bool {
     p.filter == Filter::Sgm && p.sgm.paths == 8
+}
+
+/// Whether matching streams the rows (SGM along 5 paths).
+pub(super) fn streams(p: &PairParams) -> bool {
+    p.filter == Filter::Sgm && p.sgm.paths == 5
+}
+
+/// Refuses `need` bytes above the limit, with what a match with `p` could do about it.
+pub(super) fn within_memory(
+    need: f64,
+    max_memory_mb: u64,
+    p: &PairParams,
+) -> Result<(), PairError> {
+    if need > max_memory_mb as f64 * 1048576.0 {
+        return Err(PairError::Memory {
+            need_mib: need / 1048576.0,
+            limit_mib: max_memory_mb,
+            volume: keeps_volume(p),
+        });
+    }
+    Ok(())
 }
 
 /// Bytes that matching `left` against `right` holds at once: the photos (as read, and
@@ -338,20 +359,13 @@ fn pick_row_body(
         // The sub-plane peak of the aggregated costs, as Hirschmüller (2008, §2.4) takes it:
         // smoother than the raw correlations' (on the benchmark pair, RMSE 0.17 against
         // 0.24 px for the pixels within 2 px), which give the σ only.
-        pick.offset = match (win, place_sum) {
-            // The place on the paths along the row alone (see `Streamed::row`) where they
-            // peak there.
-            (Some(w), Some(h)) if w.plane > 0 && w.plane + 1 < np => {
-                let o = i * stride + w.plane;
-                let (off, den) = parabola(-(h[o - 1] as f64), -(h[o] as f64), -(h[o + 1] as f64));
-                if den < 0.0 {
-                    Some(off as f32)
-                } else {
-                    w.parabola().map(|(off, _)| off as f32)
-                }
-            }
-            _ => win.and_then(|w| w.parabola()).map(|(off, _)| off as f32),
-        };
+        pick.offset = win.and_then(|w| {
+            aggregated_place(
+                s,
+                place_sum.map(|h| &h[i * stride..i * stride + np]),
+                w.plane,
+            )
+        });
         // The chosen scores are −S: the cost is S, from one cost unit.
         pick.unique = win.is_none_or(|w| unique(&cell, w.plane, uniqueness, 1.0, |v| -v));
         picks.push(&pick);
@@ -370,6 +384,22 @@ fn pick_row_body(
     let mut out = vec![u32::MAX; if lr { wr } else { 0 }];
     rb.write(&mut out);
     (picks, out)
+}
+
+/// The sub-plane place of the winner `at` on the aggregated costs `sum` (its cell's planes):
+/// on the paths along the row, `along`, where they peak there (see `Streamed::row`), else on
+/// the sum, as Hirschmüller (2008, §2.4) takes it; None at an end of the range or where
+/// neither peaks.
+#[inline(always)]
+fn aggregated_place(sum: &[u16], along: Option<&[u16]>, at: usize) -> Option<f32> {
+    if at == 0 || at + 1 >= sum.len() {
+        return None;
+    }
+    let peak = |c: &[u16]| {
+        let (off, den) = parabola(-(c[at - 1] as f64), -(c[at] as f64), -(c[at + 1] as f64));
+        (den < 0.0).then_some(off as f32)
+    };
+    along.and_then(peak).or_else(|| peak(sum))
 }
 
 built_per_cpu! {
@@ -423,29 +453,16 @@ fn self_row_body(
             *out = (first as f64 + at as f64) as f32;
             continue;
         }
-        // As pick_row: the place on the paths along the row where they peak, else on S.
-        let h = &along[i * stride..i * stride + np];
-        let (agg_h, den_h) = parabola(-(h[at - 1] as f64), -(h[at] as f64), -(h[at + 1] as f64));
-        let (agg_s, den_s) = parabola(-(s[at - 1] as f64), -(s[at] as f64), -(s[at + 1] as f64));
-        let (agg, den) = if den_h < 0.0 {
-            (agg_h, den_h)
-        } else {
-            (agg_s, den_s)
-        };
-        let (lo, hi) = (rc[at - 1], rc[at + 1]);
-        let raw_off = if lo.is_finite() && hi.is_finite() {
-            parabola(lo as f64, rc[at] as f64, hi as f64).0
-        } else {
-            f64::NAN
-        };
-        // The aggregated costs' place is kept in f32 the general way (RowPicks::offset).
-        let off = if den < 0.0 {
-            agg as f32 as f64
-        } else if !raw_off.is_nan() {
-            raw_off
-        } else {
-            0.0
-        };
+        // As pick_row and finish_row: the aggregated costs' place, else the raw
+        // correlations' (finite neighbours only, as a pick keeps them), else 0.
+        let own = aggregated_place(s, Some(&along[i * stride..i * stride + np]), at);
+        let finite = |v: f32| if v.is_finite() { v } else { f32::NAN };
+        let (off, _) = place(
+            finite(rc[at - 1]),
+            rc[at] as f64,
+            finite(rc[at + 1]),
+            own.unwrap_or(f32::NAN),
+        );
         *out = (first as f64 + at as f64 + off) as f32;
     }
 }
@@ -777,7 +794,7 @@ pub(super) fn disparities_alone(
         max_memory_mb,
         &crate::matching::progress::Silent,
         false,
-        rows.filter(|_| p.filter == Filter::Sgm && p.sgm.paths == 5),
+        rows.filter(|_| streams(p)),
     )
 }
 
@@ -791,14 +808,11 @@ fn match_with(
     subset: Option<(usize, usize)>,
 ) -> Result<DisparityMap, PairError> {
     check(left, right, p)?;
-    let need = bytes_needed(left.width, left.height, right.width, p);
-    if need > max_memory_mb as f64 * 1048576.0 {
-        return Err(PairError::Memory {
-            need_mib: need / 1048576.0,
-            limit_mib: max_memory_mb,
-            volume: keeps_volume(p),
-        });
-    }
+    within_memory(
+        bytes_needed(left.width, left.height, right.width, p),
+        max_memory_mb,
+        p,
+    )?;
     let t0 = std::time::Instant::now();
     let (w, h) = (left.width, left.height);
     let k = p.window / 2;
@@ -843,7 +857,7 @@ fn match_with(
         &mut sigma[k * w..(h - k) * w],
     );
     let counts: PairStats = match p.filter {
-        Filter::Sgm if p.sgm.paths == 5 => {
+        Filter::Sgm if streams(p) => {
             progress.begin("match (rows)", rows.len() as u64);
             let st = match_streamed(&x, &lp, &rp, &rows, (dm, cm, sm), progress);
             progress.end();
@@ -1051,6 +1065,11 @@ fn stream_half(
         np,
         rows: Vec::new(),
         row0,
+        quick: !x.full
+            && x.p.subpixel == Subpixel::Parabola
+            && x.p.lr_tolerance.is_none()
+            && x.p.uniqueness <= 0.0
+            && x.p.threshold <= -1.0,
         out,
         stats: PairStats::default(),
         progress,
@@ -1081,6 +1100,9 @@ struct StreamRows<'a, 'o> {
     rows: Vec<usize>,
     /// The pixel row of the outputs' first row.
     row0: usize,
+    /// Disparities alone with no check that would take one away (the σ's self-match):
+    /// [`self_row`] gives them, not [`pick_row`] and [`row_matches`].
+    quick: bool,
     out: (&'o mut [f32], &'o mut [f32], &'o mut [f32]),
     stats: PairStats,
     progress: &'a dyn crate::matching::progress::Progress,
@@ -1093,12 +1115,7 @@ impl StreamRows<'_, '_> {
         let (sum, along) = self.agg.row(&self.raw);
         let w = self.x.left.width;
         let o = (r - self.row0) * w..(r - self.row0 + 1) * w;
-        if !self.x.full
-            && p.subpixel == Subpixel::Parabola
-            && p.lr_tolerance.is_none()
-            && p.uniqueness <= 0.0
-            && p.threshold <= -1.0
-        {
+        if self.quick {
             // The σ's self-match: the disparities alone, as the general way gives them.
             let d = &mut self.out.0[o][self.x.k..];
             self_row(&self.raw, sum, along, stride, self.np, p.d_min, d);

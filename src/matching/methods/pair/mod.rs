@@ -31,22 +31,16 @@ pub fn match_pair(
     let q = sigma::self_params(p);
     let need = matcher::bytes_needed(left.width, left.height, right.width, p)
         + matcher::bytes_needed(left.width, left.height, left.width, &q);
-    if need > max_memory_mb as f64 * 1048576.0 {
-        return Err(PairError::Memory {
-            need_mib: need / 1048576.0,
-            limit_mib: max_memory_mb,
-            volume: matcher::keeps_volume(p),
-        });
-    }
+    matcher::within_memory(need, max_memory_mb, p)?;
     let t0 = std::time::Instant::now();
-    let (m, var) = rayon::join(
+    let (m, (var, seconds_sigma)) = rayon::join(
         || match_pair_alone(left, right, p, max_memory_mb, progress),
         || {
             let var = sigma::estimator_variance(left, p, max_memory_mb);
             (var, t0.elapsed().as_secs_f64())
         },
     );
-    let (mut m, (var, seconds_sigma)) = (m?, (var.0?, var.1));
+    let (mut m, var) = (m?, var?);
     for (s, &v) in m.sigma.iter_mut().zip(&var) {
         if s.is_finite() && v.is_finite() {
             *s = (*s * *s + v).sqrt();

@@ -130,7 +130,7 @@ pub fn write_all(
             "standard deviation of the disparity (px)",
         ),
     ];
-    // Compressed side by side (Deflate is most of the writing); the first failure reported.
+    // Written side by side (each file is synced to the disk); the first failure reported.
     let (tiffs, png) = rayon::join(
         || {
             bands

@@ -21,7 +21,9 @@
 //! independent (the self-offset is a function of the noise-free texture to first order).
 
 use crate::image::ImageF32;
-use crate::matching::methods::pair::matcher::{disparities_alone, Filter, PairError, PairParams};
+use crate::matching::methods::pair::matcher::{
+    disparities_alone, streams, Filter, PairError, PairParams,
+};
 
 /// Disparities searched in the photo's match against itself: the winner is 0 or 1, and ±2
 /// keep it off the ends of the range (a winner at an end is refused).
@@ -76,8 +78,11 @@ pub fn estimator_variance(
         .zip(&count)
         .map(|(&s, &c)| if c > 0 { s / c as f64 } else { f64::NAN })
         .collect();
-    let streamed = q.filter == Filter::Sgm && q.sgm.paths == 5;
-    let ky = if streamed { k.max(PHASES.len() / 2) } else { k };
+    let ky = if streams(&q) {
+        k.max(PHASES.len() / 2)
+    } else {
+        k
+    };
     Ok(box_mean(&mean, w, h, k, ky))
 }
 
